@@ -1,0 +1,104 @@
+"""Referencing-plate definition: ChArUco target, three reflector nests, SMR offset.
+
+PCS (``ref``) is the OpenCV board frame: origin at the board's first chessboard
+corner, x along columns, y along rows, z *into* the plate; the target surface is
+z = 0. Nest seat points ``ref_P_nst`` lie on (or parallel to) the surface; the
+mounted SMR centre is ``ref_P_smr = ref_P_nst − (0, 0, δ)`` (paper, eq. for
+ref_P_smr): δ > 0 is the SMR centre's height above the seat, and z points down.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+NEST_NAMES = ("red", "green", "blue")
+PLATE_SCHEMA = 1
+
+
+@dataclass
+class Plate:
+    """What the calibration knows about one physical referencing plate."""
+
+    plate_id: str
+    board_cols: int
+    board_rows: int
+    square_mm: float
+    marker_mm: float
+    aruco_dict: str
+    nests_ref_nst: dict[str, list[float]]  # seat points in PCS, mm
+    smr_offset_mm: float  # delta_smr,nst
+    notes: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    # ------------------------------------------------------------------ geometry
+
+    def ref_P_smr(self) -> np.ndarray:
+        """SMR centres in PCS, rows in the order red, green, blue (3x3)."""
+        P = np.array([self.nests_ref_nst[n] for n in NEST_NAMES], dtype=float)
+        P[:, 2] -= self.smr_offset_mm
+        return P
+
+    def board_size_mm(self) -> tuple[float, float]:
+        return self.board_cols * self.square_mm, self.board_rows * self.square_mm
+
+    # ------------------------------------------------------------------ checks
+
+    def validate(self) -> None:
+        """Raise ValueError naming the bad field."""
+        if self.board_cols < 3 or self.board_rows < 3:
+            raise ValueError(f"plate {self.plate_id!r}: board {self.board_cols}x{self.board_rows} is too small")
+        if not 0 < self.marker_mm < self.square_mm:
+            raise ValueError(f"plate {self.plate_id!r}: marker_mm={self.marker_mm} must be in (0, square_mm="
+                             f"{self.square_mm})")
+        if not 0.1 <= self.square_mm <= 100:
+            raise ValueError(f"plate {self.plate_id!r}: square_mm={self.square_mm} is not a sensible size")
+        missing = [n for n in NEST_NAMES if n not in self.nests_ref_nst]
+        if missing or len(self.nests_ref_nst) != 3:
+            raise ValueError(f"plate {self.plate_id!r}: nests must be exactly {NEST_NAMES}, "
+                             f"got {sorted(self.nests_ref_nst)}")
+        for n, p in self.nests_ref_nst.items():
+            if len(p) != 3 or not all(np.isfinite(p)):
+                raise ValueError(f"plate {self.plate_id!r}: nest {n!r} must be 3 finite numbers, got {p}")
+        if not 0 <= self.smr_offset_mm <= 100:
+            raise ValueError(f"plate {self.plate_id!r}: smr_offset_mm={self.smr_offset_mm} out of range 0..100")
+        P = self.ref_P_smr()
+        sides = [np.linalg.norm(P[i] - P[j]) for i, j in ((0, 1), (1, 2), (2, 0))]
+        if min(sides) < 50.0:
+            raise ValueError(f"plate {self.plate_id!r}: nests only {min(sides):.1f} mm apart (need >= 50)")
+        area2 = np.linalg.norm(np.cross(P[1] - P[0], P[2] - P[0]))
+        # height of the triangle over its longest side: near zero means collinear nests
+        if area2 / max(sides) < 0.1 * max(sides):
+            raise ValueError(f"plate {self.plate_id!r}: nests are (nearly) collinear "
+                             f"(triangle height {area2 / max(sides):.1f} mm over a {max(sides):.1f} mm side)")
+
+    # ------------------------------------------------------------------ files
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"schema": PLATE_SCHEMA, **asdict(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "plate") -> "Plate":
+        d = dict(d)
+        schema = d.pop("schema", PLATE_SCHEMA)
+        if schema != PLATE_SCHEMA:
+            raise ValueError(f"{source}: plate schema {schema} is not supported (expected {PLATE_SCHEMA})")
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ValueError(f"{source}: {exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        from daemon.storage import atomic_write_text  # local import: calibration stays pure
+
+        atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Plate":
+        return cls.from_dict(json.loads(Path(path).read_text()), source=str(path))

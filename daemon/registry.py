@@ -1,0 +1,93 @@
+"""URL scheme → adapter class registry, imported lazily.
+
+The config names each device by URL; the scheme picks the adapter class, which is
+imported only when it is used, so a robot without a camera SDK still starts and the
+operator's laptop never imports OpenCV or harvesters. Third parties can add schemes
+through the ``rita.adapters`` entry-point group (name ``kind.scheme``, value
+``module:Class``).
+"""
+from __future__ import annotations
+
+import importlib
+from importlib.metadata import entry_points
+from typing import Any
+
+from drivers.base import Device, DeviceURL, Emit
+
+#: kind -> scheme -> "module:Class"
+ADAPTERS: dict[str, dict[str, str]] = {
+    "camera": {
+        "genicam": "drivers.genicam:GenICamCamera",
+        "sim": "fakes.camera:SimCamera",
+    },
+    "tracker": {
+        "emscon": "drivers.emscon.adapter:EmsconTracker",
+        "sim": "fakes.tracker:SimTracker",
+    },
+    "robot": {
+        "serial": "drivers.robot:SerialRobot",
+        "socket": "drivers.robot:SerialRobot",
+        "loop": "drivers.robot:SerialRobot",
+        "rfc2217": "drivers.robot:SerialRobot",
+        "sim": "fakes.robot:SimRobot",
+    },
+}
+
+#: top-level module -> what to install when it is missing
+INSTALL_HINTS = {
+    "harvesters": "pip install harvesters genicam",
+    "genicam": "pip install genicam",
+    "cv2": "pip install opencv-python-headless",
+    "serial": "pip install pyserial",
+    "numpy": "pip install numpy",
+}
+
+
+class AdapterError(Exception):
+    """The URL names no known adapter, or the adapter's dependencies are missing."""
+
+
+def _entry_point_adapters() -> dict[str, dict[str, str]]:
+    extra: dict[str, dict[str, str]] = {}
+    for ep in entry_points(group="rita.adapters"):
+        kind, _, scheme = ep.name.partition(".")
+        extra.setdefault(kind, {})[scheme] = ep.value
+    return extra
+
+
+def schemes(kind: str) -> dict[str, str]:
+    table = dict(ADAPTERS.get(kind, {}))
+    table.update(_entry_point_adapters().get(kind, {}))
+    return table
+
+
+def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
+    """Resolve ``url`` to an adapter class for device ``kind``."""
+    table = schemes(kind)
+    if not table:
+        raise AdapterError(f"unknown device kind {kind!r} (known: {', '.join(sorted(ADAPTERS))})")
+    target = table.get(url.scheme)
+    if target is None:
+        raise AdapterError(
+            f"{kind} URL {url.raw!r}: unknown scheme {url.scheme!r} (known: {', '.join(sorted(table))})")
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        top = (exc.name or "").split(".")[0]
+        hint = INSTALL_HINTS.get(top)
+        if hint is None:
+            raise
+        raise AdapterError(
+            f"{kind} URL {url.raw!r} needs the Python package {top!r}, which is not installed: {hint}"
+        ) from exc
+    cls = getattr(module, class_name)
+    if not (isinstance(cls, type) and issubclass(cls, Device)):
+        raise AdapterError(f"{target} is not a Device adapter")
+    return cls
+
+
+def open_device(kind: str, url: str, *, emit: Emit, world: Any = None, settings: Any = None) -> Device:
+    """Construct (not open) the adapter for ``url``."""
+    parsed = DeviceURL.parse(url)
+    return adapter_class(kind, parsed)(parsed, emit=emit, world=world, settings=settings)

@@ -1,0 +1,121 @@
+"""Crash-safe files and dataset folders.
+
+Every file is written to a temporary name in the same directory, flushed, fsynced
+and renamed over the target, then the directory is fsynced: after a crash a reader
+sees the old file or the new one, never half of one. A dataset is a folder with a
+``dataset.json`` manifest plus one entry per capture (lossless PNG/TIFF image and a
+JSON sidecar that a person can read without this project); see docs/datasets.md.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+DATASET_SCHEMA = 1
+_SAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # e.g. Windows: directories cannot be opened
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: Path, data: bytes | memoryview) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file + fsync + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    _fsync_dir(path.parent)
+    return path
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: Path, obj: Any) -> Path:
+    return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if hasattr(o, "item"):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def safe_name(text: str) -> str:
+    """A file-name-safe version of ``text``."""
+    return _SAFE.sub("-", text).strip("-") or "x"
+
+
+def encode_image(pixels: Any, fmt: str = ".png") -> bytes:
+    """Lossless PNG/TIFF bytes for an 8/16-bit mono or colour image (OpenCV, imported lazily)."""
+    import cv2  # noqa: PLC0415 - keeps ritactl free of OpenCV
+
+    ok, buf = cv2.imencode(fmt, pixels)
+    if not ok:
+        raise ValueError(f"could not encode a {getattr(pixels, 'shape', '?')} image as {fmt}")
+    return buf.tobytes()
+
+
+class Dataset:
+    """A self-describing folder of captures; see docs/datasets.md."""
+
+    def __init__(self, root: Path, kind: str = "captures", meta: dict[str, Any] | None = None) -> None:
+        self.root = Path(root)
+        self.manifest_path = self.root / "dataset.json"
+        if self.manifest_path.exists():
+            self.manifest = json.loads(self.manifest_path.read_text())
+        else:
+            self.manifest = {"schema": DATASET_SCHEMA, "kind": kind, "created_ns": time.time_ns(),
+                             "meta": meta or {}, "entries": []}
+            atomic_write_json(self.manifest_path, self.manifest)
+
+    @classmethod
+    def create(cls, parent: Path, kind: str, meta: dict[str, Any] | None = None) -> "Dataset":
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+        root = Path(parent) / f"{stamp}-{safe_name(kind)}"
+        n = 1
+        while root.exists():
+            n += 1
+            root = Path(parent) / f"{stamp}-{safe_name(kind)}-{n}"
+        return cls(root, kind, meta)
+
+    def add_entry(self, name: str, meta: dict[str, Any], image: Any = None, image_format: str = ".png") -> Path:
+        """Store one capture: image file (if any) + JSON sidecar; update the manifest last."""
+        name = safe_name(name)
+        entry: dict[str, Any] = {"name": name, "json": f"{name}.json"}
+        if image is not None:
+            img_name = f"{name}{image_format}"
+            atomic_write_bytes(self.root / img_name, encode_image(image, image_format))
+            entry["image"] = img_name
+            meta = {**meta, "image_file": img_name}
+        atomic_write_json(self.root / entry["json"], meta)
+        self.manifest["entries"].append(entry)
+        atomic_write_json(self.manifest_path, self.manifest)
+        return self.root / entry["json"]
