@@ -1,0 +1,444 @@
+"""GenICam camera adapter over harvesters (LUCID Phoenix PHX122S through GenTL_LUCID.cti).
+
+URL: ``genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=223600123``.
+The path is the GenTL producer (.cti); the device is chosen by ``serial=``, by
+``name=`` (the user-defined name, DeviceUserID) or, as a last resort, by
+``index=`` into the producer's device list; with none of them the producer must
+offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
+4) and ``timeout`` (seconds without a frame while streaming before the camera is
+declared lost, default 3; at least three frame periods are always allowed).
+
+Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`.
+``trigger()`` fires TriggerSoftware (after TriggerArmed where the device has it);
+on a device without software triggers it takes the next free-run frame instead
+and says so in ``status()["warnings"]``. ``start_stream()`` switches to free run
+and ``pump()`` emits ``camera.frame``. A missing device at ``open()`` and every
+transport failure raise :class:`DeviceLost`, so the daemon's reconnect loop
+retries; an ambiguous selection or bad settings raise :class:`DeviceError`.
+
+harvesters allows one Harvester per producer per process and ``update()``
+destroys live acquirers, so each adapter owns its Harvester and ``close()``
+resets it. Everything runs on the caller's (the daemon runner's) thread:
+``start(run_as_thread=True)`` would race our fetches.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from genicam import gentl
+from harvesters.core import Callback, Harvester, ImageAcquirer
+
+from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
+                          DeviceURL, Emit, Frame, _no_emit)
+from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, set_trigger_mode
+
+log = logging.getLogger(__name__)
+
+OPTIONS = ("serial", "name", "index", "num_buffers", "timeout")
+_OPEN_STATUSES = (5, 6)  # DEVICE_ACCESS_STATUS_OPEN_READWRITE / _OPEN_READONLY
+_STATUS_POLL_S = 1.0
+
+
+class _Counter(Callback):
+    """harvesters callback counting INCOMPLETE_BUFFER events."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def emit(self, context: Any = None) -> None:
+        self.count += 1
+
+
+def describe(info: dict[str, Any]) -> str:
+    """One device of the producer's list, as shown in selection errors."""
+    return (f"serial={info.get('serial_number')!r} model={info.get('model')!r} "
+            f"name={info.get('user_defined_name')!r} id={info.get('id_')!r}")
+
+
+def select_device(infos: list[dict[str, Any]], serial: str | None, name: str | None,
+                  index: int | None) -> int:
+    """Index of the one device matching the selection (property dicts filtered here)."""
+    found = "; ".join(describe(i) for i in infos) or "none"
+    if index is not None:
+        if not 0 <= index < len(infos):
+            raise DeviceLost(f"camera index={index} does not exist ({len(infos)} found: {found})",
+                             code="no_device")
+        return index
+    if serial is None and name is None:
+        if len(infos) == 1:
+            return 0
+        if not infos:
+            raise DeviceLost("the GenTL producer found no camera", code="no_device")
+        raise DeviceError(f"{len(infos)} cameras found; choose one with serial= or name= ({found})",
+                          code="ambiguous_device")
+    hits = [i for i, d in enumerate(infos)
+            if (serial is None or str(d.get("serial_number")) == serial)
+            and (name is None or d.get("user_defined_name") == name)]
+    want = " ".join(f"{k}={v!r}" for k, v in (("serial", serial), ("name", name)) if v is not None)
+    if not hits:
+        raise DeviceLost(f"no camera with {want} (found: {found})", code="no_device")
+    if len(hits) > 1:
+        raise DeviceError(f"{len(hits)} cameras match {want} (found: {found})", code="ambiguous_device")
+    return hits[0]
+
+
+def to_pixels(component: Any) -> np.ndarray:
+    """Copy a 2-D image component out of its GenTL buffer as (h, w) or (h, w, c)."""
+    h, w = int(component.height), int(component.width)
+    c = max(1, int(round(component.num_components_per_pixel)))
+    data = component.data
+    row = w * c
+    if data is None or data.size < h * row:
+        raise DeviceError(f"camera buffer holds {0 if data is None else data.size} values, "
+                          f"expected {h}x{w}x{c}", code="bad_buffer")
+    # harvesters forgets to strip line padding, so cut rows ourselves when present
+    flat = data[: h * row] if data.size % h else data.reshape(h, -1)[:, :row]
+    return flat.reshape((h, w, c) if c > 1 else (h, w)).copy()
+
+
+class GenICamCamera(Camera):
+    """A GenICam camera through harvesters; see the module docstring for the URL."""
+
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+                 settings: CameraSettings | None = None) -> None:
+        super().__init__(url, emit=emit, world=world, settings=settings)
+        unknown = sorted(set(url.query) - set(OPTIONS))
+        if unknown:
+            raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
+                             f"(known: {', '.join(OPTIONS)})")
+        if not url.path.endswith(".cti"):
+            raise ValueError(f"camera URL {url.raw!r} must name a GenTL producer .cti file, e.g. "
+                             "genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=...")
+        self.cti = url.path
+        self.serial: str | None = url.option("serial", None)
+        self.name: str | None = url.option("name", None)
+        self.index: int | None = url.option("index", None, int)
+        self.num_buffers: int = url.option("num_buffers", 4, int)
+        self.timeout: float = url.option("timeout", 3.0, float)
+        if self.index is not None and self.index < 0:
+            raise ValueError(f"camera URL {url.raw!r}: index={self.index} must be >= 0")
+        if self.num_buffers < 1:
+            raise ValueError(f"camera URL {url.raw!r}: num_buffers={self.num_buffers} must be >= 1")
+        if not (self.timeout > 0 and math.isfinite(self.timeout)):
+            raise ValueError(f"camera URL {url.raw!r}: timeout={self.timeout} must be > 0")
+        self._h: Harvester | None = None
+        self._ia: ImageAcquirer | None = None
+        self._incomplete = _Counter()
+        self._facts: dict[str, Any] = {}
+        self._warnings: list[str] = []
+        self._logged: set[str] = set()
+        self._applied: dict[str, Any] = {}
+        self._software = False
+        self._acquiring = False
+        self._streaming = False
+        self._want_stream = False
+        self._access = 0
+        self._next_status_poll = 0.0
+        self._last_frame = 0.0
+        self._exposure: float | None = None
+        self.counters = {"opens": 0, "applies": 0, "writes": 0, "frames": 0, "timeouts": 0}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        """Load the producer, pick the device, apply the settings, arm the trigger."""
+        if self._ia is not None:
+            return
+        if not Path(self.cti).is_file():
+            raise DeviceError(f"GenTL producer {self.cti!r} not found (is the vendor SDK installed?)",
+                              code="no_producer")
+        try:
+            self._h = Harvester()
+            self._h.add_file(self.cti)
+            self._h.update()
+            infos = [d.property_dict for d in self._h.device_info_list]
+            i = select_device(infos, self.serial, self.name, self.index)
+            self._facts = {k: infos[i].get(k) for k in
+                           ("serial_number", "model", "vendor", "user_defined_name", "id_", "tl_type")}
+            self._ia = self._create(i)
+            self._ia.num_buffers = self.num_buffers
+            self._ia.add_callback(ImageAcquirer.Events.INCOMPLETE_BUFFER, self._incomplete)
+            self._access = self._ia.device.module.access_status
+            self._apply()
+            if self._software:
+                self._start_acquisition()  # armed: trigger() only has to fire
+            if self._want_stream:
+                self.start_stream()
+        except DeviceError:
+            self.close()
+            raise
+        except Exception as exc:  # producer/transport failures: let the daemon retry
+            self.close()
+            raise DeviceLost(f"cannot open camera {self.url.raw!r}: {type(exc).__name__}: {exc}") from exc
+        self.counters["opens"] += 1
+        log.info("camera %s open (%s)", self._facts.get("serial_number"), self._facts.get("model"))
+
+    def _create(self, i: int) -> ImageAcquirer:
+        assert self._h is not None
+        # harvesters installs its own SIGINT handler when created on the main thread
+        # (Ctrl-C would then destroy the acquirer instead of stopping the program).
+        on_main = threading.current_thread() is threading.main_thread()
+        previous = signal.getsignal(signal.SIGINT) if on_main else None
+        try:
+            return self._h.create(i)
+        finally:
+            if on_main and previous is not None:
+                signal.signal(signal.SIGINT, previous)
+
+    def close(self) -> None:
+        """Destroy the acquirer and reset the Harvester; never raises."""
+        self._streaming = False
+        self._acquiring = False
+        ia, h, self._ia, self._h = self._ia, self._h, None, None
+        if ia is not None:
+            try:  # a lost device may throw AccessDenied/Busy here (harvesters #246)
+                ia.destroy()
+            except Exception as exc:
+                log.warning("camera destroy failed: %s", exc)
+        if h is not None:
+            try:
+                h.reset()
+            except Exception as exc:
+                log.warning("harvester reset failed: %s", exc)
+
+    def configure(self, settings: CameraSettings) -> None:
+        """Change the desired settings; applied now when open, and at every later open."""
+        self.settings = settings
+        if self._ia is None:
+            return
+        streaming = self._streaming
+        self._stop_acquisition()
+        self._streaming = False
+        self._apply()
+        if streaming:
+            self.start_stream()
+        elif self._software:
+            self._start_acquisition()
+
+    def _warn(self, message: str) -> None:
+        if message not in self._logged:  # once per adapter, not at every reconnect
+            self._logged.add(message)
+            log.warning("camera %s: %s", self._facts.get("serial_number"), message)
+        self._warnings.append(message)
+
+    def _writer(self) -> SettingsWriter:
+        assert self._ia is not None
+        return SettingsWriter(self._ia.remote_device.node_map, self._warn, self._applied)
+
+    def _apply(self) -> None:
+        self._warnings = []
+        self._applied = {}
+        w = self._writer()
+        self._software = apply_settings(w, self.settings or CameraSettings())
+        exposure = w.read("ExposureTime")
+        self._exposure = None if exposure is None else float(exposure)
+        self.counters["applies"] += 1
+        self.counters["writes"] += w.writes
+
+    def _require_open(self) -> ImageAcquirer:
+        if self._ia is None:
+            raise DeviceError("camera is not open", code="not_open")
+        return self._ia
+
+    def _lost(self, what: str, exc: BaseException) -> DeviceLost:
+        return DeviceLost(f"camera {self._facts.get('serial_number')!r} lost during {what}: "
+                          f"{type(exc).__name__}: {exc}")
+
+    def _start_acquisition(self) -> None:
+        ia = self._require_open()
+        if not self._acquiring:
+            try:
+                ia.start()
+            except Exception as exc:
+                raise self._lost("acquisition start", exc) from exc
+            self._acquiring = True
+
+    def _stop_acquisition(self) -> None:
+        if self._ia is not None and self._acquiring:
+            self._acquiring = False
+            try:
+                self._ia.stop()
+            except Exception as exc:
+                raise self._lost("acquisition stop", exc) from exc
+
+    # ------------------------------------------------------------------ frames
+
+    def _fetch(self, deadline: float) -> Frame | None:
+        """The next complete frame before ``deadline`` (monotonic s), or None."""
+        ia = self._require_open()
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            try:
+                # try_fetch, not fetch: fetch restarts its timeout after every
+                # incomplete buffer, so it may never return on a lossy link.
+                buf = ia.try_fetch(timeout=max(remaining, 0.001))
+            except Exception as exc:
+                raise self._lost("fetch", exc) from exc
+            if buf is not None:
+                break
+        try:
+            with buf:  # pixels are copied before the buffer goes back to the producer
+                pixels = to_pixels(buf.payload.components[0])
+                frame_id = int(buf.module.frame_id)
+                fmt = str(buf.payload.components[0].data_format)
+                try:
+                    device_ns: int | None = int(buf.timestamp_ns)
+                except (gentl.GenericException, AttributeError):
+                    device_ns = None  # viky and some producers have no timestamps
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise self._lost("buffer read", exc) from exc
+        self.counters["frames"] += 1
+        self._last_frame = time.monotonic()
+        return Frame(pixels=pixels, frame_id=frame_id, pixel_format=fmt,
+                     camera_serial=str(self._facts.get("serial_number")),
+                     exposure_us=self._exposure, device_time_ns=device_ns,
+                     incomplete_count=self._incomplete.count)
+
+    def _check_access(self, force: bool = False) -> None:
+        """Poll the device's access status (about once a second); a change means loss."""
+        now = time.monotonic()
+        if self._ia is None or (not force and now < self._next_status_poll):
+            return
+        self._next_status_poll = now + _STATUS_POLL_S
+        try:
+            status = self._ia.device.module.access_status
+        except Exception as exc:
+            raise self._lost("status poll", exc) from exc
+        if status != self._access or status not in _OPEN_STATUSES:
+            raise DeviceLost(f"camera {self._facts.get('serial_number')!r} access status changed "
+                             f"from {self._access} to {status}")
+
+    def _stall_limit(self) -> float:
+        rate = self._applied.get("AcquisitionFrameRate")
+        return max(self.timeout, 3.0 / float(rate)) if rate else self.timeout
+
+    def _no_frame(self, what: str, timeout: float) -> DeviceTimeout:
+        self.counters["timeouts"] += 1
+        self._check_access(force=True)
+        return DeviceTimeout(f"camera {self._facts.get('serial_number')!r}: no frame within "
+                             f"{timeout:g} s of {what}")
+
+    def trigger(self, timeout: float = 5.0) -> Frame:
+        """One frame taken after this call (software trigger, or next free-run frame)."""
+        ia = self._require_open()
+        deadline = time.monotonic() + timeout
+        if self._streaming:
+            frame = self._fetch(deadline)
+            if frame is None:
+                raise self._no_frame("trigger (streaming)", timeout)
+            return frame
+        if not self._software:
+            # No trigger on this device: start, take the first frame, stop again, so
+            # the frame is never a stale one left in the buffers.
+            self._start_acquisition()
+            try:
+                frame = self._fetch(deadline)
+            finally:
+                self._stop_acquisition()
+            if frame is None:
+                raise self._no_frame("acquisition start", timeout)
+            return frame
+        self._start_acquisition()
+        for _ in range(self.num_buffers + 1):  # drop frames left by an earlier timed-out trigger
+            if self._fetch(time.monotonic() + 0.001) is None:
+                break
+        nm = ia.remote_device.node_map
+        armed = find_node(nm, "TriggerArmed")
+        try:
+            while armed is not None and not armed.value:
+                if time.monotonic() > deadline:
+                    raise self._no_frame("waiting for TriggerArmed", timeout)
+                time.sleep(0.001)
+            self._writer().execute("TriggerSoftware")
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise self._lost("software trigger", exc) from exc
+        frame = self._fetch(deadline)
+        if frame is None:
+            raise self._no_frame("TriggerSoftware", timeout)
+        return frame
+
+    def start_stream(self) -> None:
+        """Free run; ``pump`` emits every frame as ``camera.frame``."""
+        self._require_open()
+        self._want_stream = True
+        if self._streaming:
+            return
+        if self._software:
+            self._stop_acquisition()  # many cameras refuse TriggerMode writes while acquiring
+            self._set_software(False)
+        self._start_acquisition()
+        self._streaming = True
+        self._last_frame = time.monotonic()
+
+    def stop_stream(self) -> None:
+        """Leave free run; re-arm the software trigger when the device has one."""
+        self._want_stream = False
+        if not self._streaming or self._ia is None:
+            self._streaming = False
+            return
+        self._streaming = False
+        self._stop_acquisition()
+        if self._software:
+            self._set_software(True)
+            self._start_acquisition()
+
+    def _set_software(self, on: bool) -> None:
+        try:
+            set_trigger_mode(self._writer(), on)
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise self._lost("trigger mode change", exc) from exc
+
+    def pump(self, timeout: float) -> None:
+        """Emit the frames that arrive within ``timeout`` s; detect a stalled stream."""
+        deadline = time.monotonic() + timeout
+        if self._ia is None or not self._streaming:
+            if self._ia is not None:
+                self._check_access()
+            time.sleep(max(0.0, deadline - time.monotonic()))
+            return
+        while True:
+            frame = self._fetch(deadline)
+            if frame is None:
+                break
+            self.emit("camera.frame", frame)
+        self._check_access()
+        stalled = time.monotonic() - self._last_frame
+        if stalled > self._stall_limit():
+            raise DeviceLost(f"camera {self._facts.get('serial_number')!r}: no frame for "
+                             f"{stalled:.1f} s while streaming")
+
+    # ------------------------------------------------------------------ reporting
+
+    def info(self) -> dict[str, Any]:
+        return {"url": self.url.raw, "producer": self.cti, **self._facts}
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "open": self._ia is not None,
+            "streaming": self._streaming,
+            "acquiring": self._acquiring,
+            "software_trigger": self._software,
+            "serial": self._facts.get("serial_number"),
+            "settings": asdict(self.settings or CameraSettings()),
+            "applied": dict(self._applied),
+            "warnings": list(self._warnings),
+            "incomplete_count": self._incomplete.count,
+            **self.counters,
+        }
