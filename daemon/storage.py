@@ -119,3 +119,28 @@ class Dataset:
         self.manifest["entries"].append(entry)
         atomic_write_json(self.manifest_path, self.manifest)
         return self.root / entry["json"]
+
+
+def save_capture(data_dir: Path, parts: dict[str, Any], label: str, dataset: str | None,
+                 meta: dict[str, Any]) -> Path:
+    """Store a capture (camera Frame / TrackerPoint / RobotState, any subset) as a dataset entry.
+
+    ``dataset`` names a folder under ``data_dir/datasets`` (created if new); None uses
+    the day's ``captures`` dataset. Returns the entry's JSON path.
+    """
+    base = Path(data_dir) / "datasets"
+    if dataset:
+        root = base / safe_name(dataset)
+        ds = Dataset(root, kind="captures", meta=meta)
+    else:
+        ds = Dataset(base / time.strftime("%Y%m%d-captures", time.gmtime()), kind="captures", meta=meta)
+    entry: dict[str, Any] = {"label": label, "saved_ns": time.time_ns()}
+    frame = parts.get("camera")
+    if frame is not None:
+        entry["camera"] = frame.header()
+    if parts.get("tracker") is not None:
+        entry["tracker"] = parts["tracker"].to_dict()
+    if parts.get("robot") is not None:
+        entry["robot"] = parts["robot"].to_dict()
+    name = f"{len(ds.manifest['entries']):04d}-{label}"
+    return ds.add_entry(name, entry, image=None if frame is None else frame.pixels)

@@ -1,0 +1,245 @@
+"""ritad: the acquisition daemon (entry point and supervisor).
+
+Start-up order: load config → (sim) build the world → bind the bus → start the
+device runners → READY=1. Devices connect in the background (their state is in
+``daemon.health``), so a missing tracker never blocks the bus. The main thread is
+the supervisor: it publishes health every second, pings the systemd watchdog only
+while every owner thread's heartbeat is fresh, and shuts down on SIGTERM/SIGINT.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Callable
+
+import zmq
+
+from daemon import __version__, config as config_mod
+from daemon.commands import build_handlers, chain
+from daemon.logs import setup_logging
+from daemon.notify import Notifier
+from daemon.protocol import SCHEMA_VERSION, CommandError, ErrorCode
+from daemon.publisher import FramePublisher, TelemetryPublisher
+from daemon.registry import open_device
+from daemon.runner import DeviceRunner
+from daemon.server import CommandServer
+from drivers.base import Device, Frame
+
+log = logging.getLogger("ritad")
+KINDS = ("tracker", "robot", "camera")
+
+
+class Daemon:
+    """Everything ritad runs; ``start()`` binds and launches, ``stop()`` tears down."""
+
+    def __init__(self, cfg: config_mod.Config) -> None:
+        self.config = cfg
+        self.started = time.monotonic()
+        self.world = None
+        if cfg.uses_sim:
+            from fakes.world import World, WorldParams
+
+            self.world = World(WorldParams(seed=cfg.sim.seed, tracker_sigma_mm=cfg.sim.tracker_sigma_mm))
+        self.ctx = zmq.Context()
+        self.telemetry: TelemetryPublisher
+        self.frames: FramePublisher
+        self.server: CommandServer
+        self.runners: dict[str, DeviceRunner] = {}
+        self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
+        self._motion_lock = threading.Lock()
+        self._motion_waiters: list[Future] = []
+        self.stop_event = threading.Event()
+
+    # ------------------------------------------------------------------ wiring
+
+    def emit(self, topic: str, payload: Any) -> None:
+        """The sink handed to every device (thread-safe, never blocks)."""
+        if isinstance(payload, Frame):
+            self.frames.publish(payload)
+            return
+        if topic == "robot.event" and isinstance(payload, dict) and payload.get("event") in ("DONE", "FAULT"):
+            with self._motion_lock:
+                waiters, self._motion_waiters = self._motion_waiters, []
+            for fut in waiters:
+                if payload.get("event") == "DONE":
+                    fut.set_result({"event": "DONE", **payload})
+                else:
+                    fut.set_exception(CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT: {payload}"))
+        self.telemetry.publish(topic, payload)
+
+    def _factory(self, kind: str) -> Callable[[], Device]:
+        url = getattr(self.config.devices, kind)
+        settings = self.config.camera if kind == "camera" else None
+        return lambda: open_device(kind, url, emit=self.emit, world=self.world, settings=settings)
+
+    def start(self) -> None:
+        cfg = self.config.daemon
+        Path(cfg.data_dir).mkdir(parents=True, exist_ok=True)
+        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm)
+        self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm)
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes)
+        for t in (self.telemetry, self.frames, self.server):
+            t.start()
+        for kind in KINDS:
+            runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish)
+            self.runners[kind] = runner
+            runner.start()
+
+    def stop(self) -> None:
+        for runner in self.runners.values():
+            runner.stop()
+        for t in (self.server, self.frames, self.telemetry):
+            t.stop()
+        self.storage.shutdown(wait=True)
+        self.ctx.term()  # every socket was closed by its owner with LINGER 0
+
+    # ------------------------------------------------------------------ services for handlers
+
+    def job(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
+        return self.runners[kind].submit(fn, urgent=urgent, timeout=timeout)
+
+    def motion(self, fn: Callable[[Any], Any], wait: bool, timeout: float) -> Future:
+        """Start a robot motion; with ``wait`` complete on the controller's DONE/FAULT event."""
+        if not wait:
+            return chain(self.job("robot", fn), lambda _: {"started": True})
+        done: Future = Future()
+        with self._motion_lock:
+            self._motion_waiters.append(done)
+
+        def started(f: Future) -> None:
+            if f.exception() is not None and not done.done():
+                with self._motion_lock:
+                    if done in self._motion_waiters:
+                        self._motion_waiters.remove(done)
+                done.set_exception(f.exception())
+
+        def expire() -> None:
+            with self._motion_lock:
+                if done not in self._motion_waiters:
+                    return
+                self._motion_waiters.remove(done)
+            done.set_exception(CommandError(ErrorCode.TIMEOUT, f"robot motion not done after {timeout:.0f} s"))
+
+        self.job("robot", fn).add_done_callback(started)
+        timer = threading.Timer(timeout, expire)
+        timer.daemon = True
+        timer.start()
+        done.add_done_callback(lambda _: timer.cancel())
+        return done
+
+    def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
+        """Store a capture (runs in the caller's thread: a future callback, off the bus thread)."""
+        from daemon.storage import save_capture
+
+        return save_capture(Path(self.config.daemon.data_dir), parts, label, dataset,
+                            meta={"daemon_version": __version__, "sim": self.world is not None,
+                                  "abs_H_trk": self.config.tracker.abs_H_trk})
+
+    def hello(self) -> dict[str, Any]:
+        return {"name": "ritad", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
+                "sim": self.world is not None, "command_endpoints": self.server.endpoints,
+                "telemetry_endpoints": self.telemetry.endpoints, "frame_endpoints": self.frames.endpoints,
+                "devices": {k: getattr(self.config.devices, k) for k in KINDS}}
+
+    def health(self) -> dict[str, Any]:
+        return {"uptime_s": round(time.monotonic() - self.started, 3), "version": __version__,
+                "devices": {k: r.snapshot() for k, r in self.runners.items()},
+                "telemetry": self.telemetry.counters(), "frames": self.frames.counters(),
+                "commands": {"requests": self.server.requests, "errors": self.server.errors,
+                             "pending": self.server.pending},
+                "alive": self.alive()}
+
+    def alive(self) -> bool:
+        now = time.monotonic()
+        threads_ok = all(now - t.heartbeat < 5.0 and t.is_alive() for t in (self.server, self.telemetry, self.frames))
+        return threads_ok and all(r.alive() for r in self.runners.values())
+
+    # ------------------------------------------------------------------ supervisor
+
+    def supervise(self, notifier: Notifier) -> None:
+        interval = self.config.daemon.health_interval_s
+        wd = notifier.watchdog_interval
+        next_health = next_wd = time.monotonic()
+        last_status = ""
+        while not self.stop_event.is_set():
+            now = time.monotonic()
+            if now >= next_health:
+                h = self.health()
+                self.telemetry.publish("daemon.health", h)
+                status = ", ".join(f"{k} {v['state']}" for k, v in h["devices"].items())
+                if status != last_status:
+                    notifier.status(status)
+                    last_status = status
+                next_health = now + interval
+            if wd is not None and now >= next_wd:
+                if self.alive():  # a hung owner thread stops the pings, so systemd restarts us
+                    notifier.watchdog()
+                else:
+                    log.error("watchdog withheld: an owner thread is not responding")
+                next_wd = now + wd
+            self.stop_event.wait(min(0.1, interval))
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="ritad", description="Rita acquisition daemon")
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--config", help="TOML config file (see systemd/ritad.toml)")
+    src.add_argument("--sim", action="store_true", help="run on the simulated world (built-in config)")
+    ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
+    ap.add_argument("--data-dir", help="override daemon.data_dir")
+    ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
+    ap.add_argument("--log-level", help="override daemon.log_level")
+    ap.add_argument("--version", action="version", version=f"ritad {__version__}")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        if args.sim:
+            runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
+            cfg = config_mod.sim_config(runtime, args.data_dir, seed=args.seed)
+        else:
+            cfg = config_mod.load(args.config)
+            if args.data_dir:
+                cfg.daemon.data_dir = args.data_dir
+    except config_mod.ConfigError as exc:
+        print(f"ritad: configuration error: {exc}", file=sys.stderr)
+        return 2
+    setup_logging(args.log_level or cfg.daemon.log_level)
+    notifier = Notifier()
+    daemon = Daemon(cfg)
+    try:
+        daemon.start()
+    except (zmq.ZMQError, OSError) as exc:
+        log.error("cannot bind the bus: %s", exc)
+        return 1
+    from daemon.logs import BusLogHandler
+
+    logging.getLogger().addHandler(BusLogHandler(daemon.telemetry.publish))
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: daemon.stop_event.set())
+    eps = daemon.server.endpoints
+    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), cfg.source)
+    print(f"ritad ready: {' '.join(eps)}", flush=True)
+    notifier.ready(f"bus on {eps[0]}")
+    try:
+        daemon.supervise(notifier)
+    finally:
+        notifier.stopping()
+        log.info("stopping")
+        daemon.stop()
+        notifier.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
