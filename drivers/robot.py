@@ -1,0 +1,321 @@
+"""Robot base adapter: the Rita line protocol over a serial port (pyserial).
+
+URLs: ``serial:///dev/ttyUSB0?baudrate=115200`` (a local port, opened by path) and the
+pyserial URL schemes ``socket://host:port``, ``rfc2217://host:port`` and ``loop://``
+(passed to ``serial.serial_for_url`` as given, minus our own options). Our options:
+
+* ``baudrate`` (115200), ``timeout`` — seconds to wait for each reply (0.5),
+* ``retries`` — resends of an unanswered command before the base counts as lost (2),
+* ``state_hz`` — rate of STATUS polls (and ``robot.state`` telemetry) in ``pump`` (2;
+  0 = never poll).
+
+Robustness rules: every wait is bounded; a line with a bad checksum or no frame is
+counted and dropped, never raised; a command whose reply does not come is resent
+with the *same* sequence number (the base repeats, not re-executes, a duplicate
+MOVE/TURN), and when all tries fail the base is declared lost (:class:`DeviceLost`),
+as it is when the port reports an error. See docs/robot-protocol.md.
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+from urllib.parse import urlencode, urlsplit, urlunsplit
+
+import serial
+
+from drivers import robot_protocol as rp
+from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, _no_emit
+
+#: longest single blocking read; keeps every loop responsive to its deadline
+READ_SLICE_S = 0.02
+
+COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
+                 "retries", "naks", "events", "overflows")
+
+
+class SerialRobot(Robot):
+    """A differential-drive base speaking the Rita line protocol over pyserial."""
+
+    #: options this adapter reads itself (removed before pyserial sees the URL)
+    OWN_OPTIONS: frozenset[str] = frozenset({"baudrate", "timeout", "retries", "state_hz"})
+
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+                 settings: Any = None) -> None:
+        super().__init__(url, emit=emit, world=world, settings=settings)
+        self.baudrate: int = url.option("baudrate", 115200, int)
+        self.reply_timeout: float = url.option("timeout", 0.5, float)
+        self.retries: int = url.option("retries", 2, int)
+        self.state_hz: float = url.option("state_hz", 2.0, float)
+        for name, value, ok in (("baudrate", self.baudrate, self.baudrate > 0),
+                                ("timeout", self.reply_timeout, self.reply_timeout > 0),
+                                ("retries", self.retries, 0 <= self.retries <= 20),
+                                ("state_hz", self.state_hz, 0 <= self.state_hz <= 100)):
+            if not ok:
+                raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
+        if url.scheme == "serial":
+            unknown = sorted(set(url.query) - self.OWN_OPTIONS)
+            if unknown:
+                raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
+                                 f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
+        self._port: Any = None
+        self._splitter = rp.LineSplitter()
+        self._seq = 0
+        self._moving_seq: int | None = None
+        self._finished_seq: int | None = None
+        self._last_state: RobotState | None = None
+        self._last_state_emit = 0.0
+        self._version: dict[str, Any] = {}
+        self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
+
+    # ------------------------------------------------------------------ connection
+
+    def port_target(self) -> str:
+        """What to hand to ``serial.serial_for_url``: a device path or a pyserial URL."""
+        if self.url.scheme == "serial":
+            if not self.url.path:
+                raise ValueError(f"robot URL {self.url.raw!r} names no device path (serial:///dev/ttyUSB0)")
+            return self.url.path
+        parts = urlsplit(self.url.raw)
+        rest = {k: v for k, v in self.url.query.items() if k not in self.OWN_OPTIONS}
+        return urlunsplit((parts.scheme, parts.netloc, parts.path, urlencode(rest), parts.fragment))
+
+    def open(self) -> None:
+        """Open the port, drop stale input, shake hands (HELLO/VERSION) and read STATUS."""
+        self.close()
+        target = self.port_target()
+        try:
+            self._port = serial.serial_for_url(target, baudrate=self.baudrate, timeout=READ_SLICE_S,
+                                               write_timeout=self.reply_timeout)
+            self._port.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            self._port = None
+            raise DeviceLost(f"cannot open robot port {target!r}: {exc}") from exc
+        self._splitter.clear()
+        self._moving_seq = self._finished_seq = None
+        reply = self._transact("HELLO", rp.PROTOCOL_VERSION, expect="VERSION")
+        try:
+            self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
+                             "firmware": reply.field(3, "firmware"), "serial": reply.field(4, "serial"),
+                             "capabilities": [c for c in reply.field(5, "capabilities").split("+") if c]}
+        except (rp.ProtocolError, ValueError) as exc:
+            self.close()
+            raise DeviceError(f"robot base sent a malformed VERSION: {exc}", code="robot_protocol") from exc
+        if self._version["protocol"] != rp.PROTOCOL_VERSION:
+            self.close()
+            raise DeviceError(f"robot base speaks protocol {self._version['protocol']}, "
+                              f"driver speaks {rp.PROTOCOL_VERSION}", code="robot_version")
+        state = self.status()
+        if state.state == "MOVING":
+            self._moving_seq = -1  # a motion from before we connected: wait_idle polls it out
+
+    def close(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except Exception:  # noqa: BLE001 - close must never raise; the port may be gone
+                pass
+
+    def info(self) -> dict[str, Any]:
+        return {"url": self.url.raw, "port": self.port_target(), **self._version,
+                "counters": dict(self.counters)}
+
+    # ------------------------------------------------------------------ commands
+
+    def move(self, distance_mm: float, speed_mm_s: float) -> None:
+        """Start a straight move; returns once the base ACKed it (DONE comes later)."""
+        _check("distance_mm", distance_mm, -rp.MAX_DISTANCE_MM, rp.MAX_DISTANCE_MM)
+        _check("speed_mm_s", speed_mm_s, rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S)
+        self._start_motion("MOVE", distance_mm, speed_mm_s)
+
+    def turn(self, angle_deg: float, speed_deg_s: float) -> None:
+        """Start a turn on the spot (positive = counter-clockwise); returns on ACK."""
+        _check("angle_deg", angle_deg, -rp.MAX_ANGLE_DEG, rp.MAX_ANGLE_DEG)
+        _check("speed_deg_s", speed_deg_s, rp.MIN_TURN_SPEED_DEG_S, rp.MAX_TURN_SPEED_DEG_S)
+        self._start_motion("TURN", angle_deg, speed_deg_s)
+
+    def _start_motion(self, kind: str, value: float, speed: float) -> None:
+        reply = self._transact(kind, rp.num(value), rp.num(speed), expect="ACK")
+        seq = reply.seq()
+        # with an instant base the DONE may already have been read while waiting
+        self._moving_seq = None if self._finished_seq == seq else seq
+
+    def stop(self) -> None:
+        """Send STOP at once (the base always accepts it); DONE STOPPED follows."""
+        self._transact("STOP", expect="ACK")
+
+    def status(self) -> RobotState:
+        """Poll STATUS; also publishes ``robot.state`` at most ``state_hz`` times a second."""
+        reply = self._transact("STATUS", expect="STATUS")
+        try:
+            state = RobotState(state=reply.field(1, "state"), x_mm=reply.number(2, "x_mm"),
+                               y_mm=reply.number(3, "y_mm"), heading_deg=reply.number(4, "heading_deg"),
+                               roll_deg=reply.optional_number(5, "roll_deg"),
+                               pitch_deg=reply.optional_number(6, "pitch_deg"),
+                               battery_v=reply.optional_number(7, "battery_v"),
+                               fault=reply.fields[8] if len(reply.fields) > 8 else "")
+        except rp.ProtocolError as exc:
+            raise DeviceError(f"robot base sent a malformed STATUS: {exc}", code="robot_protocol") from exc
+        if state.state not in ("IDLE", "MOVING", "FAULT"):
+            raise DeviceError(f"robot base reports unknown state {state.state!r}", code="robot_protocol")
+        if state.state != "MOVING":
+            self._moving_seq = None  # covers a DONE/FAULT event that got lost on the line
+        self._last_state = state
+        now = time.monotonic()
+        if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
+            self._last_state_emit = now
+            self.emit("robot.state", state.to_dict())
+        return state
+
+    @property
+    def last_state(self) -> RobotState | None:
+        """The most recent STATUS reply (no I/O)."""
+        return self._last_state
+
+    def pump(self, timeout: float) -> None:
+        """Read events for ``timeout`` s, polling STATUS when a ``state_hz`` slot is due."""
+        deadline = time.monotonic() + max(0.0, timeout)
+        while True:
+            now = time.monotonic()
+            if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
+                self.status()
+                now = time.monotonic()
+            if now >= deadline:
+                return
+            for msg in self._receive(min(deadline, now + READ_SLICE_S)):
+                self._count_stray(msg)
+
+    def wait_idle(self, timeout: float) -> RobotState:
+        """Pump until the current motion is over; returns the final state.
+
+        Raises DeviceTimeout when the base is still moving after ``timeout`` s, and
+        DeviceError (code ``robot_fault``) when the motion ended in a FAULT.
+        """
+        deadline = time.monotonic() + timeout
+        next_check = 0.0
+        while True:
+            now = time.monotonic()
+            if self._moving_seq is None or now >= next_check:
+                state = self.status()
+                if state.state == "FAULT":
+                    raise DeviceError(f"robot base FAULT: {state.fault or 'no reason given'}",
+                                      code="robot_fault")
+                if state.state == "IDLE":
+                    return state
+                next_check = time.monotonic() + 0.1
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(f"robot base still moving after {timeout:.3g} s")
+            for msg in self._receive(min(deadline, next_check, time.monotonic() + 0.05)):
+                self._count_stray(msg)
+
+    # ------------------------------------------------------------------ line level
+
+    def _transact(self, kind: str, *fields: object, expect: str) -> rp.Message:
+        """Send one command and return its positive reply; NAK → DeviceError."""
+        self._seq = rp.next_seq(self._seq)
+        seq = self._seq
+        line = rp.encode(kind, seq, *fields)
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.counters["retries"] += 1
+            self._write(line)
+            deadline = time.monotonic() + self.reply_timeout
+            resend = False
+            while not resend and time.monotonic() < deadline:
+                for msg in self._receive(deadline):
+                    reply_seq = msg.seq() if msg.kind in rp.REPLIES else -1
+                    if reply_seq is None and msg.kind == "NAK":
+                        resend = True  # the base got a corrupted line, most likely ours
+                    elif reply_seq != seq:
+                        self._count_stray(msg)
+                    elif msg.kind == "NAK":
+                        self.counters["naks"] += 1
+                        reason = msg.fields[1] if len(msg.fields) > 1 else "?"
+                        text = msg.fields[2] if len(msg.fields) > 2 else ""
+                        raise DeviceError(f"robot base refused {line.decode().strip()}: {reason} {text}".strip(),
+                                          code=f"robot_{reason.lower()}")
+                    elif msg.kind != expect:
+                        self.counters["unexpected"] += 1
+                    else:
+                        return msg
+        raise DeviceLost(f"robot base did not answer {kind} (seq {seq}) in "
+                         f"{self.retries + 1} tries of {self.reply_timeout:.3g} s")
+
+    def _write(self, line: bytes) -> None:
+        if self._port is None:
+            raise DeviceLost("robot port is not open")
+        try:
+            self._port.write(line)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceLost(f"robot port write failed: {exc}") from exc
+
+    def _receive(self, deadline: float) -> list[rp.Message]:
+        """Replies read before ``deadline`` (events are dispatched here, not returned).
+
+        Returns as soon as at least one reply arrived; bad lines are counted, not raised.
+        """
+        if self._port is None:
+            raise DeviceLost("robot port is not open")
+        replies: list[rp.Message] = []
+        while True:
+            try:
+                data = self._port.read(max(1, self._port.in_waiting))
+            except (serial.SerialException, OSError) as exc:
+                raise DeviceLost(f"robot port read failed: {exc}") from exc
+            for raw in self._splitter.feed(data):
+                msg = self._decode(raw)
+                if msg is not None and self._dispatch_event(msg) is not None:
+                    replies.append(msg)
+            self.counters["overflows"] = self._splitter.overflows
+            if replies or time.monotonic() >= deadline:
+                return replies
+
+    def _decode(self, raw: bytes) -> rp.Message | None:
+        if not raw.strip():
+            return None
+        self.counters["rx_lines"] += 1
+        try:
+            msg = rp.decode(raw)
+            if msg.kind in rp.REPLIES or msg.kind in rp.EVENTS:
+                msg.seq()  # validate early so callers can rely on it
+            return msg
+        except rp.ProtocolError as exc:
+            self.counters[{"checksum": "bad_checksum", "garbage": "garbage"}.get(exc.kind, "syntax")] += 1
+            return None
+
+    def _dispatch_event(self, msg: rp.Message) -> rp.Message | None:
+        """Publish DONE/FAULT events; returns the message back when it is not an event."""
+        if msg.kind not in rp.EVENTS:
+            return msg
+        seq = msg.seq()
+        payload: dict[str, Any] = {"event": msg.kind, "seq": seq, "host_time_ns": time.time_ns()}
+        try:
+            if msg.kind == "DONE":
+                payload.update(result=msg.field(1, "result"), x_mm=msg.number(2, "x_mm"),
+                               y_mm=msg.number(3, "y_mm"), heading_deg=msg.number(4, "heading_deg"))
+            else:
+                payload.update(reason=msg.field(1, "reason"),
+                               text=msg.fields[2] if len(msg.fields) > 2 else "")
+        except rp.ProtocolError:
+            self.counters["syntax"] += 1
+            return None
+        self.counters["events"] += 1
+        self._finished_seq = seq
+        if seq is None or seq == self._moving_seq:
+            self._moving_seq = None
+        self.emit("robot.event", payload)
+        return None
+
+    def _count_stray(self, msg: rp.Message) -> None:
+        # a late reply to a command we already gave up on, or something not for us
+        self.counters["stale" if msg.kind in rp.REPLIES else "unexpected"] += 1
+
+
+def _check(name: str, value: float, low: float, high: float) -> None:
+    """Refuse a motion argument outside the protocol limits before it is sent."""
+    try:
+        ok = low <= float(value) <= high
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise DeviceError(f"robot: {name}={value!r} is outside {low:g}..{high:g}", code="robot_range")

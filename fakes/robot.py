@@ -1,0 +1,270 @@
+"""Fake robot base on a pseudo-terminal, and the ``sim:`` robot adapter.
+
+``python -m fakes.robot [--seed N] [--time-scale S] [--param key=value ...]`` starts a
+simulated base on a fresh pty, prints the device path (one line) and serves until
+killed; connect with ``serial:///dev/pts/N``. :class:`SimRobot` (URL ``sim:``) does
+the same in a background thread on its first ``open()`` and then talks to it as a
+plain :class:`~drivers.robot.SerialRobot`, so the sim exercises the real driver,
+codec and pyserial.
+
+How it differs from the real base:
+
+* motion is at constant speed with instant start and stop (no ramps), and takes
+  distance / speed × ``time_scale`` of wall time (0 = instant);
+* drive errors and floor tilt follow the simple model of :mod:`fakes.robot_base`
+  (no slip, no wheel-specific errors, the lateral error is spread linearly along
+  the path); the inclinometer reads the true tilt without noise;
+* the battery voltage only drops with the distance driven;
+* the pty has no baud rate: bytes arrive at once, and output that nobody reads is
+  dropped instead of blocking the controller;
+* line faults are injected on purpose: ``garbage_rate`` (noise bursts between
+  lines), ``corrupt_rate`` (one byte flipped in a line, so its checksum fails),
+  ``fault_rate`` (a motion stalls part-way), ``silent`` (the link goes quiet) and
+  :meth:`SimRobot.drop_port` (the port vanishes; the next ``open()`` makes a new pty).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import errno
+import os
+import select
+import signal
+import sys
+import threading
+import tty
+from typing import Any
+
+import numpy as np
+
+from drivers import robot_protocol as rp
+from drivers.base import DeviceURL, Emit, _no_emit
+from drivers.robot import SerialRobot
+from fakes.robot_base import FakeBase
+from fakes.world import World, WorldParams
+
+IDLE_TICK_S = 0.05
+MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving
+
+
+class PtyServer:
+    """Serves one :class:`FakeBase` on a pty from a background thread."""
+
+    def __init__(self, base: FakeBase, *, garbage_rate: float = 0.0, corrupt_rate: float = 0.0,
+                 rng: np.random.Generator | None = None) -> None:
+        for name, value in (("garbage_rate", garbage_rate), ("corrupt_rate", corrupt_rate)):
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name}={value!r} must be within 0..1")
+        self.base = base
+        self.garbage_rate = garbage_rate
+        self.corrupt_rate = corrupt_rate
+        self.silent = False
+        self.rng = rng or base.world.rng("robot.line")
+        self.master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no echo, no CR/LF translation: a clean 8-bit line
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self._slave)
+        self._wake_r, self._wake_w = os.pipe()
+        self._pending: list[bytes] = []  # injected bytes, written by the server thread
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.alive = True
+        self.counters = {"tx_lines": 0, "tx_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
+        self._thread = threading.Thread(target=self._run, name=f"fake-robot {self.path}", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ knobs
+
+    def inject_garbage(self, nbytes: int = 32) -> None:
+        """Send ``nbytes`` random bytes followed by a newline, between two lines."""
+        with self._lock:
+            self._pending.append(self._noise(nbytes))
+        os.write(self._wake_w, b"x")
+
+    def drop_port(self) -> None:
+        """The port vanishes: close both pty ends so the host sees an I/O error."""
+        self.shutdown()
+
+    def shutdown(self) -> None:
+        """Stop the thread and close the pty (idempotent)."""
+        if not self.alive:
+            return
+        self._stop.set()
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=2.0)
+        self.alive = False
+        for fd in (self.master, self._slave, self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    # ------------------------------------------------------------------ loop
+
+    def _noise(self, nbytes: int) -> bytes:
+        # random bytes, but never a newline inside: the burst is one garbage line
+        raw = self.rng.integers(0, 256, size=max(1, nbytes), dtype=np.uint8).tobytes()
+        return raw.replace(b"\n", b"?") + b"\r\n"
+
+    def _run(self) -> None:
+        splitter = rp.LineSplitter()
+        while not self._stop.is_set():
+            tick = MOVING_TICK_S if self.base.moving else IDLE_TICK_S
+            try:
+                ready, _, _ = select.select([self.master, self._wake_r], [], [], tick)
+            except (OSError, ValueError):
+                return
+            if self._stop.is_set():
+                return
+            if self._wake_r in ready:
+                os.read(self._wake_r, 256)
+            if self.master in ready:
+                try:
+                    data = os.read(self.master, 4096)
+                except OSError as exc:
+                    if exc.errno in (errno.EAGAIN, errno.EINTR):
+                        continue
+                    return
+                if not self.silent:  # a quiet link loses input too
+                    for line in splitter.feed(data):
+                        self.base.handle_line(line)
+            self.base.tick()
+            out = self.base.drain()
+            with self._lock:
+                pending, self._pending = self._pending, []
+            if not self.silent:
+                self._send(pending + [self._impair(line) for line in out])
+
+    def _impair(self, line: bytes) -> bytes:
+        """Apply the configured line faults to one outgoing line."""
+        if self.corrupt_rate and self.rng.random() < self.corrupt_rate:
+            i = int(self.rng.integers(1, len(line) - 5))  # a body byte: the checksum must fail
+            flipped = line[i] ^ 0x01 if line[i] not in b"$*,\r\n\x01\x2b\x2d" else line[i]
+            if flipped != line[i]:
+                line = line[:i] + bytes([flipped]) + line[i + 1:]
+                self.counters["corrupted"] += 1
+        if self.garbage_rate and self.rng.random() < self.garbage_rate:
+            self.counters["garbage_bursts"] += 1
+            line = self._noise(int(self.rng.integers(1, 24))) + line
+        return line
+
+    def _send(self, chunks: list[bytes]) -> None:
+        for chunk in chunks:
+            try:
+                os.write(self.master, chunk)
+                self.counters["tx_lines"] += 1
+            except OSError:
+                # nobody reads the slave and the pty buffer is full: drop like a real line
+                self.counters["tx_dropped"] += 1
+
+
+class SimRobot(SerialRobot):
+    """``sim:`` robot: a :class:`FakeBase` on a private pty, driven by the real driver.
+
+    Options (besides the SerialRobot ones): ``time_scale`` (0.02), ``garbage_rate``,
+    ``corrupt_rate``, ``fault_rate`` (all 0). The fake keeps running across
+    ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
+    """
+
+    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate"}
+
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+                 settings: Any = None) -> None:
+        super().__init__(url, emit=emit, world=world, settings=settings)
+        unknown = sorted(set(url.query) - self.OWN_OPTIONS)
+        if unknown:
+            raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
+                             f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
+        if self.world is None:
+            self.world = World()
+        self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),
+                             fault_rate=url.option("fault_rate", 0.0, float))
+        self.garbage_rate: float = url.option("garbage_rate", 0.0, float)
+        self.corrupt_rate: float = url.option("corrupt_rate", 0.0, float)
+        self.server: PtyServer | None = None
+
+    def port_target(self) -> str:
+        if self.server is None or not self.server.alive:
+            self.server = PtyServer(self.fake, garbage_rate=self.garbage_rate, corrupt_rate=self.corrupt_rate)
+        return self.server.path
+
+    def set_line_faults(self, *, garbage_rate: float | None = None, corrupt_rate: float | None = None,
+                        silent: bool | None = None) -> None:
+        """Change line fault knobs now (and for any pty made later)."""
+        if garbage_rate is not None:
+            self.garbage_rate = garbage_rate
+        if corrupt_rate is not None:
+            self.corrupt_rate = corrupt_rate
+        if self.server is not None:
+            self.server.garbage_rate, self.server.corrupt_rate = self.garbage_rate, self.corrupt_rate
+            if silent is not None:
+                self.server.silent = silent
+
+    def inject_garbage(self, nbytes: int = 32) -> None:
+        if self.server is not None:
+            self.server.inject_garbage(nbytes)
+
+    def drop_port(self) -> None:
+        """Make the port vanish (the driver sees DeviceLost; ``open()`` gets a new pty)."""
+        if self.server is not None:
+            self.server.drop_port()
+
+    def shutdown(self) -> None:
+        """Close the driver and stop the fake base's thread."""
+        self.close()
+        if self.server is not None:
+            self.server.shutdown()
+
+    def info(self) -> dict[str, Any]:
+        out = super().info()
+        out["simulated"] = True
+        if self.server is not None:
+            out["fake_counters"] = {**self.fake.counters, **self.server.counters}
+        return out
+
+
+def _param(text: str) -> tuple[str, Any]:
+    """Parse ``key=value`` for a WorldParams field (numbers and booleans)."""
+    key, sep, value = text.partition("=")
+    fields = {f.name: f for f in dataclasses.fields(WorldParams)}
+    if not sep or key not in fields:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected key=value with a WorldParams field as key")
+    if value.lower() in ("true", "false"):
+        return key, value.lower() == "true"
+    try:
+        return key, int(value) if value.lstrip("-").isdigit() else float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: value {value!r} is not a number or true/false") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m fakes.robot", description="Fake Rita robot base on a pty.")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--time-scale", type=float, default=0.02)
+    ap.add_argument("--garbage-rate", type=float, default=0.0)
+    ap.add_argument("--corrupt-rate", type=float, default=0.0)
+    ap.add_argument("--fault-rate", type=float, default=0.0)
+    ap.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE",
+                    help="set a WorldParams field, e.g. drive_lateral_sigma_mm=0.05")
+    args = ap.parse_args(argv)
+    world = World(WorldParams(seed=args.seed).with_(**dict(args.param)))
+    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate)
+    server = PtyServer(base, garbage_rate=args.garbage_rate, corrupt_rate=args.corrupt_rate)
+    print(server.path, flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    try:
+        while not done.wait(0.5) and server.alive:
+            pass
+    except KeyboardInterrupt:
+        pass
+    server.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

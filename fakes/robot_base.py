@@ -1,0 +1,310 @@
+"""The simulated drive controller: protocol state machine and kinematics.
+
+:class:`FakeBase` answers protocol lines (docs/robot-protocol.md) and moves the robot
+in the shared :class:`~fakes.world.World`. It knows nothing about ports: the pty
+server in :mod:`fakes.robot` feeds it lines, calls :meth:`FakeBase.tick` and sends
+what :meth:`FakeBase.drain` returns. Every public method takes the base's own lock,
+so tests may inject faults from another thread.
+
+Two poses are kept apart on purpose: *odometry* integrates the commanded motion
+(starts at 0, 0, 0 at power-on, like wheel encoders) and *truth* (``world.robot``)
+adds the drive errors from ``world.params``:
+
+* ``drive_scale_error`` — a fixed relative error of every move distance and turn
+  angle (a wrong wheel diameter), not random;
+* ``drive_heading_sigma_deg`` — Gaussian heading error per move and per turn;
+* ``drive_lateral_sigma_mm`` — Gaussian sideways offset of the end point per move;
+* ``floor_tilt_sigma_mrad`` — a new Gaussian roll and pitch at every stop, reported
+  in STATUS only when ``base_has_inclinometer`` is set.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+from drivers import robot_protocol as rp
+from fakes.world import RobotPose, World
+
+MODEL = "RITA-SIM-BASE"
+FIRMWARE = "sim-1.0"
+SERIAL_NUMBER = "SIM-0001"
+BATTERY_FULL_V = 25.2
+BATTERY_V_PER_M = 0.002  # volts lost per metre driven (keeps the number alive)
+
+
+def _wrap_deg(angle: float) -> float:
+    return math.remainder(angle, 360.0)
+
+
+@dataclass
+class Motion:
+    """One MOVE or TURN in progress: its start and planned end, in truth and odometry."""
+
+    seq: int
+    start: RobotPose
+    end: RobotPose
+    odo_start: tuple[float, float, float]
+    odo_end: tuple[float, float, float]
+    t0: float
+    duration: float
+    path: float  # commanded path length (mm, or deg for turns) for the battery model
+    fault_at: float | None = None  # fraction at which a simulated stall strikes
+
+
+class FakeBase:
+    """A simulated base controller driving ``world.robot``."""
+
+    def __init__(self, world: World, *, time_scale: float = 0.02, fault_rate: float = 0.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if not time_scale >= 0.0:
+            raise ValueError(f"time_scale={time_scale!r} must be >= 0")
+        if not 0.0 <= fault_rate <= 1.0:
+            raise ValueError(f"fault_rate={fault_rate!r} must be within 0..1")
+        self.world = world
+        self.time_scale = time_scale
+        self.fault_rate = fault_rate
+        self.clock = clock
+        self._lock = threading.RLock()
+        self._drive_rng = world.rng("robot.drive")
+        self._tilt_rng = world.rng("robot.tilt")
+        self._fault_rng = world.rng("robot.fault")
+        self.odometry = (0.0, 0.0, 0.0)
+        self.state = "IDLE"
+        self.fault = ""
+        self.motion: Motion | None = None
+        self.travelled_mm = 0.0
+        self._last_motion_cmd: tuple[str, bytes] | None = None  # (body, reply) for retries
+        self._out: list[bytes] = []
+        self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0}
+
+    # ------------------------------------------------------------------ I/O side
+
+    def drain(self) -> list[bytes]:
+        """Lines waiting to be sent (replies and events), oldest first."""
+        with self._lock:
+            out, self._out = self._out, []
+            return out
+
+    @property
+    def moving(self) -> bool:
+        return self.motion is not None
+
+    def handle_line(self, line: bytes) -> None:
+        """Process one received line (terminator removed); replies go to the outbox."""
+        with self._lock:
+            if not line.strip():
+                return
+            self.counters["rx_lines"] += 1
+            try:
+                msg = rp.decode(line)
+            except rp.ProtocolError as exc:
+                if exc.kind == "checksum":
+                    # the seq of a corrupted line cannot be trusted: answer without one
+                    self._nak(None, "CHECKSUM", str(exc))
+                    self.counters["bad_checksum"] += 1
+                elif exc.kind == "syntax":
+                    self._nak(None, "SYNTAX", str(exc))
+                else:
+                    self.counters["garbage"] += 1  # line noise: nothing to answer
+                return
+            try:
+                seq = msg.seq()
+            except rp.ProtocolError as exc:
+                self._nak(None, "SYNTAX", str(exc))
+                return
+            if seq is None:
+                self._nak(None, "SYNTAX", f"{msg.kind}: empty seq")
+                return
+            handler = {"HELLO": self._hello, "MOVE": self._move, "TURN": self._turn,
+                       "STOP": self._stop, "STATUS": self._status}.get(msg.kind)
+            if handler is None:
+                self._nak(seq, "UNKNOWN", f"unknown command {msg.kind}")
+                return
+            try:
+                handler(seq, msg)
+            except rp.ProtocolError as exc:
+                self._nak(seq, "SYNTAX", str(exc))
+
+    def _send(self, kind: str, *fields: object) -> bytes:
+        line = rp.encode(kind, *fields)
+        self._out.append(line)
+        return line
+
+    def _nak(self, seq: int | None, reason: str, text: str) -> None:
+        self.counters["naks"] += 1
+        self._send("NAK", seq, reason, rp.text_field(text))
+
+    # ------------------------------------------------------------------ commands
+
+    def _hello(self, seq: int, msg: rp.Message) -> None:
+        version = msg.field(1, "protocol")
+        if version != str(rp.PROTOCOL_VERSION):
+            self._nak(seq, "VERSION", f"base speaks protocol {rp.PROTOCOL_VERSION} not {version}")
+            return
+        self._last_motion_cmd = None  # a new session: seq numbers start over
+        caps = "INCL" if self.world.params.base_has_inclinometer else ""
+        self._send("VERSION", seq, rp.PROTOCOL_VERSION, MODEL, FIRMWARE, SERIAL_NUMBER, caps)
+
+    def _status(self, seq: int, msg: rp.Message) -> None:
+        self._advance()
+        with self.world.lock:
+            pose = self.world.robot
+        roll = pitch = None
+        if self.world.params.base_has_inclinometer:
+            roll, pitch = math.degrees(pose.roll_rad), math.degrees(pose.pitch_rad)
+        x, y, h = self.odometry
+        battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
+        self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
+                   None if roll is None else rp.num(roll, 6), None if pitch is None else rp.num(pitch, 6),
+                   rp.num(battery, 3), rp.text_field(self.fault))
+
+    def _stop(self, seq: int, msg: rp.Message) -> None:
+        self._advance()
+        self._send("ACK", seq, "STOP")
+        if self.motion is not None:
+            self._finish(self._fraction(), "STOPPED")
+        elif self.state == "FAULT":
+            self.state, self.fault = "IDLE", ""  # STOP acknowledges a latched fault
+
+    def _motion_precheck(self, seq: int, msg: rp.Message) -> bool:
+        """Duplicate/busy/fault handling shared by MOVE and TURN; True = go ahead."""
+        body = msg.body()
+        if self._last_motion_cmd is not None and self._last_motion_cmd[0] == body:
+            # same seq and arguments as the last accepted motion: the host retried
+            # because our ACK got lost — repeat the ACK, do not move twice
+            self.counters["duplicates"] += 1
+            self._out.append(self._last_motion_cmd[1])
+            return False
+        self._advance()
+        if self.state == "FAULT":
+            self._nak(seq, "FAULT", f"latched fault {self.fault}; send STOP to clear")
+            return False
+        if self.motion is not None:
+            self._nak(seq, "BUSY", f"moving (seq {self.motion.seq}); send STOP first")
+            return False
+        return True
+
+    def _move(self, seq: int, msg: rp.Message) -> None:
+        dist, speed = msg.number(1, "distance_mm"), msg.number(2, "speed_mm_s")
+        if abs(dist) > rp.MAX_DISTANCE_MM or not rp.MIN_SPEED_MM_S <= speed <= rp.MAX_SPEED_MM_S:
+            self._nak(seq, "RANGE", f"MOVE {dist} at {speed}: limits |d|<={rp.MAX_DISTANCE_MM} "
+                                    f"speed {rp.MIN_SPEED_MM_S}..{rp.MAX_SPEED_MM_S}")
+            return
+        if not self._motion_precheck(seq, msg):
+            return
+        p = self.world.params
+        z_heading, z_lateral = self._drive_rng.standard_normal(2)
+        travelled = dist * (1.0 + p.drive_scale_error)
+        lateral = z_lateral * p.drive_lateral_sigma_mm
+        with self.world.lock:
+            start = self.world.robot
+        a = math.radians(start.heading_deg)
+        end = replace(start, x_mm=start.x_mm + travelled * math.cos(a) - lateral * math.sin(a),
+                      y_mm=start.y_mm + travelled * math.sin(a) + lateral * math.cos(a),
+                      heading_deg=start.heading_deg + z_heading * p.drive_heading_sigma_deg)
+        ox, oy, oh = self.odometry
+        ob = math.radians(oh)
+        odo_end = (ox + dist * math.cos(ob), oy + dist * math.sin(ob), oh)
+        self._start_motion(seq, msg, start, end, odo_end, abs(dist) / speed, abs(dist))
+
+    def _turn(self, seq: int, msg: rp.Message) -> None:
+        angle, speed = msg.number(1, "angle_deg"), msg.number(2, "speed_deg_s")
+        if abs(angle) > rp.MAX_ANGLE_DEG or not rp.MIN_TURN_SPEED_DEG_S <= speed <= rp.MAX_TURN_SPEED_DEG_S:
+            self._nak(seq, "RANGE", f"TURN {angle} at {speed}: limits |a|<={rp.MAX_ANGLE_DEG} "
+                                    f"speed {rp.MIN_TURN_SPEED_DEG_S}..{rp.MAX_TURN_SPEED_DEG_S}")
+            return
+        if not self._motion_precheck(seq, msg):
+            return
+        p = self.world.params
+        z_heading = self._drive_rng.standard_normal()
+        with self.world.lock:
+            start = self.world.robot
+        end = replace(start, heading_deg=start.heading_deg + angle * (1.0 + p.drive_scale_error)
+                      + z_heading * p.drive_heading_sigma_deg)
+        ox, oy, oh = self.odometry
+        self._start_motion(seq, msg, start, end, (ox, oy, oh + angle), abs(angle) / speed, 0.0)
+
+    def _start_motion(self, seq: int, msg: rp.Message, start: RobotPose, end: RobotPose,
+                      odo_end: tuple[float, float, float], seconds: float, path_mm: float) -> None:
+        fault_at = None
+        if self.fault_rate > 0 and self._fault_rng.random() < self.fault_rate:
+            fault_at = float(self._fault_rng.uniform(0.2, 0.8))
+        self.motion = Motion(seq, start, end, self.odometry, odo_end, self.clock(),
+                             seconds * self.time_scale, path_mm, fault_at)
+        self.state = "MOVING"
+        ack = self._send("ACK", seq, msg.kind)
+        self._last_motion_cmd = (msg.body(), ack)
+        self._advance()  # an instant motion (time_scale 0) is DONE right after its ACK
+
+    # ------------------------------------------------------------------ motion
+
+    def tick(self) -> None:
+        """Advance the motion in progress to the current time (called by the server)."""
+        with self._lock:
+            self._advance()
+
+    def inject_fault(self, reason: str = "STALL") -> None:
+        """Fault now: stop where the robot is, latch FAULT and send a FAULT event."""
+        with self._lock:
+            self._advance()
+            if self.motion is not None:
+                self._finish(self._fraction(), "FAULT", reason)
+            else:
+                self.state, self.fault = "FAULT", reason
+                self._send("FAULT", None, rp.text_field(reason), "injected while idle")
+
+    def _fraction(self) -> float:
+        m = self.motion
+        assert m is not None
+        if m.duration <= 0.0:
+            return 1.0
+        return min(1.0, (self.clock() - m.t0) / m.duration)
+
+    def _advance(self) -> None:
+        m = self.motion
+        if m is None:
+            return
+        f = self._fraction()
+        if m.fault_at is not None and f >= m.fault_at:
+            self._finish(m.fault_at, "FAULT", "STALL")
+        elif f >= 1.0:
+            self._finish(1.0, "OK")
+        else:
+            self._place(f)
+
+    def _place(self, f: float) -> tuple[RobotPose, tuple[float, float, float]]:
+        """Put truth and odometry at fraction ``f`` of the motion (linear in time)."""
+        m = self.motion
+        assert m is not None
+        if f >= 1.0:
+            pose, odo = m.end, m.odo_end
+        else:
+            s, e = m.start, m.end
+            pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
+                           heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
+            odo = tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))  # type: ignore[assignment]
+        self.world.set_robot(pose)
+        self.odometry = odo
+        return pose, odo
+
+    def _finish(self, f: float, result: str, reason: str = "") -> None:
+        """End the motion at fraction ``f``: settle (new tilt), report DONE or FAULT."""
+        m = self.motion
+        assert m is not None
+        pose, (ox, oy, oh) = self._place(f)
+        p = self.world.params
+        roll, pitch = self._tilt_rng.standard_normal(2) * p.floor_tilt_sigma_mrad * 1e-3
+        self.world.set_robot(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
+                                     roll_rad=float(roll), pitch_rad=float(pitch)))
+        self.odometry = (ox, oy, _wrap_deg(oh))
+        self.travelled_mm += f * m.path
+        self.motion = None
+        if result == "FAULT":
+            self.state, self.fault = "FAULT", reason
+            self._send("FAULT", m.seq, reason, "simulated wheel stall")
+        else:
+            self.state = "IDLE"
+            self._send("DONE", m.seq, result, rp.num(ox, 4), rp.num(oy, 4), rp.num(_wrap_deg(oh), 6))
