@@ -1,0 +1,225 @@
+"""Simulation protocol harness (calibration.md §7.1) on the shared simulated world.
+
+Generates what the real procedure would observe, plus the truth to score it:
+
+* a calibration visit: the robot on the plate at P0 with the target centre under the
+  camera, an image (ray-cast by :class:`fakes.render.Renderer`, or rendering-free:
+  the exact ``cam_H_ref`` or a PnP on projected corners with pixel noise), the
+  reflector after a straight move of d (P1), and the three nests, all with tracker
+  noise σ_t per coordinate;
+* a validation run: ψ_k = 360°·k/N (+ N(0, 0.5°)) × repetitions, the mark within ±3 mm
+  of the footprint centre, P_prev = P_at − d·heading, tracker noise, the mark's pixel
+  position (rendered and located, or projected truth + 0.05 px noise).
+
+Stress options: lateral path deviation between the heading positions, robot tilt at
+use (optionally reported by the base), and the plate-definition nest bias of the
+world itself (``WorldParams.nest_definition_bias_mm``). This is the one calibration
+module that imports ``fakes``.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calibration.camera_model import CameraModel
+from calibration.frames import apply_H, inv_H
+from calibration.plate import NEST_NAMES, Plate
+from fakes.world import FloorMark, RobotPose, World
+
+
+@dataclass
+class SimConfig:
+    """Every knob of one simulated experiment (mm, degrees, pixels)."""
+
+    sigma_t_mm: float = 0.010
+    move_mm: float = 200.0  # d: distance between the two heading positions
+    directions: int = 8
+    repetitions: int = 5
+    heading_jitter_deg: float = 0.5
+    mark_window_mm: float = 3.0  # the mark lands within ± this of the footprint centre
+    render: bool = False
+    size: tuple[int, int] = (1000, 750)
+    mark_sigma_px: float = 0.05  # rendering-free mark localisation noise
+    pnp_sigma_px: float = 0.0  # rendering-free calibration: 0 = exact cam_H_ref, else PnP on noisy corners
+    path_sigma_mm: float = 0.0  # lateral deviation of P1 / P_prev
+    tilt_sigma_mrad: float = 0.0  # robot roll and pitch at each validation stop
+    report_tilt: bool = False  # the base reports its roll/pitch (inclinometer)
+    mark: str = "M1"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_t_mm", "mark_sigma_px", "pnp_sigma_px", "path_sigma_mm", "tilt_sigma_mrad",
+                     "heading_jitter_deg", "mark_window_mm"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"SimConfig.{name} must be a finite value >= 0, got {v}")
+        if self.move_mm <= 0 or self.directions < 1 or self.repetitions < 1:
+            raise ValueError(f"SimConfig: move_mm={self.move_mm}, directions={self.directions}, "
+                             f"repetitions={self.repetitions} must all be positive")
+
+
+@dataclass
+class CalibrationObs:
+    """One simulated referencing visit: observations plus truth."""
+
+    heading_deg: float
+    abs_P_nests: np.ndarray  # (3, 3) measured, red/green/blue
+    abs_P_rob0: np.ndarray
+    abs_P_rob1: np.ndarray
+    cam_ref: Any  # exact 4x4 cam_H_ref, a CamRefPose, or None when ``image`` is set
+    image: np.ndarray | None
+    abs_H_rob_true: np.ndarray
+    cam_H_ref_true: np.ndarray
+
+
+@dataclass
+class MarkObs:
+    """One validation stop: where the mark was seen and where the reflector was."""
+
+    direction: int
+    heading_deg: float  # true heading
+    uv: np.ndarray  # (2,) located pixel position
+    abs_P_prev: np.ndarray
+    abs_P_at: np.ndarray
+    roll_deg: float | None  # as reported by the base (None: no inclinometer)
+    pitch_deg: float | None
+    abs_H_rob_true: np.ndarray
+    uv_true: np.ndarray
+
+
+@dataclass
+class ValidationSet:
+    """All stops of one validation run and the true mark position (ACS)."""
+
+    mark_abs: np.ndarray
+    observations: list[MarkObs] = field(default_factory=list)
+
+
+def _key(name: str) -> int:
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little")
+
+
+class Simulation:
+    """Calibration and validation observations drawn from one :class:`World`."""
+
+    def __init__(self, world: World, config: SimConfig | None = None) -> None:
+        self.world = world
+        self.cfg = config or SimConfig()
+        self.model = CameraModel(world.camera_matrix(self.cfg.size), world.dist_coeffs(), self.cfg.size)
+        self.plate: Plate = world.plate()
+        self._renderer: Any = None
+        marks = {m.name: m for m in world.params.marks}
+        if self.cfg.mark not in marks:
+            raise ValueError(f"SimConfig.mark={self.cfg.mark!r} is not a world mark ({sorted(marks)})")
+        self.mark: FloorMark = marks[self.cfg.mark]
+
+    def rng(self, name: str) -> np.random.Generator:
+        """Independent generator per stream, from the config seed and the world seed."""
+        return np.random.default_rng([self.cfg.seed, self.world.params.seed, _key(name)])
+
+    @property
+    def renderer(self) -> Any:
+        if self._renderer is None:
+            from fakes.render import Renderer
+
+            self._renderer = Renderer(self.world, self.cfg.size)
+        return self._renderer
+
+    def _tracker(self, P: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return np.asarray(P, dtype=float) + rng.normal(0.0, self.cfg.sigma_t_mm, size=np.shape(P))
+
+    # ------------------------------------------------------------------ calibration
+
+    def calibration(self, heading_deg: float | None = None, stream: str = "calib") -> CalibrationObs:
+        """A referencing visit at ``heading_deg`` (default: random) with the target centre in view."""
+        w, cfg = self.world, self.cfg
+        rng = self.rng(stream)
+        if heading_deg is None:
+            heading_deg = float(rng.uniform(-180.0, 180.0))
+        pose0 = w.pose_with_target_in_view(heading_deg)
+        a = math.radians(heading_deg)
+        lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
+        pose1 = RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
+                          pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a), heading_deg)
+        abs_H_rob0 = w.abs_H_rob(pose0)
+        if not (w.on_plate(pose0.x_mm, pose0.y_mm) and w.on_plate(pose1.x_mm, pose1.y_mm)):
+            raise ValueError(f"calibration at heading {heading_deg:.1f}°: the robot would leave the plate")
+        abs_H_cam = abs_H_rob0 @ w.rob_H_cam
+        cam_H_ref_true = inv_H(abs_H_cam) @ w.abs_H_ref
+        nests_true = np.array([w.nests_abs()[n] for n in NEST_NAMES])
+        abs_P_nests = self._tracker(nests_true, rng)
+        P0 = self._tracker(abs_H_rob0[:3, 3], rng)
+        P1 = self._tracker(w.abs_H_rob(pose1)[:3, 3], rng)
+        image = None
+        cam_ref: Any = cam_H_ref_true
+        if cfg.render:
+            image = self.renderer.render(abs_H_cam, rng=self.rng(stream + "-image"))
+            cam_ref = None
+        elif cfg.pnp_sigma_px > 0:
+            from calibration.target import pose_from_corners
+            from fakes.render import true_corner_projections
+
+            ids, uv = true_corner_projections(w, cfg.size, abs_H_cam)
+            uv = uv + self.rng(stream + "-corners").normal(0.0, cfg.pnp_sigma_px, size=uv.shape)
+            cam_ref = pose_from_corners(ids, uv, self.model, self.plate)
+        return CalibrationObs(heading_deg, abs_P_nests, P0, P1, cam_ref, image, abs_H_rob0, cam_H_ref_true)
+
+    # ------------------------------------------------------------------ validation
+
+    def validation(self, stream: str = "validation", psi0_deg: float = 0.0) -> ValidationSet:
+        """The N-direction × repetitions run over the configured mark."""
+        w, cfg = self.world, self.cfg
+        rng = self.rng(stream)
+        M = np.array([self.mark.x_mm, self.mark.y_mm, 0.0])
+        out = ValidationSet(M)
+        for k in range(cfg.directions):
+            for r in range(cfg.repetitions):
+                psi = psi0_deg + 360.0 * k / cfg.directions + rng.normal(0.0, cfg.heading_jitter_deg)
+                tx, ty = M[:2] + rng.uniform(-cfg.mark_window_mm, cfg.mark_window_mm, size=2)
+                pose = w.pose_with_footprint_at(tx, ty, psi)
+                if cfg.tilt_sigma_mrad:
+                    pose.roll_rad, pose.pitch_rad = rng.normal(0.0, cfg.tilt_sigma_mrad * 1e-3, size=2)
+                if w.on_plate(pose.x_mm, pose.y_mm):
+                    raise ValueError(f"validation stop at ({pose.x_mm:.0f}, {pose.y_mm:.0f}) is on the plate; "
+                                     "move the mark away from it")
+                abs_H_rob = w.abs_H_rob(pose)
+                a = math.radians(psi)
+                heading, left = np.array([math.cos(a), math.sin(a), 0.0]), np.array([-math.sin(a), math.cos(a), 0.0])
+                lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
+                P_at_true = abs_H_rob[:3, 3]
+                P_prev_true = P_at_true - cfg.move_mm * heading + lateral * left
+                P_at = self._tracker(P_at_true, rng)
+                P_prev = self._tracker(P_prev_true, rng)
+                abs_H_cam = abs_H_rob @ w.rob_H_cam
+                uv_true = self.model.project(apply_H(inv_H(abs_H_cam), M)[None, :])[0]
+                uv = self._locate(abs_H_cam, uv_true, rng, f"{stream}-{k}-{r}")
+                roll = pitch = None
+                if cfg.report_tilt:
+                    roll, pitch = math.degrees(pose.roll_rad), math.degrees(pose.pitch_rad)
+                out.observations.append(MarkObs(k, psi, uv, P_prev, P_at, roll, pitch, abs_H_rob, uv_true))
+        return out
+
+    def _locate(self, abs_H_cam: np.ndarray, uv_true: np.ndarray, rng: np.random.Generator, name: str
+                ) -> np.ndarray:
+        if not self.cfg.render:
+            return uv_true + rng.normal(0.0, self.cfg.mark_sigma_px, size=2)
+        from calibration.marks import locate_mark
+
+        image = self.renderer.render(abs_H_cam, rng=self.rng(name))
+        return np.asarray(locate_mark(image, kind=self.mark.kind).uv, dtype=float).reshape(2)
+
+    # ------------------------------------------------------------------ truth
+
+    def true_bias(self, rob_H_scn: np.ndarray, scs: Any) -> np.ndarray:
+        """Robot-frame xy error of a calibration's mark mapping at the footprint centre (mm)."""
+        w = self.world
+        p = w.params
+        rob_P = np.array([*p.cam_footprint_mm, -p.reflector_height_mm])
+        uv = self.model.project(apply_H(inv_H(w.rob_H_cam), rob_P)[None, :])
+        scn_xy = scs.image_to_scn(uv)[0]
+        est = apply_H(rob_H_scn, np.array([scn_xy[0], scn_xy[1], 0.0]))
+        return (est - rob_P)[:2]

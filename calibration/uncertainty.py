@@ -1,0 +1,147 @@
+"""Covariance of a referencing result by seeded Monte Carlo.
+
+The referencing chain is run again on perturbed inputs: every tracker point (three
+nests, P0, P1) gets N(0, σ_t²) per coordinate, and the image-derived ``cam_H_ref``
+gets a draw from its PnP covariance. Poses are summarised as 6-vectors
+(translation mm, rotation vector rad) of the perturbation ``H = [exp(δr)·R̂ | t̂ + δt]``.
+The chain itself is passed in as a function, so this module knows no frames beyond
+the pose parameterisation; :mod:`calibration.referencing` supplies it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+#: chain(abs_P_nests (3,3), P0 (3,), P1 (3,), cam_H_ref) -> (rob_H_cam, rob_H_scn)
+Chain = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (axis·angle, rad) of a rotation matrix."""
+    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
+
+
+def rotmat(r: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (rad)."""
+    return cv2.Rodrigues(np.asarray(r, dtype=float).reshape(3, 1))[0]
+
+
+def pose_delta(H: np.ndarray, H_ref: np.ndarray) -> np.ndarray:
+    """6-vector (δt mm, δr rad) with ``H = [exp(δr)·R_ref | t_ref + δt]``."""
+    return np.concatenate([H[:3, 3] - H_ref[:3, 3], rotvec(H[:3, :3] @ H_ref[:3, :3].T)])
+
+
+def perturb_pose(H_ref: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`pose_delta`: apply a 6-vector perturbation to ``H_ref``."""
+    H = np.eye(4)
+    H[:3, :3] = rotmat(delta[3:]) @ H_ref[:3, :3]
+    H[:3, 3] = H_ref[:3, 3] + delta[:3]
+    return H
+
+
+def footprint(rob_H_cam: np.ndarray, rob_H_plane: np.ndarray) -> np.ndarray:
+    """Where the optical axis meets the plane z = 0 of ``rob_H_plane``, in RCS (3,)."""
+    C, a = rob_H_cam[:3, 3], rob_H_cam[:3, 2]
+    o, m = rob_H_plane[:3, 3], rob_H_plane[:3, 2]
+    denom = float(a @ m)
+    if abs(denom) < 1e-9:
+        raise ValueError("footprint: optical axis is parallel to the plane")
+    return C + a * float((o - C) @ m) / denom
+
+
+def pnp_covariance(K: np.ndarray, dist: np.ndarray, cam_H_ref: np.ndarray, ref_P: np.ndarray,
+                   sigma_px: float) -> np.ndarray:
+    """First-order covariance of ``cam_H_ref`` as (δt, δr) from its corner correspondences.
+
+    Gauss-Newton: Σ = σ²(JᵀJ)⁻¹ with J the Jacobian of the projection of the board
+    points with respect to the pose; OpenCV's ``projectPoints`` returns it for
+    (rvec, tvec), which is converted to this module's (δt, δr) perturbation.
+    """
+    ref_P = np.asarray(ref_P, dtype=float).reshape(-1, 3)
+    if len(ref_P) < 4:
+        raise ValueError(f"pnp_covariance: need at least 4 corners, got {len(ref_P)}")
+    if not np.isfinite(sigma_px) or sigma_px <= 0:
+        raise ValueError(f"pnp_covariance: sigma_px must be > 0, got {sigma_px}")
+    rvec = rotvec(cam_H_ref[:3, :3])
+    tvec = cam_H_ref[:3, 3]
+    _, J = cv2.projectPoints(ref_P.reshape(-1, 1, 3), rvec, tvec, K, dist)
+    Jp = J[:, :6]  # columns: rvec (3), tvec (3)
+    cov_rt = sigma_px ** 2 * np.linalg.inv(Jp.T @ Jp)
+    # numerically map a small rvec step to the (δt, δr) parameterisation
+    eps = 1e-7
+    A = np.zeros((6, 6))
+    base = cam_H_ref
+    for k in range(6):
+        rv, tv = rvec.copy(), tvec.copy()
+        (rv if k < 3 else tv)[k % 3] += eps
+        H = np.eye(4)
+        H[:3, :3], H[:3, 3] = rotmat(rv), tv
+        A[:, k] = pose_delta(H, base) / eps
+    return A @ cov_rt @ A.T
+
+
+@dataclass
+class PoseUncertainty:
+    """Spread of ``rob_H_cam`` (and ``rob_H_scn``) from a Monte Carlo run."""
+
+    cov_rob_H_cam: np.ndarray  # 6x6, (δt mm, δr rad)
+    cov_rob_H_scn: np.ndarray  # 6x6, same parameterisation
+    std_footprint_mm: np.ndarray  # (2,) RCS x, y of the camera footprint
+    n_samples: int
+    method: str
+
+    @property
+    def std_t_mm(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov_rob_H_cam)[:3])
+
+    @property
+    def std_rot_deg(self) -> np.ndarray:
+        return np.degrees(np.sqrt(np.diag(self.cov_rob_H_cam)[3:]))
+
+    @property
+    def footprint_std_mm(self) -> float:
+        """Radial std of the footprint, sqrt(σx² + σy²)."""
+        return float(np.hypot(*self.std_footprint_mm))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"std_t_mm": self.std_t_mm.tolist(), "std_rot_deg": self.std_rot_deg.tolist(),
+                "std_footprint_mm": self.std_footprint_mm.tolist(),
+                "footprint_std_mm": self.footprint_std_mm,
+                "cov_rob_H_cam": self.cov_rob_H_cam.tolist(), "cov_rob_H_scn": self.cov_rob_H_scn.tolist(),
+                "n_samples": self.n_samples, "method": self.method}
+
+
+def monte_carlo(chain: Chain, abs_P_nests: np.ndarray, abs_P_rob0: np.ndarray, abs_P_rob1: np.ndarray,
+                cam_H_ref: np.ndarray, sigma_t_mm: float, cov_cam_H_ref: np.ndarray | None = None,
+                n_samples: int = 200, seed: int = 0) -> PoseUncertainty:
+    """Covariance of the chain's ``rob_H_cam`` and ``rob_H_scn`` under input noise."""
+    if n_samples < 10:
+        raise ValueError(f"monte_carlo: n_samples must be >= 10, got {n_samples}")
+    if not np.isfinite(sigma_t_mm) or sigma_t_mm < 0:
+        raise ValueError(f"monte_carlo: sigma_t_mm must be >= 0, got {sigma_t_mm}")
+    rng = np.random.default_rng(seed)
+    rob_H_cam0, rob_H_scn0 = chain(abs_P_nests, abs_P_rob0, abs_P_rob1, cam_H_ref)
+    L = None
+    if cov_cam_H_ref is not None:
+        cov = np.asarray(cov_cam_H_ref, dtype=float)
+        if cov.shape != (6, 6):
+            raise ValueError(f"monte_carlo: cov_cam_H_ref must be 6x6, got {cov.shape}")
+        w, V = np.linalg.eigh((cov + cov.T) / 2)
+        L = V * np.sqrt(np.clip(w, 0, None))
+    d_cam = np.empty((n_samples, 6))
+    d_scn = np.empty((n_samples, 6))
+    foot = np.empty((n_samples, 2))
+    foot0 = footprint(rob_H_cam0, rob_H_scn0)
+    for k in range(n_samples):
+        n = rng.normal(0.0, sigma_t_mm, size=(5, 3))
+        H_ref = cam_H_ref if L is None else perturb_pose(cam_H_ref, L @ rng.normal(size=6))
+        rc, rs = chain(abs_P_nests + n[:3], abs_P_rob0 + n[3], abs_P_rob1 + n[4], H_ref)
+        d_cam[k] = pose_delta(rc, rob_H_cam0)
+        d_scn[k] = pose_delta(rs, rob_H_scn0)
+        foot[k] = (footprint(rc, rs) - foot0)[:2]
+    method = f"monte carlo, {n_samples} samples, σ_t = {sigma_t_mm * 1000:.1f} µm" + (
+        ", PnP covariance" if L is not None else ", cam_H_ref fixed")
+    return PoseUncertainty(np.cov(d_cam.T), np.cov(d_scn.T), foot.std(axis=0, ddof=1), n_samples, method)
