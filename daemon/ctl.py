@@ -17,6 +17,7 @@ Exit codes: 0 ok, 1 the daemon answered with an error, 2 usage, 3 no answer.
 from __future__ import annotations
 
 import argparse
+import array
 import collections
 import json
 import struct
@@ -176,7 +177,12 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
         h = result["header"]
         shape = h["shape"]
         depth = 16 if h["dtype"].endswith("2") else 8
-        write_png(Path(a.out), bytes(extra[0].buffer), shape[1], shape[0], shape[2] if len(shape) == 3 else 1, depth)
+        data = bytes(extra[0].buffer)
+        if depth == 16 and h["dtype"].startswith("<"):  # PNG stores 16-bit samples big-endian
+            words = array.array("H", data)
+            words.byteswap()
+            data = words.tobytes()
+        write_png(Path(a.out), data, shape[1], shape[0], shape[2] if len(shape) == 3 else 1, depth)
         Path(a.out).with_suffix(".json").write_text(json.dumps(h, indent=2))
         print(f"saved {a.out} (+ .json metadata)")
         return 0

@@ -1,0 +1,44 @@
+"""ritactl: thin imports, clear errors, and the stdlib PNG writer."""
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+
+from daemon import ctl
+
+
+def test_ritactl_imports_no_opencv_harvesters_or_numpy():
+    code = ("import sys, daemon.ctl, daemon.client; "
+            "print([m for m in ('cv2', 'harvesters', 'genicam', 'numpy', 'serial') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_unreachable_daemon_is_a_clear_error(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "daemon.ctl", "--endpoint", f"ipc://{tmp_path}/none",
+                          "--timeout", "0.5", "status"], capture_output=True, text=True, timeout=30)
+    assert res.returncode == 3
+    assert "no answer from ritad" in res.stderr and "--endpoint" in res.stderr
+
+
+def test_usage_errors(capsys):
+    for argv in (["tracker", "aim", "1", "2"], ["robot", "move"], ["tracker", "stream", "go"],
+                 ["robot", "move", "abc"]):
+        try:
+            ctl.main(argv)
+        except SystemExit as e:
+            assert e.code == 2
+        else:
+            raise AssertionError(f"{argv} accepted")
+
+
+def test_png_writer_roundtrip(tmp_path):
+    import cv2
+
+    img = (np.arange(37 * 23) % 256).astype(np.uint8).reshape(23, 37)
+    ctl.write_png(tmp_path / "a.png", img.tobytes(), 37, 23)
+    assert np.array_equal(cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED), img)
+    img16 = (np.arange(37 * 23, dtype=np.uint16) * 61).reshape(23, 37)
+    ctl.write_png(tmp_path / "b.png", img16.astype(">u2").tobytes(), 37, 23, bit_depth=16)
+    assert np.array_equal(cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_UNCHANGED), img16)
