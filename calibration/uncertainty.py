@@ -20,13 +20,35 @@ Chain = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndar
 
 
 def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis·angle, rad) of a rotation matrix."""
-    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
+    """Rotation vector (axis·angle, rad) of a rotation matrix.
+
+    Written out rather than ``cv2.Rodrigues``, which returns zero for angles below
+    about 1e-5 rad, the very size of the errors this module measures.
+    """
+    R = np.asarray(R, dtype=float)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = np.linalg.norm(w) / 2
+    c = (np.trace(R) - 1) / 2
+    theta = float(np.arctan2(s, np.clip(c, -1.0, 1.0)))
+    if theta < 1e-8:
+        return w / 2
+    if np.pi - theta > 1e-6:
+        return w * (theta / (2 * s))
+    # near π the antisymmetric part vanishes; the axis is the dominant column of R + I
+    B = (R + np.eye(3)) / 2
+    k = int(np.argmax(np.diag(B)))
+    axis = B[:, k] / np.sqrt(max(B[k, k], 1e-300))
+    return axis * theta
 
 
 def rotmat(r: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (rad)."""
-    return cv2.Rodrigues(np.asarray(r, dtype=float).reshape(3, 1))[0]
+    """Rotation matrix of a rotation vector (rad), Rodrigues' formula."""
+    r = np.asarray(r, dtype=float).reshape(3)
+    theta = float(np.linalg.norm(r))
+    Kx = np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
+    if theta < 1e-8:
+        return np.eye(3) + Kx + Kx @ Kx / 2
+    return np.eye(3) + np.sin(theta) / theta * Kx + (1 - np.cos(theta)) / theta ** 2 * Kx @ Kx
 
 
 def pose_delta(H: np.ndarray, H_ref: np.ndarray) -> np.ndarray:
