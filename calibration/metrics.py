@@ -1,0 +1,256 @@
+"""Repeatability metrics of the 8-direction experiment, in the paper's table format.
+
+Per approach direction: mean position, max and mean distance from the mean, the exact
+minimum enclosing circle radius and the approach-angle range; the same for all points
+("All" row); the mean L2 distance between cluster means in both readings (mean over
+pairs, mean distance to their centroid); and the least-squares fit of the cluster
+means ``M_k = M + R(ψ_k)·b`` giving the mark M and the robot-frame bias b
+(calibration.md §6.2, §7.2).
+
+The enclosing circle is Welzl's algorithm in float64 on coordinates centred and
+scaled to µm: ``cv2.minEnclosingCircle`` works in float32 and pads the radius by
+about 1e-4 input units (calibration.md §2.3).
+"""
+from __future__ import annotations
+
+import io
+import itertools
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: direction names by nominal heading (deg), as in the paper's table (0° = "up")
+DIRECTION_NAMES = {0: "up", 45: "upleft", 90: "left", 135: "downleft", 180: "down",
+                   -135: "downright", -90: "right", -45: "upright"}
+
+
+def _circle2(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    c = (a + b) / 2
+    return c, float(np.linalg.norm(a - c))
+
+
+def _circle3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, float]:
+    """Circumcircle; for (nearly) collinear points the circle over the farthest pair."""
+    bx, by = b - a
+    cx, cy = c - a
+    d = 2 * (bx * cy - by * cx)
+    scale = max(bx * bx + by * by, cx * cx + cy * cy, 1e-300)
+    if abs(d) < 1e-12 * scale:
+        return max((_circle2(p, q) for p, q in ((a, b), (a, c), (b, c))), key=lambda x: x[1])
+    ux = (cy * (bx * bx + by * by) - by * (cx * cx + cy * cy)) / d
+    uy = (bx * (cx * cx + cy * cy) - cx * (bx * bx + by * by)) / d
+    centre = a + np.array([ux, uy])
+    return centre, float(np.hypot(ux, uy))
+
+
+def min_enclosing_circle(points: Any, seed: int = 0) -> tuple[np.ndarray, float]:
+    """Exact smallest circle containing all 2D ``points`` (N, 2): ``(centre, radius)``, same units."""
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or P.shape[1] != 2 or len(P) == 0:
+        raise ValueError(f"min_enclosing_circle: expected an (N, 2) array with N >= 1, got shape {P.shape}")
+    if not np.all(np.isfinite(P)):
+        raise ValueError("min_enclosing_circle: points contain non-finite values")
+    origin = P.mean(axis=0)
+    span = float(np.abs(P - origin).max()) or 1.0
+    Q = (P - origin) / span  # well conditioned, whatever the input units
+    Q = Q[np.random.default_rng(seed).permutation(len(Q))]  # expected linear time
+    eps = 1e-12
+
+    def outside(p: np.ndarray, c: np.ndarray, r: float) -> bool:
+        return float(np.linalg.norm(p - c)) > r + eps
+
+    c, r = Q[0].copy(), 0.0
+    for i in range(1, len(Q)):
+        if not outside(Q[i], c, r):
+            continue
+        c, r = Q[i].copy(), 0.0
+        for j in range(i):
+            if not outside(Q[j], c, r):
+                continue
+            c, r = _circle2(Q[i], Q[j])
+            for k in range(j):
+                if outside(Q[k], c, r):
+                    c, r = _circle3(Q[i], Q[j], Q[k])
+    return origin + c * span, r * span
+
+
+def min_enclosing_circle_brute(points: Any) -> tuple[np.ndarray, float]:
+    """Reference O(N⁴) solution over all pair and triple circles (for tests on small sets)."""
+    P = np.asarray(points, dtype=float)
+    best: tuple[np.ndarray, float] = (P[0], 0.0) if len(P) == 1 else (P[0], np.inf)
+    cands = [_circle2(P[i], P[j]) for i, j in itertools.combinations(range(len(P)), 2)]
+    cands += [_circle3(P[i], P[j], P[k]) for i, j, k in itertools.combinations(range(len(P)), 3)]
+    for c, r in cands:
+        if r < best[1] and np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-9) + 1e-12):
+            best = (c, r)
+    return best
+
+
+def wrap_deg(a: Any) -> Any:
+    """Angle(s) wrapped to [−180, 180)."""
+    return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def direction_name(nominal_deg: float) -> str:
+    """Paper-style name for a heading that is a multiple of 45°, else e.g. '30deg'."""
+    k = int(round(float(wrap_deg(nominal_deg))))
+    k = 180 if k == -180 else k
+    return DIRECTION_NAMES.get(k, f"{k}deg")
+
+
+@dataclass
+class ClusterStats:
+    """One row of the table: a cluster of measurements (or all of them)."""
+
+    name: str
+    n: int
+    mean: list[float]  # ACS x, y, mm
+    max_from_mean_mm: float
+    mean_from_mean_mm: float
+    radius_mm: float  # minimum enclosing circle
+    angle_range_deg: list[float] | None  # [min, max] approach heading
+
+
+def cluster_stats(name: str, xy: np.ndarray, headings: np.ndarray | None) -> ClusterStats:
+    m = xy.mean(axis=0)
+    d = np.linalg.norm(xy - m, axis=1)
+    _, r = min_enclosing_circle(xy)
+    rng = None
+    if headings is not None:
+        ref = float(np.degrees(np.arctan2(np.sin(np.radians(headings)).mean(), np.cos(np.radians(headings)).mean())))
+        dev = wrap_deg(headings - ref)
+        rng = [ref + float(dev.min()), ref + float(dev.max())]
+    return ClusterStats(name, len(xy), m.tolist(), float(d.max()), float(d.mean()), r, rng)
+
+
+@dataclass
+class BiasFit:
+    """Least-squares ``M_k = M + R(ψ_k)·b`` over the cluster means."""
+
+    M: list[float]  # the mark, ACS xy, mm
+    b: list[float]  # robot-frame bias, RCS xy, mm
+    b_norm_mm: float
+    rms_mm: float  # residual RMS of the cluster means
+
+
+def fit_bias(means: np.ndarray, headings_deg: np.ndarray) -> BiasFit:
+    """Fit the true mark M (ACS-fixed) and robot-frame bias b to cluster means at headings ψ_k."""
+    means = np.asarray(means, dtype=float)
+    psi = np.radians(np.asarray(headings_deg, dtype=float))
+    if len(means) < 3:
+        raise ValueError(f"fit_bias: need at least 3 directions to separate M and b, got {len(means)}")
+    c, s = np.cos(psi), np.sin(psi)
+    A = np.zeros((2 * len(psi), 4))
+    A[0::2, 0], A[1::2, 1] = 1, 1
+    A[0::2, 2], A[0::2, 3] = c, -s
+    A[1::2, 2], A[1::2, 3] = s, c
+    if np.linalg.cond(A) > 1e6:
+        raise ValueError(f"fit_bias: headings {np.degrees(psi).round(1).tolist()} do not separate M from b")
+    x, *_ = np.linalg.lstsq(A, means.reshape(-1), rcond=None)
+    res = means.reshape(-1) - A @ x
+    return BiasFit(x[:2].tolist(), x[2:].tolist(), float(np.hypot(*x[2:])),
+                   float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2 @ np.ones(2)))))
+
+
+@dataclass
+class ExperimentMetrics:
+    """The paper's table plus the between-cluster figures and the bias fit."""
+
+    clusters: list[ClusterStats]
+    all: ClusterStats
+    pairwise_mean_mm: float  # mean L2 distance over all pairs of cluster means
+    centroid_mean_mm: float  # mean distance of the cluster means to their centroid
+    fit: BiasFit | None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def enclosing_diameter_mm(self) -> float:
+        return 2 * self.all.radius_mm
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"clusters": [asdict(c) for c in self.clusters], "all": asdict(self.all),
+                "enclosing_diameter_mm": self.enclosing_diameter_mm, "pairwise_mean_mm": self.pairwise_mean_mm,
+                "centroid_mean_mm": self.centroid_mean_mm, "fit": None if self.fit is None else asdict(self.fit),
+                **self.extra}
+
+    def rows(self) -> list[list[str]]:
+        """Table rows (header first), numbers formatted as in the paper."""
+        out = [["Direction", "Mean X [mm]", "Mean Y [mm]", "Max from Mean [mm]", "Mean from Mean [mm]",
+                "Cluster Radius [mm]", "Approach Angle Range [deg]"]]
+        for c in [*self.clusters, self.all]:
+            ang = "" if c.angle_range_deg is None or c is self.all else \
+                f"[{c.angle_range_deg[0]:.2f}, {c.angle_range_deg[1]:.2f}]"
+            out.append([c.name, f"{c.mean[0]:.3f}", f"{c.mean[1]:.3f}", f"{c.max_from_mean_mm:.3f}",
+                        f"{c.mean_from_mean_mm:.3f}", f"{c.radius_mm:.3f}", ang])
+        return out
+
+    def summary(self) -> list[tuple[str, str]]:
+        s = [("Enclosing diameter, all points [mm]", f"{self.enclosing_diameter_mm:.3f}"),
+             ("Mean L2 distance between cluster means, over pairs [mm]", f"{self.pairwise_mean_mm:.3f}"),
+             ("Mean L2 distance of cluster means to their centroid [mm]", f"{self.centroid_mean_mm:.3f}")]
+        if self.fit is not None:
+            s += [("Fitted mark M (x, y) [mm]", f"{self.fit.M[0]:.3f}, {self.fit.M[1]:.3f}"),
+                  ("Robot-frame bias b (x, y) [mm]", f"{self.fit.b[0]:.4f}, {self.fit.b[1]:.4f}"),
+                  ("|b| [mm]", f"{self.fit.b_norm_mm:.4f}"), ("Fit residual RMS [mm]", f"{self.fit.rms_mm:.4f}")]
+        s += [(k, f"{v:.4f}" if isinstance(v, float) else str(v)) for k, v in self.extra.items()]
+        return s
+
+    def to_markdown(self) -> str:
+        rows = self.rows()
+        lines = ["| " + " | ".join(rows[0]) + " |", "|" + "|".join(["---"] + ["---:"] * 6) + "|"]
+        for row in rows[1:]:
+            name = f"**{row[0]}**" if row[0] == "All" else row[0]
+            lines.append("| " + " | ".join([name, *row[1:]]) + " |")
+        lines.append("")
+        lines += [f"*{k}*: {v}  " for k, v in self.summary()]
+        return "\n".join(lines) + "\n"
+
+    def to_csv(self) -> str:
+        import csv
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerows(self.rows())
+        w.writerow([])
+        w.writerow(["metric", "value"])
+        w.writerows(self.summary())
+        return buf.getvalue()
+
+
+def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> ExperimentMetrics:
+    """Metrics of measured mark positions (N, 2 or 3; ACS mm) taken at approach headings (N,) in degrees.
+
+    Points are grouped by ``groups`` labels if given, else by the heading rounded to the
+    nearest multiple of 45°; clusters are named as in the paper.
+    """
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or P.shape[1] not in (2, 3) or len(P) < 1:
+        raise ValueError(f"experiment_metrics: points must be (N, 2) or (N, 3), got shape {P.shape}")
+    xy = P[:, :2]
+    h = np.asarray(headings_deg, dtype=float).reshape(-1)
+    if len(h) != len(xy) or not np.all(np.isfinite(h)) or not np.all(np.isfinite(xy)):
+        raise ValueError(f"experiment_metrics: need {len(xy)} finite headings and points, got {len(h)} headings")
+    if groups is None:
+        nominal = wrap_deg(np.round(h / 45.0) * 45.0)
+        nominal[nominal == -180.0] = 180.0
+        labels = [direction_name(a) for a in nominal]
+    else:
+        labels = [str(g) for g in groups]
+        if len(labels) != len(xy):
+            raise ValueError(f"experiment_metrics: {len(labels)} group labels for {len(xy)} points")
+    order = list(dict.fromkeys(labels))
+    clusters, means, mean_h = [], [], []
+    for name in order:
+        idx = np.array([i for i, g in enumerate(labels) if g == name])
+        clusters.append(cluster_stats(name, xy[idx], h[idx]))
+        means.append(xy[idx].mean(axis=0))
+        rad = np.radians(h[idx])
+        mean_h.append(np.degrees(np.arctan2(np.sin(rad).mean(), np.cos(rad).mean())))
+    allc = cluster_stats("All", xy, None)
+    means_a = np.array(means)
+    pairs = [np.linalg.norm(means_a[i] - means_a[j]) for i, j in itertools.combinations(range(len(means_a)), 2)]
+    pairwise = float(np.mean(pairs)) if pairs else 0.0
+    centroid = float(np.mean(np.linalg.norm(means_a - means_a.mean(axis=0), axis=1)))
+    fit = fit_bias(means_a, np.array(mean_h)) if len(means_a) >= 3 else None
+    return ExperimentMetrics(clusters, allc, pairwise, centroid, fit)
