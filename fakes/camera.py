@@ -1,0 +1,304 @@
+"""Simulated nadir camera: renders what Rita's camera sees in the simulated world.
+
+URL ``sim:`` with options:
+
+* ``size=reduced|full|WxH``: 1000×750 (default) or 4024×3036, both with the
+  sensor's field of view; ``WxH`` is any other size with that field of view
+  (keep the sensor's aspect ratio), handy for fast tests.
+* ``fps``: free-run rate; default the settings' ``frame_rate_hz`` (else 5).
+* ``noise=0|1``: sensor noise on (default) or off. Noise comes from
+  ``world.rng("camera.noise")``, so a given seed, pose sequence and frame order
+  always give the same pixels.
+* ``prerender=N``: render N frames once at ``open()`` and cycle them (for
+  throughput benchmarks; the images then no longer follow the robot).
+* ``serial``: the serial number reported (default ``SIM-0001``).
+* Fault knobs, each counted in ``status()``: ``drop_every=N`` drops every Nth
+  frame (a gap in frame ids; a dropped triggered frame raises DeviceTimeout),
+  ``incomplete_every=N`` delivers every Nth frame incomplete (rows from a
+  seeded point down are zero, ``incomplete_count`` goes up), and
+  ``disconnect_after=N`` raises DeviceLost once a connection has delivered N
+  frames; ``close()`` + ``open()`` connects again and re-applies the settings.
+
+How it differs from the real PHX122S: images come from :class:`fakes.render.Renderer`
+(planar world, Gaussian noise); exposure and gain only scale the rendered
+intensity (no motion blur, saturation physics or noise change); there is no
+GigE bandwidth limit, so the rate is only limited by rendering (about 1 s per
+reduced-size frame unless ``prerender`` is used) and one render may overrun
+``pump``'s timeout; only Mono8 exists; no PTP, chunks or events; the frame is
+rendered at the pose the robot has when it is produced (no exposure time, no
+rolling shutter); device timestamps are the host's monotonic clock; frame ids
+run on across reconnects instead of restarting. Width/Height/OffsetX/OffsetY
+crop the rendered image like a sensor ROI.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+import weakref
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
+                          Emit, Frame, _no_emit)
+from fakes.render import Renderer
+from fakes.world import World
+
+log = logging.getLogger(__name__)
+
+OPTIONS = ("size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
+           "disconnect_after")
+#: exposure at which the renderer's black/white levels hold; other exposures scale linearly
+NOMINAL_EXPOSURE_US = 2000.0
+
+# Rays cost seconds (reduced) to a minute (full size) to compute, so renderers are
+# shared per world and size, across reconnects and camera instances.
+_RENDERERS: "weakref.WeakKeyDictionary[World, dict[tuple[int, int], Renderer]]" = weakref.WeakKeyDictionary()
+_RENDERERS_LOCK = threading.Lock()
+
+
+def renderer_for(world: World, size: tuple[int, int]) -> Renderer:
+    """The cached renderer of ``world`` at ``size`` (created on first use)."""
+    with _RENDERERS_LOCK:
+        per_world = _RENDERERS.setdefault(world, {})
+        r = per_world.get(size)
+        if r is None:
+            r = per_world[size] = Renderer(world, size)
+        return r
+
+
+def parse_size(url: DeviceURL, world: World) -> tuple[int, int]:
+    """Image size from the ``size`` option: reduced, full or WxH."""
+    text = url.option("size", "reduced")
+    if text == "reduced":
+        return tuple(world.params.reduced_size)  # type: ignore[return-value]
+    if text == "full":
+        return tuple(world.params.full_size)  # type: ignore[return-value]
+    w, sep, h = text.lower().partition("x")
+    if sep and w.isdigit() and h.isdigit() and int(w) >= 8 and int(h) >= 8:
+        return int(w), int(h)
+    raise ValueError(f"camera URL {url.raw!r}: size={text!r} is not 'reduced', 'full' or WxH "
+                     "(e.g. 200x151, at least 8x8)")
+
+
+def _count(url: DeviceURL, key: str) -> int:
+    """A non-negative integer option (0 = off)."""
+    n = url.option(key, 0, int)
+    if n < 0:
+        raise ValueError(f"camera URL {url.raw!r}: {key}={n} must be >= 0")
+    return n
+
+
+class SimCamera(Camera):
+    """Renders the simulated world at the robot's pose; see the module docstring."""
+
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: World | None = None,
+                 settings: CameraSettings | None = None) -> None:
+        super().__init__(url, emit=emit, world=world if world is not None else World(),
+                         settings=settings)
+        unknown = sorted(set(url.query) - set(OPTIONS))
+        if unknown:
+            raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
+                             f"(known: {', '.join(OPTIONS)})")
+        self.size = parse_size(url, self.world)
+        self.fps: float | None = url.option("fps", None, float)
+        if self.fps is not None and not (0 < self.fps < math.inf):
+            raise ValueError(f"camera URL {url.raw!r}: fps={self.fps} must be > 0")
+        noise = url.option("noise", "1")
+        if noise not in ("0", "1"):
+            raise ValueError(f"camera URL {url.raw!r}: noise={noise!r} must be 0 or 1")
+        self.noise = noise == "1"
+        self.prerender = _count(url, "prerender")
+        self.serial: str = url.option("serial", "SIM-0001")
+        self.drop_every = _count(url, "drop_every")
+        self.incomplete_every = _count(url, "incomplete_every")
+        self.disconnect_after = _count(url, "disconnect_after")
+        self._rng = self.world.rng("camera.noise")
+        self._cut_rng = self.world.rng("camera.incomplete")
+        self._renderer: Renderer | None = None
+        self._prerendered: list[np.ndarray] = []
+        self._open = False
+        self._lost = False
+        self._streaming = False
+        self._want_stream = False
+        self._next_due = 0.0
+        self._frame_id = 0
+        self._frames_this_open = 0
+        self._applied: dict[str, Any] = {}
+        self._warnings: list[str] = []
+        self.counters = {"opens": 0, "applies": 0, "frames": 0, "renders": 0, "dropped": 0,
+                         "incomplete": 0, "disconnects": 0}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        """Connect: build (or reuse) the renderer, apply the settings, prerender if asked."""
+        if self._open:
+            return
+        self._renderer = renderer_for(self.world, self.size)
+        self._apply()
+        if self.prerender and not self._prerendered:
+            self._prerendered = [self._render() for _ in range(self.prerender)]
+        self._open, self._lost = True, False
+        self._frames_this_open = 0
+        self.counters["opens"] += 1
+        if self._want_stream:
+            self.start_stream()
+
+    def close(self) -> None:
+        self._open = self._streaming = False
+
+    def configure(self, settings: CameraSettings) -> None:
+        """Change the desired settings; applied now when open, and at every later open."""
+        self.settings = settings
+        if self._open:
+            self._apply()
+
+    def _apply(self) -> None:
+        s = self.settings or CameraSettings()
+        warnings: list[str] = []
+        if s.pixel_format not in (None, "Mono8"):
+            raise DeviceError(f"camera has no PixelFormat {s.pixel_format!r} (it offers Mono8)",
+                              code="bad_setting")
+        if s.trigger not in ("software", "free"):
+            raise DeviceError(f"camera trigger setting {s.trigger!r} is not 'software' or 'free'",
+                              code="bad_setting")
+        W, H = self.size
+        ox, oy = s.offset_x or 0, s.offset_y or 0
+        w, h = s.width or W - ox, s.height or H - oy
+        for name, off, ext, full in (("X", ox, w, W), ("Y", oy, h, H)):
+            if off < 0 or ext < 1 or off + ext > full:
+                raise DeviceError(f"ROI Offset{name}={off} with {'Width' if name == 'X' else 'Height'}"
+                                  f"={ext} does not fit the {W}x{H} sensor", code="bad_setting")
+        exposure = NOMINAL_EXPOSURE_US if s.exposure_us is None else float(s.exposure_us)
+        gain_db = 0.0 if s.gain_db is None else float(s.gain_db)
+        if not exposure > 0:
+            raise DeviceError(f"ExposureTime={exposure!r} must be > 0", code="bad_setting")
+        rate = self.fps if self.fps is not None else (s.frame_rate_hz or 5.0)
+        if not rate > 0:
+            raise DeviceError(f"frame rate {rate!r} must be > 0", code="bad_setting")
+        if s.ptp is not None:
+            warnings.append(f"camera has no PtpEnable; PtpEnable={s.ptp!r} not applied")
+        self._applied = {"PixelFormat": "Mono8", "Width": w, "Height": h, "OffsetX": ox, "OffsetY": oy,
+                         "ExposureTime": exposure, "Gain": gain_db, "AcquisitionFrameRate": rate,
+                         "TriggerMode": "On" if s.trigger == "software" else "Off"}
+        self._roi = (slice(oy, oy + h), slice(ox, ox + w))
+        self._factor = exposure / NOMINAL_EXPOSURE_US * 10.0 ** (gain_db / 20.0)
+        self._warnings = warnings
+        for message in warnings:
+            log.warning("sim camera %s: %s", self.serial, message)
+        self.counters["applies"] += 1
+
+    def _require_open(self) -> None:
+        if self._lost:
+            raise DeviceLost(f"sim camera {self.serial} is disconnected (disconnect_after="
+                             f"{self.disconnect_after}); close() and open() again")
+        if not self._open:
+            raise DeviceError("camera is not open", code="not_open")
+
+    # ------------------------------------------------------------------ frames
+
+    def _render(self) -> np.ndarray:
+        assert self._renderer is not None
+        self.counters["renders"] += 1
+        return self._renderer.render(self.world.abs_H_cam(), rng=self._rng, noise=self.noise)
+
+    def _produce(self) -> Frame | None:
+        """The next frame, or None when the drop knob eats it; raises DeviceLost on the disconnect knob."""
+        self._require_open()
+        if self.disconnect_after and self._frames_this_open >= self.disconnect_after:
+            self._lost, self._streaming = True, False
+            self.counters["disconnects"] += 1
+            raise DeviceLost(f"sim camera {self.serial}: link lost after {self._frames_this_open} "
+                             f"frames (disconnect_after={self.disconnect_after})")
+        self._frame_id += 1
+        self._frames_this_open += 1
+        n = self._frame_id
+        if self.drop_every and n % self.drop_every == 0:
+            self.counters["dropped"] += 1
+            return None
+        t_mono = time.monotonic_ns()
+        pose = self.world.abs_H_cam()
+        if self._prerendered:
+            img = self._prerendered[(n - 1) % len(self._prerendered)]
+        else:
+            img = self._render()
+        img = img[self._roi]
+        if self._factor != 1.0:
+            img = np.clip(img * np.float32(self._factor) + np.float32(0.5), 0, 255).astype(np.uint8)
+        else:
+            img = img.copy()  # prerendered images are shared; the daemon owns its copy
+        extra: dict[str, Any] = {"sim": True, "sim_abs_H_cam": pose.tolist()}
+        if self.incomplete_every and n % self.incomplete_every == 0:
+            cut = int(self._cut_rng.integers(1, max(2, img.shape[0])))
+            img[cut:] = 0  # the packets of the lower rows never arrived
+            self.counters["incomplete"] += 1
+            extra["incomplete"] = True
+        self.counters["frames"] += 1
+        return Frame(pixels=img, frame_id=n, camera_serial=self.serial, pixel_format="Mono8",
+                     exposure_us=self._applied["ExposureTime"], device_time_ns=t_mono,
+                     host_monotonic_ns=t_mono, incomplete_count=self.counters["incomplete"],
+                     extra=extra)
+
+    def trigger(self, timeout: float = 5.0) -> Frame:
+        """Render one frame at the robot's current pose."""
+        frame = self._produce()
+        if frame is None:
+            raise DeviceTimeout(f"sim camera {self.serial}: triggered frame dropped "
+                                f"(drop_every={self.drop_every}); no frame within {timeout:g} s")
+        return frame
+
+    def start_stream(self) -> None:
+        self._require_open()
+        self._want_stream = True
+        if not self._streaming:
+            self._streaming = True
+            self._next_due = time.monotonic()
+
+    def stop_stream(self) -> None:
+        self._want_stream = False
+        self._streaming = False
+
+    def pump(self, timeout: float) -> None:
+        """Emit the free-run frames that fall due within ``timeout`` s (a render may overrun)."""
+        deadline = time.monotonic() + timeout
+        if self._lost:
+            self._require_open()
+        while True:
+            now = time.monotonic()
+            if self._streaming and self._next_due <= now < deadline:
+                period = 1.0 / self._applied["AcquisitionFrameRate"]
+                # no catch-up bursts after a slow render: the next frame is due one period on
+                self._next_due = max(self._next_due + period, now)
+                frame = self._produce()
+                if frame is not None:
+                    self.emit("camera.frame", frame)
+                continue
+            if now >= deadline:
+                return
+            wake = min(self._next_due, deadline) if self._streaming else deadline
+            time.sleep(max(0.0, wake - now))
+
+    # ------------------------------------------------------------------ reporting
+
+    def info(self) -> dict[str, Any]:
+        return {"url": self.url.raw, "model": "SimCamera", "serial_number": self.serial,
+                "size": list(self.size), "sim": True}
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "open": self._open,
+            "lost": self._lost,
+            "streaming": self._streaming,
+            "software_trigger": True,
+            "serial": self.serial,
+            "size": list(self.size),
+            "settings": asdict(self.settings or CameraSettings()),
+            "applied": dict(self._applied),
+            "warnings": list(self._warnings),
+            "incomplete_count": self.counters["incomplete"],
+            **self.counters,
+        }
