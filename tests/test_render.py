@@ -1,0 +1,96 @@
+"""Renderer validated against ground truth (corners), determinism and scene content."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration.target import detect_corners
+from fakes.render import Renderer, true_corner_projections
+from fakes.world import World
+
+
+@pytest.fixture(scope="module")
+def renderer() -> Renderer:
+    world = World()
+    return Renderer(world, world.params.reduced_size)
+
+
+def test_detected_corners_match_true_projections(renderer: Renderer) -> None:
+    world = renderer.world
+    image = renderer.render(rng=np.random.default_rng(5))
+    ids, uv = detect_corners(image, world.plate())
+    tids, tuv = true_corner_projections(world, renderer.size)
+    truth = dict(zip(tids.tolist(), tuv))
+    common = [k for k, i in enumerate(ids) if int(i) in truth]
+    d = uv[common] - np.array([truth[int(i)] for i in ids[common]])
+    rms = float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+    print(f"corners {len(common)}/{len(tids)}: rms {rms:.4f} px, bias {d.mean(axis=0)}")
+    assert len(common) == len(ids) and len(ids) > 0.8 * len(tids)
+    assert rms < 0.1
+    assert np.abs(d.mean(axis=0)).max() < 0.01
+
+
+def test_noise_free_corner_bias_is_tiny(renderer: Renderer) -> None:
+    world = renderer.world
+    ids, uv = detect_corners(renderer.render(noise=False), world.plate())
+    tids, tuv = true_corner_projections(world, renderer.size)
+    truth = dict(zip(tids.tolist(), tuv))
+    d = uv - np.array([truth[int(i)] for i in ids])
+    assert np.abs(d.mean(axis=0)).max() < 0.005
+
+
+def test_deterministic_for_a_seed(renderer: Renderer) -> None:
+    a = renderer.render(rng=np.random.default_rng(42))
+    b = renderer.render(rng=np.random.default_rng(42))
+    c = renderer.render(rng=np.random.default_rng(43))
+    assert a.dtype == np.uint8 and a.shape == (750, 1000)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert np.array_equal(renderer.render(), renderer.render())  # default generator is fixed too
+
+
+def test_levels_noise_and_vignetting(renderer: Renderer) -> None:
+    p = renderer.world.params
+    clean = renderer.render(noise=False).astype(float)
+    noisy = renderer.render(rng=np.random.default_rng(0)).astype(float)
+    resid = noisy - clean
+    assert 1.0 < resid.std() < 4.0  # read noise 1.5 DN plus shot noise
+    assert clean.min() >= p.black_dn - 1 and clean.max() <= p.white_dn + 1
+    # white plate/board is darker in the corners than in the middle (vignetting)
+    h, w = clean.shape
+    centre = np.percentile(clean[h // 2 - 50:h // 2 + 50, w // 2 - 50:w // 2 + 50], 99)
+    corner = np.percentile(clean[:60, :60], 99)
+    assert corner < centre - 10
+
+
+def test_floor_and_marks_appear(renderer: Renderer) -> None:
+    world = renderer.world
+    old = world.robot
+    try:
+        for mark in world.params.marks:
+            world.set_robot(world.pose_with_footprint_at(mark.x_mm, mark.y_mm, 0.0))
+            img = renderer.render(noise=False).astype(float)
+            h, w = img.shape
+            c = renderer.model.K[:2, 2].round().astype(int)
+            centre = img[c[1] - 2:c[1] + 3, c[0] - 2:c[0] + 3]
+            far = img[h // 2 - 60:h // 2 + 60, 50:150]
+            # a dark mark (or the dark quadrants of the cross) under the footprint on a mid-grey floor
+            assert img[c[1] - 20:c[1] + 21, c[0] - 20:c[0] + 21].min() < 45, mark.name
+            assert 60 < np.median(far) < 130 and far.std() > 0.5, mark.name
+            if mark.kind == "dot":
+                assert centre.mean() < 45
+    finally:
+        world.set_robot(old)
+
+
+def test_bad_arguments_are_named() -> None:
+    world = World()
+    with pytest.raises(ValueError, match="supersampling"):
+        Renderer(world, (100, 80), supersampling=0)
+    with pytest.raises(ValueError, match="too small"):
+        Renderer(world, (4, 4))
+    r = Renderer(world, (64, 48), supersampling=1)
+    bad = np.eye(4)
+    bad[0, 0] = -1
+    with pytest.raises(ValueError, match="abs_H_cam"):
+        r.render(bad)
