@@ -1,0 +1,119 @@
+"""ritad --sim as a real process: READY through a fake NOTIFY_SOCKET, status, capture, SIGTERM."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.client import Client
+from daemon.demo import lock_on_robot
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def wait_ready(sock: socket.socket, proc: subprocess.Popen, timeout: float) -> list[str]:
+    got: list[str] = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            raise AssertionError(f"ritad exited early with {proc.returncode}")
+        try:
+            got.append(sock.recv(4096).decode())
+        except socket.timeout:
+            continue
+        if any("READY=1" in g for g in got):
+            return got
+    raise AssertionError(f"no READY=1 within {timeout} s; got {got}")
+
+
+@pytest.fixture
+def ritad(tmp_path):
+    notify_path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(notify_path))
+    sock.settimeout(0.2)
+    env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "2000000",
+           "PYTHONPATH": str(ROOT)}
+    env.pop("WATCHDOG_PID", None)
+    rt = tmp_path / "rt"
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--sim", "--runtime-dir", str(rt),
+                             "--data-dir", str(tmp_path / "data")],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        messages = wait_ready(sock, proc, 30)
+        yield proc, f"ipc://{rt}/cmd", sock, messages, tmp_path
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        sock.close()
+
+
+def wait_devices_ready(c: Client, timeout: float = 60) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        h = c.call("status")
+        if all(d["state"] == "READY" for d in h["devices"].values()):
+            return h
+        time.sleep(0.2)
+    raise AssertionError(f"devices not READY: {json.dumps(h['devices'], indent=1)}")
+
+
+def test_ready_status_capture_and_clean_sigterm(ritad):
+    proc, endpoint, sock, messages, tmp_path = ritad
+    with Client(endpoint, timeout=10) as c:
+        h = wait_devices_ready(c)
+        assert h["alive"] is True
+        lock_on_robot(c)  # like an operator: point the tracker at the robot's reflector first
+        r = c.call("capture", timeout=60, label="it")
+        entry = Path(r["path"])
+        meta = json.loads(entry.read_text())
+        assert (entry.parent / meta["image_file"]).stat().st_size > 1000
+        assert meta["tracker"]["x"] == pytest.approx(r["tracker"]["x"])
+        assert meta["robot"]["state"] in ("IDLE", "MOVING")
+        assert json.loads((entry.parent / "dataset.json").read_text())["entries"][0]["image"] == meta["image_file"]
+    # watchdog pings flow while everything is alive
+    end = time.monotonic() + 3
+    pings = 0
+    while time.monotonic() < end and pings < 2:
+        try:
+            pings += sock.recv(4096).count(b"WATCHDOG=1")
+        except socket.timeout:
+            pass
+    assert pings >= 2
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(10) == 0
+    assert time.monotonic() - t0 < 5.0
+    rest = []
+    while True:
+        try:
+            rest.append(sock.recv(4096))
+        except socket.timeout:
+            break
+    assert any(b"STOPPING=1" in m for m in rest)
+
+
+def test_bad_requests_do_not_stop_the_daemon(ritad):
+    import zmq
+
+    proc, endpoint, *_ = ritad
+    ctx = zmq.Context.instance()
+    s = ctx.socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 0)
+    s.connect(endpoint)
+    for payload in (b"garbage", b"\x93\x01\x02\x03", b"x" * (2 << 20)):
+        s.send(payload)
+        assert s.poll(5000)
+        s.recv()
+    s.close()
+    with Client(endpoint, timeout=10) as c:
+        assert c.call("ping")["pong"] is True
+        with pytest.raises(Exception, match="confirm"):
+            c.call("robot.move", distance_mm=10.0)
+    assert proc.poll() is None
