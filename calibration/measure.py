@@ -1,0 +1,133 @@
+"""Floor-mark measurement: image → SCS → RCS → ACS (paper, "Point measurement").
+
+``rob_P_mrk = rob_H_scn · (map_image→scn(uv), 0, 1)`` and ``abs_P_mrk = abs_H_rob · rob_P_mrk``.
+At use the robot pose comes from the reflector at its stop (P_at) and one earlier
+position on the straight approach (P_prev): x = the approach direction projected
+onto the floor, z = the floor normal (default ACS z), origin P_at. When the base
+reports roll and pitch, the frame is rotated by them about its own axes
+(``R = [v⊥ c n] · R_y(pitch) · R_x(roll)``, the world's convention), which removes
+the tilt × reflector-height error of calibration.md §4.4.
+
+The uncertainty is first order: a numerical Jacobian of the whole mapping with
+respect to the two tracker points (σ_t each), the mark's pixel position (σ_px),
+the calibration ``rob_H_scn`` (its Monte Carlo covariance) and the reported tilt.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration.frames import apply_H, check_H, make_H, rot_x, rot_y
+from calibration.referencing import robot_pose
+from calibration.registration import as_points
+from calibration.uncertainty import perturb_pose
+
+#: finite-difference steps: mm, rad, px
+_STEP_MM, _STEP_RAD, _STEP_PX = 1e-3, 1e-6, 1e-2
+
+
+def robot_pose_at(abs_P_prev: Any, abs_P_at: Any, abs_n: Any = None, roll_deg: float | None = None,
+                  pitch_deg: float | None = None) -> np.ndarray:
+    """``abs_H_rob`` at a stop from the approach (P_prev → P_at), floor normal and reported tilt."""
+    P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
+    P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
+    n = np.array([0.0, 0.0, 1.0]) if abs_n is None else as_points(abs_n, "abs_n", 1)[0]
+    H = robot_pose(P_at, P_at - P_prev, n)
+    if (roll_deg is None) != (pitch_deg is None):
+        raise ValueError(f"robot_pose_at: give both roll and pitch or neither (roll={roll_deg}, pitch={pitch_deg})")
+    if roll_deg is not None:
+        for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
+            if not np.isfinite(a) or abs(a) > 10:
+                raise ValueError(f"robot_pose_at: {name}={a} is not a plausible tilt (|a| <= 10°)")
+        R = H[:3, :3] @ rot_y(math.radians(pitch_deg)) @ rot_x(math.radians(roll_deg))
+        H = make_H(R, H[:3, 3], "abs_H_rob")
+    return H
+
+
+@dataclass
+class MarkMeasurement:
+    """A floor mark in ACS with every intermediate frame and a 2D covariance."""
+
+    abs_P: np.ndarray  # (3,) mm
+    rob_P: np.ndarray  # (3,) mm
+    scn_xy: np.ndarray  # (2,) mm
+    uv: np.ndarray  # (2,) px
+    abs_H_rob: np.ndarray
+    cov_xy_mm2: np.ndarray  # ACS x, y covariance, mm²
+
+    @property
+    def std_xy_mm(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov_xy_mm2))
+
+    @property
+    def std_mm(self) -> float:
+        """Radial std sqrt(σx² + σy²)."""
+        return float(np.sqrt(np.trace(self.cov_xy_mm2)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"abs_P_mm": self.abs_P.tolist(), "rob_P_mm": self.rob_P.tolist(), "scn_xy_mm": self.scn_xy.tolist(),
+                "uv_px": self.uv.tolist(), "abs_H_rob": self.abs_H_rob.tolist(),
+                "cov_xy_mm2": self.cov_xy_mm2.tolist(), "std_xy_mm": self.std_xy_mm.tolist(), "std_mm": self.std_mm}
+
+
+def mark_to_abs(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map one pixel position to (abs_P, rob_P, scn_xy) with the paper's two equations."""
+    scn_xy = scs.image_to_scn(np.asarray(uv, dtype=float).reshape(1, 2))[0]
+    rob_P = apply_H(rob_H_scn, np.array([scn_xy[0], scn_xy[1], 0.0]))
+    return apply_H(abs_H_rob, rob_P), rob_P, scn_xy
+
+
+def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+                 abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
+                 sigma_t_mm: float = 0.010, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
+                 cov_rob_H_scn: np.ndarray | None = None) -> MarkMeasurement:
+    """ACS position of a mark seen at pixel ``uv`` from a robot stop, with a first-order covariance."""
+    uv = np.asarray(uv, dtype=float).reshape(-1)
+    if uv.shape != (2,) or not np.all(np.isfinite(uv)):
+        raise ValueError(f"measure_mark: uv must be 2 finite pixel coordinates, got {uv.tolist()}")
+    check_H(rob_H_scn, "rob_H_scn")
+    P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
+    P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
+    for name, s in (("sigma_t_mm", sigma_t_mm), ("sigma_px", sigma_px), ("sigma_tilt_deg", sigma_tilt_deg)):
+        if not np.isfinite(s) or s < 0:
+            raise ValueError(f"measure_mark: {name} must be >= 0, got {s}")
+    tilt = roll_deg is not None
+
+    def run(x: np.ndarray) -> np.ndarray:
+        # x: P_prev (3), P_at (3), uv (2), rob_H_scn perturbation (6), roll, pitch (deg)
+        H = robot_pose_at(x[0:3], x[3:6], abs_n, x[14] if tilt else None, x[15] if tilt else None)
+        return mark_to_abs(x[6:8], scs, perturb_pose(rob_H_scn, x[8:14]), H)[0][:2]
+
+    x0 = np.concatenate([P_prev, P_at, uv, np.zeros(6), [roll_deg or 0.0, pitch_deg or 0.0]])
+    abs_H_rob = robot_pose_at(P_prev, P_at, abs_n, roll_deg, pitch_deg)
+    abs_P, rob_P, scn_xy = mark_to_abs(uv, scs, rob_H_scn, abs_H_rob)
+
+    steps = np.array([_STEP_MM] * 6 + [_STEP_PX] * 2 + [_STEP_MM] * 3 + [_STEP_RAD] * 3 + [1e-4] * 2)
+    J = np.zeros((2, 16))
+    for k in range(16 if tilt else 14):
+        dx = np.zeros(16)
+        dx[k] = steps[k]
+        J[:, k] = (run(x0 + dx) - run(x0 - dx)) / (2 * steps[k])
+    S = np.zeros((16, 16))
+    S[:6, :6] = np.eye(6) * sigma_t_mm ** 2
+    S[6:8, 6:8] = np.eye(2) * sigma_px ** 2
+    if cov_rob_H_scn is not None:
+        c = np.asarray(cov_rob_H_scn, dtype=float)
+        if c.shape != (6, 6):
+            raise ValueError(f"measure_mark: cov_rob_H_scn must be 6x6, got {c.shape}")
+        S[8:14, 8:14] = c
+    S[14:, 14:] = np.eye(2) * sigma_tilt_deg ** 2
+    return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, J @ S @ J.T)
+
+
+def measure_image(image: np.ndarray, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+                  kind: str = "dot", approx_uv: Any = None, **kw: Any) -> MarkMeasurement:
+    """Locate the mark in ``image`` (:func:`calibration.marks.locate_mark`) and measure it."""
+    from calibration.marks import locate_mark
+
+    obs = locate_mark(image, kind=kind, approx_uv=approx_uv)
+    return measure_mark(obs.uv, scs, rob_H_scn, abs_P_prev, abs_P_at, **kw)
