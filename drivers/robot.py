@@ -224,7 +224,7 @@ class SerialRobot(Robot):
             while not resend and time.monotonic() < deadline:
                 for msg in self._receive(deadline):
                     reply_seq = msg.seq() if msg.kind in rp.REPLIES else -1
-                    if reply_seq is None and msg.kind == "NAK":
+                    if reply_seq is None and msg.fields[1:2] == ("CHECKSUM",):
                         resend = True  # the base got a corrupted line, most likely ours
                     elif reply_seq != seq:
                         self._count_stray(msg)
