@@ -1,0 +1,67 @@
+"""Daemon basics: start-up time to READY=1 (simulated world) and command round-trip latency.
+
+Goals (issue: foundation): READY ≤ 3 s; `ping` round trip p99 ≤ 5 ms on loopback.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
+from daemon.client import Client  # noqa: E402
+
+TCP_CONFIG = """
+[daemon]
+command_endpoints = ["tcp://127.0.0.1:0"]
+telemetry_endpoints = ["tcp://127.0.0.1:0"]
+frame_endpoints = ["tcp://127.0.0.1:0"]
+data_dir = "@TMP@/data"
+"""
+
+
+def round_trips(endpoint: str, n: int = 3000, cmd: str = "ping") -> list[float]:
+    out = []
+    with Client(endpoint, timeout=5) as c:
+        for _ in range(200):
+            c.call(cmd)  # warm up
+        for _ in range(n):
+            t = time.perf_counter()
+            c.call(cmd)
+            out.append((time.perf_counter() - t) * 1e3)
+    return out
+
+
+def main() -> None:
+    print(f"# bench_daemon\n\nMachine: {machine()}\n")
+    readies = []
+    for _ in range(3):
+        proc, ep, ready, _ = start_ritad()
+        readies.append(ready)
+        stop_ritad(proc)
+    print("| metric | value | goal |\n|---|---|---|")
+    print(f"| start → READY=1, `ritad --sim` (median of 3; min–max) | {sorted(readies)[1]:.2f} s "
+          f"({min(readies):.2f}–{max(readies):.2f}) | ≤ 3 s |")
+    proc, ep, _, _ = start_ritad()
+    try:
+        time.sleep(3)  # let the sim devices connect so the daemon is in its steady state
+        for cmd in ("ping", "status"):
+            rt = round_trips(ep, cmd=cmd)
+            print(f"| `{cmd}` round trip, ipc, n={len(rt)} | p50 {pct(rt, 50):.3f} ms, p99 {pct(rt, 99):.3f} ms "
+                  f"| p99 ≤ 5 ms |")
+    finally:
+        stop_ritad(proc)
+    proc, ep, _, _ = start_ritad(TCP_CONFIG, extra=[])
+    try:
+        time.sleep(3)
+        rt = round_trips(ep)
+        print(f"| `ping` round trip, tcp 127.0.0.1, n={len(rt)} | p50 {pct(rt, 50):.3f} ms, "
+              f"p99 {pct(rt, 99):.3f} ms | p99 ≤ 5 ms |")
+    finally:
+        stop_ritad(proc)
+
+
+if __name__ == "__main__":
+    main()
