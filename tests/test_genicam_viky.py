@@ -330,3 +330,21 @@ def test_stalled_stream_is_device_lost() -> None:
         assert time.monotonic() - t0 >= 0.3
     finally:
         c.close()
+
+
+def test_incomplete_buffer_callback_is_counted(cam: GenICamCamera, frames: list[Frame]) -> None:
+    # viky never delivers incomplete buffers; fire the event harvesters raises for one
+    from harvesters.core import ImageAcquirer
+
+    cam._ia._emit_callbacks(ImageAcquirer.Events.INCOMPLETE_BUFFER)  # type: ignore[union-attr]
+    assert cam.status()["incomplete_count"] == 1
+    cam.start_stream()
+    pump_until(cam, frames, 1)
+    assert frames[0].incomplete_count == 1
+
+
+def test_access_status_change_is_device_lost(cam: GenICamCamera) -> None:
+    assert cam._ia.device.module.access_status == 5  # type: ignore[union-attr]  # OPEN_READWRITE
+    cam._access = 1  # pretend the status recorded at open differed from what the device says now
+    with pytest.raises(DeviceLost, match="access status changed from 1 to 5"):
+        cam._check_access(force=True)
