@@ -1,119 +1,30 @@
-"""asyncio emScon server for the fake AT901: sessions, command timing, streaming, faults.
+"""asyncio emScon server for the fake AT901: command handlers, timing and streaming.
 
 One client at a time: a new connection replaces the old one (a real server answers
-MultiConnectionsNotAllowed instead). While a command runs, any other request gets
-ServerBusy. Motions, initialisation and measurements take simulated time scaled by
-``time_scale``.
+MultiConnectionsNotAllowed instead). Motions, initialisation and measurements take
+simulated time scaled by ``time_scale``.
 """
 from __future__ import annotations
 
 import asyncio
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from drivers.emscon.codec import (COMMANDS, Packet, ProtocolError, encode_answer, encode_error,
-                                  encode_result, encode_status_change)
+from drivers.emscon.codec import (COMMANDS, Packet, encode_answer, encode_error, encode_result,
+                                  encode_status_change)
 from drivers.emscon.enums import ES_Command as C
 from drivers.emscon.enums import ES_CoordinateSystemType, ES_LTSensorType, ES_MeasMode
 from drivers.emscon.enums import ES_ResultStatus as RS
 from drivers.emscon.enums import ES_SystemStatusChange as SSC
 from drivers.emscon.enums import ES_TrackerProcessorStatus as TPS
 from drivers.emscon.enums import ES_TrackerStatus
-from drivers.emscon.framer import TO_SERVER, Framer
 from fakes.tracker_model import REFLECTORS, TrackerModel
+from fakes.tracker_session import Faults, Session, bare_answer, Dropped
 
 MAX_RECORDS = 20000  # per MultiMeasResult packet (well under the 1 MiB framer limit)
-
-
-@dataclass
-class Faults:
-    """Fault knobs; change them at any time (they apply to the next packet/command)."""
-
-    drop_after: int = 0  # close the connection after this many packets sent (0 = never)
-    delay_ms: float = 0.0  # extra delay before every answer
-    split: bool = False  # write every packet one byte at a time
-    garbage_after: int = 0  # after this many packets sent, write garbage instead (0 = never)
-    result_first: bool = False  # stationary result before the StartMeasurement answer
-    fail: dict[int, int] = field(default_factory=dict)  # command -> status to answer with
-
-
-class _Dropped(Exception):
-    """The fault knob closed the connection."""
-
-
-class Session:
-    """One client connection."""
-
-    def __init__(self, server: "FakeTrackerServer", reader: asyncio.StreamReader,
-                 writer: asyncio.StreamWriter) -> None:
-        self.server, self.reader, self.writer = server, reader, writer
-        self.sent = 0
-        self.task: asyncio.Task[None] | None = None  # the command in progress
-        self.stream: asyncio.Task[None] | None = None
-        self.closed = False
-
-    async def send(self, data: bytes) -> None:
-        f = self.server.faults
-        if self.closed:
-            raise _Dropped()
-        if f.garbage_after and self.sent >= f.garbage_after:
-            data = b"\xff\xff\xff\x7f" + b"garbage!" * 2  # lPacketSize 2 GiB: no client may accept it
-        if f.drop_after and self.sent >= f.drop_after:
-            self.abort()
-            raise _Dropped()
-        self.sent += 1
-        if f.split:
-            for i in range(len(data)):
-                self.writer.write(data[i:i + 1])
-                await self.writer.drain()
-        else:
-            self.writer.write(data)
-            await self.writer.drain()
-
-    async def send_quiet(self, data: bytes) -> None:
-        """Send, ignoring a closed connection (for background events)."""
-        try:
-            await self.send(data)
-        except (_Dropped, ConnectionError, RuntimeError):
-            pass
-
-    def abort(self) -> None:
-        if not self.closed:
-            self.closed = True
-            for t in (self.task, self.stream):
-                if t is not None and t is not asyncio.current_task():
-                    t.cancel()
-            self.writer.transport.abort()
-
-    async def run(self) -> None:
-        framer = Framer(TO_SERVER)
-        try:
-            while not self.closed:
-                data = await self.reader.read(65536)
-                if not data:
-                    break
-                for req in framer.feed(data):
-                    self.on_request(req)
-        except (ProtocolError, ConnectionError):
-            pass  # a garbled request stream cannot be resynchronised: hang up like the real server
-        finally:
-            self.abort()
-
-    def on_request(self, req: Packet) -> None:
-        if self.task is not None and not self.task.done():
-            asyncio.ensure_future(self.send_quiet(encode_answer(req.command or 0, RS.ServerBusy)))
-            return
-        self.task = asyncio.ensure_future(self.execute(req))
-
-    async def execute(self, req: Packet) -> None:
-        try:
-            await self.server.execute(self, req)
-        except (_Dropped, ConnectionError, RuntimeError):
-            self.abort()
 
 
 class FakeTrackerServer:
@@ -192,7 +103,7 @@ class FakeTrackerServer:
         handler = getattr(self, f"_c_{C(cmd).name}", None) if cmd in COMMANDS else None
         if handler is None:
             await s.send(encode_answer(cmd, RS.NotImplemented) if cmd in COMMANDS else
-                         _bare_answer(cmd, RS.NotImplemented))
+                         bare_answer(cmd, RS.NotImplemented))
             return
         status, values, after = await handler(s, req.values)
         if status != 0 or not after or not self.faults.result_first:
@@ -437,11 +348,6 @@ class FakeTrackerServer:
                 await s.send(encode_result("multi", 0, rec, meas_mode=ES_MeasMode.ContinuousTime, **env))
                 left = left - n if left > 0 else left
             await s.send(encode_status_change(SSC.MeasurementCountReached))
-        except (_Dropped, ConnectionError, RuntimeError):
+        except (Dropped, ConnectionError, RuntimeError):
             s.abort()
 
-
-def _bare_answer(cmd: int, status: int) -> bytes:
-    import struct
-
-    return struct.pack("<iiii", 16, 0, cmd, status)

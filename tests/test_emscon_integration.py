@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -264,9 +263,17 @@ def test_benign_faults_still_work(make, world: World, opts: str) -> None:
 
 
 def test_delay_beyond_timeout(make) -> None:
-    t = make("delay_ms=400&timeout=0.2&init_timeout=0.2")
+    t = make("delay_ms=400&timeout=0.2")
     with pytest.raises(DeviceTimeout, match="SetUnits"):
         t.open()
+    t.server.faults.delay_ms = 0
+    t.open()
+    t.server.faults.delay_ms = 400
+    with pytest.raises(DeviceTimeout, match="GoPosition: no answer within 0.2 s"):
+        t.aim((1000.0, 0.0, 0.0))
+    assert not t.status()["connected"]  # hung up: the late answer must not match a later command
+    with pytest.raises(DeviceLost, match="resynchronise"):
+        t.pump(0.01)
 
 
 @pytest.mark.parametrize("opts,match", [("garbage_after=3", "protocol error"),

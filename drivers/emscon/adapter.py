@@ -274,7 +274,8 @@ class EmsconTracker(Tracker):
                         status=int(p.status), status_name=enum_name(ES_ResultStatus, p.status))
         else:
             self._event("unexpected" if p.kind != "reflector_pos" else "reflector_pos",
-                        packet=p.describe(), values={k: v for k, v in p.values.items()
+                        packet=p.describe(), values={k: (int(v) if isinstance(v, int) else v)
+                                                     for k, v in p.values.items()
                                                      if isinstance(v, (int, float, str))})
 
     def _event(self, event: str, **payload: Any) -> None:

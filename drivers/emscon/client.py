@@ -8,9 +8,11 @@ continuous MultiMeasResult batches), so every wait reads the socket and dispatch
 whatever comes: answers/results to the waiting command, stream batches to
 ``on_stream``, everything else to ``on_event``.
 
-Errors: a non-zero ES_ResultStatus raises :class:`EmsconStatusError`; an expired
-wait raises ``DeviceTimeout``; EOF, a socket error or a :class:`ProtocolError`
-closes the socket and raises ``DeviceLost``.
+Errors: a non-zero ES_ResultStatus raises :class:`EmsconStatusError`; EOF, a socket
+error or a :class:`ProtocolError` closes the socket and raises ``DeviceLost``. An
+expired wait raises ``DeviceTimeout`` and also closes the socket: the late answer
+cannot be told apart from the next command's, so the next call raises ``DeviceLost``
+and the owner reconnects (``open()`` re-applies every setting).
 """
 from __future__ import annotations
 
@@ -201,8 +203,12 @@ class EmsconClient:
                     return done
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise DeviceTimeout(f"emScon {enum_name(ES_Command, command)}: no "
-                                        f"{'answer' if not self._answers else 'result'} within {wait:g} s")
+                    what = (f"emScon {enum_name(ES_Command, command)}: no "
+                            f"{'answer' if not self._answers else 'result'} within {wait:g} s")
+                    # the late answer could be taken for the next command's: hang up to resync
+                    self.close()
+                    self.lost_reason = what + "; connection closed to resynchronise"
+                    raise DeviceTimeout(self.lost_reason)
                 self._read_once(left)
         finally:
             self._waiting = None
