@@ -198,6 +198,26 @@ def test_streaming_rate_and_format(make, world: World) -> None:
     assert_within_5_sigma(t.measure(), truth)  # back in stationary mode
 
 
+def test_stream_without_lock_fails_and_leaves_stationary_mode(make, world: World) -> None:
+    t = make()
+    t.open()
+    with pytest.raises(EmsconStatusError, match="MeasurementStatusNotReady"):
+        t.start_stream(100.0)
+    assert not t.status()["streaming"]
+    truth = lock_on(t, world, "red")
+    assert_within_5_sigma(t.measure(), truth)
+
+
+def test_get_reflectors_collects_every_answer(server: FakeTrackerThread) -> None:
+    c = EmsconClient("127.0.0.1", server.port, timeout=5)
+    c.connect()
+    rows = c.get_reflectors()
+    assert [r["name"] for r in rows] == ["RRR 1.5in", "RRR 0.5in", "CatEye"]
+    assert [r["reflector_id"] for r in rows] == [0, 1, 2] and rows[0]["total_reflectors"] == 3
+    assert c.request(Cmd.GetTrackerStatus)["tracker_status"] == 0  # conversation still in step
+    c.close()
+
+
 def test_kill_mid_measurement_then_reconnect(make, world: World) -> None:
     t = make("meas_time_ms=20000")  # 200 ms at time_scale 0.01
     t.open()

@@ -211,9 +211,16 @@ class EmsconTracker(Tracker):
             self.stop_stream()
         sep = max(1, round(1000.0 / rate_hz))
         c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.ContinuousTime)
-        c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=sep, number_of_points=0,
-                  use_region=0, region_type=0)
-        c.request(ES_Command.StartMeasurement)
+        try:
+            c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=sep, number_of_points=0,
+                      use_region=0, region_type=0)
+            c.request(ES_Command.StartMeasurement)
+        except DeviceLost:
+            raise
+        except DeviceError:
+            # e.g. no reflector locked: go back to stationary so measure() still works
+            c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.Stationary)
+            raise
         self._streaming, self._rate_hz = True, 1000.0 / sep
 
     def stop_stream(self) -> None:
