@@ -153,20 +153,26 @@ class Renderer:
         ss, m = self.ss, self._m
         u = (np.arange(w * ss) + 0.5) / ss - 0.5
         v = (np.arange(j0, j1) + 0.5) / ss - 0.5
-        fu = (u + 0.5) * m - 0.5 + 1
-        fv = (v + 0.5) * m - 0.5 + 1
-        iu = np.clip(np.floor(fu).astype(int), 0, self._dx.shape[1] - 2)
-        iv = np.clip(np.floor(fv).astype(int), 0, self._dx.shape[0] - 2)
-        a = (fu - iu)[None, :]
-        b = (fv - iv)[:, None]
+        if m == ss:  # the cache holds every sub-sample (plus a one-node margin)
+            rx = self._dx[j0 + 1:j1 + 1, 1:w * ss + 1]
+            ry = self._dy[j0 + 1:j1 + 1, 1:w * ss + 1]
+        else:
+            fu = (u + 0.5) * m - 0.5 + 1
+            fv = (v + 0.5) * m - 0.5 + 1
+            iu = np.clip(np.floor(fu).astype(int), 0, self._dx.shape[1] - 2)
+            iv = np.clip(np.floor(fv).astype(int), 0, self._dx.shape[0] - 2)
+            a = (fu - iu)[None, :].astype(np.float32)
+            b = (fv - iv)[:, None].astype(np.float32)
 
-        def interp(D: np.ndarray) -> np.ndarray:
-            top = D[iv][:, iu] * (1 - a) + D[iv][:, iu + 1] * a
-            bot = D[iv + 1][:, iu] * (1 - a) + D[iv + 1][:, iu + 1] * a
-            return top * (1 - b) + bot * b
+            def interp(D: np.ndarray) -> np.ndarray:
+                top, bot = D[iv], D[iv + 1]
+                top = top[:, iu] * (1 - a) + top[:, iu + 1] * a
+                bot = bot[:, iu] * (1 - a) + bot[:, iu + 1] * a
+                return top * (1 - b) + bot * b
 
-        x = (u[None, :] - self._cx) / self._fx + interp(self._dx)
-        y = (v[:, None] - self._cy) / self._fy + interp(self._dy)
+            rx, ry = interp(self._dx), interp(self._dy)
+        x = (u[None, :] - self._cx) / self._fx + rx
+        y = (v[:, None] - self._cy) / self._fy + ry
         return x, y
 
     # ------------------------------------------------------------------ render
@@ -208,71 +214,76 @@ class Renderer:
             out[r0:r1] = sub.reshape(r1 - r0, ss, w, ss).mean(axis=(1, 3))
         return out
 
+    @staticmethod
+    def _plane_homography(plane_H_cam: np.ndarray) -> np.ndarray:
+        """3x3 map from a ray (x, y, 1) in CCS to homogeneous xy on the plane z = 0 of ``plane``.
+
+        The third row is R₂·d: the ray meets the plane in front of the camera where
+        its sign is opposite to the camera's z in that frame.
+        """
+        R, t = plane_H_cam[:3, :3], plane_H_cam[:3, 3]
+        return np.vstack([t[0] * R[2] - t[2] * R[0], t[1] * R[2] - t[2] * R[1], R[2]]) * -np.sign(t[2])
+
     def _albedo_rows(self, abs_H_cam: np.ndarray, j0: int, j1: int) -> np.ndarray:
         """Albedo at the sub-samples of sub-sample rows j0..j1."""
         world, p = self.world, self.world.params
         x, y = self._rays(j0, j1)
-        R, C = abs_H_cam[:3, :3], abs_H_cam[:3, 3]
-        dxa = R[0, 0] * x + R[0, 1] * y + R[0, 2]
-        dya = R[1, 0] * x + R[1, 1] * y + R[1, 2]
-        dza = R[2, 0] * x + R[2, 1] * y + R[2, 2]
-        down = dza < -1e-9
-        dza = np.where(down, dza, -1.0)
-        # plate top face, then into PCS (its xy is the board frame)
-        s_top = (p.plate_thickness_mm - C[2]) / dza
-        ref_H_abs = inv_H(world.abs_H_ref)
-        Px = C[0] + s_top * dxa
-        Py = C[1] + s_top * dya
-        A, t = ref_H_abs[:3, :3], ref_H_abs[:3, 3] + ref_H_abs[:3, 2] * p.plate_thickness_mm
-        qx = A[0, 0] * Px + A[0, 1] * Py + t[0]
-        qy = A[1, 0] * Px + A[1, 1] * Py + t[1]
+        # plate top face = PCS z = 0 (the board frame), via a ray→plane homography
+        ref_H_cam = inv_H(world.abs_H_ref) @ abs_H_cam
+        H = self._plane_homography(ref_H_cam)
+        den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+        ok = den > 1e-12
+        den = np.where(ok, den, 1.0)
+        qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
+        qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
         c = world.board_centre_ref()
         half = p.plate_half_size_mm
-        plate = down & (s_top > 0) & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
-        alb = np.full(x.shape, FLOOR_MEAN, np.float32)
-        if plate.any():
-            alb[plate] = self._plate_albedo(qx[plate], qy[plate], s_top[plate])
-        floor = down & ~plate
+        plate = ok & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
+        alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
+        floor = ~plate
         if floor.any():
-            s_fl = -C[2] / dza[floor]
-            alb[floor] = self._floor_albedo(C[0] + s_fl * dxa[floor], C[1] + s_fl * dya[floor], s_fl)
+            Hf = self._plane_homography(abs_H_cam)
+            xf, yf = x[floor], y[floor]
+            df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
+            okf = df > 1e-12
+            df = np.where(okf, df, 1.0)
+            X = (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df
+            Y = (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
+            alb[floor] = np.where(okf, self._floor_albedo(X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
         return alb
 
-    def _footprint_mm(self, s: np.ndarray) -> np.ndarray:
-        """Approximate width of one sub-sample on the surface, for edge anti-aliasing."""
-        return np.maximum(s / (self.model.f * self.ss), 1e-6)
+    def _width_mm(self, height_mm: float) -> float:
+        """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""
+        return max(abs(height_mm) / (self.model.f * self.ss), 1e-6)
 
-    def _plate_albedo(self, qx: np.ndarray, qy: np.ndarray, s: np.ndarray) -> np.ndarray:
+    def _plate_albedo(self, qx: np.ndarray, qy: np.ndarray, height_mm: float) -> np.ndarray:
+        """Board texture, white plate and nest rings at PCS xy (2-D arrays of one chunk)."""
         tex = self._board_texture
         th, tw = tex.shape
         # texel centre k sits at (k + 0.5)/ppmm, so square edges fall on texel boundaries;
         # clipping keeps far-off coordinates in remap's fixed-point range
-        mx = np.clip(qx * TEXTURE_PPMM - 0.5, -4, tw + 4).astype(np.float32).reshape(1, -1)
-        my = np.clip(qy * TEXTURE_PPMM - 0.5, -4, th + 4).astype(np.float32).reshape(1, -1)
-        val = np.empty(mx.shape[1], np.float32)
-        step = 30000  # remap maps must stay below 32767 columns
-        for i in range(0, mx.shape[1], step):
-            val[i:i + step] = cv2.remap(tex, mx[:, i:i + step], my[:, i:i + step], cv2.INTER_LINEAR,
-                                        borderMode=cv2.BORDER_CONSTANT, borderValue=255).ravel()
-        alb = DARK + (WHITE - DARK) * val / 255.0
-        near = None
+        mx = np.clip(qx * TEXTURE_PPMM - 0.5, -4, tw + 4).astype(np.float32)
+        my = np.clip(qy * TEXTURE_PPMM - 0.5, -4, th + 4).astype(np.float32)
+        val = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=255)
+        alb = np.float32(DARK) + np.float32((WHITE - DARK) / 255.0) * val.astype(np.float32)
+        lo_x, hi_x, lo_y, hi_y = qx.min(), qx.max(), qy.min(), qy.max()
+        wd = self._width_mm(height_mm)
+        r_out = NEST_RING_MM[1] + 1.0
         for name, seat in self.world.plate().nests_ref_nst.items():
-            r_out = NEST_RING_MM[1] + 1.0
-            if near is None:
-                near = np.empty(len(qx), bool)
-            np.less(np.abs(qx - seat[0]) + np.abs(qy - seat[1]), 2 * r_out, out=near)
+            if not (lo_x - r_out < seat[0] < hi_x + r_out and lo_y - r_out < seat[1] < hi_y + r_out):
+                continue
+            near = (np.abs(qx - seat[0]) < r_out) & (np.abs(qy - seat[1]) < r_out)
             if not near.any():
                 continue
             r = np.hypot(qx[near] - seat[0], qy[near] - seat[1])
-            wd = self._footprint_mm(s[near])
             ring = _coverage(r - NEST_RING_MM[1], wd)
             hole = _coverage(r - NEST_RING_MM[0], wd)
-            a = alb[near]
-            a = a * (1 - ring) + NEST_GREY[name] * (ring - hole) + NEST_HOLE_GREY * hole
-            alb[near] = a
+            alb[near] = alb[near] * (1 - ring) + NEST_GREY[name] * (ring - hole) + NEST_HOLE_GREY * hole
         return alb
 
-    def _floor_albedo(self, X: np.ndarray, Y: np.ndarray, s: np.ndarray) -> np.ndarray:
+    def _floor_albedo(self, X: np.ndarray, Y: np.ndarray, height_mm: float) -> np.ndarray:
+        """Smooth floor texture plus the floor marks at ACS xy (1-D arrays)."""
+        wd = self._width_mm(height_mm)
         alb = np.full(len(X), FLOOR_MEAN)
         for kx, ky, ph, amp in self._floor_waves:
             alb += amp * np.sin(kx * X + ky * Y + ph)
@@ -282,7 +293,7 @@ class Renderer:
             near = (np.abs(dX) < reach) & (np.abs(dY) < reach)
             if not near.any():
                 continue
-            dx, dy, wd = dX[near], dY[near], self._footprint_mm(s[near])
+            dx, dy = dX[near], dY[near]
             if mark.kind == "dot":
                 cov = _coverage(np.hypot(dx, dy) - mark.size_mm, wd)
                 inner = DARK
