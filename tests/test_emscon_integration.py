@@ -318,6 +318,17 @@ def test_reflector_option_selects_by_name(make) -> None:
         bad.open()
 
 
+def test_sigma_option_and_bad_sim_options(make, world: World) -> None:
+    t = make("sigma_mm=0")
+    t.open()
+    truth = lock_on(t, world, "green")
+    assert np.allclose(t.measure().xyz, truth, atol=1e-9)  # noise-free: exactly the world's truth
+    with pytest.raises(ValueError, match="fail='GoPosition'"):
+        make("fail=GoPosition")
+    with pytest.raises(ValueError, match="split='maybe'"):
+        make("split=maybe")
+
+
 def test_url_errors() -> None:
     from drivers.emscon.adapter import EmsconTracker
 

@@ -127,7 +127,8 @@ class EmsconTracker(Tracker):
         if self.reflector is not None:
             self._select_reflector(c, self.reflector)
         info = c.request(ES_Command.GetTrackerInfo).values
-        self._info = {"tracker_name": info["tracker_name"], "tracker_type": enum_name(ES_LTSensorType, info["tracker_type"]),
+        self._info = {"tracker_name": info["tracker_name"],
+                      "tracker_type": enum_name(ES_LTSensorType, info["tracker_type"]),
                       "serial_number": info["serial_number"], "max_data_rate": info["max_data_rate"],
                       "firmware": f"{st['major_version']}.{st['minor_version']}.{st['build_number']}"}
         ts = c.request(ES_Command.GetTrackerStatus)
