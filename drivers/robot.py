@@ -30,7 +30,7 @@ from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit
 READ_SLICE_S = 0.02
 
 COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
-                 "retries", "naks", "events", "overflows")
+                 "retries", "naks", "events", "recovered_events", "overflows")
 
 
 class SerialRobot(Robot):
@@ -91,7 +91,8 @@ class SerialRobot(Robot):
             self._port = None
             raise DeviceLost(f"cannot open robot port {target!r}: {exc}") from exc
         self._splitter.clear()
-        self._moving_seq = self._finished_seq = None
+        # _moving_seq survives a reconnect on purpose: if that motion ended meanwhile,
+        # the first STATUS below publishes the DONE/FAULT that was lost with the port
         reply = self._transact("HELLO", rp.PROTOCOL_VERSION, expect="VERSION")
         try:
             self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
@@ -105,7 +106,7 @@ class SerialRobot(Robot):
             raise DeviceError(f"robot base speaks protocol {self._version['protocol']}, "
                               f"driver speaks {rp.PROTOCOL_VERSION}", code="robot_version")
         state = self.status()
-        if state.state == "MOVING":
+        if state.state == "MOVING" and self._moving_seq is None:
             self._moving_seq = -1  # a motion from before we connected: wait_idle polls it out
 
     def close(self) -> None:
@@ -158,14 +159,28 @@ class SerialRobot(Robot):
             raise DeviceError(f"robot base sent a malformed STATUS: {exc}", code="robot_protocol") from exc
         if state.state not in ("IDLE", "MOVING", "FAULT"):
             raise DeviceError(f"robot base reports unknown state {state.state!r}", code="robot_protocol")
-        if state.state != "MOVING":
-            self._moving_seq = None  # covers a DONE/FAULT event that got lost on the line
+        if state.state != "MOVING" and self._moving_seq is not None:
+            self._recover_event(state)
         self._last_state = state
         now = time.monotonic()
         if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
             self._last_state_emit = now
             self.emit("robot.state", state.to_dict())
         return state
+
+    def _recover_event(self, state: RobotState) -> None:
+        """The motion is over but its DONE/FAULT never arrived (lost on the line, or
+        sent while we were reconnecting): publish one from STATUS so that nobody
+        waiting for it hangs. ``recovered`` marks it; the result is not known."""
+        seq = self._moving_seq if self._moving_seq and self._moving_seq > 0 else None
+        self._moving_seq = None
+        self.counters["recovered_events"] += 1
+        payload: dict[str, Any] = {"event": "DONE", "seq": seq, "host_time_ns": time.time_ns(), "recovered": True}
+        if state.state == "FAULT":
+            payload.update(event="FAULT", reason=state.fault, text="event lost; state read from STATUS")
+        else:
+            payload.update(result="UNKNOWN", x_mm=state.x_mm, y_mm=state.y_mm, heading_deg=state.heading_deg)
+        self.emit("robot.event", payload)
 
     @property
     def last_state(self) -> RobotState | None:

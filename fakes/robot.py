@@ -70,6 +70,9 @@ class PtyServer:
         self._stop = threading.Event()
         self.alive = True
         self.counters = {"tx_lines": 0, "tx_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
+        # what the base said while no port was attached is lost, as on a real cable
+        base.tick()
+        self.counters["tx_dropped"] += len(base.drain())
         self._thread = threading.Thread(target=self._run, name=f"fake-robot {self.path}", daemon=True)
         self._thread.start()
 

@@ -204,7 +204,7 @@ def test_controller_busy_duplicate_and_stop(raw: Any) -> None:
 
 
 def test_garbage_and_corrupted_lines_are_counted_and_survived(make_robot: Any) -> None:
-    robot, _ = make_robot("time_scale=0&garbage_rate=0.3&corrupt_rate=0.15&timeout=0.1&retries=6")
+    robot, sink = make_robot("time_scale=0&garbage_rate=0.3&corrupt_rate=0.15&timeout=0.1&retries=6")
     robot.inject_garbage(40)
     total = 0.0
     for i in range(12):
@@ -217,6 +217,11 @@ def test_garbage_and_corrupted_lines_are_counted_and_survived(make_robot: Any) -
     assert c["garbage"] >= 1 and c["bad_checksum"] >= 1 and c["retries"] >= 1
     # every corrupted ACK was retried with the same seq: no MOVE ran twice
     assert robot.status().x_mm == pytest.approx(total, abs=1e-3)
+    # one DONE per move, even where the DONE line itself was corrupted (then recovered)
+    events = sink.events()
+    assert [e["event"] for e in events] == ["DONE"] * 12
+    assert len({e["seq"] for e in events}) == 12
+    assert c["events"] + c["recovered_events"] == 12
 
 
 def test_lost_port_raises_device_lost_and_reopen_recovers(make_robot: Any) -> None:
@@ -230,6 +235,21 @@ def test_lost_port_raises_device_lost_and_reopen_recovers(make_robot: Any) -> No
     robot.close()  # twice is fine
     robot.open()  # a fresh pty, same (still powered) base
     assert robot.status().x_mm == 100.0
+
+
+def test_motion_finished_while_disconnected_still_reports_done(make_robot: Any) -> None:
+    robot, sink = make_robot("time_scale=0.1")  # 100 mm at 100 mm/s: 0.1 s
+    robot.move(100.0, 100.0)
+    robot.drop_port()
+    with pytest.raises(DeviceLost):
+        robot.pump(0.05)
+    robot.close()
+    time.sleep(0.15)  # the base finishes while nobody listens; its DONE is lost
+    robot.open()
+    assert robot.status().state == "IDLE"
+    done = sink.events()[-1]
+    assert done["event"] == "DONE" and done["recovered"] is True and done["x_mm"] == 100.0
+    assert robot.info()["counters"]["recovered_events"] == 1
 
 
 def test_silent_base_is_declared_lost_within_the_timeouts(make_robot: Any) -> None:

@@ -158,16 +158,17 @@ def test_the_pose_is_interpolated_during_motion(sim: Any) -> None:
     robot.move(200.0, 100.0)
     seen = []
     deadline = time.monotonic() + 3.0
-    while time.monotonic() < deadline:
+    idle = False
+    while not idle and time.monotonic() < deadline:
         robot.pump(0.02)
         seen.append(_pose(robot).x_mm - x0)
-        if robot.status().state == "IDLE":
-            break
+        idle = robot.status().state == "IDLE"
+    assert idle
     end = 200.0 * math.cos(math.radians(START[2]))
     middle = [s for s in seen if 0.05 * end < s < 0.95 * end]
     assert len(middle) >= 3, f"no intermediate poses seen: {seen}"
     assert middle == sorted(middle)
-    assert seen[-1] == pytest.approx(end, abs=1e-9)
+    assert _pose(robot).x_mm - x0 == pytest.approx(end, abs=1e-9)
 
 
 def test_world_created_when_none_given_and_bad_options_rejected() -> None:
