@@ -53,11 +53,14 @@ class SerialRobot(Robot):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
         if url.scheme == "serial":
+            if not url.path:
+                raise ValueError(f"robot URL {url.raw!r} names no device path (serial:///dev/ttyUSB0)")
             unknown = sorted(set(url.query) - self.OWN_OPTIONS)
             if unknown:
                 raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
                                  f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
         self._port: Any = None
+        self._target = ""
         self._splitter = rp.LineSplitter()
         self._seq = 0
         self._moving_seq: int | None = None
@@ -72,8 +75,6 @@ class SerialRobot(Robot):
     def port_target(self) -> str:
         """What to hand to ``serial.serial_for_url``: a device path or a pyserial URL."""
         if self.url.scheme == "serial":
-            if not self.url.path:
-                raise ValueError(f"robot URL {self.url.raw!r} names no device path (serial:///dev/ttyUSB0)")
             return self.url.path
         parts = urlsplit(self.url.raw)
         rest = {k: v for k, v in self.url.query.items() if k not in self.OWN_OPTIONS}
@@ -82,7 +83,7 @@ class SerialRobot(Robot):
     def open(self) -> None:
         """Open the port, drop stale input, shake hands (HELLO/VERSION) and read STATUS."""
         self.close()
-        target = self.port_target()
+        target = self._target = self.port_target()
         try:
             self._port = serial.serial_for_url(target, baudrate=self.baudrate, timeout=READ_SLICE_S,
                                                write_timeout=self.reply_timeout)
@@ -118,7 +119,7 @@ class SerialRobot(Robot):
                 pass
 
     def info(self) -> dict[str, Any]:
-        return {"url": self.url.raw, "port": self.port_target(), **self._version,
+        return {"url": self.url.raw, "port": self._target, **self._version,
                 "counters": dict(self.counters)}
 
     # ------------------------------------------------------------------ commands

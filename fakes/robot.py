@@ -27,13 +27,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import errno
+import logging
 import os
 import select
 import signal
 import sys
 import threading
 import tty
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -42,6 +43,8 @@ from drivers.base import DeviceURL, Emit, _no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase
 from fakes.world import World, WorldParams
+
+log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.05
 MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving
@@ -134,13 +137,21 @@ class PtyServer:
                     return
                 if not self.silent:  # a quiet link loses input too
                     for line in splitter.feed(data):
-                        self.base.handle_line(line)
-            self.base.tick()
+                        self._guarded(self.base.handle_line, line)
+            self._guarded(self.base.tick)
             out = self.base.drain()
             with self._lock:
                 pending, self._pending = self._pending, []
             if not self.silent:
                 self._send(pending + [self._impair(line) for line in out])
+
+    def _guarded(self, fn: Callable[..., None], *args: Any) -> None:
+        # a bug in the simulated controller must show up in the log, not as a silent
+        # dead thread that the driver can only report as a lost port
+        try:
+            fn(*args)
+        except Exception:
+            log.exception("fake robot base failed on %r", args)
 
     def _impair(self, line: bytes) -> bytes:
         """Apply the configured line faults to one outgoing line."""

@@ -289,7 +289,7 @@ def test_url_options_are_checked() -> None:
     with pytest.raises(ValueError, match="unknown option.*speed"):
         SimRobot(DeviceURL.parse("sim:?speed=3"))
     with pytest.raises(ValueError, match="names no device path"):
-        SerialRobot(DeviceURL.parse("serial:?baudrate=9600")).port_target()
+        SerialRobot(DeviceURL.parse("serial:?baudrate=9600"))
     r = SerialRobot(DeviceURL.parse("socket://127.0.0.1:7000?state_hz=5&logging=debug"))
     assert r.port_target() == "socket://127.0.0.1:7000?logging=debug" and r.state_hz == 5.0
     assert SerialRobot(DeviceURL.parse("serial:///dev/ttyUSB3?baudrate=9600")).port_target() == "/dev/ttyUSB3"
