@@ -128,13 +128,13 @@ class SerialRobot(Robot):
         """Start a straight move; returns once the base ACKed it (DONE comes later)."""
         _check("distance_mm", distance_mm, -rp.MAX_DISTANCE_MM, rp.MAX_DISTANCE_MM)
         _check("speed_mm_s", speed_mm_s, rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S)
-        self._start_motion("MOVE", distance_mm, speed_mm_s)
+        self._start_motion("MOVE", float(distance_mm), float(speed_mm_s))
 
     def turn(self, angle_deg: float, speed_deg_s: float) -> None:
         """Start a turn on the spot (positive = counter-clockwise); returns on ACK."""
         _check("angle_deg", angle_deg, -rp.MAX_ANGLE_DEG, rp.MAX_ANGLE_DEG)
         _check("speed_deg_s", speed_deg_s, rp.MIN_TURN_SPEED_DEG_S, rp.MAX_TURN_SPEED_DEG_S)
-        self._start_motion("TURN", angle_deg, speed_deg_s)
+        self._start_motion("TURN", float(angle_deg), float(speed_deg_s))
 
     def _start_motion(self, kind: str, value: float, speed: float) -> None:
         reply = self._transact(kind, rp.num(value), rp.num(speed), expect="ACK")
@@ -317,8 +317,8 @@ class SerialRobot(Robot):
             return None
         self.counters["events"] += 1
         self._finished_seq = seq
-        if seq is None or seq == self._moving_seq:
-            self._moving_seq = None
+        if seq is None or seq == self._moving_seq or self._moving_seq == -1:
+            self._moving_seq = None  # (-1: a motion started before we connected)
         self.emit("robot.event", payload)
         return None
 

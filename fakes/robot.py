@@ -68,7 +68,7 @@ class PtyServer:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
-        self._pending: list[bytes] = []  # injected bytes, written by the server thread
+        self._pending: list[int] = []  # sizes of injected noise bursts (the rng is the thread's)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.alive = True
@@ -83,9 +83,14 @@ class PtyServer:
 
     def inject_garbage(self, nbytes: int = 32) -> None:
         """Send ``nbytes`` random bytes followed by a newline, between two lines."""
+        if not self.alive:
+            return
         with self._lock:
-            self._pending.append(self._noise(nbytes))
-        os.write(self._wake_w, b"x")
+            self._pending.append(nbytes)
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass  # shut down meanwhile
 
     def drop_port(self) -> None:
         """The port vanishes: close both pty ends so the host sees an I/O error."""
@@ -143,7 +148,7 @@ class PtyServer:
             with self._lock:
                 pending, self._pending = self._pending, []
             if not self.silent:
-                self._send(pending + [self._impair(line) for line in out])
+                self._send([self._noise(n) for n in pending] + [self._impair(line) for line in out])
 
     def _guarded(self, fn: Callable[..., None], *args: Any) -> None:
         # a bug in the simulated controller must show up in the log, not as a silent

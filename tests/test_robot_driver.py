@@ -252,6 +252,27 @@ def test_motion_finished_while_disconnected_still_reports_done(make_robot: Any) 
     assert robot.info()["counters"]["recovered_events"] == 1
 
 
+def test_a_motion_started_by_an_earlier_session_is_followed_once() -> None:
+    base = FakeBase(World(WorldParams(start_pose=(0.0, 0.0, 0.0))), time_scale=0.2)
+    server = PtyServer(base)
+    url = DeviceURL.parse(f"serial://{server.path}?state_hz=0")
+    first, sink = SerialRobot(url), Sink()
+    second = SerialRobot(url, emit=sink)
+    try:
+        first.open()
+        first.move(100.0, 100.0)  # 0.2 s of motion
+        first.close()
+        second.open()  # the base is still moving: the new session must wait for it
+        assert second.last_state is not None and second.last_state.state == "MOVING"
+        assert second.wait_idle(5.0).x_mm == 100.0
+        events = sink.events()
+        assert len(events) == 1 and events[0]["event"] == "DONE"
+        assert "recovered" not in events[0]  # the real DONE arrived: no duplicate
+    finally:
+        second.close()
+        server.shutdown()
+
+
 def test_silent_base_is_declared_lost_within_the_timeouts(make_robot: Any) -> None:
     robot, _ = make_robot("time_scale=0&timeout=0.1&retries=1")
     robot.set_line_faults(silent=True)
