@@ -202,9 +202,9 @@ class FakeBase:
         with self.world.lock:
             start = self.world.robot
         a = math.radians(start.heading_deg)
-        end = replace(start, x_mm=start.x_mm + travelled * math.cos(a) - lateral * math.sin(a),
-                      y_mm=start.y_mm + travelled * math.sin(a) + lateral * math.cos(a),
-                      heading_deg=start.heading_deg + z_heading * p.drive_heading_sigma_deg)
+        end = replace(start, x_mm=float(start.x_mm + travelled * math.cos(a) - lateral * math.sin(a)),
+                      y_mm=float(start.y_mm + travelled * math.sin(a) + lateral * math.cos(a)),
+                      heading_deg=float(start.heading_deg + z_heading * p.drive_heading_sigma_deg))
         ox, oy, oh = self.odometry
         ob = math.radians(oh)
         odo_end = (ox + dist * math.cos(ob), oy + dist * math.sin(ob), oh)
@@ -222,8 +222,8 @@ class FakeBase:
         z_heading = self._drive_rng.standard_normal()
         with self.world.lock:
             start = self.world.robot
-        end = replace(start, heading_deg=start.heading_deg + angle * (1.0 + p.drive_scale_error)
-                      + z_heading * p.drive_heading_sigma_deg)
+        end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error)
+                                               + z_heading * p.drive_heading_sigma_deg))
         ox, oy, oh = self.odometry
         self._start_motion(seq, msg, start, end, (ox, oy, oh + angle), abs(angle) / speed, 0.0)
 
