@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from typing import Any
-from urllib.parse import urlencode, urlsplit, urlunsplit
+from urllib.parse import urlencode
 
 import serial
 
@@ -76,9 +76,10 @@ class SerialRobot(Robot):
         """What to hand to ``serial.serial_for_url``: a device path or a pyserial URL."""
         if self.url.scheme == "serial":
             return self.url.path
-        parts = urlsplit(self.url.raw)
+        # cut the query off by hand: urlunsplit would turn "loop://" into "loop:"
+        base = self.url.raw.split("?", 1)[0].split("#", 1)[0]
         rest = {k: v for k, v in self.url.query.items() if k not in self.OWN_OPTIONS}
-        return urlunsplit((parts.scheme, parts.netloc, parts.path, urlencode(rest), parts.fragment))
+        return f"{base}?{urlencode(rest)}" if rest else base
 
     def open(self) -> None:
         """Open the port, drop stale input, shake hands (HELLO/VERSION) and read STATUS."""

@@ -318,6 +318,15 @@ def test_url_options_are_checked() -> None:
     assert adapter_class("robot", DeviceURL.parse("sim:")) is SimRobot
 
 
+def test_loop_url_hears_only_its_own_commands_and_gives_up() -> None:
+    robot = SerialRobot(DeviceURL.parse("loop://?timeout=0.05&retries=1"))
+    assert robot.port_target() == "loop://"
+    with pytest.raises(DeviceLost, match="did not answer HELLO"):
+        robot.open()
+    assert robot.counters["unexpected"] == 2 and robot.counters["retries"] == 1
+    robot.close()
+
+
 def test_missing_port_is_device_lost() -> None:
     robot = SerialRobot(DeviceURL.parse("serial:///dev/rita-no-such-port"))
     with pytest.raises(DeviceLost, match="rita-no-such-port"):

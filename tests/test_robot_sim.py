@@ -1,6 +1,7 @@
 """The fake base moves the one simulated world: kinematics, drive errors, tilt."""
 from __future__ import annotations
 
+import argparse
 import math
 import time
 from collections.abc import Iterator
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.base import DeviceURL
-from fakes.robot import SimRobot
+from fakes.robot import SimRobot, _param
 from fakes.robot_base import FakeBase
 from fakes.world import RobotPose, World, WorldParams
 
@@ -169,6 +170,16 @@ def test_the_pose_is_interpolated_during_motion(sim: Any) -> None:
     assert len(middle) >= 3, f"no intermediate poses seen: {seen}"
     assert middle == sorted(middle)
     assert _pose(robot).x_mm - x0 == pytest.approx(end, abs=1e-9)
+
+
+def test_cli_param_parsing() -> None:
+    assert _param("drive_lateral_sigma_mm=0.05") == ("drive_lateral_sigma_mm", 0.05)
+    assert _param("base_has_inclinometer=true") == ("base_has_inclinometer", True)
+    assert _param("seed=4") == ("seed", 4)
+    with pytest.raises(argparse.ArgumentTypeError, match="'wheel_size=3'"):
+        _param("wheel_size=3")
+    with pytest.raises(argparse.ArgumentTypeError, match="value 'big'"):
+        _param("drive_scale_error=big")
 
 
 def test_world_created_when_none_given_and_bad_options_rejected() -> None:
