@@ -243,13 +243,20 @@ class Renderer:
         floor = ~plate
         if floor.any():
             Hf = self._plane_homography(abs_H_cam)
-            xf, yf = x[floor], y[floor]
-            df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
-            okf = df > 1e-12
-            df = np.where(okf, df, 1.0)
-            X = (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df
-            Y = (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
-            alb[floor] = np.where(okf, self._floor_albedo(X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
+
+            def to_floor(xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
+                okf = df > 1e-12
+                df = np.where(okf, df, 1.0)
+                return okf, (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df, (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
+
+            # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
+            # it once per pixel (middle sub-sample) rather than per sub-sample
+            ss, k = self.ss, self.ss // 2
+            _, Xc, Yc = to_floor(x[k::ss, k::ss], y[k::ss, k::ss])
+            tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
+            okf, X, Y = to_floor(x[floor], y[floor])
+            alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
         return alb
 
     def _width_mm(self, height_mm: float) -> float:
@@ -281,12 +288,17 @@ class Renderer:
             alb[near] = alb[near] * (1 - ring) + NEST_GREY[name] * (ring - hole) + NEST_HOLE_GREY * hole
         return alb
 
-    def _floor_albedo(self, X: np.ndarray, Y: np.ndarray, height_mm: float) -> np.ndarray:
-        """Smooth floor texture plus the floor marks at ACS xy (1-D arrays)."""
-        wd = self._width_mm(height_mm)
-        alb = np.full(len(X), FLOOR_MEAN)
+    def _floor_texture(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Smooth seeded floor albedo at ACS xy."""
+        alb = np.full(X.shape, FLOOR_MEAN)
         for kx, ky, ph, amp in self._floor_waves:
             alb += amp * np.sin(kx * X + ky * Y + ph)
+        return alb
+
+    def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float) -> np.ndarray:
+        """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays)."""
+        wd = self._width_mm(height_mm)
+        alb = alb.astype(np.float64)
         for mark in self.world.params.marks:
             reach = mark.size_mm * 1.5 + 0.5
             dX, dY = X - mark.x_mm, Y - mark.y_mm
