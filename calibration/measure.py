@@ -125,9 +125,15 @@ def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
 
 
 def measure_image(image: np.ndarray, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
-                  kind: str = "dot", approx_uv: Any = None, **kw: Any) -> MarkMeasurement:
-    """Locate the mark in ``image`` (:func:`calibration.marks.locate_mark`) and measure it."""
+                  kind: str = "dot", approx_uv: Any = None, mark_size_mm: float | None = None,
+                  **kw: Any) -> MarkMeasurement:
+    """Locate the mark in ``image`` (:func:`calibration.marks.locate_mark`) and measure it.
+
+    ``mark_size_mm`` (dot radius or cross half-size) is turned into pixels with the
+    SCS ground sample distance, so the locator need not guess it.
+    """
     from calibration.marks import locate_mark
 
-    obs = locate_mark(image, kind=kind, approx_uv=approx_uv)
+    size_px = None if mark_size_mm is None else float(mark_size_mm) / float(scs.gsd_mm)
+    obs = locate_mark(image, kind=kind, approx_uv=approx_uv, size_px=size_px)
     return measure_mark(obs.uv, scs, rob_H_scn, abs_P_prev, abs_P_at, **kw)

@@ -210,7 +210,9 @@ class Simulation:
         from calibration.marks import locate_mark
 
         image = self.renderer.render(abs_H_cam, rng=self.rng(name))
-        return np.asarray(locate_mark(image, kind=self.mark.kind).uv, dtype=float).reshape(2)
+        # the mark's size in pixels is known from its size and the camera height, as on the robot
+        size_px = self.mark.size_mm * self.model.f / self.world.params.cam_height_mm
+        return np.asarray(locate_mark(image, kind=self.mark.kind, size_px=size_px).uv, dtype=float).reshape(2)
 
     # ------------------------------------------------------------------ truth
 
