@@ -65,12 +65,13 @@ def assert_nominal_metrics(m, mark_abs):
 def rendered():
     world = World(WorldParams(seed=61))
     sim = Simulation(world, SimConfig(seed=61, render=True, sigma_t_mm=0.0))
-    return world, sim, sim.calibration()
+    obs = sim.calibration()
+    return world, sim, obs, estimate_cam_H_ref(obs.image, sim.model, sim.plate)
 
 
 def test_rendered_referencing_without_tracker_noise(rendered):
-    world, sim, obs = rendered
-    res = run_reference(sim, obs, sigma_t=0.0)
+    world, sim, obs, _ = rendered
+    res = run_reference(sim, obs, sigma_t=0.0)  # the whole path from the image
     err = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
     assert true_footprint_error(sim, res) < 0.005
     assert np.linalg.norm(sim.true_bias(res.rob_H_scn, make_scs(sim.model, res.cam_H_ref))) < 0.005
@@ -79,9 +80,8 @@ def test_rendered_referencing_without_tracker_noise(rendered):
 
 
 def test_rendered_referencing_nominal_tracker_noise(rendered):
-    world, sim, obs = rendered
+    world, sim, obs, cam_ref = rendered
     rng = np.random.default_rng(7)
-    cam_ref = estimate_cam_H_ref(obs.image, sim.model, sim.plate)  # detect once, reuse for each draw
     for _ in range(3):  # three tracker-noise draws on the same image
         noisy = replace(obs, image=None, cam_ref=cam_ref)
         noisy.abs_P_nests = obs.abs_P_nests + rng.normal(0, SIGMA_T, (3, 3))
@@ -91,6 +91,40 @@ def test_rendered_referencing_nominal_tracker_noise(rendered):
         err = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
         assert err["t_xy_mm"] < 0.06 and err["t_z_mm"] < 0.045 and err["rot_deg"] < 0.015, err
         assert 0.003 < res.uncertainty.footprint_std_mm < 0.05
+
+
+@pytest.fixture(scope="module")
+def rendered_validation(rendered):
+    """40 rendered validation images (1000×750), located once; tracker noise is added per test."""
+    world, sim, _, _ = rendered
+    return sim.validation()
+
+
+def test_rendered_validation_without_tracker_noise(rendered, rendered_validation):
+    world, sim, obs, cam_ref = rendered
+    res = run_reference(sim, replace(obs, image=None, cam_ref=cam_ref), sigma_t=0.0, mc_samples=0)
+    m, _, val = validate(sim, res, make_scs(sim.model, res.cam_H_ref), rendered_validation)
+    # calibration.md §7.3: all 8-direction metrics < 10 µm without tracker noise
+    assert m.enclosing_diameter_mm < 0.010, m.enclosing_diameter_mm
+    assert m.pairwise_mean_mm < 0.010 and max(c.max_from_mean_mm for c in m.clusters) < 0.010
+    assert np.linalg.norm(np.array(m.all.mean) - val.mark_abs[:2]) < 0.010
+    assert np.linalg.norm(np.array(m.fit.M) - val.mark_abs[:2]) < 0.010
+
+
+def test_rendered_validation_nominal(rendered, rendered_validation):
+    world, sim, obs, cam_ref = rendered
+    rng = np.random.default_rng(11)
+    noisy_cal = replace(obs, image=None, cam_ref=cam_ref, abs_P_nests=obs.abs_P_nests + rng.normal(0, SIGMA_T, (3, 3)),
+                        abs_P_rob0=obs.abs_P_rob0 + rng.normal(0, SIGMA_T, 3),
+                        abs_P_rob1=obs.abs_P_rob1 + rng.normal(0, SIGMA_T, 3))
+    res = run_reference(sim, noisy_cal, mc_samples=0)
+    val = replace(rendered_validation, observations=[
+        replace(o, abs_P_prev=o.abs_P_prev + rng.normal(0, SIGMA_T, 3), abs_P_at=o.abs_P_at + rng.normal(0, SIGMA_T, 3))
+        for o in rendered_validation.observations])
+    m, _, _ = validate(sim, res, make_scs(sim.model, res.cam_H_ref), val)
+    assert_nominal_metrics(m, val.mark_abs)
+    table = m.to_markdown()
+    assert table.count("\n| ") >= 9  # 8 directions + All
 
 
 # ---------------------------------------------------------------------------- rendering-free
