@@ -60,6 +60,7 @@ class MarkMeasurement:
 
     @property
     def std_xy_mm(self) -> np.ndarray:
+        """Std of the ACS x and y coordinates, mm."""
         return np.sqrt(np.diag(self.cov_xy_mm2))
 
     @property
@@ -68,6 +69,7 @@ class MarkMeasurement:
         return float(np.sqrt(np.trace(self.cov_xy_mm2)))
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"abs_P_mm": self.abs_P.tolist(), "rob_P_mm": self.rob_P.tolist(), "scn_xy_mm": self.scn_xy.tolist(),
                 "uv_px": self.uv.tolist(), "abs_H_rob": self.abs_H_rob.tolist(),
                 "cov_xy_mm2": self.cov_xy_mm2.tolist(), "std_xy_mm": self.std_xy_mm.tolist(), "std_mm": self.std_mm}
@@ -98,6 +100,7 @@ def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
     tilt = roll_deg is not None
 
     def run(x: np.ndarray) -> np.ndarray:
+        """ACS xy of the mark for one parameter vector (for the Jacobian)."""
         # x: P_prev (3), P_at (3), uv (2), rob_H_scn perturbation (6), roll, pitch (deg)
         H = robot_pose_at(x[0:3], x[3:6], abs_n, x[14] if tilt else None, x[15] if tilt else None)
         return mark_to_abs(x[6:8], scs, perturb_pose(rob_H_scn, x[8:14]), H)[0][:2]

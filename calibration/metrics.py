@@ -58,6 +58,7 @@ def min_enclosing_circle(points: Any, seed: int = 0) -> tuple[np.ndarray, float]
     eps = 1e-12
 
     def outside(p: np.ndarray, c: np.ndarray, r: float) -> bool:
+        """Is ``p`` outside the circle (c, r), with a small tolerance?"""
         return float(np.linalg.norm(p - c)) > r + eps
 
     c, r = Q[0].copy(), 0.0
@@ -113,6 +114,7 @@ class ClusterStats:
 
 
 def cluster_stats(name: str, xy: np.ndarray, headings: np.ndarray | None) -> ClusterStats:
+    """Table row for one cluster: mean, distances from it, enclosing radius, heading range."""
     m = xy.mean(axis=0)
     d = np.linalg.norm(xy - m, axis=1)
     _, r = min_enclosing_circle(xy)
@@ -166,9 +168,11 @@ class ExperimentMetrics:
 
     @property
     def enclosing_diameter_mm(self) -> float:
+        """Minimum enclosing circle diameter of all points (the paper's 0.747 mm)."""
         return 2 * self.all.radius_mm
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"clusters": [asdict(c) for c in self.clusters], "all": asdict(self.all),
                 "enclosing_diameter_mm": self.enclosing_diameter_mm, "pairwise_mean_mm": self.pairwise_mean_mm,
                 "centroid_mean_mm": self.centroid_mean_mm, "fit": None if self.fit is None else asdict(self.fit),
@@ -186,6 +190,7 @@ class ExperimentMetrics:
         return out
 
     def summary(self) -> list[tuple[str, str]]:
+        """The figures below the table, as (label, formatted value)."""
         s = [("Enclosing diameter, all points [mm]", f"{self.enclosing_diameter_mm:.3f}"),
              ("Mean L2 distance between cluster means, over pairs [mm]", f"{self.pairwise_mean_mm:.3f}"),
              ("Mean L2 distance of cluster means to their centroid [mm]", f"{self.centroid_mean_mm:.3f}")]
@@ -197,6 +202,7 @@ class ExperimentMetrics:
         return s
 
     def to_markdown(self) -> str:
+        """The paper's table as Markdown, with the summary lines under it."""
         rows = self.rows()
         lines = ["| " + " | ".join(rows[0]) + " |", "|" + "|".join(["---"] + ["---:"] * 6) + "|"]
         for row in rows[1:]:
@@ -207,6 +213,7 @@ class ExperimentMetrics:
         return "\n".join(lines) + "\n"
 
     def to_csv(self) -> str:
+        """The table as CSV, then a blank line and metric,value rows."""
         import csv
 
         buf = io.StringIO()

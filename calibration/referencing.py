@@ -24,7 +24,7 @@ from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
 from calibration.plate import NEST_NAMES, Plate
 from calibration.registration import as_points, fit_plate, kabsch, nest_array
-from calibration.uncertainty import PoseUncertainty, footprint, monte_carlo, pnp_covariance
+from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_carlo, pnp_covariance
 
 
 def plate_normal(abs_P_nests: Any, abs_P_rob0: Any) -> np.ndarray:
@@ -60,10 +60,11 @@ def robot_pose(abs_P_rob: Any, abs_v: Any, abs_n: Any, min_move_mm: float = 1.0)
     return make_H(np.column_stack([v_perp, c, n]), P, "abs_H_rob")
 
 
-def chain(ref_P_smr: np.ndarray, scn_H_cam: np.ndarray) -> Any:
+def chain(ref_P_smr: np.ndarray, scn_H_cam: np.ndarray) -> Chain:
     """The bare referencing chain for Monte Carlo: (nests, P0, P1, cam_H_ref) -> (rob_H_cam, rob_H_scn)."""
     def run(abs_P: np.ndarray, P0: np.ndarray, P1: np.ndarray, cam_H_ref: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
+        """One pass of the chain on (possibly perturbed) inputs."""
         scn_H_ref = scn_H_cam @ cam_H_ref
         abs_H_scn = kabsch(apply_H(scn_H_ref, ref_P_smr), abs_P).B_H_A
         abs_H_rob = robot_pose(P0, P1 - P0, plate_normal(abs_P, P0))
@@ -113,6 +114,7 @@ class ReferencingResult:
         return footprint(self.rob_H_cam, self.rob_H_scn)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form: matrices as nested lists, figures in mm and degrees."""
         out: dict[str, Any] = {}
         for k in ("rob_H_cam", "rob_H_scn", "abs_H_scn", "scn_H_cam", "cam_H_ref", "abs_H_rob"):
             out[k] = getattr(self, k).tolist()
@@ -231,8 +233,8 @@ def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P
         cam_ref = estimate_cam_H_ref(image, model, plate)
     n_corners = rms_px = ambiguity = None
     cov = None
-    if isinstance(cam_ref, np.ndarray):
-        cam_H_ref = cam_ref
+    if not hasattr(cam_ref, "cam_H_ref"):
+        cam_H_ref = check_H(np.asarray(cam_ref, dtype=float), "cam_ref")
     else:
         cam_H_ref = np.asarray(cam_ref.cam_H_ref, dtype=float)
         n_corners, rms_px = int(cam_ref.n_corners), float(cam_ref.rms_px)
@@ -250,6 +252,3 @@ def rob_H_cam_error(rob_H_cam: np.ndarray, rob_H_cam_true: np.ndarray) -> dict[s
     return {"t_xy_mm": float(np.hypot(d[0], d[1])), "t_z_mm": float(abs(d[2])),
             "rot_deg": float(np.degrees(rotation_angle(rob_H_cam[:3, :3].T @ rob_H_cam_true[:3, :3])))}
 
-
-__all__ = ["Gates", "ReferencingResult", "plate_normal", "robot_pose", "reference", "reference_pose",
-           "rob_H_cam_error", "board_corners_ref", "chain", "NEST_NAMES"]

@@ -94,6 +94,7 @@ class PlateFit:
     permutation_rms_mm: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (lists, floats)."""
         return {"abs_H_scn": self.abs_H_scn.tolist(), "residuals_mm": self.residuals_mm,
                 "rms_mm": self.rms_mm, "rms_limit_mm": self.rms_limit_mm,
                 "label_check": self.label_check, "permutation_rms_mm": self.permutation_rms_mm}

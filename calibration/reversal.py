@@ -48,6 +48,7 @@ class ReversalResult:
     messages: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"rob_H_scn": self.rob_H_scn.tolist(), "rob_H_cam": self.rob_H_cam.tolist(),
                 "scn_H_cam": self.scn_H_cam.tolist(), "headings_deg": self.headings_deg,
                 "half_diff_t_mm": self.half_diff_t_mm, "half_diff_rot_deg": self.half_diff_rot_deg,

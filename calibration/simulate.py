@@ -123,6 +123,7 @@ class Simulation:
 
     @property
     def renderer(self) -> Any:
+        """The world's ray-cast renderer, built on first use (the ray cache is costly)."""
         if self._renderer is None:
             from fakes.render import Renderer
 

@@ -37,9 +37,11 @@ class Triangulation:
 
     @property
     def rms_mm(self) -> float:
+        """RMS distance of the point from the rays, mm."""
         return float(np.sqrt(np.mean(np.square(self.ray_dist_mm))))
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"ref_P_mm": self.ref_P.tolist(), "ray_dist_mm": self.ray_dist_mm, "reproj_px": self.reproj_px,
                 "rms_mm": self.rms_mm, "max_angle_deg": self.max_angle_deg}
 
@@ -100,6 +102,7 @@ class PlateSurvey:
                        notes=(plate.notes + "; " if plate.notes else "") + note)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"nests_ref_nst": self.nests_ref_nst,
                 "triangulations": {k: t.to_dict() for k, t in self.triangulations.items()}}
 

@@ -117,10 +117,12 @@ class PoseUncertainty:
 
     @property
     def std_t_mm(self) -> np.ndarray:
+        """Std of the rob_H_cam translation (x, y, z), mm."""
         return np.sqrt(np.diag(self.cov_rob_H_cam)[:3])
 
     @property
     def std_rot_deg(self) -> np.ndarray:
+        """Std of the rob_H_cam rotation-vector components, degrees."""
         return np.degrees(np.sqrt(np.diag(self.cov_rob_H_cam)[3:]))
 
     @property
@@ -129,6 +131,7 @@ class PoseUncertainty:
         return float(np.hypot(*self.std_footprint_mm))
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
         return {"std_t_mm": self.std_t_mm.tolist(), "std_rot_deg": self.std_rot_deg.tolist(),
                 "std_footprint_mm": self.std_footprint_mm.tolist(),
                 "footprint_std_mm": self.footprint_std_mm,
