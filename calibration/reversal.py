@@ -10,7 +10,9 @@ random errors.
 Each referencing makes its own SCS (``make_scs`` places it from its image), so all
 ``rob_H_scn`` are first re-expressed in the SCS of the first referencing:
 ``rob_H_scn,k' = rob_H_cam,k · cam_H_scn,0``. Translations are averaged, rotations
-by the chordal mean (the arithmetic mean projected back onto SO(3)).
+by the chordal mean (the arithmetic mean projected back onto SO(3)). To measure
+with the combined ``rob_H_scn``, use the SCS of the first referencing
+(``make_scs(model, results[0].cam_H_ref)``).
 """
 from __future__ import annotations
 
@@ -46,6 +48,8 @@ class ReversalResult:
     half_diff_footprint_mm: list[float] | None  # half the footprint difference, RCS xy
     footprint_dev_mm: list[list[float]]  # each referencing's footprint minus the combined one
     messages: list[str] = field(default_factory=list)
+    #: covariance of the combined rob_H_scn (δt mm, δr rad): Σ cov_k / N², None if any input lacks one
+    cov_rob_H_scn: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -53,7 +57,8 @@ class ReversalResult:
                 "scn_H_cam": self.scn_H_cam.tolist(), "headings_deg": self.headings_deg,
                 "half_diff_t_mm": self.half_diff_t_mm, "half_diff_rot_deg": self.half_diff_rot_deg,
                 "half_diff_footprint_mm": self.half_diff_footprint_mm,
-                "footprint_dev_mm": self.footprint_dev_mm, "messages": list(self.messages)}
+                "footprint_dev_mm": self.footprint_dev_mm, "messages": list(self.messages),
+                "cov_rob_H_scn": None if self.cov_rob_H_scn is None else self.cov_rob_H_scn.tolist()}
 
 
 def combine(results: Sequence[Any], max_heading_error_deg: float = 20.0) -> ReversalResult:
@@ -93,5 +98,9 @@ def combine(results: Sequence[Any], max_heading_error_deg: float = 20.0) -> Reve
         spread = np.degrees(rotation_angle(a[:3, :3] @ b[:3, :3].T))
         messages.append(f"separated plate-fixed error: footprint {np.hypot(*half_f) * 1000:.1f} µm, "
                         f"rotation {spread / 2:.4f}°")
+    # independent referencings: the mean's covariance is Σ cov_k / N² (the SCS origins differ
+    # by millimetres, which moves the translation part by far less than a micrometre)
+    uncs = [getattr(r, "uncertainty", None) for r in results]
+    cov = None if any(u is None for u in uncs) else sum(u.cov_rob_H_scn for u in uncs) / n ** 2
     return ReversalResult(rob_H_scn, rob_H_cam, scn_H_cam, headings, half_t, half_r, half_f,
-                          [(f - foot)[:2].tolist() for f in feet], messages)
+                          [(f - foot)[:2].tolist() for f in feet], messages, cov)

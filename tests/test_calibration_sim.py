@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.measure import measure_mark
+from calibration.measure import measure_image, measure_mark
 from calibration.metrics import experiment_metrics
 from calibration.referencing import reference, rob_H_cam_error
 from calibration.reversal import combine
@@ -125,6 +125,18 @@ def test_rendered_validation_nominal(rendered, rendered_validation):
     assert_nominal_metrics(m, val.mark_abs)
     table = m.to_markdown()
     assert table.count("\n| ") >= 9  # 8 directions + All
+
+
+def test_measure_image_on_a_rendered_stop(rendered, rendered_validation):
+    world, sim, obs, cam_ref = rendered
+    res = run_reference(sim, replace(obs, image=None, cam_ref=cam_ref), sigma_t=0.0, mc_samples=0)
+    scs = make_scs(sim.model, res.cam_H_ref)
+    o = rendered_validation.observations[7]
+    image = sim.renderer.render(o.abs_H_rob_true @ world.rob_H_cam, rng=np.random.default_rng(3))
+    m = measure_image(image, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at, kind=sim.mark.kind,
+                      mark_size_mm=sim.mark.size_mm)
+    assert np.linalg.norm(m.uv - o.uv_true) < 0.3
+    assert np.linalg.norm(m.abs_P[:2] - rendered_validation.mark_abs[:2]) < 0.010
 
 
 # ---------------------------------------------------------------------------- rendering-free

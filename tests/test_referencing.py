@@ -9,8 +9,8 @@ import pytest
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_y, rot_z
-from calibration.referencing import (Gates, board_corners_ref, plate_normal, reference_pose, rob_H_cam_error,
-                                     robot_pose)
+from calibration.referencing import (Gates, board_corners_ref, plate_normal, reference, reference_pose,
+                                     rob_H_cam_error, robot_pose)
 from calibration.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
@@ -146,6 +146,19 @@ def test_bad_inputs_are_named():
         run(sim, obs)
     with pytest.raises(ValueError, match="sigma_plate_mm"):
         run(sim, sim.calibration(), sigma_plate_mm=-1.0)
+
+
+def test_reference_entry_point_checks_its_arguments():
+    world = World(WorldParams(seed=9))
+    sim = Simulation(world, SimConfig(seed=9))
+    obs = sim.calibration()
+    args = (sim.model, sim.plate, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1)
+    with pytest.raises(ValueError, match="exactly one"):
+        reference(*args)
+    with pytest.raises(ValueError, match="cam_ref"):
+        reference(*args, cam_ref=np.eye(3))
+    res = reference(*args, cam_ref=obs.cam_ref, mc_samples=0)  # a bare 4x4 cam_H_ref is accepted
+    assert np.abs(res.rob_H_cam - world.rob_H_cam).max() < 0.2 and res.n_corners is None
 
 
 def test_board_corner_ids_match_opencv():

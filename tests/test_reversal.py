@@ -44,6 +44,21 @@ def test_reversal_cancels_nest_bias_without_noise(seed):
     assert abs(np.linalg.det(rev.rob_H_scn[:3, :3]) - 1) < 1e-12
     assert not any("spacing" in m for m in rev.messages)
     json.dumps(rev.to_dict())
+    assert rev.cov_rob_H_scn is None  # the inputs carry no Monte Carlo uncertainty
+
+
+def test_combined_uncertainty_halves_the_variance():
+    world = World(WorldParams(seed=51))
+    sim = Simulation(world, SimConfig(seed=51))
+    runs = []
+    for heading, stream in ((0.0, "a"), (180.0, "b")):
+        obs = sim.calibration(heading_deg=heading, stream=stream)
+        scs = make_scs(sim.model, obs.cam_ref)
+        runs.append(reference_pose(obs.cam_ref, scs.scn_H_cam, sim.plate.ref_P_smr(), obs.abs_P_nests,
+                                   obs.abs_P_rob0, obs.abs_P_rob1, mc_samples=100, seed=1))
+    rev = combine(runs)
+    single = np.mean([np.diag(r.uncertainty.cov_rob_H_scn) for r in runs], axis=0)
+    assert np.allclose(np.diag(rev.cov_rob_H_scn), single / 2)
 
 
 def test_reversal_with_tracker_noise_returns_to_noise_floor():
