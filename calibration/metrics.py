@@ -229,7 +229,8 @@ def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> Ex
     """Metrics of measured mark positions (N, 2 or 3; ACS mm) taken at approach headings (N,) in degrees.
 
     Points are grouped by ``groups`` labels if given, else by the heading rounded to the
-    nearest multiple of 45°; clusters are named as in the paper.
+    nearest multiple of 45°; clusters are named as in the paper (given groups keep
+    their labels unless their mean headings are distinct multiples of 45°).
     """
     P = np.asarray(points, dtype=float)
     if P.ndim != 2 or P.shape[1] not in (2, 3) or len(P) < 1:
@@ -247,13 +248,18 @@ def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> Ex
         if len(labels) != len(xy):
             raise ValueError(f"experiment_metrics: {len(labels)} group labels for {len(xy)} points")
     order = list(dict.fromkeys(labels))
-    clusters, means, mean_h = [], [], []
-    for name in order:
-        idx = np.array([i for i, g in enumerate(labels) if g == name])
-        clusters.append(cluster_stats(name, xy[idx], h[idx]))
-        means.append(xy[idx].mean(axis=0))
-        rad = np.radians(h[idx])
-        mean_h.append(np.degrees(np.arctan2(np.sin(rad).mean(), np.cos(rad).mean())))
+    members = [np.array([i for i, g in enumerate(labels) if g == name]) for name in order]
+    mean_h = [float(np.degrees(np.arctan2(np.sin(np.radians(h[idx])).mean(), np.cos(np.radians(h[idx])).mean())))
+              for idx in members]
+    if groups is not None:
+        # given groups (e.g. direction indices) get the paper's names when their mean
+        # headings are distinct multiples of 45°; otherwise the labels are kept
+        near = [abs(float(wrap_deg(a - 45.0 * round(a / 45.0)))) < 10.0 for a in mean_h]
+        named = [direction_name(45.0 * round(a / 45.0)) for a in mean_h]
+        if all(near) and len(set(named)) == len(named):
+            order = named
+    clusters = [cluster_stats(name, xy[idx], h[idx]) for name, idx in zip(order, members)]
+    means = [xy[idx].mean(axis=0) for idx in members]
     allc = cluster_stats("All", xy, None)
     means_a = np.array(means)
     pairs = [np.linalg.norm(means_a[i] - means_a[j]) for i, j in itertools.combinations(range(len(means_a)), 2)]

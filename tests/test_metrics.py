@@ -121,4 +121,6 @@ def test_metrics_bad_input_and_custom_groups():
     with pytest.raises(ValueError, match="headings"):
         experiment_metrics(pts, hs[:-1])
     m = experiment_metrics(pts, hs, groups=[f"g{i // 4}" for i in range(len(pts))])
-    assert [c.name for c in m.clusters] == ["g0", "g1", "g2", "g3"]
+    assert [c.name for c in m.clusters] == ["g0", "g1", "g2", "g3"]  # mixed headings: labels kept
+    by_k = experiment_metrics(pts, hs, groups=[i // 2 for i in range(len(pts))])
+    assert [c.name for c in by_k.clusters] == [c.name for c in experiment_metrics(pts, hs).clusters]
