@@ -189,3 +189,24 @@ def test_reversal_then_validation_removes_plate_bias():
     both, _, _ = validate(sim, rev, scs)
     assert single.fit.b_norm_mm > 0.01
     assert both.fit.b_norm_mm < 0.001 and both.enclosing_diameter_mm < 0.002
+
+
+def test_sim_config_and_world_checks():
+    with pytest.raises(ValueError, match="sigma_t_mm"):
+        SimConfig(sigma_t_mm=-0.01)
+    with pytest.raises(ValueError, match="move_mm"):
+        SimConfig(move_mm=0.0)
+    world = World(WorldParams(seed=90))
+    with pytest.raises(ValueError, match="M9"):
+        Simulation(world, SimConfig(mark="M9"))
+    # a mark on the plate cannot be approached from the floor
+    from fakes.world import FloorMark
+
+    on_plate = World(WorldParams(seed=90, marks=(FloorMark("P", *WorldParams().plate_xy_mm),)))
+    with pytest.raises(ValueError, match="on the plate"):
+        Simulation(on_plate, SimConfig(mark="P")).validation()
+    # same seed, same observations; another seed, other noise
+    a = Simulation(world, SimConfig(seed=1)).calibration()
+    b = Simulation(world, SimConfig(seed=1)).calibration()
+    c = Simulation(world, SimConfig(seed=2)).calibration()
+    assert np.array_equal(a.abs_P_nests, b.abs_P_nests) and not np.array_equal(a.abs_P_nests, c.abs_P_nests)
