@@ -74,3 +74,13 @@ def test_bad_inputs_are_named(scene) -> None:
     plate.aruco_dict = "DICT_NOPE"
     with pytest.raises(ValueError, match="DICT_NOPE"):
         make_board(plate)
+
+
+def test_fast_marker_path_agrees_with_opencv(scene) -> None:
+    world, _, image, _ = scene
+    ids_f, uv_f = detect_corners(image, world.plate(), fast=True)
+    ids_o, uv_o = detect_corners(image, world.plate(), fast=False)
+    common, i_f, i_o = np.intersect1d(ids_f, ids_o, return_indices=True)
+    print(f"fast {len(ids_f)} corners, OpenCV {len(ids_o)}, common {len(common)}")
+    assert len(common) > 0.97 * max(len(ids_f), len(ids_o))
+    assert np.abs(uv_f[i_f] - uv_o[i_o]).max() < 0.05
