@@ -1,0 +1,3 @@
+"""Camera-to-robot calibration (the paper's referencing method), pure numpy/OpenCV."""
+
+__version__ = "0.1.0"

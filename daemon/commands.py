@@ -206,7 +206,17 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
     def sim_truth(req: Request) -> Any:
         if d.world is None:
             raise CommandError(ErrorCode.NOT_FOUND, "sim.truth: this daemon runs no simulated world")
-        return d.world.truth()
+        truth = d.world.truth()
+        size = d.runners["camera"].info.get("size") or list(d.world.params.reduced_size)
+        truth["camera_model"] = {"K": d.world.camera_matrix(tuple(size)).tolist(),
+                                 "dist": d.world.dist_coeffs().tolist(), "size": list(size)}
+        truth["plate"] = d.world.plate().to_dict()
+        return truth
+
+    def calib_results(req: Request) -> Any:
+        from daemon.storage import read_results
+
+        return read_results(Path(cfg.daemon.data_dir))
 
     def data_dir(req: Request) -> Any:
         return {"data_dir": str(Path(cfg.daemon.data_dir).resolve())}
@@ -219,6 +229,7 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         "camera.capture": camera_capture, "camera.stream.start": camera_stream_start,
         "camera.stream.stop": camera_stream_stop, "camera.status": camera_status,
         "robot.move": robot_move, "robot.turn": robot_turn, "robot.stop": robot_stop, "robot.status": robot_status,
-        "capture": capture, "sim.truth": sim_truth, "data.dir": data_dir,
+        "capture": capture, "sim.truth": sim_truth, "data.dir": data_dir, "calib.results": calib_results,
+        **d.calib.handlers(),
     }
     return handlers

@@ -216,7 +216,7 @@ def sim_config(runtime_dir: str | os.PathLike[str], data_dir: str | os.PathLike[
         "daemon": {"command_endpoints": [f"ipc://{rt}/cmd"],
                    "telemetry_endpoints": [f"ipc://{rt}/telemetry"],
                    "frame_endpoints": [f"ipc://{rt}/frames"],
-                   "data_dir": str(data_dir or rt / "data")},
+                   "data_dir": str(data_dir or rt / "data"), "start_worker": True},
         "devices": {"camera": "sim:", "tracker": "sim:", "robot": "sim:"},
         "sim": {"seed": seed},
     }, source="<built-in sim config>")

@@ -9,6 +9,8 @@ Examples::
     ritactl tracker measure | aim X Y Z | find | stream start --rate 1000 | stream stop | status
     ritactl robot move 200 --speed 50 --yes | turn 90 --yes | stop | status
     ritactl camera capture --out frame.png | stream start | stream stop | status
+    ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
+    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB | recompute DATASET
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
 
 The daemon is found at --endpoint, else $RITA_ENDPOINT, else ipc:///run/ritad/cmd.
@@ -247,6 +249,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-wait", action="store_true", help="return once the motion started")
         p.add_argument("--out", help="camera capture: save PNG here (on this computer)")
         p.set_defaults(fn=cmd_device, device=dev)
+    from daemon.ctl_calib import add_parsers
+
+    add_parsers(sub)
     call = sub.add_parser("call", help="send any bus command")
     call.add_argument("command")
     call.add_argument("args", nargs="?", help="JSON object of arguments")
@@ -261,6 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     verb = getattr(a, "verb", None)
     if verb is not None:
         _check_params(ap, a, verb)
+    if getattr(a, "offline", False):
+        return a.fn(None, a)
     client = Client(a.endpoint, timeout=a.timeout or 5.0)
     try:
         return a.fn(client, a)

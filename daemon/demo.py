@@ -67,6 +67,74 @@ def lock_on_robot(c: Client) -> dict[str, Any]:
     return c.call("tracker.measure", timeout=60)
 
 
+def operator_files(c: Client, out: Path) -> dict[str, Path]:
+    """What an operator has before calibrating: plate file, camera model, rough nest positions."""
+    import numpy as np
+
+    truth = c.call("sim.truth")
+    trk_H_abs = np.linalg.inv(np.array(truth["abs_H_trk"]))
+    rng = np.random.default_rng(7)
+    approx = {n: (trk_H_abs @ [*(np.array(p) + rng.normal(0, 3, 3)), 1.0])[:3].tolist()
+              for n, p in truth["nests_abs"].items()}  # "roughly here": a few mm off
+    files = {"plate": out / "plate.json", "camera_model": out / "camera_model.json",
+             "nests": out / "nests_approx.json"}
+    files["plate"].write_text(json.dumps(truth["plate"], indent=2))
+    files["camera_model"].write_text(json.dumps(truth["camera_model"], indent=2))
+    files["nests"].write_text(json.dumps(approx, indent=2))
+    return files
+
+
+def ritactl(endpoint: str, *args: str, timeout: float = 600) -> int:
+    """Run ritactl as the operator would, output straight to the terminal."""
+    cmd = [sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, *args]
+    print("$ ritactl " + " ".join(args), flush=True)
+    return subprocess.run(cmd, cwd=ROOT, timeout=timeout).returncode
+
+
+def run_calibration(c: Client, out: Path, endpoint: str) -> int:
+    """Referencing with reversal, then the 8-direction experiment, compared with the ground truth."""
+    import numpy as np
+
+    from calibration.referencing import rob_H_cam_error
+
+    files = operator_files(c, out)
+    truth = c.call("sim.truth")
+    p = c.call("tracker.measure", timeout=60)
+    say("referencing with instrument reversal (robot on the plate; tracker finds the nests)")
+    rc = ritactl(endpoint, "calibrate", "--reversal", "--plate", str(files["plate"]), "--camera-model",
+                 str(files["camera_model"]), "--nests-approx", str(files["nests"]), "--robot-approx",
+                 str(p["x"]), str(p["y"]), str(p["z"]))
+    if rc:
+        return rc
+    active = c.call("calib.results")["active"]
+    err = rob_H_cam_error(np.array(active["rob_H_cam"]), np.array(truth["rob_H_cam"]))
+    print(f"\n  vs ground truth: t_xy {err['t_xy_mm'] * 1000:.1f} µm, t_z {err['t_z_mm'] * 1000:.1f} µm, "
+          f"rotation {err['rot_deg'] * 3600:.1f} arcsec")
+    mark = truth["marks"][0]
+    say(f"8-direction repeatability experiment on mark {mark['name']} (5 repetitions each)")
+    rc = ritactl(endpoint, "experiment", "--mark", str(mark["x_mm"] + 1.5), str(mark["y_mm"] - 1.0),
+                 "--reps", "5")
+    if rc:
+        return rc
+    hist = c.call("calib.results")["history"]
+    exp = json.loads(Path(hist[0]["file"]).read_text()) if hist else {}
+    if exp.get("procedure") == "experiment":
+        xy = np.array([m["abs_xyz"][:2] for m in exp["marks"]])
+        true = np.array([mark["x_mm"], mark["y_mm"]])
+        fit = exp["metrics"].get("fit") or {}
+        print(f"\n  vs ground truth: grand mean off by {np.hypot(*(xy.mean(0) - true)) * 1000:.1f} µm; "
+              f"fitted M off by {np.hypot(*(np.array(fit.get('M', xy.mean(0))) - true)) * 1000:.1f} µm; "
+              f"|b| = {fit.get('b_norm_mm', float('nan')) * 1000:.1f} µm")
+        report = out / "report"
+        report.mkdir(exist_ok=True)
+        for name in ("report.md", "report.csv", "clusters.png"):
+            src = Path(exp["dataset"]) / name
+            if src.exists():
+                (report / name).write_bytes(src.read_bytes())
+        print(f"  report files: {report}/report.md, report.csv, clusters.png")
+    return 0
+
+
 def main() -> int:
     out = ROOT / "demo-out"
     out.mkdir(exist_ok=True)
@@ -86,11 +154,6 @@ def main() -> int:
             say("capture: one image + one tracker measurement + robot state")
             r = c.call("capture", timeout=60, label="demo")
             print(f"  saved {r['path']}  image {r['header']['shape']}")
-            say("robot: drive 200 mm straight, then measure again")
-            c.call("robot.move", timeout=120, distance_mm=200.0, speed_mm_s=100.0, confirm=True)
-            p2 = c.call("tracker.measure", timeout=60)
-            moved = sum((p2[k] - p[k]) ** 2 for k in "xyz") ** 0.5
-            print(f"  reflector moved {moved:.3f} mm (commanded 200 mm)")
             say("telemetry for 2 s")
             sub = c.subscriber()
             counts: dict[str, int] = {}
@@ -98,6 +161,7 @@ def main() -> int:
                 counts[topic] = counts.get(topic, 0) + 1
             sub.close()
             print("  " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+            rc = run_calibration(c, out, endpoint)
     except CommandError as exc:
         print(f"demo failed: {exc}", file=sys.stderr)
         rc = 1

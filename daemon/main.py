@@ -12,6 +12,7 @@ import argparse
 import logging
 import os
 import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -23,6 +24,7 @@ from typing import Any, Callable
 import zmq
 
 from daemon import __version__, config as config_mod
+from daemon.calib_jobs import CalibJobs
 from daemon.commands import build_handlers, chain
 from daemon.logs import setup_logging
 from daemon.notify import Notifier
@@ -48,6 +50,9 @@ class Daemon:
             from fakes.world import World, WorldParams
 
             self.world = World(WorldParams(seed=cfg.sim.seed, tracker_sigma_mm=cfg.sim.tracker_sigma_mm))
+            if cfg.devices.tracker.startswith("sim:"):
+                # the simulated tracker stands somewhere in the world: its frame → ACS is known
+                cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()
         self.ctx = zmq.Context()
         self.telemetry: TelemetryPublisher
         self.frames: FramePublisher
@@ -57,6 +62,9 @@ class Daemon:
         self._motion_lock = threading.Lock()
         self._motion_waiters: list[Future] = []
         self.stop_event = threading.Event()
+        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data))
+        self.worker: subprocess.Popen | None = None
+        self._worker_next_start = 0.0
 
     # ------------------------------------------------------------------ wiring
 
@@ -93,7 +101,32 @@ class Daemon:
             self.runners[kind] = runner
             runner.start()
 
+    def _worker_cmd(self) -> list[str]:
+        ep = next((e for e in self.server.endpoints if e.startswith("ipc://")), self.server.endpoints[0])
+        return [sys.executable, "-m", "calibration.worker", "--endpoint", ep,
+                "--data-dir", str(Path(self.config.daemon.data_dir).resolve())]
+
+    def tend_worker(self) -> None:
+        """Keep the calibration worker process running (restart it when it exits)."""
+        if not self.config.daemon.start_worker or self.stop_event.is_set():
+            return
+        if self.worker is not None and self.worker.poll() is None:
+            return
+        if time.monotonic() < self._worker_next_start:
+            return
+        self._worker_next_start = time.monotonic() + 5.0  # a worker that dies at once is retried slowly
+        if self.worker is not None:
+            log.warning("calibration worker exited with %s; restarting it", self.worker.returncode)
+        log_path = Path(self.config.daemon.data_dir) / "worker.log"
+        self.worker = subprocess.Popen(self._worker_cmd(), stdout=open(log_path, "ab"), stderr=subprocess.STDOUT)
+
     def stop(self) -> None:
+        if self.worker is not None and self.worker.poll() is None:
+            self.worker.terminate()
+            try:
+                self.worker.wait(3)
+            except subprocess.TimeoutExpired:
+                self.worker.kill()
         for runner in self.runners.values():
             runner.stop()
         for t in (self.server, self.frames, self.telemetry):
@@ -155,6 +188,8 @@ class Daemon:
                 "telemetry": self.telemetry.counters(), "frames": self.frames.counters(),
                 "commands": {"requests": self.server.requests, "errors": self.server.errors,
                              "pending": self.server.pending},
+                "worker": {"pid": None if self.worker is None else self.worker.pid,
+                           "seen_s_ago": self.calib._worker_age()},
                 "alive": self.alive()}
 
     def alive(self) -> bool:
@@ -172,6 +207,7 @@ class Daemon:
         while not self.stop_event.is_set():
             now = time.monotonic()
             if now >= next_health:
+                self.tend_worker()
                 h = self.health()
                 self.telemetry.publish("daemon.health", h)
                 status = ", ".join(f"{k} {v['state']}" for k, v in h["devices"].items())

@@ -144,3 +144,25 @@ def save_capture(data_dir: Path, parts: dict[str, Any], label: str, dataset: str
         entry["robot"] = parts["robot"].to_dict()
     name = f"{len(ds.manifest['entries']):04d}-{label}"
     return ds.add_entry(name, entry, image=None if frame is None else frame.pixels)
+
+
+def calibration_dir(data_dir: Path) -> Path:
+    return Path(data_dir) / "calibration"
+
+
+def read_results(data_dir: Path) -> dict[str, Any]:
+    """The active calibration and the history of results (newest first), as stored by the worker."""
+    cdir = calibration_dir(data_dir)
+    active = None
+    if (cdir / "active.json").exists():
+        active = json.loads((cdir / "active.json").read_text())
+    history = []
+    for p in sorted((cdir / "history").glob("*.json"), reverse=True) if (cdir / "history").exists() else []:
+        try:
+            r = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            history.append({"file": str(p), "error": f"unreadable: {exc}"})
+            continue
+        history.append({"file": str(p), "job": r.get("job"), "procedure": r.get("procedure"),
+                        "verdict": r.get("verdict"), "created": r.get("created"), "dataset": r.get("dataset")})
+    return {"active": active, "history": history}
