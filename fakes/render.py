@@ -147,15 +147,14 @@ class Renderer:
             dy[r0:r0 + step] = xy[..., 1] - (vg - self._cy) / self._fy
         self._dx, self._dy = dx, dy
 
-    def _rays(self, j0: int, j1: int) -> tuple[np.ndarray, np.ndarray]:
-        """Normalised undistorted coordinates (x, y) of sub-sample rows j0..j1 (float64)."""
-        w = self.size[0]
+    def _rays(self, j0: int, j1: int, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised undistorted (x, y) of sub-sample rows j0..j1, columns k0..k1 (float64)."""
         ss, m = self.ss, self._m
-        u = (np.arange(w * ss) + 0.5) / ss - 0.5
+        u = (np.arange(k0, k1) + 0.5) / ss - 0.5
         v = (np.arange(j0, j1) + 0.5) / ss - 0.5
         if m == ss:  # the cache holds every sub-sample (plus a one-node margin)
-            rx = self._dx[j0 + 1:j1 + 1, 1:w * ss + 1]
-            ry = self._dy[j0 + 1:j1 + 1, 1:w * ss + 1]
+            rx = self._dx[j0 + 1:j1 + 1, k0 + 1:k1 + 1]
+            ry = self._dy[j0 + 1:j1 + 1, k0 + 1:k1 + 1]
         else:
             fu = (u + 0.5) * m - 0.5 + 1
             fv = (v + 0.5) * m - 0.5 + 1
@@ -177,23 +176,39 @@ class Renderer:
 
     # ------------------------------------------------------------------ render
 
+    def _check_roi(self, roi: tuple[int, int, int, int] | None) -> tuple[int, int, int, int]:
+        w, h = self.size
+        if roi is None:
+            return 0, 0, w, h
+        x, y, rw, rh = (int(v) for v in roi)
+        if rw < 1 or rh < 1 or x < 0 or y < 0 or x + rw > w or y + rh > h:
+            raise ValueError(f"roi={roi} (x, y, w, h) is not inside the {w}x{h} image")
+        return x, y, rw, rh
+
     def render(self, abs_H_cam: np.ndarray | None = None, rng: np.random.Generator | None = None,
-               noise: bool = True) -> np.ndarray:
+               noise: bool = True, roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
         """Render one uint8 (h, w) image from camera pose ``abs_H_cam`` (default: the world's).
 
         ``rng`` drives the noise; without one a fixed generator of the world is used, so
-        the result is deterministic either way.
+        the result is deterministic either way. ``roi`` = (x, y, w, h) renders only that
+        window (like a sensor ROI; noise-free it equals the same window of a full render).
         """
         if abs_H_cam is None:
             abs_H_cam = self.world.abs_H_cam()
         abs_H_cam = check_H(abs_H_cam, "abs_H_cam")
-        albedo = self.albedo(abs_H_cam)
+        x, y, rw, rh = self._check_roi(roi)
+        w, h = self.size
+        # render a margin around the window so the PSF sees the same neighbourhood
+        mg = int(math.ceil(4 * self.psf_sigma)) + 1
+        ax, ay = max(0, x - mg), max(0, y - mg)
+        bx, by = min(w, x + rw + mg), min(h, y + rh + mg)
+        albedo = self.albedo(abs_H_cam, (ax, ay, bx - ax, by - ay))
         p = self.world.params
         if self.psf_sigma > 0:
             albedo = cv2.GaussianBlur(albedo, (0, 0), self.psf_sigma, borderType=cv2.BORDER_REFLECT)
-        w, h = self.size
-        uu = (np.arange(w, dtype=np.float32) - self._cx) ** 2
-        vv = (np.arange(h, dtype=np.float32) - self._cy) ** 2
+        albedo = albedo[y - ay:y - ay + rh, x - ax:x - ax + rw]
+        uu = (np.arange(x, x + rw, dtype=np.float32) - self._cx) ** 2
+        vv = (np.arange(y, y + rh, dtype=np.float32) - self._cy) ** 2
         r2 = (vv[:, None] + uu[None, :]) / np.float32((w * w + h * h) / 4)
         img = p.black_dn + (p.white_dn - p.black_dn) * albedo * (1 - p.vignetting * r2)
         if noise:
@@ -202,16 +217,16 @@ class Renderer:
             img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
-    def albedo(self, abs_H_cam: np.ndarray) -> np.ndarray:
-        """Box-filtered scene albedo (h, w) float32 seen from ``abs_H_cam`` (no optics, no noise)."""
-        w, h = self.size
+    def albedo(self, abs_H_cam: np.ndarray, roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Box-filtered scene albedo float32 seen from ``abs_H_cam`` (no optics, no noise)."""
+        x, y, rw, rh = self._check_roi(roi)
         ss = self.ss
-        out = np.empty((h, w), np.float32)
-        rows = max(1, CHUNK_SAMPLES // (w * ss * ss))
-        for r0 in range(0, h, rows):
-            r1 = min(h, r0 + rows)
-            sub = self._albedo_rows(abs_H_cam, r0 * ss, r1 * ss)
-            out[r0:r1] = sub.reshape(r1 - r0, ss, w, ss).mean(axis=(1, 3))
+        out = np.empty((rh, rw), np.float32)
+        rows = max(1, CHUNK_SAMPLES // (rw * ss * ss))
+        for r0 in range(y, y + rh, rows):
+            r1 = min(y + rh, r0 + rows)
+            sub = self._albedo_rows(abs_H_cam, r0 * ss, r1 * ss, x * ss, (x + rw) * ss)
+            out[r0 - y:r1 - y] = sub.reshape(r1 - r0, ss, rw, ss).mean(axis=(1, 3))
         return out
 
     @staticmethod
@@ -224,10 +239,10 @@ class Renderer:
         R, t = plane_H_cam[:3, :3], plane_H_cam[:3, 3]
         return np.vstack([t[0] * R[2] - t[2] * R[0], t[1] * R[2] - t[2] * R[1], R[2]]) * -np.sign(t[2])
 
-    def _albedo_rows(self, abs_H_cam: np.ndarray, j0: int, j1: int) -> np.ndarray:
-        """Albedo at the sub-samples of sub-sample rows j0..j1."""
+    def _albedo_rows(self, abs_H_cam: np.ndarray, j0: int, j1: int, k0: int, k1: int) -> np.ndarray:
+        """Albedo at the sub-samples of sub-sample rows j0..j1 and columns k0..k1."""
         world, p = self.world, self.world.params
-        x, y = self._rays(j0, j1)
+        x, y = self._rays(j0, j1, k0, k1)
         # plate top face = PCS z = 0 (the board frame), via a ray→plane homography
         ref_H_cam = inv_H(world.abs_H_ref) @ abs_H_cam
         H = self._plane_homography(ref_H_cam)

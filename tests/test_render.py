@@ -94,3 +94,15 @@ def test_bad_arguments_are_named() -> None:
     bad[0, 0] = -1
     with pytest.raises(ValueError, match="abs_H_cam"):
         r.render(bad)
+
+
+def test_roi_equals_window_of_full_render(renderer: Renderer) -> None:
+    full = renderer.render(noise=False).astype(int)
+    for roi in [(0, 0, 1000, 750), (317, 211, 120, 90), (0, 700, 50, 50), (990, 0, 10, 750)]:
+        x, y, w, h = roi
+        part = renderer.render(noise=False, roi=roi).astype(int)
+        assert part.shape == (h, w)
+        diff = np.abs(part - full[y:y + h, x:x + w])
+        assert diff.max() <= 1 and diff.mean() < 0.01, roi
+    with pytest.raises(ValueError, match="roi"):
+        renderer.render(roi=(990, 0, 20, 10))
