@@ -33,7 +33,8 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _timed(fn, repeats: int) -> tuple[float, Any]:
+def _timed(fn: Any, repeats: int) -> tuple[float, Any]:
+    """Median wall time of ``fn`` over ``repeats`` calls, and its last result."""
     times, out = [], None
     for _ in range(repeats):
         t = time.perf_counter()
@@ -43,6 +44,7 @@ def _timed(fn, repeats: int) -> tuple[float, Any]:
 
 
 def render_group(size: tuple[int, int], repeats: int, save: str | None, q: mp.Queue) -> None:
+    """Child: ray cache, render and corner accuracy at ``size``; optionally save the image."""
     from calibration.target import detect_corners
     from fakes.render import Renderer, true_corner_projections
     from fakes.world import World
@@ -63,6 +65,7 @@ def render_group(size: tuple[int, int], repeats: int, save: str | None, q: mp.Qu
 
 
 def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> None:
+    """Child: cam_H_ref, SCS and mark timings on the saved full-size image."""
     from calibration.marks import locate_mark
     from calibration.scs import make_scs
     from calibration.target import detect_corners, estimate_cam_H_ref, pose_from_corners
@@ -89,7 +92,8 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
            "n": pose.n_corners, "ratio": pose.ambiguity_ratio})
 
 
-def _run(target, *args) -> dict[str, Any]:
+def _run(target: Any, *args: Any) -> dict[str, Any]:
+    """Run ``target`` in a spawned child and return what it reports."""
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
     p = ctx.Process(target=target, args=(*args, q))
@@ -100,6 +104,7 @@ def _run(target, *args) -> dict[str, Any]:
 
 
 def main() -> None:
+    """Run the stage groups and print the Markdown table and the machine facts."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()

@@ -95,11 +95,13 @@ class CameraModel:
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (lists), with a schema number."""
         return {"schema": MODEL_SCHEMA, "K": self.K.tolist(), "dist": self.dist.tolist(),
                 "size": list(self.size)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "camera model") -> "CameraModel":
+        """Inverse of :meth:`to_dict`; errors name ``source``."""
         schema = d.get("schema", MODEL_SCHEMA)
         if schema != MODEL_SCHEMA:
             raise ValueError(f"{source}: camera model schema {schema} is not supported (expected {MODEL_SCHEMA})")
@@ -109,12 +111,14 @@ class CameraModel:
         return cls(np.array(d["K"], dtype=float), np.array(d["dist"], dtype=float), tuple(d["size"]))
 
     def save_json(self, path: str | Path) -> None:
+        """Write the model as JSON (atomically)."""
         from daemon.storage import atomic_write_text  # local import: calibration stays pure
 
         atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2))
 
     @classmethod
     def load_json(cls, path: str | Path) -> "CameraModel":
+        """Read a model written by :meth:`save_json`."""
         return cls.from_dict(json.loads(Path(path).read_text()), source=str(path))
 
     def save_yaml(self, path: str | Path) -> None:
@@ -130,6 +134,7 @@ class CameraModel:
 
     @classmethod
     def load_yaml(cls, path: str | Path) -> "CameraModel":
+        """Read an OpenCV FileStorage file with camera_matrix, dist_coeffs, image_width/height."""
         if not Path(path).is_file():
             raise ValueError(f"{path}: no such camera model file")
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)

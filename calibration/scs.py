@@ -50,10 +50,12 @@ class Scs:
 
     @property
     def size(self) -> tuple[int, int]:
+        """Image size (w, h) of the camera model."""
         return self.model.size
 
     @property
     def cam_H_scn(self) -> np.ndarray:
+        """Inverse of ``scn_H_cam``."""
         return inv_H(self.scn_H_cam)
 
     def image_to_scn(self, uv: np.ndarray) -> np.ndarray:
@@ -102,11 +104,13 @@ class Scs:
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (lists), with a schema number."""
         return {"schema": SCS_SCHEMA, "scn_H_cam": self.scn_H_cam.tolist(), "model": self.model.to_dict(),
                 "gsd_mm": self.gsd_mm, "extent_mm": list(self.extent_mm)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "scs") -> "Scs":
+        """Inverse of :meth:`to_dict`; errors name ``source``."""
         if d.get("schema", SCS_SCHEMA) != SCS_SCHEMA:
             raise ValueError(f"{source}: SCS schema {d.get('schema')} is not supported (expected {SCS_SCHEMA})")
         try:

@@ -99,6 +99,8 @@ class Renderer:
         p = world.params
         self.psf_sigma = p.psf_sigma_px * w / p.reduced_size[0]
         self._board_texture = self._make_board_texture()
+        # true seat centres (PCS xy) for the nest rings: the plate *definition* may be biased
+        self._nest_xy = {n: P[:2].copy() for n, P in world.nests_ref_true().items()}
         self._floor_waves = self._make_floor_waves()
         self._cache_rays()
 
@@ -164,6 +166,7 @@ class Renderer:
             b = (fv - iv)[:, None].astype(np.float32)
 
             def interp(D: np.ndarray) -> np.ndarray:
+                """Bilinear interpolation of the node grid ``D`` at the sub-samples."""
                 top, bot = D[iv], D[iv + 1]
                 top = top[:, iu] * (1 - a) + top[:, iu + 1] * a
                 bot = bot[:, iu] * (1 - a) + bot[:, iu + 1] * a
@@ -260,10 +263,12 @@ class Renderer:
             Hf = self._plane_homography(abs_H_cam)
 
             def to_floor(xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                """Ray (x, y) → (valid, X, Y) on the floor in ACS."""
                 df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
                 okf = df > 1e-12
                 df = np.where(okf, df, 1.0)
-                return okf, (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df, (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
+                X = (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df
+                return okf, X, (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
 
             # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
             # it once per pixel (middle sub-sample) rather than per sub-sample
@@ -291,7 +296,7 @@ class Renderer:
         lo_x, hi_x, lo_y, hi_y = qx.min(), qx.max(), qy.min(), qy.max()
         wd = self._width_mm(height_mm)
         r_out = NEST_RING_MM[1] + 1.0
-        for name, seat in self.world.plate().nests_ref_nst.items():
+        for name, seat in self._nest_xy.items():
             if not (lo_x - r_out < seat[0] < hi_x + r_out and lo_y - r_out < seat[1] < hi_y + r_out):
                 continue
             near = (np.abs(qx - seat[0]) < r_out) & (np.abs(qy - seat[1]) < r_out)

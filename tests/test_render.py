@@ -106,3 +106,20 @@ def test_roi_equals_window_of_full_render(renderer: Renderer) -> None:
         assert diff.max() <= 1 and diff.mean() < 0.01, roi
     with pytest.raises(ValueError, match="roi"):
         renderer.render(roi=(990, 0, 20, 10))
+
+
+def test_nest_rings_at_true_seats(renderer: Renderer) -> None:
+    world = renderer.world
+    seat_abs = world.nests_abs()["green"]
+    old = world.robot
+    try:
+        world.set_robot(world.pose_with_footprint_at(seat_abs[0], seat_abs[1], 0.0))
+        img = renderer.render(noise=False).astype(float)
+        px_per_mm = renderer.model.f / (world.abs_H_cam()[2, 3] - world.params.plate_thickness_mm)
+    finally:
+        world.set_robot(old)
+    c = np.rint(renderer.model.K[:2, 2]).astype(int)
+    hole = img[c[1], c[0]]
+    ring = img[c[1], c[0] + int(11.5 * px_per_mm)]
+    plate = img[c[1], c[0] + int(16.5 * px_per_mm)] if c[0] + int(16.5 * px_per_mm) < img.shape[1] else img[5, 5]
+    assert hole < ring < plate - 20, (hole, ring, plate)
