@@ -15,8 +15,8 @@ robot's wheels and shadows are not drawn, so rays that would hit a plate edge se
 the floor), a uniform light source, Gaussian noise instead of Poisson, and no
 rolling shutter, hot pixels or compression.
 
-The undistorted rays are cached per (size, SS) as float32 *residuals* from the
-pinhole mapping (small numbers, so float32 keeps ~1e-8 relative precision). Above
+The undistorted rays are cached per (lens, size, SS), shared by renderers of
+different worlds, as float32 *residuals* from the pinhole mapping (small numbers, so float32 keeps ~1e-8 relative precision). Above
 16 M sub-samples the residual is computed at pixel centres only and interpolated
 bilinearly for the sub-samples (error ~5e-5 px at 4024×3036, far below what any
 detector resolves), which keeps the full sensor within ~1 GB.
@@ -24,6 +24,7 @@ detector resolves), which keeps the full sensor within ~1 GB.
 from __future__ import annotations
 
 import math
+import threading
 
 import cv2
 import numpy as np
@@ -47,6 +48,10 @@ TEXTURE_PPMM = 100.0
 CHUNK_SAMPLES = 1_500_000
 #: above this many sub-samples the ray residual is cached at pixel centres only
 EXACT_CACHE_LIMIT = 16_000_000
+#: ray caches kept for reuse by later renderers with the same lens and size
+RAY_CACHE_SIZE = 3
+_RAY_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_RAY_LOCK = threading.Lock()
 
 
 def world_camera_model(world: World, size: tuple[int, int]) -> CameraModel:
@@ -129,10 +134,30 @@ class Renderer:
         return np.column_stack([k * np.cos(ang), k * np.sin(ang), rng.uniform(0, 2 * math.pi, n), amp])
 
     def _cache_rays(self) -> None:
-        """Residuals of the undistorted rays from the pinhole mapping, on a node grid."""
+        """Residuals of the undistorted rays from the pinhole mapping, on a node grid.
+
+        They depend only on the lens and the size, so renderers of different worlds
+        with the same camera share them (a small LRU cache; seconds saved per renderer).
+        """
         w, h = self.size
         m = self.ss if w * h * self.ss ** 2 <= EXACT_CACHE_LIMIT else 1
         self._m = m
+        key = (self.model.K.tobytes(), self.model.dist.tobytes(), w, h, m)
+        with _RAY_LOCK:
+            hit = _RAY_CACHE.pop(key, None)
+            if hit is not None:
+                _RAY_CACHE[key] = hit
+        if hit is None:
+            hit = self._compute_residuals(m)
+            with _RAY_LOCK:
+                _RAY_CACHE[key] = hit
+                while len(_RAY_CACHE) > RAY_CACHE_SIZE:
+                    _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
+        self._dx, self._dy = hit
+
+    def _compute_residuals(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Undistort the node grid (spacing 1/m px) and keep x, y minus the pinhole mapping."""
+        w, h = self.size
         # nodes at (i + 0.5)/m − 0.5 for i = −1 .. n·m (one extra node on each side)
         un = (np.arange(-1, w * m + 1) + 0.5) / m - 0.5
         vn = (np.arange(-1, h * m + 1) + 0.5) / m - 0.5
@@ -147,7 +172,9 @@ class Renderer:
             xy = xy.reshape(len(vv), len(un), 2)
             dx[r0:r0 + step] = xy[..., 0] - (uu - self._cx) / self._fx
             dy[r0:r0 + step] = xy[..., 1] - (vg - self._cy) / self._fy
-        self._dx, self._dy = dx, dy
+        dx.flags.writeable = False  # shared between renderers
+        dy.flags.writeable = False
+        return dx, dy
 
     def _rays(self, j0: int, j1: int, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray]:
         """Normalised undistorted (x, y) of sub-sample rows j0..j1, columns k0..k1 (float64)."""

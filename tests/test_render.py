@@ -123,3 +123,11 @@ def test_nest_rings_at_true_seats(renderer: Renderer) -> None:
     ring = img[c[1], c[0] + int(11.5 * px_per_mm)]
     plate = img[c[1], c[0] + int(16.5 * px_per_mm)] if c[0] + int(16.5 * px_per_mm) < img.shape[1] else img[5, 5]
     assert hole < ring < plate - 20, (hole, ring, plate)
+
+
+def test_ray_cache_shared_between_worlds_with_the_same_lens(renderer: Renderer) -> None:
+    other = Renderer(World(renderer.world.params.with_(seed=99)), renderer.size)
+    assert other._dx is renderer._dx
+    assert not other._dx.flags.writeable
+    wide = Renderer(World(renderer.world.params.with_(distortion=(-0.1, 0.0, 0.0, 0.0, 0.0))), (200, 150))
+    assert wide._dx.shape != renderer._dx.shape
