@@ -16,10 +16,11 @@ the floor), a uniform light source, Gaussian noise instead of Poisson, and no
 rolling shutter, hot pixels or compression.
 
 The undistorted rays are cached per (lens, size, SS), shared by renderers of
-different worlds, as float32 *residuals* from the pinhole mapping (small numbers, so float32 keeps ~1e-8 relative precision). Above
-16 M sub-samples the residual is computed at pixel centres only and interpolated
-bilinearly for the sub-samples (error ~5e-5 px at 4024×3036, far below what any
-detector resolves), which keeps the full sensor within ~1 GB.
+different worlds, as float32 *residuals* from the pinhole mapping (small numbers,
+so float32 keeps ~1e-8 relative precision). Above 16 M sub-samples the residual is
+computed at pixel centres only and interpolated bilinearly for the sub-samples
+(error ~5e-5 px at 4024×3036, far below what any detector resolves), which keeps
+a full-sensor render under 800 MB peak.
 """
 from __future__ import annotations
 
