@@ -19,7 +19,7 @@ The undistorted rays are cached per (lens, size, SS), shared by renderers of
 different worlds, as float32 *residuals* from the pinhole mapping (small numbers,
 so float32 keeps ~1e-8 relative precision). Above 16 M sub-samples the residual is
 computed at pixel centres only and interpolated bilinearly for the sub-samples
-(error ~5e-5 px at 4024×3036, far below what any detector resolves), which keeps
+(error < 1e-4 px at 4024×3036, far below what any detector resolves), which keeps
 a full-sensor render under 800 MB peak.
 """
 from __future__ import annotations

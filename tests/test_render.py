@@ -131,3 +131,22 @@ def test_ray_cache_shared_between_worlds_with_the_same_lens(renderer: Renderer) 
     assert not other._dx.flags.writeable
     wide = Renderer(World(renderer.world.params.with_(distortion=(-0.1, 0.0, 0.0, 0.0, 0.0))), (200, 150))
     assert wide._dx.shape != renderer._dx.shape
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_cached_rays_match_undistort(monkeypatch, exact: bool) -> None:
+    import fakes.render as render
+
+    if not exact:  # force the pixel-centre cache with bilinear interpolation
+        monkeypatch.setattr(render, "EXACT_CACHE_LIMIT", 0)
+    monkeypatch.setattr(render, "_RAY_CACHE", {})
+    r = Renderer(World(), (400, 300))
+    ss = r.ss
+    x, y = r._rays(0, 300 * ss, 0, 400 * ss)
+    u = (np.arange(400 * ss) + 0.5) / ss - 0.5
+    v = (np.arange(300 * ss) + 0.5) / ss - 0.5
+    uu, vv = np.meshgrid(u[::7], v[::5])
+    exact_xy = r.model.undistort(np.column_stack([uu.ravel(), vv.ravel()]))
+    got = np.column_stack([x[::5, ::7].ravel(), y[::5, ::7].ravel()])
+    err_px = np.abs(got - exact_xy).max() * r.model.f
+    assert err_px < (1e-5 if exact else 1e-3), err_px
