@@ -186,21 +186,17 @@ class Renderer:
             rx = self._dx[j0 + 1:j1 + 1, k0 + 1:k1 + 1]
             ry = self._dy[j0 + 1:j1 + 1, k0 + 1:k1 + 1]
         else:
-            fu = (u + 0.5) * m - 0.5 + 1
-            fv = (v + 0.5) * m - 0.5 + 1
-            iu = np.clip(np.floor(fu).astype(int), 0, self._dx.shape[1] - 2)
-            iv = np.clip(np.floor(fv).astype(int), 0, self._dx.shape[0] - 2)
-            a = (fu - iu)[None, :].astype(np.float32)
-            b = (fv - iv)[:, None].astype(np.float32)
-
-            def interp(D: np.ndarray) -> np.ndarray:
-                """Bilinear interpolation of the node grid ``D`` at the sub-samples."""
-                top, bot = D[iv], D[iv + 1]
-                top = top[:, iu] * (1 - a) + top[:, iu + 1] * a
-                bot = bot[:, iu] * (1 - a) + bot[:, iu + 1] * a
-                return top * (1 - b) + bot * b
-
-            rx, ry = interp(self._dx), interp(self._dy)
+            # nodes sit at pixel centres (node i = pixel i − 1); cv2.resize with linear
+            # interpolation samples a block of nodes exactly at the sub-sample offsets
+            # (dst centre (i + 0.5)/ss − 0.5); the block keeps one node beyond every
+            # sub-sample used, so resize's edge clamping never reaches the slice
+            p0, p1 = j0 // ss, -(-j1 // ss)
+            q0, q1 = k0 // ss, -(-k1 // ss)
+            size = ((q1 - q0 + 2) * ss, (p1 - p0 + 2) * ss)
+            rows = slice(j0 - p0 * ss + ss, j1 - p0 * ss + ss)
+            cols = slice(k0 - q0 * ss + ss, k1 - q0 * ss + ss)
+            rx = cv2.resize(self._dx[p0:p1 + 2, q0:q1 + 2], size, interpolation=cv2.INTER_LINEAR)[rows, cols]
+            ry = cv2.resize(self._dy[p0:p1 + 2, q0:q1 + 2], size, interpolation=cv2.INTER_LINEAR)[rows, cols]
         x = (u[None, :] - self._cx) / self._fx + rx
         y = (v[:, None] - self._cy) / self._fy + ry
         return x, y
