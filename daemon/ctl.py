@@ -225,6 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--endpoint", help=f"daemon command endpoint (now: {default_endpoint()})")
     ap.add_argument("--timeout", type=float, help="seconds to wait for an answer")
     ap.add_argument("--json", action="store_true", help="print raw JSON")
+    ap.add_argument("--keys", help="CURVE keys folder for tcp endpoints (default $RITA_KEYS or ~/.config/rita)")
     sub = ap.add_subparsers(dest="verb_", required=True)
     sub.add_parser("status", help="device states at a glance").set_defaults(fn=cmd_status)
     w = sub.add_parser("watch", help="live telemetry")
@@ -250,8 +251,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="camera capture: save PNG here (on this computer)")
         p.set_defaults(fn=cmd_device, device=dev)
     from daemon.ctl_calib import add_parsers
+    from daemon.ctl_keys import add_parser as add_keys_parser
 
     add_parsers(sub)
+    add_keys_parser(sub)
     call = sub.add_parser("call", help="send any bus command")
     call.add_argument("command")
     call.add_argument("args", nargs="?", help="JSON object of arguments")
@@ -268,7 +271,15 @@ def main(argv: list[str] | None = None) -> int:
         _check_params(ap, a, verb)
     if getattr(a, "offline", False):
         return a.fn(None, a)
-    client = Client(a.endpoint, timeout=a.timeout or 5.0)
+    from daemon.ctl_keys import client_curve
+
+    endpoint = a.endpoint or default_endpoint()
+    try:
+        curve = client_curve(endpoint, Path(a.keys) if a.keys else None)
+    except (OSError, ValueError) as exc:
+        print(f"ritactl: cannot use the CURVE keys: {exc}", file=sys.stderr)
+        return 2
+    client = Client(endpoint, timeout=a.timeout or 5.0, curve=curve)
     try:
         return a.fn(client, a)
     except ClientTimeout as exc:

@@ -58,6 +58,7 @@ class Daemon:
         self.frames: FramePublisher
         self.server: CommandServer
         self.runners: dict[str, DeviceRunner] = {}
+        self.security: Any = None
         self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
         self._motion_lock = threading.Lock()
         self._motion_waiters: list[Future] = []
@@ -90,10 +91,20 @@ class Daemon:
 
     def start(self) -> None:
         cfg = self.config.daemon
-        Path(cfg.data_dir).mkdir(parents=True, exist_ok=True)
-        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm)
-        self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm)
-        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes)
+        data = Path(cfg.data_dir)
+        data.mkdir(parents=True, exist_ok=True)
+        if self.config.security.curve:
+            from daemon.auth import Security
+
+            sec = self.config.security
+            auth_dir = Path(sec.authorized_keys_dir)
+            self.security = Security(data / "keys", auth_dir if auth_dir.is_absolute() else data / auth_dir)
+            self.security.start(self.ctx)  # ZAP first: a CURVE server without it accepts any key
+        s = self.security
+        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
+        self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes,
+                                    security=s)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         for kind in KINDS:
@@ -132,6 +143,8 @@ class Daemon:
         for t in (self.server, self.frames, self.telemetry):
             t.stop()
         self.storage.shutdown(wait=True)
+        if self.security is not None:
+            self.security.stop()
         self.ctx.term()  # every socket was closed by its owner with LINGER 0
 
     # ------------------------------------------------------------------ services for handlers
@@ -180,7 +193,8 @@ class Daemon:
         return {"name": "ritad", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
                 "sim": self.world is not None, "command_endpoints": self.server.endpoints,
                 "telemetry_endpoints": self.telemetry.endpoints, "frame_endpoints": self.frames.endpoints,
-                "devices": {k: getattr(self.config.devices, k) for k in KINDS}}
+                "devices": {k: getattr(self.config.devices, k) for k in KINDS},
+                "curve_server_key": None if self.security is None else self.security.public.decode()}
 
     def health(self) -> dict[str, Any]:
         return {"uptime_s": round(time.monotonic() - self.started, 3), "version": __version__,
@@ -255,8 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     daemon = Daemon(cfg)
     try:
         daemon.start()
-    except (zmq.ZMQError, OSError) as exc:
-        log.error("cannot bind the bus: %s", exc)
+    except (zmq.ZMQError, OSError, ValueError) as exc:
+        log.error("cannot start: %s", exc)
+        print(f"ritad: cannot start: {exc}", file=sys.stderr)
         return 1
     from daemon.logs import BusLogHandler
 

@@ -24,6 +24,32 @@ from drivers.base import Frame
 log = logging.getLogger(__name__)
 
 
+def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Any = None,
+                 setup: Any = None) -> tuple[list[zmq.Socket], list[str]]:
+    """One socket for the plain endpoints and, with ``security``, one CURVE socket for the tcp ones.
+
+    The security mechanism is a property of a socket, so local ipc clients and remote
+    CURVE clients need separate sockets; the owner thread serves both.
+    """
+    from daemon.auth import is_secure_endpoint
+
+    secure = [e for e in endpoints if security is not None and is_secure_endpoint(e)]
+    plain = [e for e in endpoints if e not in secure]
+    socks, bound = [], []
+    for group, secured in ((plain, False), (secure, True)):
+        if not group:
+            continue
+        sock = ctx.socket(kind)
+        sock.setsockopt(zmq.LINGER, 0)
+        if setup is not None:
+            setup(sock)
+        if secured:
+            security.apply(sock)
+        bound += bind_all(sock, group)
+        socks.append(sock)
+    return socks, bound
+
+
 def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
     """Bind to every endpoint; return the endpoints actually bound (tcp port 0 resolved)."""
     bound = []
@@ -40,12 +66,11 @@ def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
 class TelemetryPublisher(threading.Thread):
     """Owner of the telemetry PUB socket."""
 
-    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 10000, queue_size: int = 20000) -> None:
+    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 10000, queue_size: int = 20000,
+                 security: Any = None) -> None:
         super().__init__(name="pub-telemetry", daemon=True)
-        self.sock = ctx.socket(zmq.PUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.SNDHWM, hwm)
-        self.endpoints = bind_all(self.sock, endpoints)
+        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
+                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
         self._q: queue.Queue[tuple[str, Any, int]] = queue.Queue(queue_size)
         self._stop_evt = threading.Event()
         self._lock = threading.Lock()
@@ -81,14 +106,19 @@ class TelemetryPublisher(threading.Thread):
                 seq = self.seq
                 self.latest[topic] = {"seq": seq, "t_ns": t_ns, "data": data}
             try:
-                self.sock.send_multipart([topic.encode(), telemetry(seq, t_ns, data)], flags=zmq.NOBLOCK)
-                self.sent += 1
-            except zmq.Again:
-                self.dropped[topic] += 1
+                msg = [topic.encode(), telemetry(seq, t_ns, data)]
             except (TypeError, ValueError) as exc:  # a payload msgpack cannot encode: a bug, not a crash
                 log.error("cannot publish %s: %s", topic, exc)
                 self.dropped[topic] += 1
-        self.sock.close(linger=0)
+                continue
+            for sock in self.socks:
+                try:
+                    sock.send_multipart(msg, flags=zmq.NOBLOCK)
+                except zmq.Again:
+                    self.dropped[topic] += 1
+            self.sent += 1
+        for sock in self.socks:
+            sock.close(linger=0)
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop_evt.set()
@@ -98,12 +128,11 @@ class TelemetryPublisher(threading.Thread):
 class FramePublisher(threading.Thread):
     """Owner of the frame PUB socket: ``[topic, header, pixels]`` zero-copy, small HWM."""
 
-    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4) -> None:
+    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4,
+                 security: Any = None) -> None:
         super().__init__(name="pub-frames", daemon=True)
-        self.sock = ctx.socket(zmq.PUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.SNDHWM, hwm)
-        self.endpoints = bind_all(self.sock, endpoints)
+        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
+                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
         self._q: queue.Queue[Frame] = queue.Queue(queue_size)
         self._stop_evt = threading.Event()
         self.seq = 0
@@ -132,14 +161,17 @@ class FramePublisher(threading.Thread):
             header = {"v": SCHEMA_VERSION, "seq": self.seq, "dropped": self.dropped,
                       "publish_monotonic_ns": time.monotonic_ns(), **frame.header()}
             pixels = frame.pixels if frame.pixels.flags.c_contiguous else frame.pixels.copy()
-            try:
-                # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
-                self.sock.send_multipart([b"camera.frame", pack(header), pixels], copy=False, flags=zmq.NOBLOCK)
-                self.sent += 1
-            except zmq.Again:
-                self.dropped += 1
+            packed = pack(header)
+            for sock in self.socks:
+                try:
+                    # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
+                    sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
+                except zmq.Again:
+                    self.dropped += 1
+            self.sent += 1
             self.last_header = header
-        self.sock.close(linger=0)
+        for sock in self.socks:
+            sock.close(linger=0)
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop_evt.set()

@@ -21,7 +21,7 @@ import zmq
 
 from daemon.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
                              parse_request)
-from daemon.publisher import bind_all
+from daemon.publisher import open_sockets
 
 log = logging.getLogger(__name__)
 
@@ -51,21 +51,20 @@ class CommandServer(threading.Thread):
     """Owner of the ROUTER socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
-                 max_message_bytes: int = 1 << 20, configure: Callable[[zmq.Socket], None] | None = None) -> None:
+                 max_message_bytes: int = 1 << 20, security: Any = None) -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
         self.max_bytes = max_message_bytes
-        self.sock = ctx.socket(zmq.ROUTER)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
-        # hard guard against memory abuse; our own check below answers politely first
-        self.sock.setsockopt(zmq.MAXMSGSIZE, max(4 * max_message_bytes, 1 << 22))
-        self.sock.setsockopt(zmq.HEARTBEAT_IVL, 2000)
-        self.sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 6000)
-        if configure is not None:
-            configure(self.sock)
-        self.endpoints = bind_all(self.sock, endpoints)
-        self._done: queue.Queue[tuple[list[bytes], Any, str, Future]] = queue.Queue()
+
+        def setup(sock: zmq.Socket) -> None:
+            sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
+            # hard guard against memory abuse; our own check below answers politely first
+            sock.setsockopt(zmq.MAXMSGSIZE, max(4 * max_message_bytes, 1 << 22))
+            sock.setsockopt(zmq.HEARTBEAT_IVL, 2000)
+            sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 6000)
+
+        self.socks, self.endpoints = open_sockets(ctx, zmq.ROUTER, endpoints, security, setup)
+        self._done: queue.Queue[tuple[tuple[zmq.Socket, list[bytes]], Any, str, Future]] = queue.Queue()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         self._stop_evt = threading.Event()
@@ -76,20 +75,23 @@ class CommandServer(threading.Thread):
 
     # ------------------------------------------------------------------ helpers
 
-    def _send(self, envelope: list[bytes], payload: bytes, attachments: list[Any] | None = None) -> None:
-        frames = [*envelope, payload, *(attachments or [])]
+    def _send(self, envelope: tuple[zmq.Socket, list[bytes]], payload: bytes,
+              attachments: list[Any] | None = None) -> None:
+        sock, route = envelope
+        frames = [*route, payload, *(attachments or [])]
         try:
-            self.sock.send_multipart(frames, copy=len(frames) <= len(envelope) + 1)
+            sock.send_multipart(frames, copy=not attachments)
         except zmq.ZMQError as exc:  # EHOSTUNREACH: the client went away; nothing to do
             log.info("reply to a vanished client dropped: %s", exc)
 
-    def _reply(self, envelope: list[bytes], req_id: Any, cmd: str, result: Any) -> None:
+    def _reply(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, result: Any) -> None:
         if isinstance(result, Reply):
             self._send(envelope, ok_reply(req_id, result.result), result.attachments)
         else:
             self._send(envelope, ok_reply(req_id, result))
 
-    def _error(self, envelope: list[bytes], req_id: Any, code: str, message: str, cmd: str = "") -> None:
+    def _error(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, code: str, message: str,
+               cmd: str = "") -> None:
         self.errors += 1
         log.info("command %s failed: [%s] %s", cmd or "?", code, message)
         self._send(envelope, error_reply(req_id, code, message))
@@ -104,9 +106,9 @@ class CommandServer(threading.Thread):
 
     # ------------------------------------------------------------------ owner thread
 
-    def _on_request(self, frames: list[zmq.Frame]) -> None:
+    def _on_request(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> None:
         self.requests += 1
-        envelope = [f.bytes for f in frames[:-1]]
+        envelope = (sock, [f.bytes for f in frames[:-1]])
         body = frames[-1]
         if len(frames) < 2:
             return  # no routing id: nothing we could answer
@@ -144,7 +146,7 @@ class CommandServer(threading.Thread):
         else:
             self._reply(envelope, req_id, cmd, result)
 
-    def _complete(self, envelope: list[bytes], req_id: Any, cmd: str, fut: Future) -> None:
+    def _complete(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, fut: Future) -> None:
         """Called in whatever thread finished the future: hand it to the owner thread."""
         self._done.put((envelope, req_id, cmd, fut))
         try:
@@ -173,21 +175,25 @@ class CommandServer(threading.Thread):
 
     def run(self) -> None:
         poller = zmq.Poller()
-        poller.register(self.sock, zmq.POLLIN)
+        for sock in self.socks:
+            poller.register(sock, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
         while not self._stop_evt.is_set():
             self.heartbeat = time.monotonic()
             events = dict(poller.poll(200))
             if self._wake_r in events:
                 self._drain_done()
-            if self.sock in events:
+            for sock in self.socks:
+                if sock not in events:
+                    continue
                 for _ in range(100):  # bounded batch so completions are not starved
                     try:
-                        frames = self.sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
                     except zmq.Again:
                         break
-                    self._on_request(frames)
-        self.sock.close(linger=0)
+                    self._on_request(sock, frames)
+        for sock in self.socks:
+            sock.close(linger=0)
         os.close(self._wake_r)
         os.close(self._wake_w)
 

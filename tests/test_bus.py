@@ -147,4 +147,6 @@ def test_frame_queue_drops_instead_of_blocking(tmp_path):
         frm.publish(Frame(px, i, "S", "Mono8"))
     assert time.monotonic() - t0 < 0.5
     assert frm.counters()["dropped"] == 48
-    frm.sock.close(); ctx.term()
+    for s in frm.socks:
+        s.close()
+    ctx.term()
