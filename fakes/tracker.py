@@ -131,8 +131,9 @@ class SimTracker(EmsconTracker):
     """``sim:`` tracker: starts a fake server in a thread, then talks emScon to it.
 
     URL options (besides EmsconTracker's): ``sigma_mm``, ``time_scale``,
-    ``packet_rate_hz``, ``drop_after``, ``delay_ms``, ``split``, ``garbage_after``,
-    ``result_first``, ``fail`` (``Cmd=Status,...``), ``search_radius_mm``.
+    ``packet_rate_hz``, ``flood_batch`` (stream packets of N records back to back, as fast
+    as TCP allows, for throughput benchmarks), ``drop_after``, ``delay_ms``, ``split``,
+    ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``search_radius_mm``.
     """
 
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
@@ -141,7 +142,11 @@ class SimTracker(EmsconTracker):
                          settings=settings)
         o = url.option
         self.sim_options = {"sigma_mm": o("sigma_mm", None, float), "time_scale": o("time_scale", 0.05, float),
-                            "packet_rate_hz": o("packet_rate_hz", 8.0, float)}
+                            "packet_rate_hz": o("packet_rate_hz", 8.0, float),
+                            "flood_batch": o("flood_batch", 0, int)}
+        if self.sim_options["flood_batch"] < 0:
+            raise ValueError(f"tracker URL {url.raw!r}: flood_batch={self.sim_options['flood_batch']} "
+                             "must be >= 0")
         self.sim_faults = Faults(drop_after=o("drop_after", 0, int), delay_ms=o("delay_ms", 0.0, float),
                                  split=o("split", False, _flag), garbage_after=o("garbage_after", 0, int),
                                  result_first=o("result_first", False, _flag), fail=o("fail", {}, _fail_map))
