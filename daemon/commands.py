@@ -213,6 +213,15 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         truth["plate"] = d.world.plate().to_dict()
         return truth
 
+    def sim_place_robot_on_plate(req: Request) -> Any:
+        """Simulation only: put the robot on the plate with the target in view (an operator's job)."""
+        if d.world is None:
+            raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: this daemon runs no simulated world")
+        heading = need(req, "heading_deg", float, d.world.plate_yaw_deg + 60.0)
+        pose = d.world.pose_with_target_in_view(heading)
+        d.world.set_robot(pose)
+        return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
+
     def calib_results(req: Request) -> Any:
         from daemon.storage import read_results
 
@@ -229,7 +238,7 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         "camera.capture": camera_capture, "camera.stream.start": camera_stream_start,
         "camera.stream.stop": camera_stream_stop, "camera.status": camera_status,
         "robot.move": robot_move, "robot.turn": robot_turn, "robot.stop": robot_stop, "robot.status": robot_status,
-        "capture": capture, "sim.truth": sim_truth, "data.dir": data_dir, "calib.results": calib_results,
+        "capture": capture, "sim.truth": sim_truth, "sim.place_robot_on_plate": sim_place_robot_on_plate, "data.dir": data_dir, "calib.results": calib_results,
         **d.calib.handlers(),
     }
     return handlers

@@ -147,3 +147,62 @@ def test_killed_worker_resumes_without_remeasuring(daemon):
         assert (root / f"{s}.png").stat().st_mtime == mtimes[s] < killed_at
     names = [e["name"] for e in json.loads((root / "dataset.json").read_text())["entries"]]
     assert len(names) == len(set(names)) == 4
+
+
+def test_measure_mark_and_intrinsics(daemon):
+    c, tmp = daemon
+    truth = c.call("sim.truth")
+    if c.call("calib.results")["active"] is None:
+        run_job(c, "referencing", referencing_params(c, tmp))
+    mark = truth["marks"][1]  # the cross
+    r = run_job(c, "measure-mark", {"mark_xy": [mark["x_mm"] - 1.0, mark["y_mm"] + 1.0], "kind": mark["kind"]})
+    x, y, _ = r["mark"]["abs_xyz"]
+    assert np.hypot(x - mark["x_mm"], y - mark["y_mm"]) < 0.1
+    assert 0 < r["mark"]["std_mm"] < 0.1
+
+    # intrinsics from views of the target: the operator puts the robot back on the plate first
+    files = operator_files(c, tmp)
+    params = {"plate": json.loads(files["plate"].read_text()), "views": 5,
+              "camera_model": json.loads(files["camera_model"].read_text())}
+    c.call("sim.place_robot_on_plate")
+    r = run_job(c, "intrinsics", params)
+    assert r["verdict"] in ("ok", "warn")
+    stored = json.loads(Path(r["dataset"], "result.json").read_text())
+    f_true = truth["camera_model"]["K"][0][0]
+    f_std = stored["report"]["std"]["fx"]
+    assert abs(stored["camera_model"]["K"][0][0] - f_true) < max(4 * f_std, 1.0)
+    assert stored["report"]["rms_px"] < 0.2
+
+
+def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
+    """A nest far from its approximate position: the worker asks; the 'operator' locks on and answers."""
+    c, tmp = daemon
+    c.call("sim.place_robot_on_plate")
+    params = referencing_params(c, tmp)
+    good = params["nests_approx_trk"]["green"]
+    params["nests_approx_trk"]["green"] = [good[0] + 400.0, good[1] - 300.0, good[2]]
+    sub = c.subscriber(["calib."])
+    time.sleep(0.2)
+    job = c.call("calib.start", procedure="referencing", params=params)["job"]
+    answered = False
+    result = None
+    end = time.monotonic() + 300
+    try:
+        while time.monotonic() < end and result is None:
+            msg = sub.recv(1.0)
+            if not msg or msg[1]["data"].get("job") != job:
+                continue
+            if msg[0] == "calib.prompt":
+                assert "green" in msg[1]["data"]["question"]
+                c.call("tracker.aim", timeout=60, x=good[0], y=good[1], z=good[2])  # the operator helps
+                c.call("tracker.find", timeout=60)
+                c.call("calib.answer", job=job, answer="ok")
+                answered = True
+            elif msg[0] == "calib.result":
+                result = msg[1]["data"]
+    finally:
+        sub.close()
+    assert answered and result is not None and not result.get("failed"), result
+    truth = c.call("sim.truth")
+    err = rob_H_cam_error(np.array(result["rob_H_cam"]), np.array(truth["rob_H_cam"]))
+    assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.015
