@@ -87,3 +87,20 @@ def test_bad_arguments_are_named() -> None:
         locate_mark(img, "dot", size_px=0.5)
     with pytest.raises(ValueError, match="dtype uint8"):
         locate_mark(img.astype(float), "dot", size_px=5)
+
+
+@pytest.mark.parametrize("name", ["D", "X"])
+def test_whole_image_search_without_approx(renderer: Renderer, name: str) -> None:
+    mark = next(m for m in renderer.world.params.marks if m.name == name)
+    world = renderer.world
+    model = world_camera_model(world, renderer.size)
+    old = world.robot
+    try:
+        world.set_robot(world.pose_with_footprint_at(mark.x_mm + 1.7, mark.y_mm - 2.2, 33.0))
+        truth = model.project(apply_H(inv_H(world.abs_H_cam()), [mark.x_mm, mark.y_mm, 0.0]).reshape(1, 3))[0]
+        img = renderer.render(rng=np.random.default_rng(17))
+        size_px = mark.size_mm * model.f / world.abs_H_cam()[2, 3]
+    finally:
+        world.set_robot(old)
+    obs = locate_mark(img, mark.kind, size_px=size_px)
+    assert np.linalg.norm(obs.uv - truth) < 0.2
