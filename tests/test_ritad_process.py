@@ -117,3 +117,30 @@ def test_bad_requests_do_not_stop_the_daemon(ritad):
         with pytest.raises(Exception, match="confirm"):
             c.call("robot.move", distance_mm=10.0)
     assert proc.poll() is None
+
+
+def test_one_world_for_all_fakes(ritad):
+    """The tracker and camera fakes see the robot where the base fake moved it."""
+    import numpy as np
+
+    proc, endpoint, *_ = ritad
+    with Client(endpoint, timeout=10) as c:
+        wait_devices_ready(c)
+        p0 = lock_on_robot(c)
+        shot0, extra0 = c.call_raw("camera.capture", {"pixels": True}, timeout=60)
+        before = np.array(c.call("sim.truth")["abs_H_rob"])
+        c.call("robot.move", timeout=60, distance_mm=15.0, speed_mm_s=50.0, confirm=True)
+        after = np.array(c.call("sim.truth")["abs_H_rob"])
+        p1 = c.call("tracker.measure", timeout=60)
+        shot1, extra1 = c.call_raw("camera.capture", {"pixels": True}, timeout=60)
+    moved_truth = after[:3, 3] - before[:3, 3]
+    assert np.linalg.norm(moved_truth) == pytest.approx(15.0, abs=1e-6)
+    assert np.dot(moved_truth / 15.0, before[:3, 0]) > 0.999999  # along the heading
+    moved_seen = np.array(p1["abs_xyz"]) - np.array(p0["abs_xyz"])
+    assert np.linalg.norm(moved_seen - moved_truth) < 0.1  # 10 µm tracker noise per coordinate
+        rob_H_cam = np.array(c.call("sim.truth")["rob_H_cam"])
+    # the camera rendered the moved robot: its true pose in the frame header, and different pixels
+    assert np.allclose(np.array(shot1["header"]["sim_abs_H_cam"]), after @ rob_H_cam, atol=1e-6)
+    px0 = np.frombuffer(extra0[0].buffer, np.uint8).astype(float)
+    px1 = np.frombuffer(extra1[0].buffer, np.uint8).astype(float)
+    assert np.abs(px1 - px0).mean() > 5.0
