@@ -133,12 +133,12 @@ def test_one_world_for_all_fakes(ritad):
         after = np.array(c.call("sim.truth")["abs_H_rob"])
         p1 = c.call("tracker.measure", timeout=60)
         shot1, extra1 = c.call_raw("camera.capture", {"pixels": True}, timeout=60)
+        rob_H_cam = np.array(c.call("sim.truth")["rob_H_cam"])
     moved_truth = after[:3, 3] - before[:3, 3]
     assert np.linalg.norm(moved_truth) == pytest.approx(15.0, abs=1e-6)
     assert np.dot(moved_truth / 15.0, before[:3, 0]) > 0.999999  # along the heading
     moved_seen = np.array(p1["abs_xyz"]) - np.array(p0["abs_xyz"])
     assert np.linalg.norm(moved_seen - moved_truth) < 0.1  # 10 µm tracker noise per coordinate
-        rob_H_cam = np.array(c.call("sim.truth")["rob_H_cam"])
     # the camera rendered the moved robot: its true pose in the frame header, and different pixels
     assert np.allclose(np.array(shot1["header"]["sim_abs_H_cam"]), after @ rob_H_cam, atol=1e-6)
     px0 = np.frombuffer(extra0[0].buffer, np.uint8).astype(float)
