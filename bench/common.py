@@ -56,7 +56,7 @@ def start_ritad(config_text: str | None = None, notify: bool = True, extra: list
                 break
         except socket.timeout:
             if proc.poll() is not None:
-                raise RuntimeError(f"ritad exited: {(tmp / 'ritad.log').read_text()[-2000:]}")
+                raise RuntimeError(f"ritad exited: {(tmp / 'ritad.log').read_text()[-2000:]}") from None
     sock.close()
     if ready is None:
         proc.kill()

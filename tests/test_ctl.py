@@ -1,7 +1,6 @@
 """ritactl: thin imports, clear errors, and the stdlib PNG writer."""
 import subprocess
 import sys
-import zlib
 
 import numpy as np
 
