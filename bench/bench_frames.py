@@ -195,6 +195,8 @@ def main() -> None:
     print(f"| latency acquisition → subscriber at 10 fps | p50 {slow['lat_p50_ms']:.1f} ms, "
           f"p99 {slow['lat_p99_ms']:.1f} ms (max {slow['lat_max_ms']:.1f}) | p99 ≤ 30 ms | "
           f"{'yes' if slow['lat_p99_ms'] <= 30 else 'NO'} |")
+    print(f"| of which publish → subscriber (zmq ipc transport) at 10 fps | p50 {slow['pub_lat_p50_ms']:.1f} ms, "
+          f"p99 {slow['pub_lat_p99_ms']:.1f} ms | – | – |")
     print(f"| latency acquisition → subscriber at {fast['fps']:.0f} fps | p50 {fast['lat_p50_ms']:.1f} ms, "
           f"p99 {fast['lat_p99_ms']:.1f} ms | – | – |")
     for r, label in ((slow, "10 fps"), (fast, f"{fast['camera_fps']:.0f} fps")):
