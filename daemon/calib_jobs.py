@@ -144,6 +144,8 @@ class CalibJobs:
         if kind not in REPORT_KINDS:
             raise CommandError(ErrorCode.BAD_ARGS, f"calib.report: kind {kind!r} is not one of {REPORT_KINDS}")
         job_id = req.args.get("job")
+        if not isinstance(job_id, str) or not job_id:  # it becomes a dict key and a name in messages
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.report: 'job' must be a non-empty string, got {job_id!r}")
         if job_id not in self.jobs:
             # a job resumed by a restarted worker after a daemon restart: adopt it
             self.jobs[job_id] = {"job": job_id, "procedure": req.args.get("procedure", "?"), "params": {},

@@ -169,6 +169,9 @@ class DeviceRunner(threading.Thread):
         except CommandError as exc:
             self.jobs_failed += 1
             job.future.set_exception(exc)
+        except ValueError as exc:  # adapters refuse bad arguments with a ValueError naming the value
+            self.jobs_failed += 1
+            job.future.set_exception(CommandError(ErrorCode.BAD_ARGS, f"{self.kind}: {exc}"))
         except Exception as exc:
             self.jobs_failed += 1
             log.exception("%s: job failed", self.kind)

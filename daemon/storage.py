@@ -68,9 +68,9 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
-def safe_name(text: str) -> str:
-    """A file-name-safe version of ``text``."""
-    return _SAFE.sub("-", text).strip("-") or "x"
+def safe_name(text: str, limit: int = 100) -> str:
+    """A file-name-safe version of ``text``, cut to ``limit`` characters (file names have a size limit)."""
+    return _SAFE.sub("-", text).strip("-")[:limit].rstrip("-") or "x"
 
 
 def encode_image(pixels: Any, fmt: str = ".png") -> bytes:

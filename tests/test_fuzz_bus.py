@@ -1,0 +1,327 @@
+"""Fuzzing the command socket of a running daemon: every message gets exactly one reply.
+
+An in-process ``Daemon`` on the simulated world (small camera images, a fast tracker
+fake, no calibration worker) receives batches of random requests on one DEALER:
+random bytes, random msgpack values, maps with missing or wrong-typed ``v``/``id``/
+``cmd``/``args`` and real command names with random arguments. Motion commands are
+never sent with ``confirm: true`` and long polls are kept short. Each batch must
+get exactly one well-formed reply per message (the id echoed when the envelope was
+valid, ``null`` otherwise), never an ``internal`` error, and ``status`` must still
+answer afterwards.
+"""
+from __future__ import annotations
+
+import collections
+import contextlib
+import itertools
+import math
+import re
+import string
+import time
+from typing import Any, Iterator
+
+import msgpack
+import pytest
+import zmq
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from daemon import config
+from daemon.calib_jobs import PROCEDURES, REPORT_KINDS
+from daemon.client import Client
+from daemon.main import Daemon
+from daemon.protocol import ErrorCode, pack, unpack
+
+BATCH = 40
+EXAMPLES = 260  # × BATCH messages: comfortably above 10,000
+MOTION = ("robot.move", "robot.turn")
+CODE_RE = re.compile(r"^[a-z][a-z0-9_]*$|^(tracker|robot|camera)_\w+$")
+_MISSING = object()
+
+# ---------------------------------------------------------------------------- strategies
+
+scalars = st.one_of(st.none(), st.booleans(), st.integers(-(1 << 63), (1 << 64) - 1),
+                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12), st.binary(max_size=12))
+values = st.recursive(scalars, lambda inner: st.one_of(
+    st.lists(inner, max_size=3),
+    st.dictionaries(st.one_of(st.text(max_size=6), st.integers(-3, 3)), inner, max_size=3)), max_leaves=6)
+numbers = st.one_of(st.floats(-100, 100), st.floats(-1e4, 1e4), st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True),
+                    st.sampled_from([0, 0.0, -0.0, 1e308, -1e308, 5e-324, 10001.0]))
+texts = st.one_of(st.text(max_size=30), st.text(string.ascii_letters, min_size=250, max_size=300),
+                  st.sampled_from(["", ".", "..", "/", "a/b", "x" * 300]))
+
+FLOAT_ARGS = ("x", "y", "z", "approx_distance_mm", "rate_hz", "distance_mm", "speed_mm_s", "timeout_s",
+              "angle_deg", "speed_deg_s", "heading_deg")
+BOOL_ARGS = ("pixels", "save", "wait", "confirm")
+TEXT_ARGS = {"label": texts, "dataset": texts, "procedure": st.sampled_from(PROCEDURES) | texts,
+             "kind": st.sampled_from(REPORT_KINDS) | texts, "job": texts}
+ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
+        "tracker.stream.start": ("rate_hz",), "camera.capture": ("pixels", "save", "label"),
+        "robot.move": ("distance_mm", "speed_mm_s", "confirm", "wait", "timeout_s"),
+        "robot.turn": ("angle_deg", "speed_deg_s", "confirm", "wait", "timeout_s"),
+        "capture": ("label", "dataset"), "calib.start": ("procedure", "params", "job"),
+        "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.next": ("timeout_s",),
+        "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
+        "sim.place_robot_on_plate": ("heading_deg",)}
+# real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)
+COMMANDS = sorted({"ping", "help", "hello", "status", "health", "state", "tracker.measure", "tracker.stream.stop",
+                   "tracker.status", "camera.stream.start", "camera.stream.stop", "camera.status", "robot.stop",
+                   "robot.status", "sim.truth", "data.dir", "calib.results", "calib.jobs", *ARGS})
+
+
+def arg_value(name: str) -> st.SearchStrategy[Any]:
+    if name in FLOAT_ARGS:
+        return numbers | values
+    if name in BOOL_ARGS:
+        return st.booleans() | values
+    if name in TEXT_ARGS:
+        return TEXT_ARGS[name] | values
+    return values
+
+
+@st.composite
+def command_args(draw: st.DrawFn, cmd: str) -> dict[Any, Any]:
+    """Known argument names with random (often wrong) values, plus stray keys."""
+    args: dict[Any, Any] = {n: draw(arg_value(n)) for n in ARGS.get(cmd, ()) if draw(st.booleans())}
+    args.update(draw(st.dictionaries(st.text(max_size=8), values, max_size=2)))
+    return make_safe(cmd, args)
+
+
+def make_safe(cmd: str, args: Any) -> Any:
+    """Never confirm a motion; keep worker long polls short (they would hold the reply)."""
+    if not isinstance(args, dict):
+        return args
+    if cmd in MOTION and args.get("confirm") is True:
+        args["confirm"] = False
+    if cmd in ("calib.next", "calib.inbox"):
+        t = args.get("timeout_s", _MISSING)
+        if t is _MISSING or (isinstance(t, (int, float)) and not isinstance(t, bool) and 0 <= t <= 60):
+            args["timeout_s"] = 0.0 if t is _MISSING or math.isnan(t) else float(t) % 0.05
+    return args
+
+
+ID_KINDS = st.sampled_from(["str", "str", "int", "int", "missing", "none", "float", "bool", "list", "map", "bytes"])
+
+
+@st.composite
+def envelope_map(draw: st.DrawFn) -> dict[str, Any]:
+    """A request map whose v/id/cmd/args may each be missing or of a wrong type."""
+    msg: dict[Any, Any] = {}
+    v = draw(st.sampled_from([1, 1, 1, _MISSING, 2, 0, "1", None, 1.0, [1]]))
+    if v is not _MISSING:
+        msg["v"] = v
+    cmd = draw(st.one_of(st.sampled_from(COMMANDS), st.just(_MISSING), st.text(max_size=12), values))
+    if cmd is not _MISSING:
+        msg["cmd"] = cmd
+    args = draw(st.one_of(st.just(_MISSING), st.none(), st.dictionaries(st.text(max_size=6), values, max_size=3),
+                          values))
+    if cmd == "calib.next" and args in (_MISSING, None):
+        args = {}  # the default long poll (10 s) would hold the batch
+    if args is not _MISSING:
+        msg["args"] = make_safe(cmd if isinstance(cmd, str) else "", args)
+    msg["id"] = draw(ID_KINDS)
+    msg.update(draw(st.dictionaries(st.text(max_size=5).filter(lambda k: k not in msg), values, max_size=2)))
+    return msg
+
+
+@st.composite
+def known_command(draw: st.DrawFn) -> dict[str, Any]:
+    cmd = draw(st.sampled_from(COMMANDS))
+    return {"v": 1, "id": draw(st.sampled_from(["str", "int"])), "cmd": cmd, "args": draw(command_args(cmd))}
+
+
+messages = st.one_of(
+    st.one_of(st.binary(min_size=1, max_size=120), values.map(pack)).map(lambda b: ("raw", b)),
+    envelope_map().map(lambda m: ("map", m)),
+    known_command().map(lambda m: ("map", m)),
+    known_command().map(lambda m: ("map", m)),
+    known_command().map(lambda m: ("map", m)),
+)
+
+# ---------------------------------------------------------------------------- oracle
+
+
+def expected(body: bytes) -> tuple[Any, str | None]:
+    """(id the reply must carry, envelope error code or None) per docs/protocol.md."""
+    try:
+        msg = unpack(body)
+    except Exception:
+        return None, ErrorCode.BAD_REQUEST
+    if not isinstance(msg, dict):
+        return None, ErrorCode.BAD_REQUEST
+    if msg.get("v", 1) != 1:
+        return None, ErrorCode.UNSUPPORTED_VERSION
+    if not isinstance(msg.get("cmd"), str) or not msg["cmd"]:
+        return None, ErrorCode.BAD_REQUEST
+    rid = msg.get("id", _MISSING)
+    if rid is _MISSING or not isinstance(rid, (str, int)) or isinstance(rid, bool):
+        return None, ErrorCode.BAD_REQUEST
+    if msg.get("args") is not None and not isinstance(msg.get("args", {}), dict):
+        return None, ErrorCode.BAD_ARGS
+    return rid, None
+
+
+_ids = itertools.count(1)
+_ID_VALUES = {"missing": _MISSING, "none": None, "float": 1.5, "bool": True, "list": [1], "map": {"a": 1},
+              "bytes": b"id"}
+
+
+def encode(kind: str, item: Any) -> bytes:
+    """Bytes to send; symbolic ids become unique values so replies can be matched."""
+    if kind == "raw":
+        return item
+    msg = dict(item)
+    id_kind = msg.pop("id")
+    n = next(_ids)
+    if id_kind == "str":
+        msg["id"] = f"fz-{n}"
+    elif id_kind == "int":
+        msg["id"] = n if n % 2 else -n
+    elif _ID_VALUES[id_kind] is not _MISSING:
+        msg["id"] = _ID_VALUES[id_kind]
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def check_reply(frames: list[bytes]) -> dict[str, Any]:
+    rep = unpack(frames[0])
+    assert isinstance(rep, dict) and rep.get("v") == 1, rep
+    assert isinstance(rep.get("ok"), bool), rep
+    if rep["ok"]:
+        assert "result" in rep
+    else:
+        err = rep["error"]
+        assert CODE_RE.match(err["code"]), err
+        assert isinstance(err["message"], str) and err["message"], err
+        assert err["code"] != ErrorCode.INTERNAL, f"internal error (a daemon bug): {err}"
+    return rep
+
+
+# ---------------------------------------------------------------------------- daemon
+
+
+def wait_ready(c: Client, timeout: float = 30.0) -> dict[str, Any]:
+    end = time.monotonic() + timeout
+    while True:
+        h = c.call("status")
+        if all(v["state"] == "READY" for v in h["devices"].values()):
+            return h
+        assert time.monotonic() < end, f"devices not READY: {h['devices']}"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory):
+    rt = tmp_path_factory.mktemp("fuzzbus")
+    cfg = config.sim_config(rt)
+    cfg.daemon.start_worker = False
+    cfg.devices.camera = "sim:?size=64x48&noise=0"
+    cfg.devices.tracker = "sim:?time_scale=0.002"
+    d = Daemon(cfg)
+    d.start()
+    try:
+        with Client(d.server.endpoints[0], timeout=10) as c:
+            wait_ready(c)
+        yield d
+    finally:
+        d.stop_event.set()
+        d.stop()
+        for r in d.runners.values():
+            if hasattr(r.device, "shutdown"):
+                r.device.shutdown()
+
+
+@contextlib.contextmanager
+def fresh_dealer(d: Daemon) -> Iterator[zmq.Socket]:
+    s = zmq.Context.instance().socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 0)
+    s.connect(d.server.endpoints[0])
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+@pytest.fixture
+def dealer(daemon: Daemon) -> Iterator[zmq.Socket]:
+    with fresh_dealer(daemon) as s:
+        yield s
+
+
+def exchange(sock: zmq.Socket, bodies: list[bytes], timeout: float = 30.0) -> list[dict[str, Any]]:
+    """Send every body, then collect exactly one reply each (and check there is no extra)."""
+    for b in bodies:
+        sock.send(b)
+    replies = []
+    end = time.monotonic() + timeout
+    while len(replies) < len(bodies):
+        left = end - time.monotonic()
+        assert left > 0 and sock.poll(int(left * 1000)), f"only {len(replies)} of {len(bodies)} replies"
+        replies.append(check_reply(sock.recv_multipart()))
+    return replies
+
+
+def match(bodies: list[bytes], replies: list[dict[str, Any]]) -> None:
+    """Each valid-envelope request got its own id back; the rest got null ids with the right codes."""
+    want_ids: collections.Counter = collections.Counter()
+    want_codes: collections.Counter = collections.Counter()
+    for b in bodies:
+        rid, code = expected(b)
+        if code is None:
+            want_ids[rid] += 1
+        else:
+            want_codes[code] += 1
+    got_ids = collections.Counter(r["id"] for r in replies if r["id"] is not None)
+    got_codes = collections.Counter(r["error"]["code"] for r in replies if r["id"] is None)
+    assert got_ids == want_ids
+    assert got_codes == want_codes
+
+
+def test_command_names_cover_the_daemon(daemon: Daemon) -> None:
+    """The fuzzer knows every command the daemon offers (so none escapes fuzzing)."""
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        offered = set(c.call("help")["commands"])
+    assert offered - set(COMMANDS) == set()
+
+
+def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
+    sent = [0]
+    distinct: set[int] = set()
+    codes: collections.Counter = collections.Counter()
+    t0 = time.monotonic()
+
+    @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(batch=st.lists(messages, min_size=BATCH, max_size=BATCH))
+    def run(batch: list[tuple[str, Any]]) -> None:
+        bodies = [encode(kind, item) for kind, item in batch]
+        with fresh_dealer(daemon) as sock:  # a failed example's late replies must not leak into the next
+            replies = exchange(sock, bodies)
+            match(bodies, replies)
+            sent[0] += len(bodies)
+            distinct.update(hash(b) for b in bodies)
+            codes.update("ok" if r["ok"] else r["error"]["code"] for r in replies)
+            probe = encode("map", {"v": 1, "id": "str", "cmd": "status", "args": {}})
+            status = exchange(sock, [probe])[0]
+            assert status["id"] == unpack(probe)["id"], f"an extra reply arrived: {status}"
+            assert status["ok"] and status["result"]["alive"] is True
+
+    run()
+    elapsed = time.monotonic() - t0
+    print(f"\nbus fuzz: {sent[0]} messages ({len(distinct)} distinct) in {elapsed:.1f} s; "
+          f"replies by code: {dict(codes.most_common())}")
+    assert sent[0] >= 10_000
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        h = wait_ready(c)
+    assert h["alive"] is True
+    assert h["commands"]["requests"] >= sent[0]
+    assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
+
+
+def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> None:
+    limit = daemon.config.daemon.max_message_bytes
+    big = pack({"v": 1, "id": "big", "cmd": "ping", "args": {"pad": b"x" * limit}})
+    replies = exchange(dealer, [big, b"", b"\xc1"])
+    assert [r["error"]["code"] for r in replies] == [ErrorCode.TOO_LARGE, ErrorCode.BAD_REQUEST,
+                                                      ErrorCode.BAD_REQUEST]
+    assert str(limit) in replies[0]["error"]["message"]
+    assert exchange(dealer, [pack({"v": 1, "id": 7, "cmd": "ping"})])[0]["result"]["pong"] is True
