@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import Future
+from concurrent.futures import Executor, Future
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -41,19 +41,29 @@ def need(req: Request, name: str, kind: type | tuple[type, ...], default: Any = 
     return value
 
 
-def chain(fut: Future, fn: Callable[[Any], Any]) -> Future:
-    """A future of ``fn(result)``; errors pass through."""
+def chain(fut: Future, fn: Callable[[Any], Any], executor: Executor | None = None) -> Future:
+    """A future of ``fn(result)``; errors pass through.
+
+    ``fn`` runs in the thread that completed ``fut`` (a device runner) unless an
+    ``executor`` is given: slow work such as writing files goes there, so it never
+    holds up a device.
+    """
     out: Future = Future()
+
+    def run(result: Any) -> None:
+        try:
+            out.set_result(fn(result))
+        except BaseException as e:  # noqa: BLE001 - handed to the client as an error reply
+            out.set_exception(e)
 
     def done(f: Future) -> None:
         exc = f.exception()
         if exc is not None:
             out.set_exception(exc)
-            return
-        try:
-            out.set_result(fn(f.result()))
-        except BaseException as e:  # noqa: BLE001 - handed to the client as an error reply
-            out.set_exception(e)
+        elif executor is None:
+            run(f.result())
+        else:
+            executor.submit(run, f.result())
 
     fut.add_done_callback(done)
     return out
@@ -143,7 +153,7 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
                 result["path"] = str(d.save_capture({"camera": frame}, need(req, "label", str, "frame")))
             return Reply(result, [frame.pixels]) if want_pixels else result
 
-        return chain(d.job("camera", lambda c: c.trigger(), timeout=30), finish)
+        return chain(d.job("camera", lambda c: c.trigger(), timeout=30), finish, d.storage if save else None)
 
     def camera_stream_start(req: Request) -> Any:
         return chain(d.job("camera", lambda c: c.start_stream()), lambda _: {"streaming": True})
@@ -201,7 +211,7 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         return chain(gather(parts), lambda res: {"path": str(d.save_capture(res, label, dataset)),
                                                  "header": res["camera"].header(),
                                                  "tracker": _point_dict(res["tracker"], H_trk),
-                                                 "robot": res["robot"].to_dict()})
+                                                 "robot": res["robot"].to_dict()}, d.storage)
 
     def sim_truth(req: Request) -> Any:
         if d.world is None:

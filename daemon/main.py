@@ -128,8 +128,8 @@ class Daemon:
         self._worker_next_start = time.monotonic() + 5.0  # a worker that dies at once is retried slowly
         if self.worker is not None:
             log.warning("calibration worker exited with %s; restarting it", self.worker.returncode)
-        log_path = Path(self.config.daemon.data_dir) / "worker.log"
-        self.worker = subprocess.Popen(self._worker_cmd(), stdout=open(log_path, "ab"), stderr=subprocess.STDOUT)
+        with open(Path(self.config.daemon.data_dir) / "worker.log", "ab") as log_file:  # the child keeps its copy
+            self.worker = subprocess.Popen(self._worker_cmd(), stdout=log_file, stderr=subprocess.STDOUT)
 
     def stop(self) -> None:
         if self.worker is not None and self.worker.poll() is None:
@@ -182,7 +182,7 @@ class Daemon:
         return done
 
     def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
-        """Store a capture (runs in the caller's thread: a future callback, off the bus thread)."""
+        """Store a capture (called in the storage thread, never in a device or bus thread)."""
         from daemon.storage import save_capture
 
         return save_capture(Path(self.config.daemon.data_dir), parts, label, dataset,
