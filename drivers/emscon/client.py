@@ -124,6 +124,8 @@ class EmsconClient:
             packets = self._framer.feed(data)
         except ProtocolError as exc:
             self.counters["protocol_errors"] += 1
+            for p in getattr(exc, "packets", []):  # deliver what was good before the bad bytes
+                self._dispatch(p)
             raise self._lost(f"protocol error: {exc}", exc) from exc
         for p in packets:
             self._dispatch(p)

@@ -14,7 +14,8 @@ class Framer:
 
     ``feed`` accepts chunks split or merged anywhere and returns the whole packets
     completed so far. After a :class:`ProtocolError` the stream cannot be resynchronised,
-    so every later ``feed`` raises the same error.
+    so every later ``feed`` raises the same error; the error's ``packets`` holds the whole
+    packets that came before the bad bytes in that chunk.
     """
 
     def __init__(self, direction: str, max_packet: int = MAX_PACKET) -> None:
@@ -48,6 +49,7 @@ class Framer:
                 pos += size
         except ProtocolError as exc:
             self._error = exc
+            exc.packets = out  # type: ignore[attr-defined]  # whole packets before the bad one are good
             raise
         finally:
             del buf[:pos]

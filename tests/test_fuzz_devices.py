@@ -1,0 +1,444 @@
+"""Fuzzing the device drivers with hostile input: emScon byte streams and robot lines.
+
+emScon: about 10,000 random streams (valid packets, truncated, oversized, mutated,
+random bytes; sent whole or split) reach the real ``EmsconTracker`` over TCP, most of
+them straight after connecting and a few hundred through an injecting proxy in front
+of the fake tracker while a daemon owns the adapter. Only the documented exceptions
+may escape, the points/events of every whole valid packet are delivered, and the
+daemon reconnects and keeps answering.
+
+Robot: random lines (noise, bad checksums, bad syntax, stray replies, unknown kinds,
+events with random fields, over-long runs) are written into the fake base's pty in
+front of the real ``SerialRobot``: each is counted in the right counter and the base
+still answers, alone and with a daemon on top.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import select
+import selectors
+import socket
+import struct
+import threading
+import time
+from typing import Any, Iterator
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from daemon import config
+from daemon.client import Client
+from daemon.main import Daemon
+from daemon.protocol import CommandError
+from drivers import robot_protocol as rp
+from drivers.base import DeviceError, DeviceLost, DeviceURL
+from drivers.emscon.adapter import EmsconTracker
+from drivers.emscon.codec import (COMMANDS, MAX_PACKET, MEAS_VALUE, MEAS_VALUE2, encode_answer, encode_error,
+                                  encode_result, encode_status_change)
+from drivers.emscon.enums import ES_Command
+from fakes.robot import SimRobot
+from fakes.tracker import FakeTrackerServer, FakeTrackerThread
+from fakes.world import World
+
+FUZZ = dict(derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+int32 = st.integers(-(1 << 31), (1 << 31) - 1)
+
+# ---------------------------------------------------------------------------- emScon packets
+
+
+@st.composite
+def valid_packet(draw: st.DrawFn) -> tuple[bytes, int, int]:
+    """A whole to-client packet and what the adapter must publish for it: (bytes, points, events)."""
+    kind = draw(st.sampled_from(["answer", "error", "change", "multi", "multi2", "single", "other"]))
+    if kind == "answer":
+        cmd = draw(st.sampled_from(sorted(COMMANDS)))
+        status = draw(st.sampled_from([0, 0, 1, 10004]) | int32)
+        return (encode_answer(cmd, 0) if status == 0 else encode_answer(cmd, status)), 0, 1
+    if kind == "error":
+        return encode_error(draw(int32), draw(int32)), 0, 1
+    if kind == "change":
+        return encode_status_change(draw(st.integers(0, 40) | int32)), 0, 1
+    if kind in ("multi", "multi2"):
+        n = draw(st.integers(0, 30))
+        rng = np.random.default_rng(draw(st.integers(0, 1 << 32)))
+        rec = np.zeros(n, MEAS_VALUE if kind == "multi" else MEAS_VALUE2)
+        for name in rec.dtype.names:
+            rec[name] = rng.integers(-1000, 1000, n) if rec.dtype[name].kind == "i" else rng.normal(0, 1e4, n)
+        status = draw(st.sampled_from([0, 0, 0, 10004]))
+        return encode_result(kind, status, rec), n, int(status != 0)
+    if kind == "single":
+        return encode_result(draw(st.sampled_from(["single", "single2"])), draw(st.sampled_from([0, 3]))), 0, 1
+    return encode_result(draw(st.sampled_from(["reflector_pos", "nivel"]))), 0, 1
+
+
+@st.composite
+def emscon_stream(draw: st.DrawFn) -> dict[str, Any]:
+    """A stream of one category; ``clean`` streams are whole valid packets only."""
+    packets = draw(st.lists(valid_packet(), max_size=6))
+    body = b"".join(p[0] for p in packets)
+    points, events = sum(p[1] for p in packets), sum(p[2] for p in packets)
+    how = draw(st.sampled_from(["valid", "valid", "truncated", "oversized", "random", "mutated"]))
+    if how == "truncated":
+        last = draw(valid_packet())[0]
+        body += last[:draw(st.integers(1, len(last) - 1))]
+    elif how == "oversized":
+        size = draw(st.one_of(st.integers(MAX_PACKET + 1, (1 << 31) - 1), st.integers(-(1 << 31), 7)))
+        body += struct.pack("<ii", size, draw(int32)) + draw(st.binary(max_size=40))
+    elif how == "random":
+        body += draw(st.binary(min_size=1, max_size=300))
+    elif how == "mutated":
+        raw = bytearray(draw(valid_packet())[0])
+        for _ in range(draw(st.integers(1, 4))):
+            raw[draw(st.integers(0, len(raw) - 1))] ^= draw(st.integers(1, 255))
+        body += bytes(raw)
+    cuts = draw(st.one_of(st.just([]), st.lists(st.integers(1, max(1, len(body))), max_size=4)))
+    return {"how": how, "body": body, "points": points, "events": events, "cuts": sorted(set(cuts)),
+            "request": draw(st.sampled_from([None, None, None, "aim", "measure"]))}
+
+
+class RawTracker(EmsconTracker):
+    """The real adapter without its init sequence, so a stream reaches its reader at once."""
+
+    def _init_sequence(self, c: Any) -> None:
+        """Skip the handshake (the server here only plays back bytes)."""
+
+
+class Playback:
+    """A listener on 127.0.0.1:0 that plays one stream to each adapter connection, then EOF."""
+
+    def __init__(self) -> None:
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        port = self.listener.getsockname()[1]
+        url = f"emscon://127.0.0.1:{port}?timeout=0.05&meas_time_ms=1&connect_timeout=2"
+        self.emitted: list[tuple[str, dict[str, Any]]] = []
+        self.tracker = RawTracker(DeviceURL.parse(url), emit=lambda t, p: self.emitted.append((t, p)))
+
+    def play(self, s: dict[str, Any]) -> tuple[BaseException | None, Any]:
+        """Feed one stream; return (exception raised, job result)."""
+        self.tracker.open()
+        conn, _ = self.listener.accept()
+        body, cuts = s["body"], s["cuts"]
+        try:
+            try:
+                for a, b in zip([0, *cuts], [*cuts, len(body)]):
+                    conn.sendall(body[a:b])
+                    if b < len(body):
+                        self._step(None)  # let the reader see the stream cut here
+                conn.shutdown(socket.SHUT_WR)
+                result = self._step(s["request"])
+                for _ in range(1000):  # after EOF the adapter must report the loss, not spin
+                    self._step(None)
+            except DeviceError as exc:  # DeviceLost, DeviceTimeout and tracker status errors
+                return exc, None
+            raise AssertionError(f"the adapter never reported the closed connection (result {result})")
+        finally:
+            conn.close()
+            self.tracker.close()
+
+    def _step(self, request: str | None) -> Any:
+        if request == "aim":
+            return self.tracker.aim((1000.0, 200.0, -300.0))
+        if request == "measure":
+            return self.tracker.measure()
+        return self.tracker.pump(0.01)
+
+
+def test_emscon_streams_into_the_adapter() -> None:
+    pb = Playback()
+    n = [0]
+    how: dict[str, int] = {}
+    t0 = time.monotonic()
+
+    @settings(max_examples=980, **FUZZ)
+    @given(streams=st.lists(emscon_stream(), min_size=10, max_size=10))
+    def run(streams: list[dict[str, Any]]) -> None:
+        for s in streams:
+            pb.emitted.clear()
+            exc, _ = pb.play(s)
+            n[0] += 1
+            how[s["how"]] = how.get(s["how"], 0) + 1
+            if s["request"] is None:
+                assert isinstance(exc, DeviceLost), exc  # pump documents DeviceLost only
+                points = sum(p["n"] for t, p in pb.emitted if t == "tracker.point")
+                events = sum(1 for t, _ in pb.emitted if t == "tracker.event")
+                if s["how"] in ("valid", "truncated"):
+                    assert (points, events) == (s["points"], s["events"]), s
+                    assert "EOF" in str(exc), exc
+                elif s["how"] == "oversized":
+                    assert (points, events) == (s["points"], s["events"]), s
+                    assert "protocol error" in str(exc) and "lPacketSize" in str(exc), exc
+
+    run()
+    dt = time.monotonic() - t0
+    print(f"\nemScon adapter fuzz: {n[0]} streams in {dt:.1f} s {how}; adapter counters "
+          f"{pb.tracker.status()['counters']}")
+    assert n[0] >= 9_800
+    assert pb.tracker.status()["counters"]["protocol_errors"] > 1000
+
+
+# ---------------------------------------------------------------------------- live: proxy + daemon
+
+
+class InjectingProxy:
+    """TCP proxy on 127.0.0.1:0 to the fake tracker; ``inject`` writes extra bytes to the client."""
+
+    def __init__(self, upstream_port: int) -> None:
+        self.upstream_port = upstream_port
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._inject: queue.Queue[bytes] = queue.Queue()
+        self._stop = threading.Event()
+        self.accepted = 0
+        self._thread = threading.Thread(target=self._run, name="emscon-proxy", daemon=True)
+        self._thread.start()
+
+    def inject(self, chunks: list[bytes]) -> None:
+        for c in chunks:
+            self._inject.put(c)
+        self._wake_w.send(b"x")
+
+    def close(self) -> None:
+        self._stop.set()
+        self._wake_w.send(b"x")
+        self._thread.join(5)
+
+    def _run(self) -> None:
+        sel = selectors.DefaultSelector()
+        sel.register(self.listener, selectors.EVENT_READ, "accept")
+        sel.register(self._wake_r, selectors.EVENT_READ, "wake")
+        pair: dict[str, socket.socket] = {}
+
+        def drop() -> None:
+            for s in pair.values():
+                sel.unregister(s)
+                s.close()
+            pair.clear()
+
+        while not self._stop.is_set():
+            for key, _ in sel.select(0.2):
+                try:
+                    if key.data == "accept":
+                        client, _ = self.listener.accept()
+                        drop()
+                        up = socket.create_connection(("127.0.0.1", self.upstream_port), timeout=5)
+                        pair.update(client=client, up=up)
+                        sel.register(client, selectors.EVENT_READ, "client")
+                        sel.register(up, selectors.EVENT_READ, "up")
+                        self.accepted += 1
+                    elif key.data == "wake":
+                        self._wake_r.recv(4096)
+                        while not self._inject.empty():
+                            chunk = self._inject.get()
+                            if "client" in pair:
+                                pair["client"].sendall(chunk)
+                                time.sleep(0.002)  # keep the chunks apart on the wire
+                    else:
+                        data = key.fileobj.recv(1 << 16)
+                        if not data:
+                            drop()
+                        else:
+                            pair["up" if key.data == "client" else "client"].sendall(data)
+                except (OSError, KeyError):
+                    drop()
+        drop()
+        for s in (self.listener, self._wake_r, self._wake_w):
+            s.close()
+
+
+def _wait(pred: Any, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < end, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+@pytest.fixture(scope="module")
+def emscon_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Daemon, InjectingProxy]]:
+    fake = FakeTrackerThread(FakeTrackerServer(World(), time_scale=0.002))
+    fake.start(0)
+    proxy = InjectingProxy(fake.port)
+    cfg = config.sim_config(tmp_path_factory.mktemp("fuzzdev"))
+    cfg.daemon.start_worker = False
+    cfg.devices.camera = "sim:?size=64x48&noise=0"
+    cfg.devices.tracker = f"emscon://127.0.0.1:{proxy.port}?timeout=0.2&meas_time_ms=10&connect_timeout=2"
+    d = Daemon(cfg)
+    d.start()
+    try:
+        yield d, proxy
+    finally:
+        d.stop_event.set()
+        d.stop()
+        robot = d.runners["robot"].device
+        if robot is not None:
+            robot.shutdown()
+        proxy.close()
+        fake.close()
+
+
+def probe_tracker(c: Client) -> str:
+    """One tracker round trip; the unlocked fake answers MeasurementStatusNotReady."""
+    try:
+        c.call("tracker.measure", timeout=10)
+        return "ok"
+    except CommandError as exc:
+        return exc.code
+
+
+def test_emscon_streams_through_a_live_daemon(emscon_daemon: tuple[Daemon, InjectingProxy],
+                                              caplog: pytest.LogCaptureFixture) -> None:
+    d, proxy = emscon_daemon
+    runner = d.runners["tracker"]
+    _wait(lambda: runner.state.value == "READY", 30, "tracker READY")
+    n, resynced, codes = [0], [0], {}
+    t0 = time.monotonic()
+    with Client(d.server.endpoints[0], timeout=10) as c:
+
+        @settings(max_examples=220, **FUZZ)
+        @given(s=emscon_stream())
+        def run(s: dict[str, Any]) -> None:
+            _wait(lambda: runner.state.value == "READY", 10, "tracker READY again")
+            before = runner.reconnects
+            body = s["body"]
+            proxy.inject([body[a:b] for a, b in zip([0, *s["cuts"]], [*s["cuts"], len(body)]) if b > a])
+            code = probe_tracker(c)  # whatever the stream did, the command gets one clear answer
+            codes[code] = codes.get(code, 0) + 1
+            assert code != "internal"
+            for _ in range(5):  # recovered: a round trip reaches the tracker again
+                _wait(lambda: runner.state.value == "READY", 10, "tracker READY again")
+                if probe_tracker(c) == "tracker_MeasurementStatusNotReady":
+                    break
+            else:
+                raise AssertionError(f"tracker did not recover: {runner.snapshot()}")
+            if s["how"] in ("truncated", "oversized"):  # a broken stream forces a resync
+                assert runner.reconnects > before, s
+            resynced[0] += runner.reconnects > before
+            assert c.call("status")["alive"] is True
+            n[0] += 1
+
+        run()
+    print(f"\nlive emScon fuzz: {n[0]} streams in {time.monotonic() - t0:.1f} s, {resynced[0]} reconnects, "
+          f"first probe: {codes}")
+    assert resynced[0] > 20
+    assert not [r for r in caplog.records if r.name == "daemon.runner" and r.levelname == "ERROR"]
+
+
+# ---------------------------------------------------------------------------- robot lines
+
+REPLY_KINDS, EVENT_KINDS = rp.REPLIES, rp.EVENTS
+field_text = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters="$*,"), max_size=12)
+upper_word = st.text(st.characters(min_codepoint=ord("A"), max_codepoint=ord("Z")), min_size=1, max_size=8)
+finite = st.floats(-1e6, 1e6).map(rp.num)
+
+
+def frame(body: str, bad_checksum: int = 0) -> bytes:
+    cs = int(rp.checksum(body), 16) ^ bad_checksum
+    return f"${body}*{cs:02X}\r\n".encode()
+
+
+@st.composite
+def robot_line(draw: st.DrawFn) -> tuple[bytes, str | None]:
+    """One line and the driver counter it must land in (None: ignored blank line)."""
+    how = draw(st.sampled_from(["noise", "checksum", "syntax", "badseq", "stale", "unknown", "event", "badevent",
+                                "overlong", "blank"]))
+    fields = draw(st.lists(field_text, max_size=5))
+    seq = str(draw(st.integers(5000, rp.SEQ_MAX)))  # the driver's own seqs stay far below
+    if how == "noise":
+        return b"\x01" + draw(st.binary(max_size=120)).replace(b"\n", b"?") + b"\n", "garbage"
+    if how == "checksum":
+        return frame(",".join([draw(upper_word), *fields]), draw(st.integers(1, 255))), "bad_checksum"
+    if how == "syntax":
+        kind = draw(st.one_of(st.just(""), st.text("abcxyz0123456789", min_size=1, max_size=6), upper_word.map(str.lower)))
+        return frame(",".join([kind, *fields])), "syntax"
+    if how == "badseq":
+        bad = draw(st.sampled_from(["0", "10000", "-1", "x", "1.5", " 7"]))
+        return frame(",".join([draw(st.sampled_from(REPLY_KINDS + EVENT_KINDS)), bad, *fields])), "syntax"
+    if how == "stale":
+        return frame(",".join([draw(st.sampled_from(REPLY_KINDS)), seq, *fields])), "stale"
+    if how == "unknown":
+        kind = draw(upper_word.filter(lambda k: k not in REPLY_KINDS + EVENT_KINDS))
+        return frame(",".join([kind, *fields])), "unexpected"
+    if how == "event":
+        if draw(st.booleans()):
+            body = ",".join(["DONE", seq, draw(field_text), draw(finite), draw(finite), draw(finite), *fields])
+        else:
+            body = ",".join(["FAULT", draw(st.sampled_from([seq, ""])), draw(field_text), *fields])
+        return frame(body), "events"
+    if how == "badevent":
+        nums = [draw(st.one_of(finite, st.sampled_from(["", "x", "nan", "inf", "1e999"]))) for _ in range(3)]
+        nums[draw(st.integers(0, 2))] = draw(st.sampled_from(["x", "nan", "inf", "1e999", ""]))
+        return frame(",".join(["DONE", seq, "OK", *nums[:draw(st.integers(0, 3))]])), "syntax"
+    if how == "overlong":
+        return b"$" + b"A" * draw(st.integers(rp.MAX_LINE, 3 * rp.MAX_LINE)) + b"\n", "overlong"
+    return draw(st.sampled_from([b"\n", b"\r\n", b"   \r\n"])), None
+
+
+COUNTED = ("garbage", "bad_checksum", "syntax", "stale", "unexpected", "events", "overflows")
+
+
+def write_all(fd: int, data: bytes) -> None:
+    while data:
+        select.select([], [fd], [], 2.0)
+        try:
+            data = data[os.write(fd, data):]
+        except BlockingIOError:
+            continue
+
+
+def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int], after: dict[str, int]) -> None:
+    want = {k: sum(1 for _, c in lines if c == k) for k in COUNTED}
+    got = {k: after[k] - before[k] for k in COUNTED}
+    overlong = sum(1 for _, c in lines if c == "overlong")
+    # an over-long line is dropped as garbage or as an overflow, depending on how the reads fell
+    assert got["garbage"] + got["overflows"] == want["garbage"] + overlong
+    assert got["overflows"] <= overlong
+    assert {k: got[k] for k in COUNTED[1:6]} == {k: want[k] for k in COUNTED[1:6]}
+
+
+def test_robot_lines_into_the_driver() -> None:
+    events: list[dict[str, Any]] = []
+    robot = SimRobot(DeviceURL.parse("sim:?state_hz=0&timeout=0.3"), world=World(),
+                     emit=lambda t, p: events.append(p) if t == "robot.event" else None)
+    robot.open()
+    n = [0]
+    t0 = time.monotonic()
+    try:
+        @settings(max_examples=420, **FUZZ)
+        @given(lines=st.lists(robot_line(), min_size=24, max_size=24))
+        def run(lines: list[tuple[bytes, str | None]]) -> None:
+            before, n_events = dict(robot.counters), len(events)
+            write_all(robot.server.master, b"".join(line for line, _ in lines))
+            assert robot.status().state == "IDLE"  # the reply comes after every injected line
+            expect_counts(lines, before, robot.counters)
+            assert len(events) - n_events == robot.counters["events"] - before["events"]
+            n[0] += len(lines)
+
+        run()
+    finally:
+        robot.shutdown()
+    print(f"\nrobot line fuzz: {n[0]} lines in {time.monotonic() - t0:.1f} s; counters {robot.counters}")
+    assert n[0] >= 10_000
+
+
+def test_robot_lines_under_a_daemon(emscon_daemon: tuple[Daemon, InjectingProxy]) -> None:
+    d, _ = emscon_daemon
+    runner = d.runners["robot"]
+    _wait(lambda: runner.state.value == "READY", 30, "robot READY")
+    robot = runner.device
+    n = [0]
+    with Client(d.server.endpoints[0], timeout=10) as c:
+        @settings(max_examples=40, **FUZZ)
+        @given(lines=st.lists(robot_line(), min_size=24, max_size=24))
+        def run(lines: list[tuple[bytes, str | None]]) -> None:
+            before = dict(robot.counters)
+            write_all(robot.server.master, b"".join(line for line, _ in lines))
+            assert c.call("robot.status")["state"] == "IDLE"
+            expect_counts(lines, before, robot.counters)
+            assert c.call("status")["devices"]["robot"]["state"] in ("READY", "BUSY")
+            n[0] += len(lines)
+
+        run()
+    assert n[0] == 960 and runner.reconnects == 0
