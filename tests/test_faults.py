@@ -1,0 +1,188 @@
+"""Fault injection on a running daemon: devices lost mid-work come back by themselves.
+
+Each test runs an in-process ``Daemon`` on the simulated world, breaks one device
+the way the field breaks it (the tracker's server dies during a measurement, the
+camera link drops, the robot's serial port vanishes) and checks that the command in
+flight gets a clear error, that the runner reconnects on its own (visible in
+``daemon.state`` telemetry and ``daemon.health``) and that the device works again.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Callable, Iterator
+
+import pytest
+
+from daemon import config
+from daemon.client import Client, Subscriber
+from daemon.demo import lock_on_robot
+from daemon.main import Daemon
+from daemon.notify import Notifier
+from daemon.protocol import CommandError
+from drivers.emscon.enums import ES_Command
+
+SMALL_CAMERA = "sim:?size=64x48&noise=0"
+
+
+def wait_for(pred: Callable[[], Any], timeout: float, what: str) -> Any:
+    end = time.monotonic() + timeout
+    while True:
+        value = pred()
+        if value:
+            return value
+        assert time.monotonic() < end, f"timed out after {timeout} s waiting for {what}"
+        time.sleep(0.02)
+
+
+def all_ready(c: Client) -> dict[str, Any] | None:
+    h = c.call("status")
+    return h if all(v["state"] == "READY" for v in h["devices"].values()) else None
+
+
+@pytest.fixture
+def make_daemon(tmp_path) -> Iterator[Callable[..., tuple[Daemon, Client]]]:
+    """Start a sim daemon with some device URLs replaced; stopped (and fakes shut down) after the test."""
+    made: list[tuple[Daemon, Client]] = []
+
+    def make(**devices: str) -> tuple[Daemon, Client]:
+        cfg = config.sim_config(tmp_path / f"rt{len(made)}")
+        cfg.daemon.start_worker = False
+        cfg.devices.camera = SMALL_CAMERA
+        for kind, url in devices.items():
+            setattr(cfg.devices, kind, url)
+        d = Daemon(cfg)
+        d.start()
+        c = Client(d.server.endpoints[0], timeout=10)
+        made.append((d, c))
+        wait_for(lambda: all_ready(c), 30, "devices READY")
+        return d, c
+
+    yield make
+    for d, c in made:
+        c.close()
+        d.stop_event.set()
+        d.stop()
+        for r in d.runners.values():
+            if hasattr(r.device, "shutdown"):
+                r.device.shutdown()
+
+
+def states(sub: Subscriber, device: str, until: str, timeout: float, since_loss: bool = True) -> list[dict[str, Any]]:
+    """``daemon.state`` messages of ``device`` from the loss (DISCONNECTED) to the first ``until`` after it.
+
+    With ``since_loss`` false the messages are collected from now on.
+    """
+    seen: list[dict[str, Any]] = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        msg = sub.recv(0.2)
+        if msg is None or msg[0] != "daemon.state" or msg[1]["data"]["device"] != device:
+            continue
+        data = msg[1]["data"]
+        if seen or data["state"] == "DISCONNECTED" or not since_loss:
+            seen.append(data)
+        if seen and data["state"] == until:
+            return seen
+    raise AssertionError(f"{device} never reached {until} after a loss within {timeout} s; saw {seen}")
+
+
+def test_tracker_server_killed_mid_measurement(make_daemon) -> None:
+    # a 20 s measurement at the fake's time scale 0.05 lasts 1 s: long enough to kill the server under it
+    d, c = make_daemon(tracker="sim:?meas_time_ms=20000")
+    first = lock_on_robot(c)
+    fake = d.runners["tracker"].device.server
+    sub = c.subscriber(["daemon.state"])
+    seen_before = len(fake.server.commands_seen)
+    out: dict[str, Any] = {}
+
+    def measure() -> None:
+        with Client(d.server.endpoints[0], timeout=30) as c2:  # its own client: one per thread
+            try:
+                out["result"] = c2.call("tracker.measure")
+            except CommandError as exc:
+                out["error"] = exc
+
+    t = threading.Thread(target=measure)
+    t.start()
+    wait_for(lambda: ES_Command.StartMeasurement in fake.server.commands_seen[seen_before:], 10,
+             "StartMeasurement at the server")
+    time.sleep(0.2)  # in flight: the fake answers only after 1 s
+    t_kill = time.monotonic()
+    fake.stop()
+    t.join(10)
+    assert "result" not in out, "the measurement cannot succeed when the server died under it"
+    assert out["error"].code == "device_lost"
+    assert "tracker" in str(out["error"]) and "lost" in str(out["error"])
+    assert time.monotonic() - t_kill < 5  # the error came promptly, not after the 30 s timeout
+    down = states(sub, "tracker", "FAULT", 10)  # reconnecting against a dead server fails
+    assert [s["state"] for s in down] == ["DISCONNECTED", "CONNECTING", "FAULT"]
+    assert down[0]["reconnects"] == 1 and "EOF" in down[0]["reason"]
+    assert "refused" in down[-1]["reason"].lower() or "unreachable" in down[-1]["reason"]
+    with pytest.raises(CommandError) as not_ready:
+        c.call("tracker.measure")
+    assert not_ready.value.code == "not_ready"
+    fake.start()  # same port, like the controller coming back
+    up = states(sub, "tracker", "READY", 40, since_loss=False)
+    assert up[-1]["reconnects"] == 1
+    h = c.call("status")["devices"]["tracker"]
+    assert (h["state"], h["reconnects"], h["opens"]) == ("READY", 1, 2)
+    second = lock_on_robot(c)  # the operator re-locks onto the reflector; then it measures again
+    assert [round(second[k] - first[k], 1) for k in "xyz"] == [0.0, 0.0, 0.0]
+    sub.close()
+
+
+def test_camera_lost_and_back(make_daemon) -> None:
+    d, c = make_daemon(camera=SMALL_CAMERA + "&disconnect_after=2")
+    notify = Notifier("")  # a no-op notifier: supervise only for its daemon.health messages
+    sup = threading.Thread(target=d.supervise, args=(notify,), daemon=True)
+    sup.start()
+    sub = c.subscriber(["daemon.state", "daemon.health"])
+    before = c.call("camera.status")
+    frames = [c.call("camera.capture", save=False)["header"]["frame_id"] for _ in range(2)]
+    with pytest.raises(CommandError) as lost:
+        c.call("camera.capture", save=False)
+    assert lost.value.code == "device_lost" and "disconnect_after=2" in str(lost.value)
+    seen = states(sub, "camera", "READY", 10)
+    assert [s["state"] for s in seen] == ["DISCONNECTED", "CONNECTING", "READY"]
+    assert seen[-1]["reconnects"] == 1
+    assert "link lost" in seen[0]["reason"]
+    frame = c.call("camera.capture", save=False)["header"]
+    assert frame["frame_id"] > frames[-1]
+    st = c.call("camera.status")
+    assert (before["opens"], before["applies"]) == (1, 1)
+    assert (st["opens"], st["applies"], st["disconnects"]) == (2, 2, 1)  # settings re-applied on reopen
+    assert st["applied"] == before["applied"]
+
+    def health_shows_reconnect() -> dict[str, Any] | None:
+        msg = sub.recv(0.5)
+        if msg and msg[0] == "daemon.health" and msg[1]["data"]["devices"]["camera"]["reconnects"] == 1:
+            return msg[1]["data"]
+        return None
+
+    h = wait_for(health_shows_reconnect, 5, "daemon.health with the camera reconnect")
+    assert h["devices"]["camera"]["opens"] == 2 and h["devices"]["camera"]["state"] == "READY"
+    assert h["devices"]["tracker"]["reconnects"] == 0 and h["devices"]["robot"]["reconnects"] == 0
+    assert h["alive"] is True
+    d.stop_event.set()
+    sup.join(5)
+    sub.close()
+
+
+def test_serial_port_closed(make_daemon) -> None:
+    d, c = make_daemon()
+    runner = d.runners["robot"]
+    sub = c.subscriber(["daemon.state"])
+    before = c.call("robot.status")
+    old_server = runner.device.server
+    runner.device.drop_port()
+    seen = states(sub, "robot", "READY", 15)
+    assert seen[0]["state"] == "DISCONNECTED" and "robot port" in seen[0]["reason"]
+    assert [s["state"] for s in seen][-2:] == ["CONNECTING", "READY"]
+    assert seen[-1]["reconnects"] == 1
+    assert not old_server.alive and runner.device.server is not old_server  # a new port was opened
+    after = c.call("robot.status")
+    assert after["state"] == "IDLE" and after["battery_v"] == pytest.approx(before["battery_v"])
+    h = c.call("status")["devices"]["robot"]
+    assert (h["state"], h["reconnects"], h["opens"]) == ("READY", 1, 2)
+    sub.close()
