@@ -80,6 +80,13 @@ def referencing_params(c: Client, tmp: Path) -> dict:
             "robot_approx_trk": [p["x"], p["y"], p["z"]]}
 
 
+def ensure_calibrated(c: Client, tmp: Path) -> None:
+    """Tests that need an active calibration make one when run on their own."""
+    if c.call("calib.results")["active"] is None:
+        c.call("sim.place_robot_on_plate")
+        run_job(c, "referencing", referencing_params(c, tmp))
+
+
 def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     c, tmp = daemon
     truth = c.call("sim.truth")
@@ -113,6 +120,7 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
 
 def test_killed_worker_resumes_without_remeasuring(daemon):
     c, tmp = daemon
+    ensure_calibrated(c, tmp)
     truth = c.call("sim.truth")
     mark = truth["marks"][1]
     sub = c.subscriber(["calib."])
@@ -152,8 +160,7 @@ def test_killed_worker_resumes_without_remeasuring(daemon):
 def test_measure_mark_and_intrinsics(daemon):
     c, tmp = daemon
     truth = c.call("sim.truth")
-    if c.call("calib.results")["active"] is None:
-        run_job(c, "referencing", referencing_params(c, tmp))
+    ensure_calibrated(c, tmp)
     mark = truth["marks"][1]  # the cross
     r = run_job(c, "measure-mark", {"mark_xy": [mark["x_mm"] - 1.0, mark["y_mm"] + 1.0], "kind": mark["kind"]})
     x, y, _ = r["mark"]["abs_xyz"]
@@ -206,3 +213,40 @@ def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
     truth = c.call("sim.truth")
     err = rob_H_cam_error(np.array(result["rob_H_cam"]), np.array(truth["rob_H_cam"]))
     assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.015
+
+
+def test_cancel_then_resume(daemon):
+    """ritactl cancel stops a job between steps; posting the same job id resumes it."""
+    c, tmp = daemon
+    ensure_calibrated(c, tmp)
+    mark = c.call("sim.truth")["marks"][0]
+    sub = c.subscriber(["calib.result"])
+    time.sleep(0.2)
+    params = {"mark_xy": [mark["x_mm"], mark["y_mm"]], "directions": 3, "repetitions": 1}
+    job = c.call("calib.start", procedure="experiment", params=params)["job"]
+    root = Path(c.call("data.dir")["data_dir"]) / "procedures" / job
+    end = time.monotonic() + 120
+    while time.monotonic() < end:
+        if (root / "state.json").exists() and json.loads((root / "state.json").read_text())["done"]:
+            break
+        time.sleep(0.05)
+    c.call("calib.cancel", job=job)
+    results = []
+    try:
+        end = time.monotonic() + 120
+        while time.monotonic() < end and len(results) < 2:
+            msg = sub.recv(1.0)
+            if msg and msg[1]["data"].get("job") == job:
+                results.append(msg[1]["data"])
+                if len(results) == 1:
+                    assert results[0].get("failed") and results[0].get("cancelled"), results[0]
+                    state = json.loads((root / "state.json").read_text())
+                    assert state["status"] == "cancelled" and len(state["obs"]["stops"]) < 3
+                    c.call("calib.start", procedure="experiment", job=job, params=params)
+    finally:
+        sub.close()
+    assert len(results) == 2 and not results[1].get("failed"), results
+    state = json.loads((root / "state.json").read_text())
+    assert state["status"] == "done" and len(state["obs"]["stops"]) == 3
+    names = [e["name"] for e in json.loads((root / "dataset.json").read_text())["entries"]]
+    assert len(names) == len(set(names)) == 3
