@@ -1,0 +1,102 @@
+"""The systemd watchdog: pings flow from a healthy ritad and stop when an owner thread hangs.
+
+The first test runs ritad as a process with ``NOTIFY_SOCKET`` and ``WATCHDOG_USEC``
+(1 s, so a ping every 0.5 s) and counts the pings. The second drives
+``Daemon.supervise`` in-process with a notifier on a temporary socket, hangs the
+camera's owner thread inside a job far beyond its time limit, and checks that the
+pings stop, ``daemon.health.alive`` turns false, and both recover once the job ends.
+"""
+from __future__ import annotations
+
+import logging
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon import config
+from daemon.client import Client
+from daemon.main import Daemon
+from daemon.notify import Notifier
+from tests.test_faults import SMALL_CAMERA, all_ready, wait_for
+from tests.test_faults_process import Ritad, write_config
+
+
+def count_pings(sock: socket.socket, duration: float) -> int:
+    n = 0
+    end = time.monotonic() + duration
+    while time.monotonic() < end:
+        try:
+            n += sock.recv(4096).count(b"WATCHDOG=1")
+        except socket.timeout:
+            pass
+    return n
+
+
+def test_watchdog_pings_from_a_ritad_process(tmp_path: Path) -> None:
+    cfg, endpoint = write_config(tmp_path, tmp_path / "data")
+    ritad = Ritad(tmp_path, cfg, watchdog_usec=1_000_000)
+    try:
+        ritad.wait_ready()
+        pings = count_pings(ritad.sock, 2.6)
+        assert 3 <= pings <= 7  # every 0.5 s: about 5 in 2.6 s
+        ritad.proc.send_signal(signal.SIGTERM)
+        assert ritad.proc.wait(10) == 0
+        assert any("STOPPING=1" in m for m in ritad.recv(0.3))
+    finally:
+        ritad.close()
+
+
+def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                            caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.setenv("WATCHDOG_USEC", "1000000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    sock.settimeout(0.05)
+    notifier = Notifier(str(path))
+    assert notifier.watchdog_interval == 0.5
+    cfg = config.sim_config(tmp_path / "rt")
+    cfg.daemon.start_worker = False
+    cfg.devices.camera = SMALL_CAMERA
+    d = Daemon(cfg)
+    d.start()
+    sup = threading.Thread(target=d.supervise, args=(notifier,), daemon=True)
+    sup.start()
+    release = threading.Event()
+    try:
+        with Client(d.server.endpoints[0], timeout=10) as c:
+            wait_for(lambda: all_ready(c), 30, "devices READY")
+            assert count_pings(sock, 1.6) >= 2
+            # the job may take 0.5 s; the runner counts as alive until 5 s past that
+            hang = d.job("camera", lambda cam: release.wait(60), timeout=0.5)
+            t_hang = time.monotonic()
+            wait_for(lambda: not d.alive(), 10, "the hung camera thread to be noticed")
+            noticed = time.monotonic() - t_hang
+            assert 5.0 <= noticed < 7.0
+            count_pings(sock, 0.2)  # drop a ping sent just before
+            with caplog.at_level(logging.ERROR, logger="ritad"):
+                assert count_pings(sock, 2.0) == 0  # four intervals without a single ping
+            assert "watchdog withheld" in caplog.text
+            h = c.call("status")
+            assert h["alive"] is False and h["devices"]["camera"]["state"] == "BUSY"
+            assert all(h["devices"][k]["state"] == "READY" for k in ("tracker", "robot"))
+            release.set()
+            assert hang.result(5) is True
+            wait_for(d.alive, 5, "alive again")
+            assert count_pings(sock, 1.6) >= 2  # the pings resume once the thread is back
+            assert c.call("status")["alive"] is True
+    finally:
+        release.set()
+        d.stop_event.set()
+        sup.join(5)
+        d.stop()
+        for r in d.runners.values():
+            if hasattr(r.device, "shutdown"):
+                r.device.shutdown()
+        sock.close()
+    print(f"\nhung owner thread noticed after {noticed:.2f} s (job limit 0.5 s + 5 s grace)")
