@@ -12,9 +12,7 @@ Run: ``.venv/bin/python bench/bench_calibration.py [--seeds N]``
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -27,6 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import machine  # noqa: E402
+
 from calibration.measure import measure_image, measure_mark  # noqa: E402
 from calibration.metrics import experiment_metrics  # noqa: E402
 from calibration.referencing import reference, rob_H_cam_error  # noqa: E402
@@ -36,19 +36,6 @@ from fakes.world import World, WorldParams  # noqa: E402
 
 FULL = (4024, 3036)
 SEED = 5
-
-
-def machine() -> str:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"CPU: {cpu}; cores: {os.cpu_count()}; Python {platform.python_version()}; "
-            f"numpy {np.__version__}; date {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC")
 
 
 def render_child(path: str) -> None:

@@ -9,33 +9,18 @@ import argparse
 import glob
 import logging
 import os
-import platform
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import machine  # noqa: E402
+
 from drivers.base import CameraSettings, DeviceURL, Frame  # noqa: E402
 from fakes.camera import SimCamera, renderer_for  # noqa: E402
 from fakes.world import World  # noqa: E402
-
-
-def machine() -> list[str]:
-    """CPU model, cores, Python and date, as printed under every benchmark."""
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return [f"- CPU: {cpu}", f"- cores: {os.cpu_count()}",
-            f"- Python: {platform.python_version()} ({platform.machine()})",
-            f"- date: {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}"]
 
 
 def timed(fn: Callable[[], Any]) -> float:
@@ -127,7 +112,7 @@ def main() -> None:
     for name, value in rows:
         print(f"| {name} | {value} |")
     print()
-    print("\n".join(machine()))
+    print(f"- {machine()}")
 
 
 if __name__ == "__main__":

@@ -10,9 +10,6 @@ Run: ``.venv/bin/python bench/bench_tracker.py [--seconds 3]``
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
-import platform
 import subprocess
 import sys
 import time
@@ -23,24 +20,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.common import machine  # noqa: E402
+
 from drivers.base import DeviceURL  # noqa: E402
 from drivers.emscon.adapter import EmsconTracker  # noqa: E402
 from drivers.emscon.codec import MEAS_VALUE, TO_CLIENT, encode_result  # noqa: E402
 from drivers.emscon.framer import Framer  # noqa: E402
 from fakes.world import World  # noqa: E402
-
-
-def machine() -> str:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"CPU: {cpu}; cores: {os.cpu_count()}; Python {platform.python_version()}; "
-            f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}")
 
 
 def bench_codec(batch: int, seconds: float) -> tuple[float, float]:
