@@ -30,6 +30,7 @@ from bench.bench_frames import FrameStats, cpu_seconds, vm_kib  # noqa: E402
 from bench.bench_tracker_daemon import TelemetryStats, finish, lock_and_stream, spawn, wait_devices  # noqa: E402
 from bench.common import ROOT, machine, pct, start_ritad, stop_ritad  # noqa: E402
 from daemon.client import Client  # noqa: E402
+from daemon.protocol import CommandError  # noqa: E402
 
 CONFIG = """
 [daemon]
@@ -73,7 +74,7 @@ def operator_main(endpoint: str, period_s: float) -> None:
                 t = time.perf_counter()
                 try:
                     c.call(cmd)
-                except Exception:  # a timeout counts as an error, and the run goes on
+                except CommandError:  # a timeout or error reply counts, and the run goes on
                     errors += 1
                     continue
                 rts[cmd].append((time.perf_counter() - t) * 1e3)

@@ -93,7 +93,7 @@ class TelemetryStats:
         if d.get("device_time") is None:  # a stationary measurement (tracker.measure), not streamed
             return
         t1, t2 = d["device_time"]
-        for a, b in zip(t1, t2):
+        for a, b in zip(t1, t2, strict=True):
             us = a * 1_000_000 + b
             if self.dev_prev_us is not None:
                 step = round((us - self.dev_prev_us) / self.dt_us)
@@ -187,7 +187,7 @@ def lock_and_stream(c: Client, rate_hz: float = 1000.0) -> None:
 
 def run(tracker_url: str, seconds: float, camera_url: str = "sim:?size=40x30") -> dict[str, Any]:
     """One daemon, one tracker subscriber process, streaming at 1 kHz for ``seconds``."""
-    proc, ep, _, tmp = start_ritad(CONFIG.format(tracker=tracker_url, camera=camera_url))
+    proc, ep, _, _ = start_ritad(CONFIG.format(tracker=tracker_url, camera=camera_url))
     try:
         with Client(ep, timeout=10) as c:
             wait_devices(c, ("tracker",))
