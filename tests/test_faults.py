@@ -68,6 +68,21 @@ def make_daemon(tmp_path) -> Iterator[Callable[..., tuple[Daemon, Client]]]:
                 r.device.shutdown()
 
 
+def live_subscriber(c: Client, device: str) -> Subscriber:
+    """A telemetry subscriber proven live: it has seen the BUSY of a ``<device>.status`` job."""
+    sub = c.subscriber(["daemon.state", "daemon.health"])
+
+    def probe() -> bool:
+        c.call(f"{device}.status")
+        while (msg := sub.recv(0.1)) is not None:
+            if msg[0] == "daemon.state" and msg[1]["data"]["device"] == device:
+                return True
+        return False
+
+    wait_for(probe, 10, "the telemetry subscription")
+    return sub
+
+
 def states(sub: Subscriber, device: str, until: str, timeout: float, since_loss: bool = True) -> list[dict[str, Any]]:
     """``daemon.state`` messages of ``device`` from the loss (DISCONNECTED) to the first ``until`` after it.
 
@@ -92,7 +107,7 @@ def test_tracker_server_killed_mid_measurement(make_daemon) -> None:
     d, c = make_daemon(tracker="sim:?meas_time_ms=20000")
     first = lock_on_robot(c)
     fake = d.runners["tracker"].device.server
-    sub = c.subscriber(["daemon.state"])
+    sub = live_subscriber(c, "tracker")
     seen_before = len(fake.server.commands_seen)
     out: dict[str, Any] = {}
 
@@ -137,7 +152,7 @@ def test_camera_lost_and_back(make_daemon) -> None:
     notify = Notifier("")  # a no-op notifier: supervise only for its daemon.health messages
     sup = threading.Thread(target=d.supervise, args=(notify,), daemon=True)
     sup.start()
-    sub = c.subscriber(["daemon.state", "daemon.health"])
+    sub = live_subscriber(c, "camera")
     before = c.call("camera.status")
     frames = [c.call("camera.capture", save=False)["header"]["frame_id"] for _ in range(2)]
     with pytest.raises(CommandError) as lost:
@@ -172,7 +187,7 @@ def test_camera_lost_and_back(make_daemon) -> None:
 def test_serial_port_closed(make_daemon) -> None:
     d, c = make_daemon()
     runner = d.runners["robot"]
-    sub = c.subscriber(["daemon.state"])
+    sub = live_subscriber(c, "robot")
     before = c.call("robot.status")
     old_server = runner.device.server
     runner.device.drop_port()

@@ -45,7 +45,8 @@ scalars = st.one_of(st.none(), st.booleans(), st.integers(-(1 << 63), (1 << 64) 
 values = st.recursive(scalars, lambda inner: st.one_of(
     st.lists(inner, max_size=3),
     st.dictionaries(st.one_of(st.text(max_size=6), st.integers(-3, 3)), inner, max_size=3)), max_leaves=6)
-numbers = st.one_of(st.floats(-100, 100), st.floats(-1e4, 1e4), st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True),
+numbers = st.one_of(st.floats(-100, 100), st.floats(-1e4, 1e4), st.integers(-10**6, 10**6),
+                    st.floats(allow_nan=True, allow_infinity=True),
                     st.sampled_from([0, 0.0, -0.0, 1e308, -1e308, 5e-324, 10001.0]))
 texts = st.one_of(st.text(max_size=30), st.text(string.ascii_letters, min_size=250, max_size=300),
                   st.sampled_from(["", ".", "..", "/", "a/b", "x" * 300]))
