@@ -10,7 +10,6 @@ import json
 import logging
 import signal
 import sys
-import threading
 import traceback
 from pathlib import Path
 from typing import Any
@@ -80,8 +79,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+
+    def on_term(*_: object) -> None:
+        # leave at once, even from inside a long poll or a job: every completed step is
+        # checkpointed, and a job left "running" is resumed by the next worker
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, on_term)
     client = Client(args.endpoint, timeout=30)
     try:
         data_dir = Path(args.data_dir or client.call("data.dir")["data_dir"])
@@ -94,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.once:
             return 0
     log.info("waiting for jobs from %s", client.endpoint)
-    while not stop.is_set():
+    while True:
         try:
             job = client.call("calib.next", timeout=20, timeout_s=10)
         except ClientTimeout:
@@ -103,7 +107,6 @@ def main(argv: list[str] | None = None) -> int:
             run_job(client, job, data_dir)
             if args.once:
                 return 0
-    return 0
 
 
 if __name__ == "__main__":
