@@ -114,7 +114,7 @@ class Daemon:
 
     def _worker_cmd(self) -> list[str]:
         ep = next((e for e in self.server.endpoints if e.startswith("ipc://")), self.server.endpoints[0])
-        return [sys.executable, "-m", "calibration.worker", "--endpoint", ep,
+        return [sys.executable, "-m", "calibration.worker", "--endpoint", ep, "--parent-pid", str(os.getpid()),
                 "--data-dir", str(Path(self.config.daemon.data_dir).resolve())]
 
     def tend_worker(self) -> None:

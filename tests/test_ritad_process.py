@@ -49,8 +49,12 @@ def ritad(tmp_path):
         yield proc, f"ipc://{rt}/cmd", sock, messages, tmp_path
     finally:
         if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+            proc.send_signal(signal.SIGTERM)  # lets ritad stop its worker too
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
         sock.close()
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import traceback
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--endpoint", help="ritad command endpoint (default $RITA_ENDPOINT)")
     ap.add_argument("--data-dir", help="where datasets and results go (default: the daemon's data_dir)")
     ap.add_argument("--once", action="store_true", help="exit after one job (tests)")
+    ap.add_argument("--parent-pid", type=int, help="exit when this process (ritad) is gone")
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -99,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
             return 0
     log.info("waiting for jobs from %s", client.endpoint)
     while True:
+        if args.parent_pid and os.getppid() != args.parent_pid:
+            log.info("ritad (pid %d) is gone: exiting", args.parent_pid)
+            return 0
         try:
             job = client.call("calib.next", timeout=20, timeout_s=10)
         except ClientTimeout:
