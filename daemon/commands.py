@@ -228,6 +228,8 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         if d.world is None:
             raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: this daemon runs no simulated world")
         heading = need(req, "heading_deg", float, d.world.plate_yaw_deg + 60.0)
+        if abs(heading) > 360.0:
+            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: heading_deg={heading} must be within ±360")
         pose = d.world.pose_with_target_in_view(heading)
         d.world.set_robot(pose)
         return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
