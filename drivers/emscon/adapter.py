@@ -29,6 +29,7 @@ from drivers.emscon.enums import (
 
 DEFAULT_PORT = 700
 MAX_RATE_HZ = 1000.0
+MIN_RATE_HZ = 0.001  # one point per 1000 s: the time separation (ms) must fit an int32
 _MEAS_STATUS = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
                 ES_SystemStatusChange.MeasStatus_Busy: "Busy",
                 ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
@@ -205,8 +206,8 @@ class EmsconTracker(Tracker):
         self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
 
     def start_stream(self, rate_hz: float) -> None:
-        if not (0 < rate_hz <= MAX_RATE_HZ):
-            raise ValueError(f"start_stream: rate_hz={rate_hz!r} outside (0, {MAX_RATE_HZ:g}]")
+        if not (MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+            raise ValueError(f"start_stream: rate_hz={rate_hz!r} outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}]")
         c = self._conn()
         if self._streaming:
             self.stop_stream()
