@@ -30,6 +30,7 @@ from drivers.emscon.enums import (
 DEFAULT_PORT = 700
 MAX_RATE_HZ = 1000.0
 MIN_RATE_HZ = 0.001  # one point per 1000 s: the time separation (ms) must fit an int32
+MAX_AIM_MM = 1e6  # 1 km, far beyond any tracker's range: larger is a typo, not a target
 _MEAS_STATUS = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
                 ES_SystemStatusChange.MeasStatus_Busy: "Busy",
                 ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
@@ -193,6 +194,8 @@ class EmsconTracker(Tracker):
         x, y, z = (float(v) for v in point_mm)
         if not all(math.isfinite(v) for v in (x, y, z)):
             raise ValueError(f"aim: point {point_mm!r} is not finite")
+        if max(abs(x), abs(y), abs(z)) > MAX_AIM_MM:
+            raise ValueError(f"aim: point {point_mm!r} is more than {MAX_AIM_MM:g} mm away")
         self._conn().request(ES_Command.GoPosition, val1=x, val2=y, val3=z, use_adm=int(self.use_adm))
         self._last_aim = (x, y, z)
 
