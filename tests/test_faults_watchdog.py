@@ -77,7 +77,7 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
             t_hang = time.monotonic()
             wait_for(lambda: not d.alive(), 10, "the hung camera thread to be noticed")
             noticed = time.monotonic() - t_hang
-            assert 5.0 <= noticed < 7.0
+            assert 5.0 <= noticed < 8.0  # 5.5 s plus polling and scheduling slack
             count_pings(sock, 0.2)  # drop a ping sent just before
             with caplog.at_level(logging.ERROR, logger="ritad"):
                 assert count_pings(sock, 2.0) == 0  # four intervals without a single ping
