@@ -69,8 +69,11 @@ def _json_default(o: Any) -> Any:
 
 
 def safe_name(text: str, limit: int = 100) -> str:
-    """A file-name-safe version of ``text``, cut to ``limit`` characters (file names have a size limit)."""
-    return _SAFE.sub("-", text).strip("-")[:limit].rstrip("-") or "x"
+    """A file-name-safe version of ``text``, cut to ``limit`` characters (file names have a size limit).
+
+    Leading and trailing dots go too, so "." and ".." never name a folder (no climbing out).
+    """
+    return _SAFE.sub("-", text).strip("-.")[:limit].rstrip("-.") or "x"
 
 
 def encode_image(pixels: Any, fmt: str = ".png") -> bytes:

@@ -18,6 +18,7 @@ import math
 import re
 import string
 import time
+from pathlib import Path
 from typing import Any, Iterator
 
 import msgpack
@@ -29,6 +30,7 @@ from hypothesis import strategies as st
 from daemon import config
 from daemon.calib_jobs import PROCEDURES, REPORT_KINDS
 from daemon.client import Client
+from daemon.demo import lock_on_robot
 from daemon.main import Daemon
 from daemon.protocol import ErrorCode, pack, unpack
 
@@ -316,6 +318,11 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     assert h["alive"] is True
     assert h["commands"]["requests"] >= sent[0]
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
+    # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
+    data = Path(daemon.config.daemon.data_dir)
+    assert sorted(p.name for p in data.iterdir()) == ["datasets"]
+    folders = list((data / "datasets").iterdir())
+    assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
 
 def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> None:
@@ -326,3 +333,26 @@ def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> Non
                                                       ErrorCode.BAD_REQUEST]
     assert str(limit) in replies[0]["error"]["message"]
     assert exchange(dealer, [pack({"v": 1, "id": 7, "cmd": "ping"})])[0]["result"]["pong"] is True
+
+
+def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
+    """Random labels and dataset names on captures that succeed: files land under datasets/ only."""
+    data = Path(daemon.config.daemon.data_dir)
+    with Client(daemon.server.endpoints[0], timeout=30) as c:
+        wait_ready(c)
+        lock_on_robot(c)
+        saved: list[Path] = []
+
+        @settings(max_examples=120, derandomize=True, deadline=None, database=None,
+                  suppress_health_check=list(HealthCheck))
+        @given(label=texts, dataset=st.none() | texts)
+        def run(label: str, dataset: str | None) -> None:
+            r = c.call("capture", label=label, dataset=dataset)
+            path = Path(r["path"]).resolve()
+            assert path.parent.parent == (data / "datasets").resolve(), path
+            assert path.is_file() and len(path.name) < 255
+            saved.append(path)
+
+        run()
+    assert len(saved) >= 100
+    assert sorted(p.name for p in data.iterdir()) == ["datasets"]
