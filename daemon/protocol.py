@@ -84,7 +84,7 @@ def parse_request(data: bytes | memoryview) -> dict[str, Any]:
     if not isinstance(msg, dict):
         raise ProtocolError(ErrorCode.BAD_REQUEST, f"request must be a msgpack map, got {type(msg).__name__}")
     v = msg.get("v", SCHEMA_VERSION)
-    if v != SCHEMA_VERSION:
+    if v != SCHEMA_VERSION or isinstance(v, bool):  # True == 1 in Python: not a version
         raise ProtocolError(ErrorCode.UNSUPPORTED_VERSION,
                             f"schema version {v!r} is not supported (this daemon speaks {SCHEMA_VERSION})")
     if not isinstance(msg.get("cmd"), str) or not msg["cmd"]:

@@ -210,4 +210,10 @@ class DeviceRunner(threading.Thread):
                 self._lost(exc)
         self._fail_queued("daemon stopping")
         self._close()
+        shutdown = getattr(self.device, "shutdown", None)  # simulated devices also stop their fake peer
+        if callable(shutdown):
+            try:
+                shutdown()
+            except Exception:
+                log.exception("%s: shutdown failed", self.kind)
         self._set_state(DeviceState.DISCONNECTED, "stopped")
