@@ -1,14 +1,17 @@
 """`make demo`: the main job on the simulated world, driven over the bus as an operator would.
 
-Starts ``ritad --sim`` as a child process, waits for it, shows the device states,
-locks the tracker onto the robot's reflector, takes a capture (image + tracker point
-+ robot state saved as a dataset entry), drives the robot, watches telemetry for a
-moment and stops the daemon with SIGTERM. Output goes to ``demo-out/``.
+Starts ``ritad --sim`` as a child process (it starts the calibration worker), waits
+for it, shows the device states, locks the tracker onto the robot's reflector, takes
+a capture (image + tracker point + robot state saved as a dataset entry), watches
+telemetry for a moment, then runs ``ritactl calibrate --reversal`` and ``ritactl
+experiment`` and prints their results next to the simulated ground truth, and stops
+the daemon with SIGTERM. Output goes to ``demo-out/`` (emptied first).
 """
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -137,7 +140,9 @@ def run_calibration(c: Client, out: Path, endpoint: str) -> int:
 
 def main() -> int:
     out = ROOT / "demo-out"
-    out.mkdir(exist_ok=True)
+    if out.exists():  # a fresh world each run: no half-finished jobs from an interrupted demo
+        shutil.rmtree(out)
+    out.mkdir()
     t0 = time.monotonic()
     say("starting ritad --sim (simulated camera, tracker and robot in one world)")
     proc, endpoint = start_daemon(out)
