@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from daemon.client import Client
-from daemon.protocol import CommandError
 
 
 def _load_json(path: str | None, what: str) -> Any:
@@ -240,4 +239,4 @@ def add_parsers(sub: Any) -> None:
     p.set_defaults(fn=cmd_recompute, offline=True)
 
 
-__all__ = ["add_parsers", "follow", "CommandError"]
+__all__ = ["add_parsers", "follow"]
