@@ -1,0 +1,28 @@
+"""ritactl exit codes: the one list, documented in docs/operations.md ("Exit codes").
+
+Scripts on the operator's laptop branch on these, so they never change meaning.
+A procedure verb (calibrate, experiment, measure-mark, intrinsics, recompute,
+follow) maps its verdict to OK / WARN / FAIL.
+"""
+from __future__ import annotations
+
+import enum
+
+
+class Exit(enum.IntEnum):
+    OK = 0            # done; a procedure's verdict is "ok"
+    WARN = 1          # a procedure finished with verdict "warn"
+    FAIL = 2          # verdict "fail", a failed/cancelled job, or a calibration error
+    NO_ANSWER = 3     # no reply: the daemon is down, unreachable, or refused this key
+    REFUSED = 4       # the daemon answered with an error (bad_args, device fault, forbidden, ...)
+    BAD_INPUT = 5     # a local file or dataset is missing or invalid (validate found problems)
+    USAGE = 64        # bad command line (sysexits EX_USAGE)
+    INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
+
+
+def for_verdict(verdict: str | None) -> Exit:
+    """OK / WARN / FAIL for a procedure verdict; anything unknown counts as FAIL."""
+    return {"ok": Exit.OK, "warn": Exit.WARN}.get(verdict or "", Exit.FAIL)
+
+
+__all__ = ["Exit", "for_verdict"]
