@@ -31,11 +31,12 @@ def ipc_paths(endpoints: list[str]) -> list[Path]:
 
 
 def lock_dirs(cfg: Config) -> list[Path]:
-    """Every directory holding one of the daemon's ipc endpoints, plus the data directory."""
+    """Every directory holding one of the daemon's ipc endpoints, then the data directory."""
     d = cfg.daemon
-    dirs = {p.parent.resolve() for p in ipc_paths(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)}
-    dirs.add(Path(d.data_dir).resolve())
-    return sorted(dirs)
+    dirs = sorted({p.parent.resolve() for p in ipc_paths(d.command_endpoints + d.telemetry_endpoints +
+                                                          d.frame_endpoints)})
+    data = Path(d.data_dir).resolve()
+    return dirs + ([data] if data not in dirs else [])
 
 
 def _holder(path: Path) -> str:
