@@ -24,18 +24,24 @@ from typing import Any, Callable
 
 import zmq
 
-from daemon import __version__, config as config_mod
-from daemon.calib_jobs import CalibJobs
-from daemon.commands import build_handlers, chain
-from daemon.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files
-from daemon.logs import setup_logging
-from daemon.notify import Notifier
-from daemon.protocol import SCHEMA_VERSION, CommandError, ErrorCode
-from daemon.publisher import FramePublisher, TelemetryPublisher
-from daemon.registry import open_device
-from daemon.runner import DeviceRunner
-from daemon.server import CommandServer
-from drivers.base import Device, Frame
+try:  # the base install is the laptop client; the daemon needs the robot's packages
+    import numpy  # noqa: F401
+except ModuleNotFoundError as _exc:
+    sys.exit(f"ritad: the robot's packages are not installed (no module {_exc.name!r}): "
+             f"pip install 'rita[robot]' (docs/operations.md, Install)")
+
+from daemon import __version__, config as config_mod  # noqa: E402
+from daemon.calib_jobs import CalibJobs  # noqa: E402
+from daemon.commands import build_handlers, chain  # noqa: E402
+from daemon.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
+from daemon.logs import setup_logging  # noqa: E402
+from daemon.notify import Notifier  # noqa: E402
+from daemon.protocol import SCHEMA_VERSION, CommandError, ErrorCode  # noqa: E402
+from daemon.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
+from daemon.registry import open_device  # noqa: E402
+from daemon.runner import DeviceRunner  # noqa: E402
+from daemon.server import CommandServer  # noqa: E402
+from drivers.base import Device, Frame  # noqa: E402
 
 log = logging.getLogger("ritad")
 KINDS = ("tracker", "robot", "camera")
