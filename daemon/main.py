@@ -1,10 +1,11 @@
 """ritad: the acquisition daemon (entry point and supervisor).
 
 Start-up order: load config → lock the runtime and data directories (one instance
-each) → (sim) build the world → bind the bus → start the device runners → READY=1. Devices connect in the background (their state is in
-``daemon.health``), so a missing tracker never blocks the bus. The main thread is
-the supervisor: it publishes health every second, pings the systemd watchdog only
-while every owner thread's heartbeat is fresh, and shuts down on SIGTERM/SIGINT.
+each) → (sim) build the world → bind the bus → start the device runners → READY=1.
+Devices connect in the background (their state is in ``daemon.health``), so a missing
+tracker never blocks the bus. The main thread is the supervisor: it publishes health
+every second, pings the systemd watchdog only while every owner thread is responsive
+(a device waiting to reconnect is), and shuts down on SIGTERM/SIGINT.
 """
 from __future__ import annotations
 
@@ -274,7 +275,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
     ap.add_argument("--data-dir", help="override daemon.data_dir")
     ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
-    ap.add_argument("--log-level", help="override daemon.log_level")
+    ap.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+                    help="override daemon.log_level")
     ap.add_argument("--version", action="version", version=f"ritad {__version__}")
     return ap.parse_args(argv)
 
@@ -298,8 +300,9 @@ def check_config(cfg: config_mod.Config) -> int:
     for kind in KINDS:
         print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
     print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
-    if _insecure_tcp(cfg):
-        print(f"  WARNING: insecure_tcp = true: {', '.join(_insecure_tcp(cfg))} accept clients without CURVE")
+    insecure = _insecure_tcp(cfg)
+    if insecure:
+        print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")
     return RitadExit.OK
 
 
