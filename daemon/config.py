@@ -49,7 +49,7 @@ class DaemonSection:
     reconnect_min_s: float = 0.5
     reconnect_max_s: float = 30.0
     #: a device owner thread whose heartbeat is older than this counts as hung (watchdog withheld);
-    #: runners beat at least every second, also while they wait in backoff
+    #: runners beat at least every 0.5 s, also while they wait in backoff
     heartbeat_timeout_s: float = 10.0
     #: time limit of one device open() (TCP connect + init); longer counts as a hung owner thread
     open_timeout_s: float = 120.0
@@ -210,6 +210,8 @@ def _validate(cfg: Config) -> None:
     for key, value in positive.items():
         if not value > 0:
             raise ConfigError(f"{src}: {key} must be > 0, got {value}")
+    if d.heartbeat_timeout_s < 1.0:  # runners beat every 0.5 s: less than two beats would be noise
+        raise ConfigError(f"{src}: daemon.heartbeat_timeout_s must be >= 1.0, got {d.heartbeat_timeout_s}")
     if d.reconnect_max_s < d.reconnect_min_s:
         raise ConfigError(f"{src}: daemon.reconnect_max_s ({d.reconnect_max_s}) must be >= "
                           f"daemon.reconnect_min_s ({d.reconnect_min_s})")

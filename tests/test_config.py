@@ -33,6 +33,8 @@ def test_sim_config(tmp_path):
     ("[devices]\ntracker = 'emscon://h:notaport'\n", "bad port"),
     ("[daemon]\ncommand_endpoints = ['http://x']\n", "daemon.command_endpoints"),
     ("[tracker]\nabs_H_trk = [[1.0]]\n", "tracker.abs_H_trk"),
+    ("[daemon]\nheartbeat_timeout_s = 0.3\n", "daemon.heartbeat_timeout_s must be >= 1.0"),
+    ("[daemon]\nopen_timeout_s = -1\n", "daemon.open_timeout_s must be > 0"),
     ("bogus = 1\n", "bogus"),
     ("[daemon\n", "not valid TOML"),
 ])
