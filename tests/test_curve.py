@@ -207,3 +207,28 @@ def test_missing_server_key_is_a_clear_error(tmp_path):
     r = subprocess.run([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
                        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "ritactl keys init --server" in r.stderr
+
+
+def test_key_selected_by_name_end_to_end(secured, tmp_path):
+    """`keys init --name bob` on the laptop, `keys allow` on the robot, key = "bob" in ritactl.toml."""
+    from daemon.ctl_keys import resolve_connection
+
+    laptop = tmp_path / "laptop"
+    ctl = [sys.executable, "-m", "daemon.ctl", "keys"]
+    r = subprocess.run([*ctl, "init", "--name", "bob", "--dir", str(laptop)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "--key bob" in r.stdout, r
+    (laptop / "server.key").write_bytes((secured["data"] / "keys" / "server.key").read_bytes())
+    (laptop / "ritactl.toml").write_text(f'endpoint = "{secured["tcp"]}"\nkey = "bob"\nkeys_dir = "{laptop}"\n')
+    conn = resolve_connection(config_path=laptop / "ritactl.toml")
+    with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:
+        with pytest.raises(ClientRefused, match=r"refused: key bob \("):  # not allowed yet
+            c.call("ping")
+    r = subprocess.run([*ctl, "allow", str(laptop / "bob.key"), "--dir", str(secured["data"] / "authorized_keys")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:
+        assert c.call("ping")["pong"] is True
+    # a name with no key file is an error naming the file, never a plaintext attempt
+    with pytest.raises(ValueError, match="carol.key_secret does not exist"):
+        resolve_connection(key="carol", config_path=laptop / "ritactl.toml")
