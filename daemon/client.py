@@ -45,6 +45,8 @@ class ClientRefused(ClientTimeout):
 
 #: handshake events that mean "refused" rather than "no daemon"
 _REFUSAL_EVENTS = zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+#: with CURVE also a dropped handshake: a server that cannot decrypt our HELLO (wrong server key) hangs up
+_CURVE_EVENTS = _REFUSAL_EVENTS | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
 
 
 def default_endpoint() -> str:
@@ -91,7 +93,7 @@ class Client:
                 s.curve_serverkey = self.curve["server"]
             if self.endpoint.startswith("tcp://"):  # ipc has no key to refuse
                 addr = f"inproc://client-monitor-{uuid.uuid4().hex}"
-                s.monitor(addr, _REFUSAL_EVENTS)
+                s.monitor(addr, _CURVE_EVENTS if self.curve else _REFUSAL_EVENTS)
                 self._monitor = self.ctx.socket(zmq.PAIR)
                 self._monitor.setsockopt(zmq.LINGER, 0)
                 self._monitor.connect(addr)
@@ -125,8 +127,8 @@ class Client:
                 return ClientRefused(f"refused: the daemon at {self.endpoint} requires CURVE keys and this client "
                                      f"has none (`ritactl keys init`, then --key NAME; docs/operations.md, Keys)")
             if self.curve:
-                return ClientRefused(f"refused: the CURVE handshake with {self.endpoint} failed (event "
-                                     f"{event['value']:#x}); is the server key the robot's current server.key?")
+                return ClientRefused(f"refused: the daemon at {self.endpoint} dropped the CURVE handshake (key "
+                                     f"{self.key_id}): is the server key the robot's current server.key?")
         return None
 
     def _no_answer(self, cmd: str, wait: float) -> ClientTimeout:

@@ -94,7 +94,7 @@ def test_plaintext_attempt_is_refused_and_logged(secured):
     # a remote client's greeting arrives after the accept: its address is logged
     host, port = secured["tcp"][len("tcp://"):].rsplit(":", 1)
     with socket.create_connection((host, int(port)), timeout=5) as raw:
-        time.sleep(0.3)  # network latency, as from a laptop
+        time.sleep(1.0)  # network latency, as from a laptop (and time for a busy daemon)
         raw.sendall(b"\xff" + bytes(8) + b"\x7f" + bytes([3, 0]) + b"NULL".ljust(20, b"\0") + bytes(32))
         raw.settimeout(5)
         try:
@@ -232,3 +232,14 @@ def test_key_selected_by_name_end_to_end(secured, tmp_path):
     # a name with no key file is an error naming the file, never a plaintext attempt
     with pytest.raises(ValueError, match="carol.key_secret does not exist"):
         resolve_connection(key="carol", config_path=laptop / "ritactl.toml")
+
+
+def test_wrong_server_key_is_named(secured):
+    import zmq
+
+    alice = {**curve(secured["keys"], "alice", secured["server"]), "server": zmq.curve_keypair()[0]}
+    with Client(secured["tcp"], timeout=5, curve=alice, key_id="alice") as c:
+        t0 = time.monotonic()
+        with pytest.raises(ClientRefused, match="dropped the CURVE handshake.*server.key"):
+            c.call("ping")
+        assert time.monotonic() - t0 < 1.5

@@ -39,8 +39,10 @@ def operator_message(exc: BaseException) -> str:
         return f"the calculation could not give a trustworthy result: {exc}"
     if isinstance(exc, (FileNotFoundError, PermissionError)):
         return f"a file is missing or unreadable: {exc}"
-    if isinstance(exc, (ValueError, KeyError, TimeoutError)):
-        return str(exc).strip("'\"") or "bad input"
+    if isinstance(exc, KeyError):
+        return f"{exc.args[0]!r} is missing from the parameters or the stored data"
+    if isinstance(exc, (ValueError, TimeoutError)):
+        return str(exc) or "bad input"
     # anything else is a bug in the worker: keep the class name, but not in front
     return f"internal error in the calibration worker, see worker.log ({type(exc).__name__}: {exc})"
 
@@ -56,8 +58,8 @@ def _compute(ctx: JobContext, before: dict[str, Any]) -> dict[str, Any]:
     try:
         return COMPUTE[ctx.procedure](ctx.obs, ctx.load_image)
     except Exception as exc:
-        ctx.state["failure"] = {"step": "compute", "obs": _digest(ctx.obs), "message": operator_message(exc)}
-        if before.get("step") == "compute" and before.get("obs") == _digest(ctx.obs):
+        ctx.state["failure"] = {"step": ctx.step, "obs": _digest(ctx.obs), "message": operator_message(exc)}
+        if before.get("step") == ctx.step and before.get("obs") == _digest(ctx.obs):
             # resuming re-ran the calculation on exactly the data that failed before
             raise StepFailed("the calculation failed again on the same stored data (nothing was re-measured "
                              f"since the last attempt): {operator_message(exc)}. Start a new job after fixing "
@@ -101,7 +103,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                 if getattr(exc, "resumable", True) else f"The data is kept in {ctx.root}.")
         msg = f"{ctx.step}: {operator_message(exc)}. {hint}"
         log.error("job %s failed: %s", ctx.job_id, msg)
-        if not isinstance(exc, (CommandError, ValueError, TimeoutError, OSError, CalibrationError)):
+        if not isinstance(exc, (CommandError, ValueError, TimeoutError, OSError, CalibrationError, StepFailed)):
             log.error("%s", traceback.format_exc())
         ctx.report("error", {"message": msg, "step": ctx.step})
         return None
