@@ -179,15 +179,20 @@ def _peer_of(fd: int) -> str:
 
 
 class HandshakeWatch(threading.Thread):
-    """Logs handshakes a CURVE socket refused before ZAP was asked: plaintext clients, broken CURVE.
+    """Logs connections a CURVE socket refused before ZAP was asked: plaintext clients, wrong keys.
 
-    libzmq reports such a failure (no file descriptor) right before the DISCONNECTED of
-    its connection (with the descriptor), so the peer recorded at ACCEPTED is found there.
+    Such a client either fails the ZMTP greeting (mechanism mismatch) or hangs up
+    before the handshake completes, depending on which side reads the other's greeting
+    first; libzmq may report nothing but the disconnect. So every accepted connection
+    is "handshaking" until a HANDSHAKE_SUCCEEDED; one that disconnects while still
+    handshaking was refused. Success events carry no descriptor: when two handshakes
+    overlap, both are dropped from watch (a refusal may then go unlogged). A failure
+    event is followed by its connection's DISCONNECTED (same I/O thread, in order).
+    ZAP refusals are logged by the key ring, which knows the key.
     """
 
-    # not HANDSHAKE_FAILED_NO_DETAIL: that is a peer hanging up mid-handshake, not a refusal
-    EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_DISCONNECTED \
-        | zmq.EVENT_MONITOR_STOPPED
+    EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL \
+        | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_DISCONNECTED | zmq.EVENT_MONITOR_STOPPED
 
     def __init__(self, ctx: zmq.Context, sock: zmq.Socket, refusals: RefusalLog) -> None:
         super().__init__(name="handshake-watch", daemon=True)
@@ -198,7 +203,7 @@ class HandshakeWatch(threading.Thread):
         self.mon.connect(addr)
         self.refusals = refusals
         self.stopping = threading.Event()
-        self._peers: dict[int, str] = {}
+        self._handshaking: dict[int, str] = {}  # fd -> peer address
         self._failed: str | None = None
 
     def run(self) -> None:
@@ -216,17 +221,23 @@ class HandshakeWatch(threading.Thread):
         if kind == zmq.EVENT_MONITOR_STOPPED:
             return False
         if kind == zmq.EVENT_ACCEPTED:
-            self._peers[value] = _peer_of(value)
+            self._handshaking[value] = _peer_of(value)
+        elif kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+            self._handshaking.clear()  # exactly one was pending in the normal case; else: ambiguous
+        elif kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+            self._failed = "zap"  # the key ring has logged it, with the key
         elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
-            self._failed = ("plaintext" if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
-                            else f"broken handshake ({value:#x})")
+            self._failed = "plaintext" if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH else f"{value:#x}"
         elif kind == zmq.EVENT_DISCONNECTED:
-            peer = self._peers.pop(value, UNKNOWN_PEER)
-            if self._failed is not None:
-                why = ("this endpoint requires CURVE keys" if self._failed == "plaintext"
-                       else "not a valid CURVE handshake (wrong server key?)")
-                self.refusals.refused(self._failed, peer, why)
-                self._failed = None
+            peer, failed = self._handshaking.pop(value, None), self._failed
+            self._failed = None
+            if failed == "plaintext":
+                self.refusals.refused("plaintext", peer or UNKNOWN_PEER, "this endpoint requires CURVE keys")
+            elif failed not in (None, "zap"):
+                self.refusals.refused("unauthenticated", peer or UNKNOWN_PEER, f"broken handshake ({failed})")
+            elif failed is None and peer is not None:
+                self.refusals.refused("unauthenticated", peer, "hung up before completing the CURVE handshake "
+                                                               "(no keys, or the wrong server key)")
         return True
 
 

@@ -44,9 +44,10 @@ class ClientRefused(ClientTimeout):
 
 
 #: handshake events that mean "refused" rather than "no daemon"
-_REFUSAL_EVENTS = zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
-#: with CURVE also a dropped handshake: a server that cannot decrypt our HELLO (wrong server key) hangs up
-_CURVE_EVENTS = _REFUSAL_EVENTS | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+#: and a dropped handshake: a CURVE server hangs up on a HELLO it cannot decrypt (wrong server key),
+#: and on a plaintext greeting when it reads ours before we read its
+_REFUSAL_EVENTS = zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL \
+    | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
 
 
 def default_endpoint() -> str:
@@ -93,7 +94,7 @@ class Client:
                 s.curve_serverkey = self.curve["server"]
             if self.endpoint.startswith("tcp://"):  # ipc has no key to refuse
                 addr = f"inproc://client-monitor-{uuid.uuid4().hex}"
-                s.monitor(addr, _CURVE_EVENTS if self.curve else _REFUSAL_EVENTS)
+                s.monitor(addr, _REFUSAL_EVENTS)
                 self._monitor = self.ctx.socket(zmq.PAIR)
                 self._monitor.setsockopt(zmq.LINGER, 0)
                 self._monitor.connect(addr)
@@ -120,13 +121,14 @@ class Client:
             if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
                 return ClientRefused(f"refused: key {self.key_id} is not allowed by the daemon at {self.endpoint} "
                                      f"(on the robot: `ritactl keys allow FILE.key --name NAME`)")
-            if event["value"] == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH:
-                if self.curve:
-                    return ClientRefused(f"refused: the daemon at {self.endpoint} does not use CURVE, but this "
-                                         f"client does (key {self.key_id})")
+            mismatch = event["value"] == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
+            if mismatch and self.curve:
+                return ClientRefused(f"refused: the daemon at {self.endpoint} does not use CURVE, but this "
+                                     f"client does (key {self.key_id})")
+            if not self.curve:  # a mismatch, or a CURVE server hanging up on our plaintext greeting
                 return ClientRefused(f"refused: the daemon at {self.endpoint} requires CURVE keys and this client "
                                      f"has none (`ritactl keys init`, then --key NAME; docs/operations.md, Keys)")
-            if self.curve:
+            if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
                 return ClientRefused(f"refused: the daemon at {self.endpoint} dropped the CURVE handshake (key "
                                      f"{self.key_id}): is the server key the robot's current server.key?")
         return None
