@@ -305,3 +305,4 @@ def test_intrinsics_off_the_plate_fails_its_view_and_resume_retakes_it(daemon):
     else:
         assert r["verdict"] == "ok" and not r["_prompts"] and after is not None and after != before
     assert len(r["messages"]) == len(set(r["messages"]))
+    assert json.loads((root / "result.json").read_text())["messages"] == r["messages"]  # the note is stored

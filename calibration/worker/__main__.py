@@ -20,7 +20,7 @@ from calibration.errors import CalibrationError
 from calibration.worker.compute import COMPUTE
 from calibration.worker.job import Cancelled, JobContext, StepFailed
 from calibration.worker.procedures import PROCEDURES
-from calibration.worker.store import install_camera_model, save_result
+from calibration.worker.store import add_message, install_camera_model, save_result
 from daemon.client import Client, ClientTimeout
 from daemon.protocol import CommandError
 
@@ -89,8 +89,8 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         result.update(job=ctx.job_id, messages=_dedupe(result.get("messages")),
                       params={k: v for k, v in ctx.params.items() if k not in ("plate", "camera_model", "calibration")})
         result = save_result(ctx.root, data_dir, result)
-        if ctx.procedure == "intrinsics":
-            result["messages"] = result["messages"] + [install_camera_model(ctx, result)]
+        if ctx.procedure == "intrinsics":  # the stored result says whether it was installed
+            result = add_message(ctx.root, data_dir, result, install_camera_model(ctx, result))
     except Cancelled as exc:
         ctx.finish("cancelled")
         ctx.report("error", {"message": str(exc), "cancelled": True})

@@ -65,6 +65,14 @@ def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str,
     return result
 
 
+def add_message(root: Path, data_dir: Path, result: dict[str, Any], message: str) -> dict[str, Any]:
+    """Append a message to a saved result (result.json and its history copy), atomically."""
+    result = {**result, "messages": [*(result.get("messages") or []), message]}
+    atomic_write_json(Path(root) / "result.json", result)
+    atomic_write_json(calibration_dir(data_dir) / "history" / f"{result['job']}.json", result)
+    return result
+
+
 def install_camera_model(ctx: Any, result: dict[str, Any], answer_within_s: float = 900.0) -> str:
     """Make an intrinsics result the robot's camera model: at once on ``ok``, after a yes on ``warn``.
 
