@@ -93,6 +93,8 @@ class RefusalLog:
                 entry[1] += 1
                 return
             repeats = int(entry[1]) if entry else 0
+            if len(self._seen) > 1000:  # many keys or addresses: forget the quiet ones, stay bounded
+                self._seen = {k: v for k, v in self._seen.items() if now - v[0] < self.window_s}
             self._seen[(who, host)] = [now, 0]
         more = f" ({repeats} more attempt(s) in the last {self.window_s:g} s)" if repeats else ""
         log.warning("refused %s client from %s: %s%s", who, peer, why, more)
