@@ -60,5 +60,40 @@ def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str,
     if result["procedure"] == "referencing" and result.get("verdict") != "fail":
         atomic_write_json(cdir / "active.json", result)
     if result["procedure"] == "intrinsics":
-        atomic_write_json(cdir / "camera_model.json", result["camera_model"])
+        # kept with the dataset; installed for later jobs only by install_camera_model
+        atomic_write_json(root / "camera_model.json", result["camera_model"])
     return result
+
+
+def add_message(root: Path, data_dir: Path, result: dict[str, Any], message: str) -> dict[str, Any]:
+    """Append a message to a saved result (result.json and its history copy), atomically."""
+    result = {**result, "messages": [*(result.get("messages") or []), message]}
+    atomic_write_json(Path(root) / "result.json", result)
+    atomic_write_json(calibration_dir(data_dir) / "history" / f"{result['job']}.json", result)
+    return result
+
+
+def install_camera_model(ctx: Any, result: dict[str, Any], answer_within_s: float = 900.0) -> str:
+    """Make an intrinsics result the robot's camera model: at once on ``ok``, after a yes on ``warn``.
+
+    Returns one line for the result's messages saying what happened and, when the
+    model was not installed, how to install it anyway.
+    """
+    src = Path(result["dataset"]) / "camera_model.json"
+    target = calibration_dir(ctx.data_dir) / "camera_model.json"
+    later = (f"to install it later: copy {src} to {target} on the robot, or pass it to a job with "
+             f"--camera-model FILE")
+    verdict = result.get("verdict")
+    if verdict == "warn":
+        findings = "; ".join(result.get("messages") or []) or "see the report"
+        try:
+            answer = ctx.ask(f"the camera model has verdict warn ({findings}). Install it as the robot's camera "
+                             f"model for later jobs?", ["install", "skip"], timeout_s=answer_within_s)
+        except TimeoutError:
+            answer = "no answer"
+        if answer != "install":
+            return f"camera model NOT installed (verdict warn, answer: {answer}); {later}"
+    elif verdict != "ok":
+        return f"camera model NOT installed (verdict {verdict}); {later}"
+    atomic_write_json(target, result["camera_model"])
+    return f"camera model installed as {target}"
