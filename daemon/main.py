@@ -81,7 +81,9 @@ class Daemon:
         self._motion_lock = threading.Lock()
         self._motion_waiters: list[Future] = []
         self.stop_event = threading.Event()
-        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data))
+        # data_dir lets calib.resume find jobs a previous ritad ran
+        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data),
+                               data_dir=Path(cfg.daemon.data_dir))
         self.worker: subprocess.Popen | None = None
         self._worker_next_start = 0.0
 
