@@ -268,9 +268,9 @@ class _Images:
             return
         w, h, ch, depth = info
         if isinstance(header, dict) and isinstance(header.get("shape"), list):
-            shape = header["shape"]
+            shape, dtype = header["shape"], header.get("dtype")
             want = [h, w] if ch == 1 else [h, w, ch]
-            if shape != want or _DEPTH.get(header.get("dtype"), depth) != depth:
+            if shape != want or (isinstance(dtype, str) and _DEPTH.get(dtype, depth) != depth):
                 self.problems.append(Problem(where, path, f"image {file} is {want} at {depth} bit but its header "
                                                           f"says shape {shape}, dtype {header.get('dtype')}"))
         if isinstance(size_wh, list) and len(size_wh) == 2 and size_wh != [w, h]:
@@ -299,13 +299,28 @@ def _plate_problems(plate: Any, file: str, parts: tuple[Any, ...]) -> list[Probl
     return []
 
 
+def _model_problems(model: Any, file: str, parts: tuple[Any, ...]) -> list[Problem]:
+    """What the camera model schema cannot say: fx, fy > 0 and a last row [0, 0, 1]."""
+    K = _matrix(model.get("K"), 3) if isinstance(model, dict) else None
+    if K is None:
+        return []
+    if K[0][0] <= 0 or K[1][1] <= 0 or K[2] != [0, 0, 1]:
+        return [Problem(file, _json_path((*parts, "K")), f"needs fx > 0, fy > 0 and a last row [0, 0, 1], got {K}")]
+    return []
+
+
 def _check_state(root: Path, state: Any, images: _Images, problems: list[Problem]) -> None:
     problems += check_schema(state, "state", "state.json") + check_values(state, "state.json")
     obs = state.get("obs") if isinstance(state, dict) else None
     if not isinstance(obs, dict):
         return
-    for key in ("plate",):
-        problems += _plate_problems(obs.get(key), "state.json", ("obs", key))
+    problems += _plate_problems(obs.get("plate"), "state.json", ("obs", "plate"))
+    for key in ("camera_model", "initial_model"):
+        problems += _model_problems(obs.get(key), "state.json", ("obs", key))
+    calib = obs.get("calibration")
+    scs = calib.get("scs") if isinstance(calib, dict) else None
+    if isinstance(scs, dict):
+        problems += _model_problems(scs.get("model"), "state.json", ("obs", "calibration", "scs", "model"))
     model = obs.get("camera_model") if state.get("procedure") == "referencing" else None
     size = model.get("size") if isinstance(model, dict) else None
     for parts, file, header in _obs_images(obs):
@@ -358,7 +373,9 @@ def validate_folder(root: Path | str) -> list[Problem]:
 def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     """Schema + value problems of one stand-alone document (``plate``, ``camera_model``, ``result``...)."""
     out = check_schema(doc, name, file) + check_values(doc, file)
-    return out + (_plate_problems(doc, file, ()) if name == "plate" else [])
+    if name == "plate":
+        out += _plate_problems(doc, file, ())
+    return out + (_model_problems(doc, file, ()) if name == "camera_model" else [])
 
 
 __all__ = ["DatasetInvalid", "Problem", "check_file", "check_schema", "check_values", "png_info", "schema_text",
