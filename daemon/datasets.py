@@ -254,7 +254,7 @@ class _Images:
         self.root, self.problems, self.info = root, problems, {}
 
     def check(self, file: str, where: str, path: str, header: Any = None,
-              size_wh: Any = None) -> None:
+              size_wh: Any = None, grey: bool = False) -> None:
         if not isinstance(file, str) or not _IMAGE_NAME.match(file):
             return  # the schema already reported the bad name
         if file not in self.info:
@@ -267,6 +267,9 @@ class _Images:
             self.problems.append(Problem(where, path, f"image {file}: {info}"))
             return
         w, h, ch, depth = info
+        if grey and (ch != 1 or depth not in (8, 16)):
+            self.problems.append(Problem(where, path, f"image {file} has {ch} channel(s) at {depth} bit; "
+                                                      f"procedure images are 8- or 16-bit greyscale"))
         if isinstance(header, dict) and isinstance(header.get("shape"), list):
             shape, dtype = header["shape"], header.get("dtype")
             want = [h, w] if ch == 1 else [h, w, ch]
@@ -321,10 +324,12 @@ def _check_state(root: Path, state: Any, images: _Images, problems: list[Problem
     scs = calib.get("scs") if isinstance(calib, dict) else None
     if isinstance(scs, dict):
         problems += _model_problems(scs.get("model"), "state.json", ("obs", "calibration", "scs", "model"))
-    model = obs.get("camera_model") if state.get("procedure") == "referencing" else None
+    # the images of a referencing are taken by obs.camera_model, those of a mark by the calibration's
+    model = obs.get("camera_model") if state.get("procedure") == "referencing" else \
+        (scs.get("model") if isinstance(scs, dict) else None)
     size = model.get("size") if isinstance(model, dict) else None
     for parts, file, header in _obs_images(obs):
-        images.check(file, "state.json", _json_path(parts), header, size)
+        images.check(file, "state.json", _json_path(parts), header, size, grey=True)
 
 
 def _check_manifest(root: Path, manifest: Any, images: _Images, problems: list[Problem]) -> None:

@@ -122,3 +122,59 @@ def write_referencing(root: Path, *, move_mm: float = 200.0, bits: int = 8) -> n
                                                    "entries": [{"name": "run0", "json": "run0.json",
                                                                 "image": "run0.png"}]}))
     return sc["rob_H_cam"]
+
+
+# --------------------------------------------------------------------------- experiment
+
+#: the reflector's height above the support plane in the scene (PCS z of P0 above the surface)
+REFLECTOR_HEIGHT = 300.0
+
+
+def render_dot(cam_H_abs: np.ndarray, mark_abs: np.ndarray, radius_mm: float, ppmm: float = 50.0,
+               supersample: int = 4, psf_px: float = 1.0) -> np.ndarray:
+    """8-bit image of a dark disc on a grey floor (the plane ACS z = mark z) seen by the camera K."""
+    half = 10.0
+    n = round(2 * half * ppmm)
+    yy, xx = (np.mgrid[0:n, 0:n] + 0.5) / ppmm - half
+    patch = np.where(np.hypot(xx, yy) <= radius_mm, 40, 200).astype(np.uint8)
+    # patch pixel -> floor (u, v) mm around the mark -> camera pixel -> supersampled pixel
+    S = np.array([[1 / ppmm, 0, 0.5 / ppmm - half], [0, 1 / ppmm, 0.5 / ppmm - half], [0, 0, 1]])
+    P = K @ np.column_stack([cam_H_abs[:3, 0], cam_H_abs[:3, 1], _apply(cam_H_abs, mark_abs)])
+    s = supersample
+    A = np.array([[s, 0, (s - 1) / 2], [0, s, (s - 1) / 2], [0, 0, 1]])
+    big = cv2.warpPerspective(patch, A @ P @ S, (SIZE[0] * s, SIZE[1] * s), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=200)
+    img = cv2.resize(big, SIZE, interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(img, (0, 0), psf_px) if psf_px > 0 else img
+
+
+def write_experiment(root: Path, calibration: dict[str, Any], rob_H_cam: np.ndarray, mark_abs: Any, *,
+                     headings=(0.0, 180.0), reps: int = 2, bits: int = 8, sigma_t_mm: float = 0.010) -> None:
+    """An experiment folder: the robot upright on a level floor (ACS z), stops around ``mark_abs``.
+
+    ``calibration`` is the referencing result.json the stops are measured with;
+    ``rob_H_cam`` is the writer's own truth, which makes the images.
+    """
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    M = np.asarray(mark_abs, float)
+    c, d = rob_H_cam[:3, 3], rob_H_cam[:3, 2]
+    foot = c + (-REFLECTOR_HEIGHT - c[2]) / d[2] * d  # optical axis on the support plane, robot frame
+    stops = []
+    for k, psi in enumerate(headings):
+        for r in range(reps):
+            R = _rot("z", psi + 0.3 * r)
+            P_at = np.array([*(M[:2] - (R @ foot)[:2] + [0.4 * r, -0.3 * r]), M[2] + REFLECTOR_HEIGHT])
+            P_prev = P_at - 200.0 * R[:, 0]
+            abs_H_cam = _H(R, P_at) @ rob_H_cam
+            img = render_dot(np.linalg.inv(abs_H_cam), M, 0.4)
+            if bits == 16:
+                img = img.astype(np.uint16) * 257
+            name = f"stop-{len(stops):03d}-k{k}-r{r}.png"
+            cv2.imwrite(str(root / name), img)
+            stops.append({"image": name, "k": k, "rep": r, "P_prev": point(P_prev), "P_at": point(P_at),
+                          "header": {"shape": [SIZE[1], SIZE[0]], "dtype": "|u1" if bits == 8 else "<u2"}})
+    state = {"schema": 1, "procedure": "experiment",
+             "obs": {"calibration": calibration, "kind": "dot", "mark_size_mm": 0.4, "sigma_t_mm": sigma_t_mm,
+                     "stops": stops}}
+    (root / "state.json").write_text(json.dumps(state, indent=1))

@@ -15,7 +15,7 @@ import pytest
 
 from daemon import ctl
 from daemon.datasets import check_file, png_info, validate_folder
-from tests.dataset_writer import ABS_H_TRK, write_referencing
+from tests.dataset_writer import ABS_H_TRK, write_experiment, write_referencing
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -183,3 +183,51 @@ def test_validate_json_output_and_missing_folder(tmp_path, capsys):
     (tmp_path / "caps").mkdir()
     assert ctl.main(["validate", str(tmp_path / "caps")]) == 5
     assert "dataset.json: $: missing file" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def calibration(written):
+    """The referencing result of the writer's folder: what an experiment is measured with."""
+    from calibration.worker.recompute import recompute
+
+    return recompute(written[0])[0]
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, calibration, tmp_path, bits):
+    mark = np.array([1500.0, 200.0, 3.0])
+    write_experiment(tmp_path / "exp", calibration, written[1], mark, bits=bits)
+    assert validate_folder(tmp_path / "exp") == []
+    assert ctl.main(["recompute", str(tmp_path / "exp"), "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    errors = [np.hypot(*(np.array(m["abs_xyz"][:2]) - mark[:2])) for m in result["marks"]]
+    assert len(errors) == 4 and max(errors) < 1e-3, errors
+    assert result["files"] == ["report.md", "report.csv", "clusters.png"]
+    assert (tmp_path / "out" / "report.md").read_text() == result["table_markdown"]
+    assert (tmp_path / "out" / "clusters.png").read_bytes().startswith(b"\x89PNG")
+    assert check_file(result, "result", "result.json") == []
+
+
+def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):
+    from calibration.worker.recompute import recompute
+
+    stds = []
+    for sigma in (0.005, 0.050):
+        write_experiment(tmp_path / f"s{sigma}", calibration, written[1], [1500.0, 200.0, 3.0], reps=1,
+                         sigma_t_mm=sigma)
+        stds.append(recompute(tmp_path / f"s{sigma}")[0]["marks"][0]["std_mm"])
+    # the tracker term (two points, ~1.7σ each in xy) dominates at 50 µm
+    assert stds[1] > stds[0] + 0.05, stds
+
+
+def test_recompute_an_experiment_with_another_calibration(written, calibration, tmp_path, capsys):
+    write_experiment(tmp_path / "exp", calibration, written[1], [1500.0, 200.0, 3.0], reps=1)
+    moved = json.loads(json.dumps(calibration))
+    moved["rob_H_scn"][0][3] += 0.5  # the camera 0.5 mm further forward
+    (tmp_path / "cal.json").write_text(json.dumps(moved))
+    assert ctl.main(["--json", "recompute", str(tmp_path / "exp"), "--calibration", str(tmp_path / "cal.json")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["recomputed_with"] == ["calibration"]
+    for m, psi in zip(res["marks"], (0.0, 180.0)):  # the bias turns with the robot
+        want = 1500.0 + 0.5 * np.cos(np.radians(psi))
+        assert abs(m["abs_xyz"][0] - want) < 1e-3, (m["abs_xyz"], want)
