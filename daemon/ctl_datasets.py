@@ -71,6 +71,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
     try:
         from calibration.errors import CalibrationError
+        from calibration.worker import recompute, store  # noqa: F401 - fail here, clearly, without OpenCV
     except ImportError as exc:
         _err(f"recompute needs the full install (numpy, OpenCV): {exc}")
         return Exit.BAD_INPUT

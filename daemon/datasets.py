@@ -100,8 +100,6 @@ def check_schema(doc: Any, name: str, file: str) -> list[Problem]:
         if err.validator == "required":
             key = str(err.message).split("'")[1] if "'" in str(err.message) else "?"
             out.append(Problem(file, _json_path([*parts, key]), "missing (required)"))
-        elif err.validator == "dependentRequired":
-            out.append(Problem(file, _json_path(parts), _short(err.message)))
         else:
             out.append(Problem(file, _json_path(parts), _short(err.message)))
     return sorted(set(out), key=lambda p: (p.path, p.message))
@@ -312,7 +310,7 @@ def _model_problems(model: Any, file: str, parts: tuple[Any, ...]) -> list[Probl
     return []
 
 
-def _check_state(root: Path, state: Any, images: _Images, problems: list[Problem]) -> None:
+def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     problems += check_schema(state, "state", "state.json") + check_values(state, "state.json")
     obs = state.get("obs") if isinstance(state, dict) else None
     if not isinstance(obs, dict):
@@ -368,7 +366,7 @@ def validate_folder(root: Path | str) -> list[Problem]:
     if is_procedure:
         state = _load_json(root, "state.json", problems)
         if state is not None:
-            _check_state(root, state, images, problems)
+            _check_state(state, images, problems)
         result = _load_json(root, "result.json", problems, required=False)
         if result is not None:
             problems += check_schema(result, "result", "result.json") + check_values(result, "result.json")

@@ -231,3 +231,24 @@ def test_recompute_an_experiment_with_another_calibration(written, calibration, 
     for m, psi in zip(res["marks"], (0.0, 180.0)):  # the bias turns with the robot
         want = 1500.0 + 0.5 * np.cos(np.radians(psi))
         assert abs(m["abs_xyz"][0] - want) < 1e-3, (m["abs_xyz"], want)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_captures_store_both_tracker_frames_and_validate(tmp_path, dtype):
+    from daemon.storage import save_capture
+    from drivers.base import Frame, RobotState, TrackerPoint
+
+    pixels = (np.arange(48 * 64).reshape(48, 64) % 251).astype(dtype)
+    parts = {"camera": Frame(pixels, 7, "SN1", "Mono8" if dtype == np.uint8 else "Mono12", 2000.0),
+             "tracker": TrackerPoint(1000.0, -20.0, 5.0, (0.003, 0.003, 0.004)),
+             "robot": RobotState("IDLE", 1.0, 2.0, 30.0)}
+    path = save_capture(tmp_path, parts, "demo", "set1", meta={"abs_H_trk": ABS_H_TRK.tolist()})
+    entry = json.loads(path.read_text())
+    want = ABS_H_TRK[:3, :3] @ [1000.0, -20.0, 5.0] + ABS_H_TRK[:3, 3]
+    assert np.allclose(entry["tracker"]["abs_xyz"], want, atol=1e-9)
+    assert entry["tracker"]["abs_H_trk"] == ABS_H_TRK.tolist()
+    folder = path.parent
+    assert validate_folder(folder) == []
+    entry["tracker"]["z"] = 5.5  # the tracker-frame point no longer gives abs_xyz
+    path.write_text(json.dumps(entry))
+    assert [p.path for p in validate_folder(folder)] == ["$.tracker.abs_xyz"]
