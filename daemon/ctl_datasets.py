@@ -49,8 +49,8 @@ def _input_file(path: str | None, what: str) -> Any:
         return None
     try:
         return json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read {what} {path}: {exc}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"cannot read {what} {path}: {type(exc).__name__}: {exc}") from None
 
 
 def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:

@@ -15,13 +15,13 @@ from __future__ import annotations
 import json
 import math
 import re
-import struct
-import zlib
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator
+
+from daemon.png_check import png_info
 
 SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result")
 SCHEMA_BASE = "https://rita.invalid/schemas/"
@@ -30,9 +30,9 @@ XYZ_TOLERANCE_MM = 1e-4
 #: a stored rotation must be orthonormal to this (|RᵀR − I| max element)
 ROTATION_TOLERANCE = 1e-6
 _TRANSFORM_KEY = re.compile(r"^[a-z]+_H_[a-z]+$")
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 _MAX_MESSAGE = 200
+#: JSON nested deeper than this is refused (datasets need < 10; deep nesting exhausts recursion)
+MAX_DEPTH = 64
 
 
 @dataclass(frozen=True)
@@ -98,8 +98,8 @@ def check_schema(doc: Any, name: str, file: str) -> list[Problem]:
     for err in validator(name).iter_errors(doc):
         parts = list(err.absolute_path)
         if err.validator == "required":
-            key = str(err.message).split("'")[1] if "'" in str(err.message) else "?"
-            out.append(Problem(file, _json_path([*parts, key]), "missing (required)"))
+            out += [Problem(file, _json_path([*parts, key]), "missing (required)")
+                    for key in err.validator_value if isinstance(err.instance, dict) and key not in err.instance]
         else:
             out.append(Problem(file, _json_path(parts), _short(err.message)))
     return sorted(set(out), key=lambda p: (p.path, p.message))
@@ -185,45 +185,6 @@ def check_values(doc: Any, file: str, abs_H_trk: Any = None) -> list[Problem]:
     return out
 
 
-def png_info(path: Path) -> tuple[int, int, int, int]:
-    """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
-
-    Reads every chunk, checks each CRC and inflates the image data to its exact size,
-    so a truncated or corrupted file is found without an imaging library.
-    """
-    data = path.read_bytes()
-    if not data.startswith(_PNG_SIGNATURE):
-        raise ValueError("not a PNG file (bad signature)")
-    pos, ihdr, idat, ended = 8, None, [], False
-    while pos + 8 <= len(data) and not ended:
-        length, tag = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + length]
-        crc = data[pos + 8 + length:pos + 12 + length]
-        if len(body) < length or len(crc) < 4:
-            raise ValueError(f"truncated in chunk {tag!r} at byte {pos} (file has {len(data)} bytes)")
-        if struct.unpack(">I", crc)[0] != zlib.crc32(tag + body) & 0xFFFFFFFF:
-            raise ValueError(f"chunk {tag!r} at byte {pos} is corrupted (CRC mismatch)")
-        if tag == b"IHDR" and length == 13:
-            ihdr = struct.unpack(">IIBBBBB", body)
-        elif tag == b"IDAT":
-            idat.append(body)
-        ended = tag == b"IEND"
-        pos += 12 + length
-    if ihdr is None or not ended:
-        raise ValueError("truncated: " + ("no IHDR header" if ihdr is None else "no IEND chunk"))
-    w, h, depth, colour, _, _, interlace = ihdr
-    if colour not in _PNG_CHANNELS or w == 0 or h == 0:
-        raise ValueError(f"unsupported PNG header (colour type {colour}, {w}x{h})")
-    try:
-        raw = zlib.decompress(b"".join(idat))
-    except zlib.error as exc:
-        raise ValueError(f"image data is corrupted ({exc})") from None
-    want = h * (1 + (w * _PNG_CHANNELS[colour] * depth + 7) // 8)
-    if interlace == 0 and len(raw) != want:
-        raise ValueError(f"image data has {len(raw)} bytes, a {w}x{h} image needs {want}")
-    return w, h, _PNG_CHANNELS[colour], depth
-
-
 # --------------------------------------------------------------------------- folders
 
 _IMAGE_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*\.png$")
@@ -237,12 +198,29 @@ def _load_json(root: Path, name: str, problems: list[Problem], required: bool = 
             problems.append(Problem(name, "$", "missing file"))
         return None
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         problems.append(Problem(name, "$", f"not valid JSON: {exc}"))
+    except RecursionError:
+        problems.append(Problem(name, "$", f"nested more than {MAX_DEPTH} levels deep"))
     except (OSError, UnicodeDecodeError) as exc:
         problems.append(Problem(name, "$", f"unreadable: {exc}"))
+    else:
+        if _depth(doc) <= MAX_DEPTH:
+            return doc
+        problems.append(Problem(name, "$", f"nested more than {MAX_DEPTH} levels deep"))
     return None
+
+
+def _depth(doc: Any) -> int:
+    """Nesting depth of a JSON document, without recursion."""
+    deepest, stack = 0, [(doc, 1)]
+    while stack:
+        node, d = stack.pop()
+        deepest = max(deepest, d)
+        if isinstance(node, (dict, list)) and d <= MAX_DEPTH:
+            stack.extend((v, d + 1) for v in (node.values() if isinstance(node, dict) else node))
+    return deepest
 
 
 class _Images:
@@ -375,6 +353,8 @@ def validate_folder(root: Path | str) -> list[Problem]:
 
 def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     """Schema + value problems of one stand-alone document (``plate``, ``camera_model``, ``result``...)."""
+    if _depth(doc) > MAX_DEPTH:
+        return [Problem(file, "$", f"nested more than {MAX_DEPTH} levels deep")]
     out = check_schema(doc, name, file) + check_values(doc, file)
     if name == "plate":
         out += _plate_problems(doc, file, ())

@@ -10,6 +10,8 @@ import json
 import math
 import random
 import shutil
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -134,3 +136,27 @@ def test_non_finite_numbers_are_reported_where_they_are(good, tmp_path):
     state["obs"]["sigma_t_mm"] = math.inf
     (root / "state.json").write_text(json.dumps(state))
     assert any(p.path == "$.obs.sigma_t_mm" and "not a finite number" in p.message for p in validate_folder(root))
+
+
+def _png(width: int, height: int, idat: bytes) -> bytes:
+    def chunk(tag: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + tag + body + struct.pack(">I", zlib.crc32(tag + body) & 0xFFFFFFFF)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+
+
+def test_hostile_files_give_problems_not_crashes(good, tmp_path):
+    root = tmp_path / "ref"
+    shutil.copytree(good, root)
+    (root / "run0.json").write_text("[" * 100000 + "]" * 100000)  # deeper than json's recursion limit
+    nested: list = []
+    for _ in range(70):
+        nested = [nested]
+    (root / "result.json").write_text(json.dumps({"a": nested}))
+    (root / "run0.png").write_bytes(_png(100000, 100000, zlib.compress(bytes(10 ** 6))))  # claims 10 GB
+    problems = {p.file: p.message for p in validate_folder(root)}
+    assert "nested more than 64 levels" in problems["result.json"]
+    assert "nested more than 64 levels" in problems["run0.json"] or "not valid JSON" in problems["run0.json"]
+    assert "implausible size" in problems["state.json"]
+    (root / "run0.png").write_bytes(_png(1280, 960, zlib.compress(bytes(50 * 10 ** 6))))  # inflates far too big
+    assert any("a 1280x960 image needs" in p.message for p in validate_folder(root))

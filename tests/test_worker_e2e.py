@@ -170,6 +170,7 @@ def test_measure_mark_and_intrinsics(daemon):
     x, y, _ = r["mark"]["abs_xyz"]
     assert np.hypot(x - mark["x_mm"], y - mark["y_mm"]) < 0.1
     assert 0 < r["mark"]["std_mm"] < 0.1
+    assert validate_folder(r["dataset"]) == []
 
     # intrinsics from views of the target: the operator puts the robot back on the plate first
     files = operator_files(c, tmp)
@@ -183,6 +184,7 @@ def test_measure_mark_and_intrinsics(daemon):
     f_std = stored["report"]["std"]["fx"]
     assert abs(stored["camera_model"]["K"][0][0] - f_true) < max(4 * f_std, 1.0)
     assert stored["report"]["rms_px"] < 0.2
+    assert validate_folder(r["dataset"]) == []
 
 
 def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
