@@ -1,9 +1,10 @@
-"""``ritactl validate`` on 1,200 seeded random mutations of a good dataset folder.
+"""``ritactl validate`` on 1,000 seeded random mutations of a good dataset folder.
 
 Missing keys, wrong types, NaN/inf, wrong shapes, renamed keys, broken JSON text,
 truncated/corrupted/missing/resized images: validation never raises and names a
 problem for each mutation, or, when a mutation leaves the folder valid (e.g. a
-changed note), ``ritactl recompute`` ends with a documented exit code.
+changed note), ``ritactl recompute`` ends with a documented exit code (run once per
+distinct input it reads: state.json + image; manifest-only changes do not change it).
 """
 import copy
 import json
@@ -22,7 +23,7 @@ from daemon import ctl
 from daemon.datasets import Problem, validate_folder
 from tests.dataset_writer import write_referencing
 
-N_MUTATIONS = 1200
+N_MUTATIONS = 1000
 WRONG_VALUES = [None, "x", "", 0, -1, 1.5, True, [], {}, [1, 2], [[1, 2, 3]], float("nan"), float("inf"),
                 -1e308, "../../etc/passwd", "run0.tif", {"a": 1}, 2 ** 70]
 
@@ -95,6 +96,7 @@ def test_validate_never_raises_and_reports_every_mutation(good, tmp_path, capsys
     originals = {f.name: f.read_bytes() for f in root.iterdir()}
     docs = {name: json.loads(originals[name]) for name in ("state.json", "dataset.json", "run0.json")}
     recomputed = reported = 0
+    exit_codes: dict[tuple[bytes, bytes], int] = {}
     for i in range(N_MUTATIONS):
         rng = random.Random(i)
         target = rng.choices(["state.json", "dataset.json", "run0.json", "run0.png", "text"], [6, 1, 1, 2, 1])[0]
@@ -120,12 +122,14 @@ def test_validate_never_raises_and_reports_every_mutation(good, tmp_path, capsys
         else:
             # a harmless mutation (e.g. a renamed optional key): recompute gives a documented exit code
             recomputed += 1
-            code = ctl.main(["recompute", str(root)])
-            assert code in (0, 1, 2, 5), (i, target, what, code)
-            capsys.readouterr()
+            key = ((root / "state.json").read_bytes(), (root / "run0.png").read_bytes())
+            if key not in exit_codes:
+                exit_codes[key] = ctl.main(["recompute", str(root)])
+                capsys.readouterr()
+            assert exit_codes[key] in (0, 1, 2, 5), (i, target, what, exit_codes[key])
         (root / target).write_bytes(originals[target])
     assert reported + recomputed == N_MUTATIONS
-    print(f"{reported} mutations reported, {recomputed} valid and recomputed")
+    print(f"{reported} mutations reported, {recomputed} valid ({len(exit_codes)} distinct inputs recomputed)")
     assert reported > 0.8 * N_MUTATIONS, (reported, recomputed)
 
 
