@@ -252,3 +252,10 @@ def test_captures_store_both_tracker_frames_and_validate(tmp_path, dtype):
     entry["tracker"]["z"] = 5.5  # the tracker-frame point no longer gives abs_xyz
     path.write_text(json.dumps(entry))
     assert [p.path for p in validate_folder(folder)] == ["$.tracker.abs_xyz"]
+
+
+def test_the_writer_is_independent_of_the_project():
+    code = ("import sys, tests.dataset_writer; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('calibration', 'fakes', 'daemon', 'drivers')))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]"

@@ -52,6 +52,7 @@ def to_8bit(image: np.ndarray) -> np.ndarray:
 
 
 def _eight_bit(load: LoadImage) -> LoadImage:
+    """The image loader, every image passed through :func:`to_8bit`."""
     return lambda file: to_8bit(load(file))
 
 
@@ -106,7 +107,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     roll, pitch = robot.get("roll_deg"), robot.get("pitch_deg")
     if roll is None or pitch is None:
         roll = pitch = None
-    m = measure_image(to_8bit(load(stop["image"])), scs, rob_H_scn, _abs(stop["P_prev"]), _abs(stop["P_at"]), kind=kind,
+    m = measure_image(load(stop["image"]), scs, rob_H_scn, _abs(stop["P_prev"]), _abs(stop["P_at"]), kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=roll, pitch_deg=pitch,
                       sigma_t_mm=sigma_t_mm,
                       cov_rob_H_scn=None if cov is None else np.array(cov))
@@ -118,15 +119,15 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """One floor mark in ACS from one stop (image + approach positions)."""
-    r = _mark_in_acs(obs["calibration"], obs["stop"], load, obs.get("kind", "dot"), obs.get("mark_size_mm"),
-                     _sigma_t(obs))
+    r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
+                     obs.get("mark_size_mm"), _sigma_t(obs))
     return {"schema": RESULT_SCHEMA, "procedure": "measure-mark", "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r, "verdict": "ok", "messages": []}
 
 
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
-    kind = obs.get("kind", "dot")
+    kind, load = obs.get("kind", "dot"), _eight_bit(load)
     marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), _sigma_t(obs))
              for s in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
@@ -143,7 +144,8 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     from calibration.intrinsics import calibrate_intrinsics
 
     plate = Plate.from_dict(obs["plate"])
-    images = [to_8bit(load(v["image"])) for v in obs["views"]]
+    load = _eight_bit(load)
+    images = [load(v["image"]) for v in obs["views"]]
     size = (images[0].shape[1], images[0].shape[0])
     initial = CameraModel.from_dict(obs["initial_model"]) if obs.get("initial_model") else None
     model, report = calibrate_intrinsics(images, plate, size, initial=initial)
