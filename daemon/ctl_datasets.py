@@ -5,8 +5,9 @@ Schemas and lists every problem with its file and JSON path. ``recompute FOLDER`
 validates, then re-runs the procedure's computation (numpy + OpenCV needed here);
 ``--out DIR`` writes the result files as the live procedure does, ``--camera-model``,
 ``--plate`` and ``--calibration`` re-evaluate old data with other inputs. Exit codes
-are daemon/exitcodes.py's: 0/1/2 by verdict, 2 for a calibration error, 5 for a
-missing or invalid dataset or input file, 64 for usage, 130 for Ctrl-C.
+are daemon/exitcodes.py's: 0/1/2 by verdict, 2 for a calibration error (or any other
+failure of the computation, without a traceback), 5 for a missing or invalid dataset
+or input file, 64 for usage, 130 for Ctrl-C.
 """
 from __future__ import annotations
 
@@ -74,7 +75,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         from calibration.worker import recompute, store  # noqa: F401 - fail here, clearly, without OpenCV
     except ImportError as exc:
         _err(f"recompute needs the full install (numpy, OpenCV): {exc}")
-        return Exit.BAD_INPUT
+        return Exit.FAIL
     try:
         result, diff = _run(a)
         if a.out:
@@ -82,7 +83,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return Exit.INTERRUPTED
     except DatasetInvalid as exc:
-        _err(f"{a.dataset} is not a valid dataset ({len(exc.problems)} problem(s)):")
+        _err(f"cannot recompute {a.dataset}: {len(exc.problems)} problem(s) in its files or the given inputs:")
         for p in exc.problems:
             print(f"  {p}", file=sys.stderr)
         return Exit.BAD_INPUT
@@ -94,6 +95,9 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
         _err(f"cannot recompute {a.dataset}: {what}")
         return Exit.BAD_INPUT
+    except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
+        _err(f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}")
+        return Exit.FAIL
     if a.json:
         print(json.dumps(result, indent=2, default=str))
     else:
