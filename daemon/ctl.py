@@ -251,9 +251,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="camera capture: save PNG here (on this computer)")
         p.set_defaults(fn=cmd_device, device=dev)
     from daemon.ctl_calib import add_parsers
+    from daemon.ctl_datasets import add_parsers as add_dataset_parsers
     from daemon.ctl_keys import add_parser as add_keys_parser
 
     add_parsers(sub)
+    add_dataset_parsers(sub)
     add_keys_parser(sub)
     call = sub.add_parser("call", help="send any bus command")
     call.add_argument("command")

@@ -1,4 +1,4 @@
-"""ritactl verbs for the calibration procedures: start, follow, answer prompts, results, recompute.
+"""ritactl verbs for the calibration procedures: start, follow, answer prompts, results.
 
 A procedure runs in the worker on the robot; ritactl only posts it and follows its
 ``calib.*`` telemetry. Ctrl-C detaches (the job goes on); ``ritactl follow JOB``
@@ -170,27 +170,6 @@ def cmd_follow(c: Client, a: argparse.Namespace) -> int:
     return follow(c, a.job_id)
 
 
-def cmd_recompute(c: Client | None, a: argparse.Namespace) -> int:
-    """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
-    try:
-        from calibration.worker.recompute import recompute
-    except ImportError as exc:
-        print(f"ritactl recompute needs the full install (numpy, OpenCV): {exc}", file=sys.stderr)
-        return 2
-    try:
-        result, diff = recompute(Path(a.dataset))
-    except (OSError, ValueError, KeyError) as exc:
-        print(f"ritactl: cannot recompute {a.dataset}: {exc}", file=sys.stderr)
-        return 1
-    if a.json:
-        print(json.dumps(result, indent=2, default=str))
-    else:
-        _show_result({**result, "dataset": a.dataset})
-    if diff is not None:
-        print(f"\nlargest difference to the stored result: {diff:.3g}")
-    return 0
-
-
 def add_parsers(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--detach", action="store_true", help="post the job and return")
@@ -234,9 +213,6 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("job_id")
     p.add_argument("text")
     p.set_defaults(fn=cmd_answer)
-    p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
-    p.add_argument("dataset")
-    p.set_defaults(fn=cmd_recompute, offline=True)
 
 
 __all__ = ["add_parsers", "follow"]

@@ -2,8 +2,8 @@
 
 A wheel is assembled from this tree with the requirements exactly as setuptools reads
 them from pyproject.toml (offline, no `wheel` package here: a plain zip with METADATA,
-entry points and the packages), and installed into a fresh venv that sees only pyzmq
-and msgpack (linked in from the test venv through a .pth file, standing in for what pip
+entry points and the packages), and installed into a fresh venv that sees only pyzmq,
+msgpack and jsonschema (with its requirements) (linked in from the test venv through a .pth file, standing in for what pip
 would download). `pip install` then needs no --no-deps, `pip check` reports no broken
 requirement, `ritactl --help` works, and `ritad` names the extra to install instead of
 showing a traceback.
@@ -19,6 +19,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = {"numpy", "opencv-python-headless", "harvesters", "genicam", "pyserial", "matplotlib"}
@@ -30,10 +31,26 @@ def names(requirements: list[str]) -> set[str]:
 
 def test_base_requirements_are_the_client_and_the_robot_extra_has_the_rest():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert names(project["dependencies"]) == {"pyzmq", "msgpack"}
+    assert names(project["dependencies"]) == {"pyzmq", "msgpack", "jsonschema"}
     extras = project["optional-dependencies"]
     assert HEAVY <= names(extras["robot"])
-    assert names(extras["client"]) <= {"pyzmq", "msgpack"}  # the documented laptop extra adds nothing heavy
+    assert names(extras["client"]) <= {"pyzmq", "msgpack", "jsonschema"}  # the documented laptop extra adds nothing heavy
+
+
+def _closure(dist_names: list[str]) -> list[str]:
+    """The distributions plus everything they require (no extras), as installed here."""
+    seen: list[str] = []
+    todo = list(dist_names)
+    while todo:
+        name = todo.pop()
+        if name.lower() in (s.lower() for s in seen):
+            continue
+        seen.append(name)
+        for text in metadata.distribution(name).requires or []:
+            req = Requirement(text)
+            if req.marker is None or req.marker.evaluate({"extra": ""}):
+                todo.append(req.name)
+    return seen
 
 
 def _link_site(dist_names: list[str], into: Path) -> None:
@@ -94,7 +111,7 @@ def test_laptop_install_without_no_deps_has_no_broken_requirements(tmp_path):
     assert res.returncode == 0, res.stderr
     py = venv / "bin" / "python"
     site = Path(run(py, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))").stdout.strip())
-    _link_site(["pyzmq", "msgpack"], tmp_path / "bus")
+    _link_site(_closure(["pyzmq", "msgpack", "jsonschema"]), tmp_path / "bus")
     (site / "bus.pth").write_text(str(tmp_path / "bus") + "\n")
     res = run(py, "-m", "pip", "install", "--no-index", wheel)  # no --no-deps: requirements must resolve
     assert res.returncode == 0 and "ERROR" not in res.stdout + res.stderr, res.stdout[-2000:] + res.stderr[-2000:]

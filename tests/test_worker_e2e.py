@@ -18,6 +18,7 @@ import pytest
 from calibration.referencing import rob_H_cam_error
 from calibration.worker.recompute import recompute
 from daemon.client import Client
+from daemon.datasets import validate_folder
 from daemon.demo import lock_on_robot, operator_files
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,11 +132,14 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
 
     # offline recompute from the stored datasets reproduces the stored results
     for dataset in (ref["dataset"], exp["dataset"]):
+        assert validate_folder(dataset) == [], dataset  # the live worker writes what docs/datasets.md says
         result, diff = recompute(Path(dataset))
         assert diff is not None and diff < 1e-9, (dataset, diff)
     out = subprocess.run([sys.executable, "-m", "daemon.ctl", "recompute", ref["dataset"]], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "largest difference to the stored result" in out.stdout
+    stop = json.loads(Path(exp["dataset"], "state.json").read_text())["obs"]["stops"][0]
+    assert {"x", "y", "z", "abs_xyz", "abs_H_trk"} <= stop["P_at"].keys()  # both frames stored
 
 
 def test_killed_worker_resumes_without_remeasuring(daemon):
@@ -186,6 +190,7 @@ def test_measure_mark_and_intrinsics(daemon):
     x, y, _ = r["mark"]["abs_xyz"]
     assert np.hypot(x - mark["x_mm"], y - mark["y_mm"]) < 0.1
     assert 0 < r["mark"]["std_mm"] < 0.1
+    assert validate_folder(r["dataset"]) == []
 
     # intrinsics from views of the target: the operator puts the robot back on the plate first
     files = operator_files(c, tmp)
@@ -199,6 +204,7 @@ def test_measure_mark_and_intrinsics(daemon):
     f_std = stored["report"]["std"]["fx"]
     assert abs(stored["camera_model"]["K"][0][0] - f_true) < max(4 * f_std, 1.0)
     assert stored["report"]["rms_px"] < 0.2
+    assert validate_folder(r["dataset"]) == []
 
 
 def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):

@@ -116,11 +116,11 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
                                       [0, 0, 1.0]])
     foot = footprint_abs(calib, abs_H_rob_now)[:2]  # footprint relative to the reflector at this heading
     target = np.asarray(mark_xy, float) - foot - offset
-    P_prev, P_at = nav.approach(target, heading, param(ctx, "distance_mm"))
+    nav.approach(target, heading, param(ctx, "distance_mm"))
+    P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
-    return {"image": file, "header": header, "P_prev": {"abs_xyz": P_prev.tolist()},
-            "P_at": {"abs_xyz": P_at.tolist()}, "robot": robot, "heading_cmd_deg": heading,
+    return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
             "offset_mm": offset.tolist()}
 
 
@@ -153,6 +153,7 @@ def measure_mark(ctx: JobContext) -> None:
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     ctx.obs.setdefault("kind", param(ctx, "kind"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
     if not ctx.done("stop"):
         ctx.progress("approach the mark", 20, "robot moving")
         heading = float(ctx.params.get("heading_deg", nav.heading))
@@ -167,6 +168,7 @@ def experiment(ctx: JobContext) -> None:
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     ctx.obs.setdefault("kind", param(ctx, "kind"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
     k_dirs, reps = int(param(ctx, "directions")), int(param(ctx, "repetitions"))
     rng = np.random.default_rng(int(param(ctx, "seed")))
     plan = [(k, r, rng.uniform(-1, 1, 2) * param(ctx, "offset_mm"), rng.normal(0, 0.5))

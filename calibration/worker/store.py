@@ -43,9 +43,17 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
     atomic_write_bytes(path, data)
 
 
-def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
-    """Write result.json/.yaml (+ reports) into the dataset; keep history; activate good calibrations."""
-    result = {**result, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "dataset": str(root)}
+def write_result_files(root: Path, result: dict[str, Any], dataset: Path | str | None = None) -> dict[str, Any]:
+    """result.json, result.yaml and, for an experiment, report.md/.csv and clusters.png in ``root``.
+
+    The same files for a live run and for ``ritactl recompute --out``; returns the
+    result as written (with ``created``, ``dataset`` and, for experiments, ``files``).
+    """
+    root = Path(root)
+    result = {**result, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+              "dataset": str(dataset if dataset is not None else root)}
+    if result["procedure"] == "experiment":
+        result["files"] = ["report.md", "report.csv", "clusters.png"]
     atomic_write_json(root / "result.json", result)
     write_yaml(root / "result.yaml", result)
     if result["procedure"] == "experiment":
@@ -54,7 +62,12 @@ def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str,
         from calibration.worker.report import plot_clusters
 
         atomic_write_bytes(root / "clusters.png", plot_clusters(result))
-        result["files"] = ["report.md", "report.csv", "clusters.png"]
+    return result
+
+
+def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
+    """Write the result files into the dataset; keep history; activate good calibrations."""
+    result = write_result_files(root, result)
     cdir = calibration_dir(data_dir)
     atomic_write_json(cdir / "history" / f"{result['job']}.json", result)
     if result["procedure"] == "referencing" and result.get("verdict") != "fail":
