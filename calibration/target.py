@@ -202,7 +202,8 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
     ``model`` is only used to check that the image has the model's size. ``fast``
     uses this module's marker identification (same markers, ~10x quicker); the
     chessboard corners are interpolated and refined by OpenCV's CharucoDetector
-    either way.
+    either way. When OpenCV's board check keeps fewer corners than half the markers
+    found, OpenCV's own marker detection runs too and the larger corner set is kept.
     """
     img = _gray(image)
     if model is not None and (img.shape[1], img.shape[0]) != tuple(model.size):
