@@ -186,35 +186,38 @@ def _coarse_candidates(img: np.ndarray, kind: str, size_px: float, f: int) -> li
     s = size_px / f
     if kind == "dot":
         tmpl = dot_template(s)
-        if small.shape[0] <= tmpl.shape[0] or small.shape[1] <= tmpl.shape[1]:
+        half = tmpl.shape[0] // 2
+        if min(small.shape) <= half:
             return []
-        score = cv2.matchTemplate(small.astype(np.float32), tmpl, cv2.TM_CCOEFF_NORMED)
-        off = tmpl.shape[0] // 2
+        # mirror the borders: the coarse template is f× wider than the full-resolution
+        # one, and a dot the full-resolution search can reach must stay reachable here
+        padded = cv2.copyMakeBorder(small, half, half, half, half, cv2.BORDER_REFLECT_101)
+        score = cv2.matchTemplate(padded.astype(np.float32), tmpl, cv2.TM_CCOEFF_NORMED)
     else:
-        score, off = -_hessian_det(small, s), 0
+        score = -_hessian_det(small, s)
     # local maxima at least a mark size apart, best first
     r = max(1, int(round(s)))
     peak = score >= cv2.dilate(score, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
     ys, xs = np.nonzero(peak)
     best = np.argsort(score[ys, xs])[::-1][:COARSE_CANDIDATES]
-    return [(np.array([xs[i] + off, ys[i] + off], float) + 0.5) * f - 0.5 for i in best]
+    return [np.clip((np.array([xs[i], ys[i]], float) + 0.5) * f - 0.5, 0, [w - 1, h - 1]) for i in best]
 
 
 def _coarse_to_fine(img: np.ndarray, kind: str, size_px: float, f: int) -> MarkObservation:
     """Whole-image search: coarse peaks, each refined at full resolution; the best score wins."""
     found: list[MarkObservation] = []
-    first_error: CalibrationError | None = None
+    why: list[str] = []
     for uv in _coarse_candidates(img, kind, size_px, f):
         try:
             # a coarse peak is within a coarse pixel (f px) of the full-resolution one
             found.append(_locate_dot(img, uv, size_px, reach_px=2 * f + 2) if kind == "dot"
                          else _locate_cross(img, uv, size_px))
         except CalibrationError as exc:
-            first_error = first_error or exc
+            why.append(f"near ({uv[0]:.0f}, {uv[1]:.0f}): {exc}")
     if found:
         return max(found, key=lambda o: o.score)
-    if first_error is not None:
-        raise first_error
+    if why:
+        raise CalibrationError(f"no {kind} found in the whole image; the best candidate {why[0]}")
     raise CalibrationError(f"no {kind} found: the image is too small for a {size_px:.1f} px mark")
 
 

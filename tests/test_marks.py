@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -167,7 +168,33 @@ def test_coarse_to_fine_equals_full_resolution_search(full_size_pair) -> None:
 def test_coarse_search_without_a_mark_says_so(renderer: Renderer) -> None:
     img = np.full((750, 1000), 120, np.uint8)
     img += np.random.default_rng(2).integers(0, 3, img.shape, dtype=np.uint8)
-    with pytest.raises(CalibrationError, match="no dot found"):
+    with pytest.raises(CalibrationError, match="no dot found in the whole image; the best candidate near"):
         locate_mark(img, "dot", size_px=9.0)
-    with pytest.raises(CalibrationError, match="no cross found"):
+    with pytest.raises(CalibrationError, match="no cross found in the whole image; .*no cross found: contrast"):
         locate_mark(img, "cross", size_px=12.0)
+
+
+def _synthetic_dot(shape: tuple[int, int], centre: tuple[float, float], radius: float, seed: int) -> np.ndarray:
+    """A supersampled dark disc on a grey, noisy background (no renderer needed)."""
+    h, w = shape
+    cx, cy = centre
+    img = np.full((h, w), 170.0, np.float32)
+    y0, x0 = int(cy) - 40, int(cx) - 40
+    ys, xs = np.mgrid[y0:y0 + 81, x0:x0 + 81]
+    sub = (np.arange(4) + 0.5) / 4 - 0.5
+    cover = sum(((xs + a - cx) ** 2 + (ys + b - cy) ** 2 < radius ** 2) for a in sub for b in sub) / 16
+    win = (slice(max(0, y0), y0 + 81), slice(max(0, x0), x0 + 81))
+    img[win] -= 130 * cover[max(0, -y0):, max(0, -x0):][:img[win].shape[0], :img[win].shape[1]]
+    img = cv2.GaussianBlur(img, (0, 0), 2.0) + np.random.default_rng(seed).normal(0, 2, (h, w)).astype(np.float32)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("centre", [(46.3, 450.7), (60.2, 50.9), (1153.6, 853.4), (600.5, 850.2), (700.4, 44.8)])
+def test_coarse_to_fine_finds_dots_next_to_the_border(centre: tuple[float, float]) -> None:
+    # a 25 px dot 45–60 px from the border: the full-resolution search reaches it, so the
+    # coarse one (8× shrink, a template as wide as 8 coarse pixels) must reach it too
+    img = _synthetic_dot((900, 1200), centre, 25.2, seed=int(centre[0]))
+    fast = locate_mark(img, "dot", size_px=25.2)
+    full = locate_mark(img, "dot", size_px=25.2, coarse_to_fine=False)
+    assert np.linalg.norm(fast.uv - full.uv) < 0.05
+    assert np.linalg.norm(fast.uv - centre) < 0.1
