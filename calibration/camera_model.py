@@ -101,14 +101,32 @@ class CameraModel:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "camera model") -> "CameraModel":
-        """Inverse of :meth:`to_dict`; errors name ``source``."""
+        """Inverse of :meth:`to_dict`; every error is a ValueError naming ``source`` and the key."""
+        if not isinstance(d, dict):
+            raise ValueError(f"{source}: expected a JSON object (camera model), got {type(d).__name__}")
         schema = d.get("schema", MODEL_SCHEMA)
-        if schema != MODEL_SCHEMA:
-            raise ValueError(f"{source}: camera model schema {schema} is not supported (expected {MODEL_SCHEMA})")
+        if schema != MODEL_SCHEMA or isinstance(schema, bool):
+            raise ValueError(f"{source}: camera model schema {schema!r} is not supported (expected {MODEL_SCHEMA})")
         missing = [k for k in ("K", "dist", "size") if k not in d]
         if missing:
-            raise ValueError(f"{source}: missing field(s) {missing}")
-        return cls(np.array(d["K"], dtype=float), np.array(d["dist"], dtype=float), tuple(d["size"]))
+            raise ValueError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")
+        arrays = {}
+        for key, shape, what in (("K", (3, 3), "a 3x3 matrix"), ("dist", (5,), "5 coefficients (k1 k2 p1 p2 k3)"),
+                                 ("size", (2,), "[width, height] in pixels")):
+            try:
+                a = np.array(d[key], dtype=float)
+            except (TypeError, ValueError):
+                a = None
+            if a is None or a.shape != shape or not np.all(np.isfinite(a)):
+                raise ValueError(f"{source}: {key} must be {what} of finite numbers, got {d[key]!r}")
+            arrays[key] = a
+        w, h = arrays["size"]
+        if not (w.is_integer() and h.is_integer()):
+            raise ValueError(f"{source}: size must be whole pixels, got {d['size']!r}")
+        try:
+            return cls(arrays["K"], arrays["dist"], (int(w), int(h)))
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from None
 
     def save_json(self, path: str | Path) -> None:
         """Write the model as JSON (atomically)."""
@@ -118,8 +136,12 @@ class CameraModel:
 
     @classmethod
     def load_json(cls, path: str | Path) -> "CameraModel":
-        """Read a model written by :meth:`save_json`."""
-        return cls.from_dict(json.loads(Path(path).read_text()), source=str(path))
+        """Read a model written by :meth:`save_json` (ValueError naming the file if it is not JSON)."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: not a JSON camera model ({exc})") from None
+        return cls.from_dict(data, source=str(path))
 
     def save_yaml(self, path: str | Path) -> None:
         """Write an OpenCV FileStorage YAML file (camera_matrix, dist_coeffs, image_width/height)."""

@@ -66,6 +66,8 @@ class Plate:
         for n, p in self.nests_ref_nst.items():
             if len(p) != 3 or not all(np.isfinite(p)):
                 raise ValueError(f"plate {self.plate_id!r}: nest {n!r} must be 3 finite numbers, got {p}")
+            if max(abs(float(v)) for v in p) > 10_000:
+                raise ValueError(f"plate {self.plate_id!r}: nest {n!r} at {p} mm is not on a plate (beyond ±10 m)")
         if not 0 <= self.smr_offset_mm <= 100:
             raise ValueError(f"plate {self.plate_id!r}: smr_offset_mm={self.smr_offset_mm} out of range 0..100")
         P = self.ref_P_smr()
@@ -85,13 +87,27 @@ class Plate:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "plate") -> "Plate":
+        """Inverse of :meth:`to_dict`; every error is a ValueError naming ``source`` and the key."""
+        if not isinstance(d, dict):
+            raise ValueError(f"{source}: expected a JSON object (plate definition), got {type(d).__name__}")
         d = dict(d)
         schema = d.pop("schema", PLATE_SCHEMA)
-        if schema != PLATE_SCHEMA:
-            raise ValueError(f"{source}: plate schema {schema} is not supported (expected {PLATE_SCHEMA})")
+        if schema != PLATE_SCHEMA or isinstance(schema, bool):
+            raise ValueError(f"{source}: plate schema {schema!r} is not supported (expected {PLATE_SCHEMA})")
+        missing = [k for k in _REQUIRED if k not in d]
+        if missing:
+            raise ValueError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")
+        unknown = sorted(set(d) - set(_REQUIRED) - set(_OPTIONAL))
+        if unknown:
+            raise ValueError(f"{source}: unknown key(s) {', '.join(map(repr, unknown))}")
+        for key, kind in {**_REQUIRED, **_OPTIONAL}.items():
+            if key in d:
+                d[key] = _typed(d[key], kind, f"{source}: {key}")
+        d["nests_ref_nst"] = {name: _typed(p, list, f"{source}: nests_ref_nst.{name}")
+                              for name, p in d["nests_ref_nst"].items()}
         try:
             return cls(**d)
-        except TypeError as exc:
+        except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from None
 
     def save(self, path: str | Path) -> None:
@@ -101,4 +117,41 @@ class Plate:
 
     @classmethod
     def load(cls, path: str | Path) -> "Plate":
-        return cls.from_dict(json.loads(Path(path).read_text()), source=str(path))
+        """Read a plate file (OSError if unreadable, ValueError naming the file and key if bad)."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: not a JSON plate definition ({exc})") from None
+        return cls.from_dict(data, source=str(path))
+
+
+#: keys of a plate file and the JSON type each must have
+_REQUIRED: dict[str, type] = {"plate_id": str, "board_cols": int, "board_rows": int, "square_mm": float,
+                              "marker_mm": float, "aruco_dict": str, "nests_ref_nst": dict,
+                              "smr_offset_mm": float}
+_OPTIONAL: dict[str, type] = {"notes": str, "extra": dict}
+
+
+def _typed(value: Any, kind: type, where: str) -> Any:
+    """``value`` checked as JSON type ``kind`` (numbers finite, three of them for a point)."""
+    if kind is list:
+        ok = (isinstance(value, (list, tuple)) and len(value) == 3
+              and all(_is_number(v) and np.isfinite(v) for v in value))
+        if not ok:
+            raise ValueError(f"{where} must be 3 finite numbers [x, y, z] in mm, got {value!r}")
+        return [float(v) for v in value]
+    if kind is float:
+        if not (_is_number(value) and np.isfinite(value)):
+            raise ValueError(f"{where} must be a finite number, got {value!r}")
+        return float(value)
+    if kind is int:
+        if not (_is_number(value) and float(value).is_integer()):
+            raise ValueError(f"{where} must be a whole number, got {value!r}")
+        return int(value)
+    if not isinstance(value, kind):
+        raise ValueError(f"{where} must be a JSON {'string' if kind is str else 'object'}, got {value!r}")
+    return value
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -6,12 +6,20 @@ Three poses are chained (paper, Methodology, "Referencing"):
   (:func:`calibration.registration.fit_plate`, with ``scn_P_i = scn_H_ref · ref_P_smr,i``
   and ``scn_H_ref = scn_H_cam · cam_H_ref``);
 * ``abs_H_rob`` — robot pose from the reflector at P0 and after a straight move at P1,
-  with z the plate normal ``n = (Pb − Pr) × (Pg − Pr)`` turned toward the reflector:
-  ``v⊥ = v − (v·n)n``, ``c = n × v⊥``, ``abs_R_rob = [v⊥ c n]``, origin P0;
+  with z the upward normal n of the plate surface: ``v⊥ = v − (v·n)n``, ``c = n × v⊥``,
+  ``abs_R_rob = [v⊥ c n]``, origin P0;
 * ``rob_H_scn = inv(abs_H_rob) · abs_H_scn`` and ``rob_H_cam = rob_H_scn · scn_H_cam``.
 
 :func:`reference` takes the raw observations and returns every frame with residuals,
 a Monte Carlo uncertainty and a quality verdict.
+
+The plate normal: the paper takes ``(Pb − Pr) × (Pg − Pr)`` of the measured nests,
+assuming the nest seats are parallel to the plate surface. The robot stands on the
+surface, so its z axis is the *surface* normal; here it is PCS −z mapped into ACS by
+the nest fit (``−abs_R_ref[:, 2]``, :func:`surface_normal`). With parallel seats the
+two are the same; seats at unequal heights, stated in the plate file, no longer tilt
+the robot frame (0.6 mm over 400 mm would be 0.1°). The nest-triangle normal still
+orients the fit (which side is up).
 """
 from __future__ import annotations
 
@@ -28,7 +36,8 @@ from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_car
 
 
 def plate_normal(abs_P_nests: Any, abs_P_rob0: Any) -> np.ndarray:
-    """Unit plate normal ``(Pb − Pr) × (Pg − Pr)``, flipped to point toward the robot reflector."""
+    """Unit normal ``(Pb − Pr) × (Pg − Pr)`` of the measured nest triangle (the paper's plate
+    normal), flipped to point toward the robot reflector; orients the plate fit."""
     P = nest_array(abs_P_nests, "abs_P_nests")
     P0 = as_points(abs_P_rob0, "abs_P_rob0", 1)[0]
     Pr, Pg, Pb = P
@@ -40,6 +49,18 @@ def plate_normal(abs_P_nests: Any, abs_P_rob0: Any) -> np.ndarray:
     if float(n @ (P0 - P.mean(axis=0))) < 0:
         n = -n
     return n
+
+
+def surface_normal(abs_H_ref: np.ndarray) -> np.ndarray:
+    """Upward unit normal of the plate surface in ACS: PCS z points into the plate."""
+    return -check_H(abs_H_ref, "abs_H_ref")[:3, 2].copy()
+
+
+def seat_tilt_deg(ref_P_smr: Any) -> float:
+    """Angle between the nest-centre triangle and the plate surface (PCS xy), degrees."""
+    P = nest_array(ref_P_smr, "ref_P_smr")
+    n = np.cross(P[1] - P[0], P[2] - P[0])
+    return float(np.degrees(np.arccos(min(1.0, abs(n[2]) / max(np.linalg.norm(n), 1e-300)))))
 
 
 def robot_pose(abs_P_rob: Any, abs_v: Any, abs_n: Any, min_move_mm: float = 1.0) -> np.ndarray:
@@ -67,7 +88,7 @@ def chain(ref_P_smr: np.ndarray, scn_H_cam: np.ndarray) -> Chain:
         """One pass of the chain on (possibly perturbed) inputs."""
         scn_H_ref = scn_H_cam @ cam_H_ref
         abs_H_scn = kabsch(apply_H(scn_H_ref, ref_P_smr), abs_P).B_H_A
-        abs_H_rob = robot_pose(P0, P1 - P0, plate_normal(abs_P, P0))
+        abs_H_rob = robot_pose(P0, P1 - P0, surface_normal(abs_H_scn @ scn_H_ref))
         rob_H_scn = inv_H(abs_H_rob) @ abs_H_scn
         return rob_H_scn @ scn_H_cam, rob_H_scn
     return run
@@ -85,6 +106,7 @@ class Gates:
     min_move_mm: float = 50.0  # P0 → P1 baseline: heading σ = √2·σ_t/d
     warn_move_mm: float = 150.0
     max_climb_deg: float = 2.0  # P0 → P1 should run along the plate, not up or down
+    warn_seat_tilt_deg: float = 0.5  # nest seats vs plate surface in the plate file: a typo?
 
 
 @dataclass
@@ -127,11 +149,14 @@ class ReferencingResult:
         return out
 
 
-def _verdict(gates: Gates, fit_rms: float, sigma: float, move_mm: float, climb_deg: float,
+def _verdict(gates: Gates, fit_rms: float, sigma: float, move_mm: float, climb_deg: float, seat_tilt: float,
              n_corners: int | None, rms_px: float | None, ambiguity: float | None) -> tuple[str, list[str]]:
     """Apply the gates; return the verdict and one plain message per finding."""
     fails: list[str] = []
     warns: list[str] = []
+    if seat_tilt > gates.warn_seat_tilt_deg:
+        warns.append(f"the plate file's nest seats are tilted {seat_tilt:.2f}° from the plate surface "
+                     f"(> {gates.warn_seat_tilt_deg:g}°): check the seat z values")
     if fit_rms > gates.warn_nest_rms_sigma * sigma:
         warns.append(f"nest RMS {fit_rms * 1000:.1f} µm > {gates.warn_nest_rms_sigma:g}·σ "
                      f"({gates.warn_nest_rms_sigma * sigma * 1000:.1f} µm)")
@@ -179,9 +204,10 @@ def reference_pose(cam_H_ref: np.ndarray, scn_H_cam: np.ndarray, ref_P_smr: Any,
     sigma = float(np.hypot(sigma_t_mm, sigma_plate_mm)) or 1e-6
 
     scn_H_ref = scn_H_cam @ cam_H_ref
-    abs_n = plate_normal(abs_P, P0)
-    fit = fit_plate(apply_H(scn_H_ref, ref_P), abs_P, sigma, abs_up=abs_n)
+    # the nest triangle says which side is up; the fitted plate gives the surface normal
+    fit = fit_plate(apply_H(scn_H_ref, ref_P), abs_P, sigma, abs_up=plate_normal(abs_P, P0))
     abs_H_scn = fit.abs_H_scn
+    abs_n = surface_normal(abs_H_scn @ scn_H_ref)
     abs_H_rob = robot_pose(P0, P1 - P0, abs_n)
     rob_H_scn = inv_H(abs_H_rob) @ abs_H_scn
     rob_H_cam = rob_H_scn @ scn_H_cam
@@ -191,7 +217,8 @@ def reference_pose(cam_H_ref: np.ndarray, scn_H_cam: np.ndarray, ref_P_smr: Any,
     v = P1 - P0
     move = float(np.linalg.norm(v - (v @ abs_n) * abs_n))
     climb = float(np.degrees(np.arcsin(min(1.0, abs(v @ abs_n) / max(np.linalg.norm(v), 1e-12)))))
-    verdict, messages = _verdict(gates, fit.rms_mm, sigma, move, climb, n_corners, rms_px, ambiguity_ratio)
+    verdict, messages = _verdict(gates, fit.rms_mm, sigma, move, climb, seat_tilt_deg(ref_P), n_corners, rms_px,
+                                 ambiguity_ratio)
     if fit.label_check != "unique":
         messages.append(f"nest labels: {fit.label_check}")
     unc = None

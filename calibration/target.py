@@ -11,8 +11,11 @@ Markers are found by OpenCV (square candidates) but identified here: OpenCV 5
 matches each candidate against the dictionary one entry at a time, which costs
 ~2 s per image for this 600-marker board; reading each candidate's bits once and
 matching them against all markers and rotations at once takes ~0.1 s and finds the
-same markers. OpenCV's CharucoDetector then interpolates and refines the chessboard
-corners from those markers as usual (``fast=False`` uses OpenCV for both steps).
+same markers. A match may differ in as many bits as OpenCV allows for the dictionary
+(none for DICT_4X4_1000), and a marker whose id disagrees with its image neighbours
+is dropped. OpenCV's CharucoDetector then interpolates and refines the chessboard
+corners from those markers as usual; if its board check rejects the marker set,
+OpenCV's own detector decides (``fast=False`` uses OpenCV for both steps).
 """
 from __future__ import annotations
 
@@ -79,8 +82,9 @@ _CANDIDATE_WIDTH = 1400
 
 
 @lru_cache(maxsize=8)
-def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, cv2.aruco.ArucoDetector]:
-    """Packed inner bits of every board marker, the marker size, and a candidate finder."""
+def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.ArucoDetector]:
+    """Packed inner bits of every board marker, the marker size, the bits a match may
+    differ in, and a candidate finder."""
     d = board.getDictionary()
     n = d.markerSize
     weights = 1 << np.arange(n * n, dtype=np.int64)
@@ -89,7 +93,11 @@ def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, cv2.a
     # a one-marker dictionary: OpenCV then finds and returns all square candidates
     # quickly, and the identification below matches them against the board's markers
     finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), n, 0))
-    return codes, n, finder
+    # the dictionary's own limit, scaled as OpenCV's identification does: markers of
+    # a dense dictionary (DICT_4X4_1000: 0 bits) differ from a neighbour in one bit, so
+    # accepting a wrong bit there would read a misread marker as another id
+    max_bits = int(d.maxCorrectionBits * cv2.aruco.DetectorParameters().errorCorrectionRate)
+    return codes, n, max_bits, finder
 
 
 def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[list[np.ndarray], np.ndarray]:
@@ -98,9 +106,10 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     OpenCV 5's identification step compares every candidate with every dictionary
     entry one by one (~2 s for 800 candidates and 600 markers); here the candidates'
     bits are read once and matched against all markers and rotations with
-    vectorised Hamming distances, accepting at most one wrong bit.
+    vectorised Hamming distances, accepting as many wrong bits as OpenCV would for
+    this dictionary (``maxCorrectionBits`` × ``errorCorrectionRate``).
     """
-    codes, n, finder = _marker_codes(board)
+    codes, n, max_bits, finder = _marker_codes(board)
     f = max(1, int(np.ceil(img.shape[1] / _CANDIDATE_WIDTH)))
     small = img if f == 1 else cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
     found, _, rejected = finder.detectMarkers(small)
@@ -135,9 +144,9 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     flat = dist.reshape(len(keep), -1).argmin(axis=1)
     rot, ident = np.unravel_index(flat, dist.shape[1:])
     best = dist.reshape(len(keep), -1)[np.arange(len(keep)), flat]
-    chosen: dict[int, tuple[int, int, float]] = {}
+    chosen: dict[int, tuple[int, int, float, int]] = {}
     for j, k in enumerate(keep):
-        if best[j] > 1:
+        if best[j] > max_bits:
             continue
         area = abs(cv2.contourArea(quads[k].astype(np.float32)))
         prev = chosen.get(int(ident[j]))
@@ -149,7 +158,41 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
         # the marker's own first corner is r places further along
         corners.append(np.roll(quads[k], -r, axis=0).astype(np.float32).reshape(1, 4, 2))
         ids.append(marker_id)
-    return corners, np.array(ids, np.int32).reshape(-1, 1)
+    return _consistent(corners, np.array(ids, np.int32).reshape(-1, 1), board)
+
+
+#: neighbours a marker is checked against, and the largest disagreement (in squares)
+_NEIGHBOURS, _MAX_OFF_SQUARES = 8, 0.5
+
+
+def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.CharucoBoard
+                ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Drop markers whose id puts them where their image neighbours say they are not.
+
+    A misread marker can match another id exactly (a dense dictionary has codes one
+    bit apart). Around each marker the board-to-image map is nearly affine, so an
+    affine map fitted (RANSAC) to its nearest neighbours in the image predicts its
+    board position; a marker more than half a square off is dropped. Markers with too
+    few agreeing neighbours to judge are kept (the board check still sees them).
+    """
+    if len(ids) <= _NEIGHBOURS:
+        return corners, ids
+    square = board.getSquareLength()
+    obj = {int(i): np.asarray(o, np.float64).reshape(4, 3)[:, :2].mean(axis=0) / square
+           for i, o in zip(board.getIds().ravel(), board.getObjPoints())}
+    uv = np.array([c.reshape(4, 2).mean(axis=0) for c in corners], np.float64)
+    xy = np.array([obj[int(i)] for i in ids.ravel()])
+    d2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
+    near = np.argsort(d2, axis=1)[:, 1:_NEIGHBOURS + 1]
+    keep = np.ones(len(ids), bool)
+    for j in range(len(ids)):
+        nb = near[j]
+        A, inl = cv2.estimateAffine2D(uv[nb], xy[nb], method=cv2.RANSAC,
+                                      ransacReprojThreshold=_MAX_OFF_SQUARES / 2, refineIters=0)
+        if A is None or int(inl.sum()) < 4:
+            continue
+        keep[j] = np.linalg.norm(A[:, :2] @ uv[j] + A[:, 2] - xy[j]) <= _MAX_OFF_SQUARES
+    return [c for c, k in zip(corners, keep) if k], ids[keep]
 
 
 def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = None,
@@ -159,7 +202,8 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
     ``model`` is only used to check that the image has the model's size. ``fast``
     uses this module's marker identification (same markers, ~10x quicker); the
     chessboard corners are interpolated and refined by OpenCV's CharucoDetector
-    either way.
+    either way. When OpenCV's board check keeps fewer corners than half the markers
+    found, OpenCV's own marker detection runs too and the larger corner set is kept.
     """
     img = _gray(image)
     if model is not None and (img.shape[1], img.shape[0]) != tuple(model.size):
@@ -168,13 +212,18 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
     det = _detector(plate.board_cols, plate.board_rows, float(plate.square_mm), float(plate.marker_mm),
                     plate.aruco_dict)
     board = make_board(plate)
+    corners = ids = None
     if fast:
         m_corners, m_ids = _detect_markers(img, board)
-        if len(m_ids) == 0:
-            return np.zeros(0, int), np.zeros((0, 2))
-        corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
-    else:
-        corners, ids, _, _ = det.detectBoard(img)
+        if len(m_ids):
+            corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
+        # OpenCV's board check rejects a marker set it finds inconsistent (no or few
+        # corners from many markers): let OpenCV's own detector decide then
+        fast = len(m_ids) == 0 or (ids is not None and len(ids) >= len(m_ids) // 2)
+    if not fast:
+        corners_cv, ids_cv, _, _ = det.detectBoard(img)
+        if ids_cv is not None and (ids is None or len(ids_cv) > len(ids)):
+            corners, ids = corners_cv, ids_cv
     if ids is None or len(ids) == 0:
         return np.zeros(0, int), np.zeros((0, 2))
     return ids.reshape(-1).astype(int), corners.reshape(-1, 2).astype(float)

@@ -9,8 +9,8 @@ import pytest
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_y, rot_z
-from calibration.referencing import (Gates, board_corners_ref, plate_normal, reference, reference_pose,
-                                     rob_H_cam_error, robot_pose)
+from calibration.referencing import (Gates, board_corners_ref, chain, plate_normal, reference, reference_pose,
+                                     rob_H_cam_error, robot_pose, seat_tilt_deg)
 from calibration.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
@@ -171,3 +171,55 @@ def test_board_corner_ids_match_opencv():
     assert np.allclose(board_corners_ref(plate, ids), ref[ids])
     with pytest.raises(ValueError, match="out of range"):
         board_corners_ref(plate, [len(ref)])
+
+
+def _unequal_seats_observation(seat_dz_mm=(0.0, -0.6, 0.4), seed=21):
+    """Truth and observations for a plate whose nest seats sit at unequal heights.
+
+    The seat heights are stated correctly in the plate definition; the tracker
+    measures the SMRs where they really are. No noise: the only error source is how
+    the robot z axis is chosen.
+    """
+    world = World(WorldParams(seed=seed))
+    sim = Simulation(world, SimConfig(sigma_t_mm=0.0, seed=seed))
+    obs = sim.calibration()
+    ref_P = sim.plate.ref_P_smr() + np.column_stack([np.zeros((3, 2)), seat_dz_mm])
+    obs.abs_P_nests = apply_H(world.abs_H_ref, ref_P)
+    return world, sim, obs, ref_P
+
+
+def test_unequal_seat_heights_do_not_tilt_the_robot_frame():
+    world, sim, obs, ref_P = _unequal_seats_observation()
+    cam_H_ref = obs.cam_ref if isinstance(obs.cam_ref, np.ndarray) else obs.cam_ref.cam_H_ref
+    res = reference_pose(cam_H_ref, FLIP @ inv_H(cam_H_ref), ref_P, obs.abs_P_nests, obs.abs_P_rob0,
+                         obs.abs_P_rob1, sigma_t_mm=0.0, mc_samples=0)
+    err = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
+    print(err)
+    assert err["rot_deg"] < 0.01 and err["t_xy_mm"] < 0.001 and err["t_z_mm"] < 0.001
+    # the robot z axis is the plate surface normal, not the nest triangle's (0.16° off here)
+    up = world.abs_H_ref[:3, :3] @ [0.0, 0.0, -1.0]
+    assert np.degrees(np.arccos(min(1.0, res.abs_n @ up))) < 1e-6
+    tri = plate_normal(obs.abs_P_nests, obs.abs_P_rob0)
+    assert np.degrees(np.arccos(tri @ up)) > 0.1
+    assert res.verdict == "ok", res.messages
+
+
+def test_unequal_seat_heights_uncertainty_follows_the_surface_normal():
+    # the Monte Carlo chain uses the same normal: its mean stays on the true pose
+    world, sim, obs, ref_P = _unequal_seats_observation(seed=22)
+    cam_H_ref = obs.cam_ref if isinstance(obs.cam_ref, np.ndarray) else obs.cam_ref.cam_H_ref
+    scn_H_cam = FLIP @ inv_H(cam_H_ref)
+    run_chain = chain(ref_P, scn_H_cam)
+    rob_H_cam, _ = run_chain(obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, cam_H_ref)
+    assert rob_H_cam_error(rob_H_cam, world.rob_H_cam)["rot_deg"] < 1e-6
+
+
+def test_implausible_seat_tilt_in_the_plate_file_warns():
+    world, sim, obs, ref_P = _unequal_seats_observation((0.0, -3.0, 3.0), seed=23)
+    cam_H_ref = obs.cam_ref if isinstance(obs.cam_ref, np.ndarray) else obs.cam_ref.cam_H_ref
+    assert seat_tilt_deg(ref_P) > 0.5
+    res = reference_pose(cam_H_ref, FLIP @ inv_H(cam_H_ref), ref_P, obs.abs_P_nests, obs.abs_P_rob0,
+                         obs.abs_P_rob1, sigma_t_mm=0.0, mc_samples=0)
+    assert res.verdict == "warn"
+    assert any("tilted" in m and "seat z" in m for m in res.messages), res.messages
+    assert rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)["rot_deg"] < 0.01  # still handled

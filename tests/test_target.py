@@ -4,11 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration import target
 from calibration.errors import CalibrationError
-from calibration.frames import inv_H, rotation_error_deg
-from calibration.target import detect_corners, estimate_cam_H_ref, make_board, pose_from_corners
+from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_z, rotation_error_deg
+from calibration.target import (_consistent, _detect_markers, _marker_codes, detect_corners, estimate_cam_H_ref,
+                                make_board, pose_from_corners)
 from fakes.render import Renderer, world_camera_model
-from fakes.world import World
+from fakes.world import World, WorldParams
 
 
 def footprint_ref(cam_H_ref: np.ndarray) -> np.ndarray:
@@ -88,3 +90,70 @@ def test_fast_marker_path_agrees_with_opencv(scene) -> None:
     d = np.linalg.norm(uv_f[i_f] - uv_o[i_o], axis=1)
     print(f"difference rms {np.sqrt(np.mean(d ** 2)):.4f} px, max {d.max():.4f} px")
     assert np.sqrt(np.mean(d ** 2)) < 0.03 and d.max() < 0.2
+
+
+# --------------------------------------------------------------------------- dense dictionaries
+
+@pytest.fixture(scope="module")
+def oblique_4x4():
+    """A DICT_4X4_1000 board seen 35° off its normal from 40 mm (issue #12, bug 3)."""
+    world = World(WorldParams(aruco_dict="DICT_4X4_1000", seed=3))
+    size = world.params.reduced_size
+    centre = apply_H(world.abs_H_ref, world.board_centre_ref())
+    R = rot_z(0.3) @ rot_x(np.pi) @ rot_x(np.radians(35.0))  # nadir, then tilted 35°
+    abs_H_cam = make_H(R, centre - 40.0 * R[:, 2])
+    image = Renderer(world, size).render(abs_H_cam, rng=np.random.default_rng(5))
+    model = world_camera_model(world, size)
+    return world, image, model, inv_H(abs_H_cam) @ world.abs_H_ref
+
+
+def _true_marker_centres(board, model, cam_H_ref) -> dict[int, np.ndarray]:
+    return {int(i): model.project(apply_H(cam_H_ref, np.asarray(o).reshape(4, 3))).mean(axis=0)
+            for i, o in zip(board.getIds().ravel(), board.getObjPoints())}
+
+
+def test_correction_limit_is_the_dictionarys_own() -> None:
+    # OpenCV accepts int(maxCorrectionBits × errorCorrectionRate) wrong bits: 0 for 4X4_1000
+    for name, bits in (("DICT_4X4_1000", 0), ("DICT_5X5_1000", 1), ("DICT_6X6_1000", 2)):
+        plate = World(WorldParams(aruco_dict=name)).plate()
+        assert _marker_codes(make_board(plate))[2] == bits, name
+
+
+def test_dense_dictionary_oblique_view_decodes(oblique_4x4) -> None:
+    world, image, model, cam_H_ref = oblique_4x4
+    plate = world.plate()
+    board = make_board(plate)
+    corners, ids = _detect_markers(image, board)
+    truth = _true_marker_centres(board, model, cam_H_ref)
+    off = [float(np.linalg.norm(c.reshape(4, 2).mean(axis=0) - truth[int(i)])) for c, i in zip(corners, ids.ravel())]
+    print(f"{len(ids)} markers, largest offset from the true centre {max(off):.2f} px")
+    assert len(ids) > 200 and max(off) < 2.0  # every id is the marker actually there
+    pose = estimate_cam_H_ref(image, model, plate)
+    rot = rotation_error_deg(pose.cam_H_ref[:3, :3], cam_H_ref[:3, :3])
+    print(f"{pose.n_corners} corners, rotation error {rot:.5f}°")
+    assert pose.n_corners > 300 and rot < 0.01
+    assert np.abs(pose.cam_H_ref[:3, 3] - cam_H_ref[:3, 3]).max() < 0.01
+
+
+def test_misread_marker_is_dropped(oblique_4x4) -> None:
+    world, image, model, cam_H_ref = oblique_4x4
+    board = make_board(world.plate())
+    corners, ids = _detect_markers(image, board)
+    wrong = ids.copy()
+    far = next(int(i) for i in board.getIds().ravel() if int(i) not in set(ids.ravel().tolist()))
+    wrong[len(wrong) // 2, 0] = far  # a marker read as an id that is elsewhere on the board
+    kept_corners, kept = _consistent(corners, wrong, board)
+    assert far not in kept.ravel().tolist()
+    assert len(kept) >= len(ids) - 3  # the good markers stay
+
+
+def test_rejected_marker_set_falls_back_to_opencv(oblique_4x4, monkeypatch) -> None:
+    world, image, _, _ = oblique_4x4
+    plate = world.plate()
+    corners, ids = _detect_markers(image, make_board(plate))
+    shuffled = np.random.default_rng(0).permutation(ids.ravel()).reshape(-1, 1)  # nonsense the board check rejects
+    monkeypatch.setattr(target, "_detect_markers", lambda img, board: (corners, shuffled))
+    got_ids, got_uv = detect_corners(image, plate)
+    ocv_ids, ocv_uv = detect_corners(image, plate, fast=False)
+    assert len(got_ids) == len(ocv_ids) > 300
+    assert np.array_equal(got_ids, ocv_ids) and np.allclose(got_uv, ocv_uv)
