@@ -58,8 +58,8 @@ def _eight_bit(load: LoadImage) -> LoadImage:
 
 def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """rob_H_cam from the nests and one or two on-plate runs (two = 0°/180° reversal)."""
-    model = CameraModel.from_dict(obs["camera_model"])
-    plate = Plate.from_dict(obs["plate"])
+    model = CameraModel.from_dict(obs["camera_model"], source="state.json: obs.camera_model")
+    plate = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
     abs_P_nests = np.array([_abs(obs["nests"][n]) for n in NEST_NAMES])
     sigma_t = _sigma_t(obs)
     load = _eight_bit(load)
@@ -100,7 +100,7 @@ MARK_SIZE_MM = {"dot": 0.4, "cross": 0.6}
 
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
                  size_mm: float | None, sigma_t_mm: float) -> dict[str, Any]:
-    scs = Scs.from_dict(calib["scs"])
+    scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
     rob_H_scn = np.array(calib["rob_H_scn"], dtype=float)
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     robot = stop.get("robot") or {}
@@ -143,11 +143,12 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """Camera model from several views of the plate target."""
     from calibration.intrinsics import calibrate_intrinsics
 
-    plate = Plate.from_dict(obs["plate"])
+    plate = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
     load = _eight_bit(load)
     images = [load(v["image"]) for v in obs["views"]]
     size = (images[0].shape[1], images[0].shape[0])
-    initial = CameraModel.from_dict(obs["initial_model"]) if obs.get("initial_model") else None
+    initial = (CameraModel.from_dict(obs["initial_model"], source="state.json: obs.initial_model")
+               if obs.get("initial_model") else None)
     model, report = calibrate_intrinsics(images, plate, size, initial=initial)
     report = report if isinstance(report, dict) else {"report": report}
     messages, verdict = [], "ok"
@@ -167,7 +168,7 @@ COMPUTE = {"referencing": compute_referencing, "measure-mark": compute_measure_m
 
 def footprint_abs(calib: dict[str, Any], abs_H_rob: np.ndarray) -> np.ndarray:
     """Where the image centre meets the floor, in ACS, for a robot pose (for navigation)."""
-    scs = Scs.from_dict(calib["scs"])
+    scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
     w, h = scs.size
     xy = scs.image_to_scn(np.array([[(w - 1) / 2, (h - 1) / 2]]))[0]
     rob_P = apply_H(np.array(calib["rob_H_scn"], float), [xy[0], xy[1], 0.0])

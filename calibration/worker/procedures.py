@@ -219,7 +219,7 @@ def intrinsics(ctx: JobContext) -> None:
     if "plate" not in ctx.obs:
         ctx.obs["plate"] = ctx.params.get("plate") or _installed(ctx, "plate.json")
         ctx.obs["initial_model"] = ctx.params.get("camera_model")
-    plate = Plate.from_dict(ctx.obs["plate"])
+    plate = Plate.from_dict(ctx.obs["plate"], source="plate file")
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     views = ctx.obs.setdefault("views", [])
     n = int(param(ctx, "views"))
