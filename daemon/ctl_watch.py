@@ -119,7 +119,8 @@ class Screen:
 
     def event(self, text: str) -> None:
         self.out.write(("\r\x1b[K" if self.tty else "") + text + "\n")
-        self._shown = ""  # redraw the status under the event
+        if self.tty:
+            self._shown = ""  # the event overwrote the status line: draw it again below
         self.out.flush()
 
     def status(self, text: str, now: float) -> None:
