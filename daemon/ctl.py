@@ -23,7 +23,6 @@ import array
 import json
 import struct
 import sys
-import time
 import zlib
 from pathlib import Path
 from typing import Any
