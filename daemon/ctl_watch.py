@@ -152,7 +152,7 @@ def _snapshot(c: Client, status: LiveStatus) -> int:
 
 def _loop(sub: Subscriber, duration: float | None, on_msg: Callable[[str, dict[str, Any]], None],
           on_tick: Callable[[float], None]) -> None:
-    end = time.monotonic() + duration if duration else float("inf")
+    end = float("inf") if duration is None else time.monotonic() + duration
     while (now := time.monotonic()) < end:
         msg = sub.recv(min(0.2, max(end - now, 0.0)))
         if msg is not None:
@@ -185,7 +185,7 @@ def watch_status(c: Client, a: argparse.Namespace, out: TextIO | None = None) ->
         screen.close()
         return Exit.OK
     except KeyboardInterrupt:
-        return Exit.OK  # Ctrl-C is how a watch ends
+        return Exit.INTERRUPTED  # the documented code for Ctrl-C, even though it is how a watch ends
     finally:
         sub.close()
 
@@ -231,7 +231,7 @@ def watch_frames(c: Client, a: argparse.Namespace, out: TextIO | None = None) ->
     try:
         _loop(sub, a.duration, on_frame, on_tick)
     except KeyboardInterrupt:
-        pass
+        return Exit.INTERRUPTED
     finally:
         sub.close()
     return Exit.OK

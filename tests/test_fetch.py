@@ -205,3 +205,29 @@ def test_a_listing_that_would_leave_the_target_is_refused(tmp_path: Path) -> Non
         with pytest.raises(FetchError):
             local_target(tmp_path, rel)
     assert local_target(tmp_path, "a/b.png") == tmp_path / "a" / "b.png"
+
+
+def test_progress_bar_only_on_a_terminal(monkeypatch) -> None:
+    import io
+
+    from daemon.ctl_fetch import Progress
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    err = Tty()
+    monkeypatch.setattr("sys.stderr", err)
+    p = Progress(4_000_000, tty=True)
+    p.add(1_000_000, "datasets/a.png")
+    p.add(3_000_000, "datasets/b.png")  # the last update is always drawn
+    p.end()
+    drawn = err.getvalue().split("\r")
+    assert " 25.0%" in drawn[1] and "datasets/a.png" in drawn[1]
+    assert drawn[-1].startswith("[" + "#" * 30 + "] 100.0%") and drawn[-1].endswith("\n")
+    err2 = io.StringIO()
+    monkeypatch.setattr("sys.stderr", err2)
+    q = Progress(10, tty=False)
+    q.add(10, "x")
+    q.end()
+    assert err2.getvalue() == ""
