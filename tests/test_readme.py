@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from daemon.client import Client
 from daemon.protocol import CommandError
 
@@ -65,6 +67,8 @@ def test_readme_block_parses() -> None:
     assert all(ln.startswith((".venv/bin/", "export ")) for ln in lines), lines
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(900)
 def test_readme_using_it_runs_verbatim(tmp_path: Path) -> None:
     runtime, work = tmp_path / "rt", tmp_path / "work"
     runtime.mkdir()
