@@ -104,8 +104,12 @@ def _download(c: Client, rel: str, part: Path, offset: int, chunk: int, timeout:
 
 
 def fetch_file(c: Client, rel: str, size: int, dest: Path, chunk: int = CHUNK, timeout: float = 30.0,
-               progress: Progress | None = None) -> str:
-    """Copy one file; returns "skipped", "resumed" or "fetched"."""
+               progress: Progress | None = None, renamed_in: set[Path] | None = None) -> str:
+    """Copy one file; returns "skipped", "resumed" or "fetched".
+
+    The folder is fsynced after the rename, or, with ``renamed_in``, added to it for the caller
+    to fsync once per folder (many small files).
+    """
     progress = progress or Progress(size, False)
     target = local_target(dest, rel)
     if target.exists() and target.stat().st_size == size:
@@ -124,7 +128,10 @@ def fetch_file(c: Client, rel: str, size: int, dest: Path, chunk: int = CHUNK, t
         # one read of the whole file cannot straddle a change; more reads are checked against the robot
         if whole or c.call("files.hash", timeout=timeout, path=rel)["sha256"] == _sha256(part):
             os.replace(part, target)
-            _fsync_dir(target.parent)
+            if renamed_in is None:
+                _fsync_dir(target.parent)
+            else:
+                renamed_in.add(target.parent)
             return how
         part.unlink()  # changed on the robot while we copied it: once more from the start
         size = c.call("files.hash", timeout=timeout, path=rel, length=0)["size"]
@@ -143,10 +150,11 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
         listing.update({f["path"]: f["size"] for f in r["files"]})
     out: dict[str, Any] = {"to": str(dest), "fetched": [], "resumed": [], "skipped": [], "errors": {}}
     progress = Progress(sum(listing.values()), tty)
+    renamed_in: set[Path] = set()
     try:
         for rel, size in sorted(listing.items()):
             try:
-                how = fetch_file(c, rel, size, dest, chunk, timeout, progress)
+                how = fetch_file(c, rel, size, dest, chunk, timeout, progress, renamed_in)
             except ClientTimeout:
                 raise  # the daemon is gone: no point in trying the next file
             except (CommandError, FetchError) as exc:
@@ -158,6 +166,8 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
                 say(f"{how:8s} {rel} ({size} bytes)")
     finally:
         progress.end()
+        for folder in renamed_in:  # also after Ctrl-C: what was renamed stays renamed
+            _fsync_dir(folder)
     return out
 
 
