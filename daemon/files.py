@@ -48,10 +48,15 @@ def confine(root: Path, path: str, cmd: str, private: tuple[str, ...] = PRIVATE_
     if _private(rel, private):
         raise _refuse(cmd, path, "is private to the robot (keys are never served)")
     root = root.resolve()
-    target = (root / rel).resolve()
+    try:
+        target = (root / rel).resolve()
+        exists = target.exists()
+    except (OSError, RuntimeError, ValueError) as exc:  # a name too long, a symlink loop (RuntimeError), ...
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise _refuse(cmd, path, f"cannot be resolved ({why})") from None
     if target != root and not target.is_relative_to(root):
         raise _refuse(cmd, path, "leads outside the data dir (symlink)")
-    if not target.exists():
+    if not exists:
         raise CommandError(ErrorCode.NOT_FOUND, f"{cmd}: no file {path!r} in the data dir")
     return target
 
@@ -78,16 +83,16 @@ def list_files(root: Path, path: str = "", private: tuple[str, ...] = PRIVATE_DI
         rel = PurePosixPath(p.relative_to(root).as_posix())
         if _private(rel, private) or (rel.name.startswith(".") and rel.name.endswith(".tmp")):
             continue  # secrets, and half-written files of an atomic write in progress
-        real = p.resolve()
-        if not real.is_relative_to(root) or not real.is_file():
-            continue  # a symlink to outside the data dir, or to nothing
+        try:
+            real = p.resolve()
+            if not real.is_relative_to(root) or not real.is_file():
+                continue  # a symlink to outside the data dir, or to nothing
+            st = real.stat()
+        except (OSError, RuntimeError):
+            continue  # removed while we walked, or a symlink loop
         if len(files) >= LIST_MAX:
             truncated = True
             break
-        try:
-            st = real.stat()
-        except OSError:
-            continue  # removed while we walked
         files.append({"path": str(rel), "size": st.st_size, "mtime_ns": st.st_mtime_ns})
     return {"root": str(root), "files": files, "truncated": truncated}
 

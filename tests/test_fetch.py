@@ -54,6 +54,7 @@ def served(tmp_path: Path) -> Iterator[tuple[Daemon, Path, Path]]:
     (data / "link_out").symlink_to(outside)
     (data / "link_file_out").symlink_to(outside / "secret.txt")
     (data / "link_in").symlink_to(data / "report.md")
+    (data / "loop").symlink_to(data / "loop")
     try:
         yield d, data, tmp_path
     finally:
@@ -94,7 +95,8 @@ def test_list_serves_data_but_never_secrets_or_escapes(served) -> None:
 
 ESCAPES = ("../outside/secret.txt", "/etc/passwd", "datasets/../../outside/secret.txt", "C:/Windows/win.ini",
            "datasets\\..\\..\\x", "link_out/secret.txt", "link_file_out", "link_out", "keys/server.key_secret",
-           "keys", "authorized_keys/bob.key", "datasets/stray.key_secret", "report.md\x00.png")
+           "keys", "authorized_keys/bob.key", "datasets/stray.key_secret", "report.md\x00.png", "loop", "loop/x",
+           "a" * 5000)
 
 
 def test_path_escape_attempts_are_refused(served) -> None:
