@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -128,7 +129,11 @@ class Screen:
             return
         self._next = now + (0.2 if self.tty else self.every)
         self._shown = text
-        self.out.write(f"\r\x1b[K{text}" if self.tty else text + "\n")
+        if self.tty:  # a wrapped line could not be redrawn in place: cut it to the terminal's width
+            width = shutil.get_terminal_size().columns - 1
+            self.out.write("\r\x1b[K" + (text if len(text) <= width else text[:max(width - 1, 0)] + "…"))
+        else:
+            self.out.write(text + "\n")
         self.out.flush()
 
     def close(self) -> None:

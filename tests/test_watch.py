@@ -60,7 +60,7 @@ class Tty(io.StringIO):
         return True
 
 
-def test_screen_redraws_in_place_on_a_tty_and_prints_changes_otherwise() -> None:
+def test_screen_redraws_in_place_on_a_tty_and_prints_changes_otherwise(monkeypatch) -> None:
     out = io.StringIO()
     scr = Screen(out, tty=False)
     for t, text in ((0.0, "a"), (0.1, "b"), (0.5, "b"), (1.2, "b"), (1.3, "c"), (2.4, "c")):
@@ -77,6 +77,10 @@ def test_screen_redraws_in_place_on_a_tty_and_prints_changes_otherwise() -> None
     scr.status("b", 0.6)
     scr.close()
     assert tty.getvalue() == "\r\x1b[Ka\r\x1b[Kb\r\x1b[Kjob J1 finished\n\r\x1b[Kb\n"
+    monkeypatch.setenv("COLUMNS", "20")
+    narrow = Tty()
+    Screen(narrow, tty=True).status("x" * 50, 0.0)
+    assert narrow.getvalue() == "\r\x1b[K" + "x" * 18 + "…"  # never wraps, so it can be redrawn
 
 
 @pytest.fixture
