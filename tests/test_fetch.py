@@ -234,3 +234,14 @@ def test_progress_bar_only_on_a_terminal(monkeypatch) -> None:
     q.add(10, "x")
     q.end()
     assert err2.getvalue() == ""
+
+
+def test_ctrl_c_during_fetch_says_how_to_resume(served, monkeypatch, capsys) -> None:
+    d, _, tmp = served
+
+    def interrupted(*args: Any, **kw: Any) -> str:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("daemon.ctl_fetch.fetch_file", interrupted)
+    assert ctl.main(["--endpoint", d.server.endpoints[0], "fetch", "--to", str(tmp / "laptop")]) == 130
+    assert "run the same `ritactl fetch` again to resume" in capsys.readouterr().err

@@ -103,6 +103,10 @@ def test_measure_and_capture_before_lock_say_aim_and_find_first(sim, capsys) -> 
     assert ei.value.code == "bad_args"
     assert "ritactl tracker aim X Y Z" in ei.value.args[0] and "--distance" in ei.value.args[0]
     assert "approx_distance_mm" not in ei.value.args[0]
+    c.call("tracker.aim", x=1000.0, y=1000.0, z=1000.0)  # nothing there
+    with pytest.raises(CommandError) as ei:
+        c.call("tracker.find")
+    assert ei.value.code == "tracker_ModuleTimedOut" and "aim closer" in ei.value.args[0], ei.value.args[0]
     assert ctl.main(["--endpoint", d.server.endpoints[0], "capture", "--label", "early"]) != 0
     assert hint in capsys.readouterr().err
 

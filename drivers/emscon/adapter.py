@@ -224,7 +224,12 @@ class EmsconTracker(Tracker):
             approx_distance_mm = math.dist((0.0, 0.0, 0.0), self._last_aim)
         if not (math.isfinite(approx_distance_mm) and approx_distance_mm > 0):
             raise ValueError(f"find_reflector: approx_distance_mm={approx_distance_mm!r} must be > 0")
-        self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
+        try:
+            self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
+        except EmsconStatusError as exc:
+            exc.args = (f"{exc.args[0]}: no reflector within the search radius of the beam; aim closer "
+                        f"(`ritactl tracker aim X Y Z`, tracker frame, mm) or hold the reflector in the beam",)
+            raise
 
     def start_stream(self, rate_hz: float) -> None:
         if not (MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
