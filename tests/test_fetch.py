@@ -245,3 +245,41 @@ def test_ctrl_c_during_fetch_says_how_to_resume(served, monkeypatch, capsys) -> 
     monkeypatch.setattr("daemon.ctl_fetch.fetch_file", interrupted)
     assert ctl.main(["--endpoint", d.server.endpoints[0], "fetch", "--to", str(tmp / "laptop")]) == 130
     assert "run the same `ritactl fetch` again to resume" in capsys.readouterr().err
+
+
+def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
+    """The laptop's real path: tcp with CURVE; 1 MiB attachments arrive intact, secrets stay home."""
+    import signal
+    import subprocess
+    import sys
+
+    from daemon.auth import create_keypair, load_keypair, load_public
+    from tests.test_curve import CONFIG, ROOT
+
+    data = tmp_path / "data"
+    create_keypair(data / "keys", "server")
+    create_keypair(tmp_path / "clients", "alice")
+    (data / "authorized_keys").mkdir(parents=True)
+    (data / "authorized_keys" / "alice.key").write_bytes((tmp_path / "clients" / "alice.key").read_bytes())
+    (data / "datasets" / "d").mkdir(parents=True)
+    body = np.random.default_rng(5).bytes(3 * CHUNK_MAX + 123)
+    (data / "datasets" / "d" / "x.png").write_bytes(body)
+    (tmp_path / "ritad.toml").write_text(CONFIG.format(tmp=tmp_path))
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "ritad.toml")],
+                            cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
+                            stderr=open(tmp_path / "ritad.log", "w"), text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("ritad ready"), (line, (tmp_path / "ritad.log").read_text())
+        tcp = next(e for e in line.split(": ", 1)[1].split() if e.startswith("tcp://"))
+        public, secret = load_keypair(tmp_path / "clients" / "alice.key_secret")
+        keys = {"public": public, "secret": secret, "server": load_public(data / "keys" / "server.key")}
+        with Client(tcp, timeout=10, curve=keys) as c:
+            r = fetch(c, [], tmp_path / "laptop", say=lambda _: None)
+        assert r["errors"] == {} and "datasets/d/x.png" in r["fetched"]
+        assert (tmp_path / "laptop" / "datasets" / "d" / "x.png").read_bytes() == body
+        got = {p.relative_to(tmp_path / "laptop").as_posix() for p in (tmp_path / "laptop").rglob("*")}
+        assert not any(p.startswith(("keys", "authorized_keys")) or "key_secret" in p for p in got), got
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
