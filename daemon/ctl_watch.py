@@ -141,11 +141,16 @@ class Screen:
             self.out.write("\n")
 
 
-def _snapshot(c: Client, status: LiveStatus) -> int:
-    """Seed the status from the daemon's Clone snapshot; returns its seq (drop updates up to it)."""
+def _snapshot(c: Client, status: LiveStatus, echo: Callable[[str, dict[str, Any]], None] | None = None) -> int:
+    """Seed the status from the daemon's Clone snapshot; returns its seq (drop updates up to it).
+
+    ``echo`` gets each topic's latest message first (``--json``: the current state, then updates).
+    """
     snap = c.call("state")
     for topic, m in sorted(snap.get("latest", {}).items(), key=lambda kv: kv[1].get("seq", 0)):
         status.update(topic, m["data"])
+        if echo is not None:
+            echo(topic, {**m, "snapshot": True})
     status.devices.update({k: v["state"] for k, v in snap["devices"].items()})
     try:  # the lock is only announced on change: ask once
         ts = c.call("tracker.status", timeout=2).get("tracker_status")
@@ -169,15 +174,16 @@ def watch_status(c: Client, a: argparse.Namespace, out: TextIO | None = None) ->
     out = out or sys.stdout
     sub = c.subscriber(a.topic or None)  # subscribed first, then the snapshot (Clone pattern)
     status = LiveStatus()
-    try:
-        seq = _snapshot(c, status)
-        if a.json:
-            def on_msg(topic: str, m: dict[str, Any]) -> None:
-                if m.get("seq", 0) > seq:
-                    out.write(json.dumps({"topic": topic, **m}, default=str) + "\n")
-                    out.flush()
 
-            _loop(sub, a.duration, on_msg, lambda now: None)
+    def emit(topic: str, m: dict[str, Any]) -> None:
+        out.write(json.dumps({"topic": topic, **m}, default=str) + "\n")
+        out.flush()
+
+    try:
+        seq = _snapshot(c, status, emit if a.json else None)
+        if a.json:
+            _loop(sub, a.duration, lambda topic, m: emit(topic, m) if m.get("seq", 0) > seq else None,
+                  lambda now: None)
             return Exit.OK
         screen = Screen(out, out.isatty())
 

@@ -112,8 +112,14 @@ def test_watch_is_a_few_status_lines_while_the_tracker_streams(live, capsys) -> 
         for argv in (["--json", "watch", "--duration", "1.5"], ["watch", "--json", "--duration", "1.5"]):
             assert ctl.main(["--endpoint", ep, *argv]) == 0
             msgs = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
-            points = [m for m in msgs if m["topic"] == "tracker.point"]
+            points = [m for m in msgs if m["topic"] == "tracker.point" and not m.get("snapshot")]
             assert len(points) >= 5 and all("seq" in m and "data" in m for m in msgs)
+            seqs = [m["seq"] for m in msgs if not m.get("snapshot")]
+            assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # no update twice, none before the state
+        assert ctl.main(["--endpoint", ep, "--json", "watch", "--duration", "0"]) == 0
+        now = {m["topic"]: m for m in map(json.loads, capsys.readouterr().out.splitlines())}
+        # the current state (no daemon.health here: the in-process daemon runs no supervisor)
+        assert now["robot.state"]["snapshot"] and now["tracker.point"]["data"]["n"] >= 1
     finally:
         c.call("tracker.stream.stop")
 
