@@ -13,6 +13,7 @@ from concurrent.futures import Executor, Future
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
+from daemon import files
 from daemon.protocol import CommandError, ErrorCode
 from daemon.server import Reply, Request
 from daemon.storage import tracker_point_dict
@@ -240,6 +241,30 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
     def data_dir(req: Request) -> Any:
         return {"data_dir": str(Path(cfg.daemon.data_dir).resolve())}
 
+    # ---------------------------------------------------------------- files (ritactl fetch)
+    # file work runs in the storage thread: a slow disk never holds up the bus or a device
+    root = Path(cfg.daemon.data_dir)
+    auth_top = Path(cfg.security.authorized_keys_dir)
+    private = (*files.PRIVATE_DIRS, *(() if auth_top.is_absolute() else auth_top.parts[:1]))
+
+    def files_list(req: Request) -> Any:
+        path = need(req, "path", str, "")
+        return d.storage.submit(files.list_files, root, path, private)
+
+    def files_read(req: Request) -> Any:
+        path, offset = need(req, "path", str), need(req, "offset", int, 0)
+        length = need(req, "length", int, files.CHUNK_MAX)
+
+        def read() -> Reply:
+            meta, data = files.read_chunk(root, path, offset, length, private)
+            return Reply(meta, [data])
+
+        return d.storage.submit(read)
+
+    def files_hash(req: Request) -> Any:
+        path, length = need(req, "path", str), need(req, "length", (int, type(None)), None)
+        return d.storage.submit(files.hash_file, root, path, length, private)
+
     handlers: dict[str, Callable[[Request], Any]] = {
         "ping": ping, "help": help_, "hello": hello, "status": status, "health": status, "state": state,
         "tracker.measure": tracker_measure, "tracker.aim": tracker_aim, "tracker.find": tracker_find,
@@ -249,6 +274,7 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         "camera.stream.stop": camera_stream_stop, "camera.status": camera_status,
         "robot.move": robot_move, "robot.turn": robot_turn, "robot.stop": robot_stop, "robot.status": robot_status,
         "capture": capture, "sim.truth": sim_truth, "sim.place_robot_on_plate": sim_place_robot_on_plate, "data.dir": data_dir, "calib.results": calib_results,
+        "files.list": files_list, "files.read": files_read, "files.hash": files_hash,
         **d.calib.handlers(),
     }
     return handlers

@@ -20,15 +20,14 @@ from __future__ import annotations
 
 import argparse
 import array
-import collections
 import json
 import struct
 import sys
-import time
 import zlib
 from pathlib import Path
 from typing import Any
 
+from daemon import ctl_fetch, ctl_watch
 from daemon.client import Client, ClientTimeout, default_endpoint
 from daemon.protocol import CommandError
 
@@ -72,74 +71,6 @@ def cmd_status(c: Client, a: argparse.Namespace) -> int:
     t, f, cm = h["telemetry"], h["frames"], h["commands"]
     print(f"  telemetry sent={t['sent']} dropped={sum(t['dropped'].values())}   frames sent={f['sent']} "
           f"dropped={f['dropped']}   commands={cm['requests']} errors={cm['errors']}")
-    return 0
-
-
-def cmd_watch(c: Client, a: argparse.Namespace) -> int:
-    if a.frames:
-        return _watch_frames(c, a)
-    sub = c.subscriber(a.topic or None)
-    snap = c.call("state")  # Clone pattern: subscribed first, then the snapshot
-    print(f"snapshot at seq {snap['seq']}: " + ", ".join(f"{k} {v['state']}" for k, v in snap["devices"].items()))
-    counts: collections.Counter[str] = collections.Counter()
-    last: dict[str, Any] = {}
-    end = time.monotonic() + a.duration if a.duration else float("inf")
-    tick = time.monotonic() + 1.0
-    try:
-        while time.monotonic() < end:
-            msg = sub.recv(0.2)
-            if msg is not None:
-                topic, m, _ = msg
-                if m.get("seq", 0) <= snap["seq"]:
-                    continue
-                counts[topic] += 1
-                last[topic] = m["data"]
-                if topic in ("log", "tracker.event", "robot.event", "daemon.state") or topic.startswith("calib."):
-                    print(f"{topic}: {json.dumps(m['data'], default=str)}", flush=True)
-            if time.monotonic() >= tick:
-                tick += 1.0
-                parts = [f"{t} {n}/s" for t, n in sorted(counts.items())]
-                h = last.get("daemon.health")
-                if h:
-                    parts.insert(0, " ".join(f"{k}={v['state']}" for k, v in h["devices"].items()))
-                print(" | ".join(parts) or "(no telemetry)", flush=True)
-                counts.clear()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        sub.close()
-    return 0
-
-
-def _watch_frames(c: Client, a: argparse.Namespace) -> int:
-    sub = c.subscriber(frames=True, hwm=4)
-    end = time.monotonic() + a.duration if a.duration else float("inf")
-    tick = time.monotonic() + 1.0
-    n = gaps = 0
-    last_seq = None
-    lat: list[float] = []
-    try:
-        while time.monotonic() < end:
-            msg = sub.recv(0.2)
-            if msg is not None:
-                _, h, _ = msg
-                n += 1
-                if last_seq is not None and h["seq"] > last_seq + 1:
-                    gaps += h["seq"] - last_seq - 1
-                last_seq = h["seq"]
-                lat.append((time.time_ns() - h["host_time_ns"]) / 1e6)
-            if time.monotonic() >= tick:
-                tick += 1.0
-                lat.sort()
-                p50 = lat[len(lat) // 2] if lat else float("nan")
-                p99 = lat[min(len(lat) - 1, int(len(lat) * 0.99))] if lat else float("nan")
-                print(f"frames {n}/s  missed by this subscriber {gaps}  latency p50 {p50:.1f} ms p99 {p99:.1f} ms",
-                      flush=True)
-                n, lat = 0, []
-    except KeyboardInterrupt:
-        pass
-    finally:
-        sub.close()
     return 0
 
 
@@ -228,11 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--keys", help="CURVE keys folder for tcp endpoints (default $RITA_KEYS or ~/.config/rita)")
     sub = ap.add_subparsers(dest="verb_", required=True)
     sub.add_parser("status", help="device states at a glance").set_defaults(fn=cmd_status)
-    w = sub.add_parser("watch", help="live telemetry")
-    w.add_argument("--frames", action="store_true", help="watch the frame stream instead")
-    w.add_argument("--topic", action="append", help="topic prefix (repeatable)")
-    w.add_argument("--duration", type=float, help="stop after this many seconds")
-    w.set_defaults(fn=cmd_watch)
+    ctl_watch.add_parser(sub)
     cap = sub.add_parser("capture", help="image + tracker point + robot state, saved as a dataset entry")
     cap.add_argument("--label", default="capture")
     cap.add_argument("--dataset", help="dataset folder name (default: today's captures)")
@@ -257,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_parsers(sub)
     add_dataset_parsers(sub)
     add_keys_parser(sub)
+    ctl_fetch.add_parser(sub)
     call = sub.add_parser("call", help="send any bus command")
     call.add_argument("command")
     call.add_argument("args", nargs="?", help="JSON object of arguments")

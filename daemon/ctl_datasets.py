@@ -25,23 +25,26 @@ def _err(text: str) -> None:
     print(f"ritactl: {text}", file=sys.stderr)
 
 
-def _print_problems(folder: str, problems: list[Problem], as_json: bool) -> None:
-    if as_json:
-        print(json.dumps({"folder": folder, "problems": [p.to_dict() for p in problems]}, indent=2))
-        return
+def _print_problems(folder: str, problems: list[Problem]) -> None:
     for p in problems:
         print(f"  {p}")
     print(f"{folder}: {len(problems)} problem(s)" if problems else f"{folder}: valid")
 
 
 def cmd_validate(c: Any, a: argparse.Namespace) -> int:
-    """Every problem of a dataset folder at once; exit 0 when clean, 5 when not."""
-    try:
-        problems = validate_folder(Path(a.folder))
-    except KeyboardInterrupt:
-        return Exit.INTERRUPTED
-    _print_problems(a.folder, problems, a.json)
-    return Exit.BAD_INPUT if problems else Exit.OK
+    """Every problem of each dataset folder at once; exit 0 when all are clean, 5 when not."""
+    reports = []
+    for folder in a.folder:
+        try:
+            problems = validate_folder(Path(folder))
+        except KeyboardInterrupt:
+            return Exit.INTERRUPTED
+        reports.append({"folder": folder, "problems": [p.to_dict() for p in problems]})
+        if not a.json:
+            _print_problems(folder, problems)
+    if a.json:  # one folder: its report; several: a list of them
+        print(json.dumps(reports[0] if len(reports) == 1 else reports, indent=2))
+    return Exit.BAD_INPUT if any(r["problems"] for r in reports) else Exit.OK
 
 
 def _input_file(path: str | None, what: str) -> Any:
@@ -111,7 +114,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
 
 def add_parsers(sub: Any) -> None:
     p = sub.add_parser("validate", help="check a dataset folder against its documented format (offline)")
-    p.add_argument("folder")
+    p.add_argument("folder", nargs="+", help="dataset folder(s): a procedure folder or a captures folder")
     p.set_defaults(fn=cmd_validate, offline=True)
     p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
     p.add_argument("dataset")

@@ -71,20 +71,18 @@ def lock_on_robot(c: Client) -> dict[str, Any]:
 
 
 def operator_files(c: Client, out: Path) -> dict[str, Path]:
-    """What an operator has before calibrating: plate file, camera model, rough nest positions."""
-    import numpy as np
+    """What an operator has before calibrating: plate file, camera model, rough nest positions.
 
-    truth = c.call("sim.truth")
-    trk_H_abs = np.linalg.inv(np.array(truth["abs_H_trk"]))
-    rng = np.random.default_rng(7)
-    approx = {n: (trk_H_abs @ [*(np.array(p) + rng.normal(0, 3, 3)), 1.0])[:3].tolist()
-              for n, p in truth["nests_abs"].items()}  # "roughly here": a few mm off
-    files = {"plate": out / "plate.json", "camera_model": out / "camera_model.json",
-             "nests": out / "nests_approx.json"}
-    files["plate"].write_text(json.dumps(truth["plate"], indent=2))
-    files["camera_model"].write_text(json.dumps(truth["camera_model"], indent=2))
-    files["nests"].write_text(json.dumps(approx, indent=2))
-    return files
+    ``ritad --sim`` installs them in its data dir (the simulated world plays the installer,
+    fakes/installer.py); they are fetched over the bus as a laptop would (``ritactl fetch sim``).
+    """
+    from daemon.ctl_fetch import fetch
+
+    r = fetch(c, ["sim"], out, say=lambda _: None)
+    if r["errors"]:
+        raise SystemExit(f"cannot fetch the simulation's installed files: {r['errors']}")
+    sim = out / "sim"
+    return {"plate": sim / "plate.json", "camera_model": sim / "camera_model.json", "nests": sim / "nests.json"}
 
 
 def ritactl(endpoint: str, *args: str, timeout: float = 600) -> int:

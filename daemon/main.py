@@ -113,6 +113,10 @@ class Daemon:
         cfg = self.config.daemon
         data = Path(cfg.data_dir)
         data.mkdir(parents=True, exist_ok=True)
+        if self.world is not None:  # the simulated world plays the installer (fakes/installer.py)
+            from fakes.installer import install
+
+            install(self.world, data, self.config.devices.camera)
         if self.config.security.curve:
             from daemon.auth import Security
 
@@ -328,7 +332,9 @@ def serve(daemon: Daemon, notifier: Notifier) -> int:
 
     logging.getLogger().addHandler(BusLogHandler(daemon.telemetry.publish))
     for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: daemon.stop_event.set())
+        # set the event from another thread: Event.set() in a handler that interrupts the main
+        # thread's own Event.wait() would deadlock on the Event's (non-reentrant) lock
+        signal.signal(sig, lambda *_: threading.Thread(target=daemon.stop_event.set, daemon=True).start())
     eps = daemon.server.endpoints
     log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), daemon.config.source)
     print(f"ritad ready: {' '.join(eps)}", flush=True)

@@ -54,10 +54,12 @@ texts = st.one_of(st.text(max_size=30), st.text(string.ascii_letters, min_size=2
                   st.sampled_from(["", ".", "..", "/", "a/b", "x" * 300]))
 
 FLOAT_ARGS = ("x", "y", "z", "approx_distance_mm", "rate_hz", "distance_mm", "speed_mm_s", "timeout_s",
-              "angle_deg", "speed_deg_s", "heading_deg")
+              "angle_deg", "speed_deg_s", "heading_deg", "offset", "length")  # any number, ints too
 BOOL_ARGS = ("pixels", "save", "wait", "confirm")
 TEXT_ARGS = {"label": texts, "dataset": texts, "procedure": st.sampled_from(PROCEDURES) | texts,
-             "kind": st.sampled_from(REPORT_KINDS) | texts, "job": texts}
+             "kind": st.sampled_from(REPORT_KINDS) | texts, "job": texts,
+             "path": texts | st.sampled_from(["../etc/passwd", "/etc/passwd", "keys/server.key_secret", "worker.log",
+                                              "C:/x", "a\\..\\b", "sim", "sim/plate.json", "a" * 5000])}
 ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
         "tracker.stream.start": ("rate_hz",), "camera.capture": ("pixels", "save", "label"),
         "robot.move": ("distance_mm", "speed_mm_s", "confirm", "wait", "timeout_s"),
@@ -66,7 +68,8 @@ ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
         "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.resume": ("job",),
         "calib.next": ("timeout_s",),
         "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
-        "sim.place_robot_on_plate": ("heading_deg",)}
+        "sim.place_robot_on_plate": ("heading_deg",), "files.list": ("path",),
+        "files.read": ("path", "offset", "length"), "files.hash": ("path", "length")}
 # real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)
 COMMANDS = sorted({"ping", "help", "hello", "status", "health", "state", "tracker.measure", "tracker.stream.stop",
                    "tracker.status", "camera.stream.start", "camera.stream.stop", "camera.status", "robot.stop",
@@ -321,7 +324,7 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
     # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
     data = Path(daemon.config.daemon.data_dir)
-    assert sorted(p.name for p in data.iterdir()) == ["datasets"]
+    assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
     folders = list((data / "datasets").iterdir())
     assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
@@ -356,4 +359,4 @@ def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
 
         run()
     assert len(saved) >= 100
-    assert sorted(p.name for p in data.iterdir()) == ["datasets"]
+    assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files

@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 from drivers.base import DeviceError, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, _no_emit
-from drivers.emscon.client import EmsconClient
+from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import Packet
 from drivers.emscon.enums import (
     ES_AngleUnit, ES_Command, ES_CoordinateSystemType, ES_HumidityUnit, ES_LengthUnit, ES_LTSensorType,
@@ -34,6 +34,20 @@ MAX_AIM_MM = 1e6  # 1 km, far beyond any tracker's range: larger is a typo, not 
 _MEAS_STATUS = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
                 ES_SystemStatusChange.MeasStatus_Busy: "Busy",
                 ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
+
+
+#: statuses that mean "no reflector locked": the operator must aim and find first
+_NOT_LOCKED = ("MeasurementStatusNotReady",)
+AIM_AND_FIND = "aim and find first: `ritactl tracker aim X Y Z` then `ritactl tracker find`"
+
+
+def _actionable(exc: DeviceError) -> DeviceError:
+    """Say what to do instead of only the emScon status name (the code stays ``tracker_<Status>``)."""
+    name = getattr(exc, "status_name", None)
+    if name not in _NOT_LOCKED:
+        return exc
+    exc.args = (f"no reflector locked ({name}): {AIM_AND_FIND}",)  # same type, code and status
+    return exc
 
 
 def _flag(text: str) -> bool:
@@ -181,7 +195,10 @@ class EmsconTracker(Tracker):
             raise DeviceError("tracker is streaming; stop_stream() before a stationary measurement",
                               code="tracker_streaming")
         c = self._conn()
-        res = c.measure(timeout=self.timeout + self.meas_time_ms / 1000.0)
+        try:
+            res = c.measure(timeout=self.timeout + self.meas_time_ms / 1000.0)
+        except EmsconStatusError as exc:
+            raise _actionable(exc) from exc
         v = res.values
         now, mono = time.time_ns(), time.monotonic_ns()
         point = TrackerPoint(v["val1"], v["val2"], v["val3"], (v["std1"], v["std2"], v["std3"]),
@@ -202,11 +219,17 @@ class EmsconTracker(Tracker):
     def find_reflector(self, approx_distance_mm: float | None = None) -> None:
         if approx_distance_mm is None:
             if self._last_aim is None:
-                raise ValueError("find_reflector: give approx_distance_mm (no aim() before to derive it)")
+                raise ValueError("find needs to know roughly where to look: aim first (`ritactl tracker aim X Y Z`, "
+                                 "tracker frame, mm) or give the distance (`ritactl tracker find --distance MM`)")
             approx_distance_mm = math.dist((0.0, 0.0, 0.0), self._last_aim)
         if not (math.isfinite(approx_distance_mm) and approx_distance_mm > 0):
             raise ValueError(f"find_reflector: approx_distance_mm={approx_distance_mm!r} must be > 0")
-        self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
+        try:
+            self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
+        except EmsconStatusError as exc:
+            exc.args = (f"{exc.args[0]}: no reflector within the search radius of the beam; aim closer "
+                        f"(`ritactl tracker aim X Y Z`, tracker frame, mm) or hold the reflector in the beam",)
+            raise
 
     def start_stream(self, rate_hz: float) -> None:
         if not (MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
@@ -222,10 +245,10 @@ class EmsconTracker(Tracker):
             c.request(ES_Command.StartMeasurement)
         except DeviceLost:
             raise
-        except DeviceError:
+        except DeviceError as exc:
             # e.g. no reflector locked: go back to stationary so measure() still works
             c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.Stationary)
-            raise
+            raise _actionable(exc) from exc
         self._streaming, self._rate_hz = True, 1000.0 / sep
 
     def stop_stream(self) -> None:

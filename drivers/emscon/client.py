@@ -27,6 +27,7 @@ from drivers.emscon.framer import TO_CLIENT, Framer
 
 PacketSink = Callable[[Packet], None]
 RECV_SIZE = 1 << 18
+HEAD_BYTES = 7  # enough to recognise "HTTP/1." or "SSH-2.0"
 
 
 def _ignore(packet: Packet) -> None:
@@ -67,6 +68,8 @@ class EmsconClient:
         self._async_error: Packet | None = None
         self.counters = {"packets": 0, "bytes": 0, "protocol_errors": 0, "unexpected": 0}
         self.lost_reason = ""
+        self._head = b""  # first bytes of this connection: names a peer that is not an emScon server
+        self._conn_packets = 0
 
     # ------------------------------------------------------------------ connection
 
@@ -85,6 +88,7 @@ class EmsconClient:
         self._sock = sock
         self._framer = Framer(TO_CLIENT)
         self.lost_reason = ""
+        self._head, self._conn_packets = b"", 0
 
     def close(self) -> None:
         """Close the socket; safe to call twice."""
@@ -120,10 +124,14 @@ class EmsconClient:
         if not data:
             raise self._lost("server closed the connection (EOF)")
         self.counters["bytes"] += len(data)
+        if len(self._head) < HEAD_BYTES:
+            self._head += data[:HEAD_BYTES - len(self._head)]
         try:
             packets = self._framer.feed(data)
         except ProtocolError as exc:
             self.counters["protocol_errors"] += 1
+            if not self._conn_packets and not getattr(exc, "packets", None):
+                raise self._foreign_peer(exc) from exc
             for p in getattr(exc, "packets", []):  # deliver what was good before the bad bytes
                 self._dispatch(p)
             raise self._lost(f"protocol error: {exc}", exc) from exc
@@ -131,8 +139,17 @@ class EmsconClient:
             self._dispatch(p)
         return len(packets)
 
+    def _foreign_peer(self, exc: ProtocolError) -> DeviceLost:
+        """Bad bytes before any good packet: the port speaks something else (HTTP, SSH, ...)."""
+        self.close()
+        shown = "".join(chr(b) if 32 <= b < 127 else f"\\x{b:02x}" for b in self._head)
+        self.lost_reason = (f"the peer at {self.host}:{self.port} does not speak emScon (it sent '{shown}'); "
+                            f"check the tracker URL's host and port (protocol error: {exc})")
+        return DeviceLost(self.lost_reason)
+
     def _dispatch(self, p: Packet) -> None:
         self.counters["packets"] += 1
+        self._conn_packets += 1
         kind = p.kind
         if kind in ("multi", "multi2"):
             self.on_stream(p)

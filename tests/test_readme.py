@@ -1,0 +1,103 @@
+"""README's "Using it" block, executed as written against ``ritad --sim``.
+
+The fenced block under "## Using it" is parsed from README.md; only the ``.venv/bin/``
+prefix (this interpreter's bin folder) and the runtime dir (a temp dir) are
+substituted. The ``ritad`` line is started in the background, as the README says
+(leave it running), and the test waits until every device is READY, as an operator
+would glance at ``status``. Every other line runs in bash in a temp working folder
+with the ``export`` lines before it; each must exit 0.
+"""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.client import Client
+from daemon.protocol import CommandError
+
+ROOT = Path(__file__).resolve().parents[1]
+README_RUNTIME = "/tmp/rita"
+
+
+def using_it_block(text: str) -> list[str]:
+    """The command lines of the first fenced block after "## Using it" (continuations joined)."""
+    m = re.search(r"^## Using it\n(?:.*\n)*?```sh\n((?:.*\n)*?)```", text, re.MULTILINE)
+    assert m, "README.md has no ```sh block under '## Using it'"
+    lines, cont = [], ""
+    for raw in m.group(1).splitlines():
+        if raw.rstrip().endswith("\\"):
+            cont += raw.rstrip()[:-1] + " "
+            continue
+        line = (cont + raw).strip()
+        cont = ""
+        if line and not line.startswith("#"):
+            lines.append(line)
+    return lines
+
+
+def localise(line: str, runtime: Path) -> str:
+    bin_dir = Path(sys.executable).parent
+    return line.replace(".venv/bin/", f"{bin_dir}/").replace(README_RUNTIME, str(runtime))
+
+
+def wait_all_ready(endpoint: str, proc: subprocess.Popen, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    with Client(endpoint, timeout=2) as c:
+        while time.monotonic() < end:
+            assert proc.poll() is None, f"ritad exited with {proc.returncode}"
+            try:
+                if all(d["state"] == "READY" for d in c.call("status")["devices"].values()):
+                    return
+            except CommandError:
+                pass
+            time.sleep(0.3)
+    raise AssertionError(f"devices not READY after {timeout} s")
+
+
+def test_readme_block_parses() -> None:
+    lines = using_it_block((ROOT / "README.md").read_text())
+    assert lines[0].startswith(".venv/bin/ritad --sim") and any("calibrate" in ln for ln in lines)
+    assert all(ln.startswith((".venv/bin/", "export ")) for ln in lines), lines
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_readme_using_it_runs_verbatim(tmp_path: Path) -> None:
+    runtime, work = tmp_path / "rt", tmp_path / "work"
+    runtime.mkdir()
+    work.mkdir()
+    lines = [localise(ln, runtime) for ln in using_it_block((ROOT / "README.md").read_text())]
+    daemon_line, rest = lines[0], lines[1:]
+    log = open(tmp_path / "ritad.log", "wb")
+    env = {k: v for k, v in os.environ.items() if k not in ("RITA_ENDPOINT", "RITA_RUNTIME_DIR")}
+    proc = subprocess.Popen(["bash", "-c", f"exec {daemon_line}"], cwd=work, stdout=log, stderr=subprocess.STDOUT,
+                            env=env)
+    try:
+        wait_all_ready(f"ipc://{runtime}/cmd", proc)
+        exports: list[str] = []
+        for line in rest:
+            if line.startswith("export "):
+                exports.append(line)
+                continue
+            script = "\n".join([*exports, line])
+            r = subprocess.run(["bash", "-c", script], cwd=work, capture_output=True, text=True, timeout=600,
+                               env=env)
+            assert r.returncode == 0, f"{line}\n exited {r.returncode}\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
+            assert "Traceback" not in r.stderr, r.stderr
+        assert (work / "sim" / "plate.json").exists()
+        assert list((work / "rita-data" / "procedures").glob("*-experiment-*/clusters.png"))
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        log.close()
