@@ -30,7 +30,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
-from calibration.plate import NEST_NAMES, Plate
+from calibration.plate import Plate
 from calibration.registration import as_points, fit_plate, kabsch, nest_array
 from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_carlo, pnp_covariance
 
