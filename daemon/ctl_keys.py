@@ -98,5 +98,5 @@ def add_parser(sub: Any) -> None:
                                  f"(allow/revoke/list; default {DEFAULT_AUTH_DIR})")
     p.add_argument("--name", help="init: key name; allow/revoke: the client's name in the allow-list")
     p.add_argument("--server", action="store_true", help="init: the robot's server key pair")
-    p.add_argument("--force", action="store_true")
+    p.add_argument("--force", action="store_true", help="init: replace an existing key pair")
     p.set_defaults(fn=cmd_keys, offline=True)
