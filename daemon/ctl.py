@@ -322,7 +322,7 @@ def _main(argv: list[str], as_json: bool) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    as_json = "--json" in argv
+    as_json = "--json" in (argv[:argv.index("--")] if "--" in argv else argv)  # for errors before parsing
     try:
         code = _main(argv, as_json)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit

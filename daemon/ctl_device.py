@@ -136,6 +136,15 @@ def add_device_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None
             leaf.set_defaults(fn=cmd_device, command=cmd.name, parser_=leaf)
 
 
+def _check_out(out: str) -> None:
+    """Refuse an unusable --out before the camera is triggered (exit 5)."""
+    path = Path(out)
+    if not path.name or path.name in (".", "..") or path.is_dir():
+        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r} is a folder: give a file name like frame.png")
+    if not path.parent.is_dir():
+        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r}: folder {str(path.parent)!r} does not exist")
+
+
 def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
     h = result["header"]
     shape = h["shape"]
@@ -157,6 +166,7 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
     args = table_args(cmd, a)
     out = getattr(a, "out", None)
     if out:
+        _check_out(out)
         args.update(pixels=True, save=False)
     try:
         result, extra = c.call_raw(cmd.name, args, timeout=a.timeout or 120)
