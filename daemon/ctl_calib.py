@@ -18,7 +18,7 @@ from typing import Any
 from daemon.client import Client
 from daemon.command_table import COMMANDS, PROCEDURES
 from daemon.ctl_device import add_table_args, table_args
-from daemon.ctl_io import ask, print_result, say
+from daemon.ctl_io import ask, print_result, say, yes_after_ctrl_c
 from daemon.exitcodes import CtlError, Exit, bad_input, for_verdict
 from daemon.protocol import CommandError, ErrorCode
 
@@ -117,12 +117,7 @@ def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> i
     if procedure not in MOTION_PROCEDURES:
         say(f"\ndetached; job {job} goes on. {reattach}, `ritactl cancel {job}` stops it.", as_json)
         return Exit.INTERRUPTED
-    try:
-        say("", as_json)
-        answer = ask(f"job {job} moves the robot. cancel the job too? [y/N] (Ctrl-C again: cancel) ")
-    except KeyboardInterrupt:
-        answer = "y"
-    if (answer or "").lower() in ("y", "yes"):
+    if yes_after_ctrl_c(f"job {job} moves the robot. cancel the job too?", as_json):
         c.call("calib.cancel", job=job)
         say(f"\ncancel requested for {job}: the worker stops at its next step; the base finishes its current "
             "motion (`ritactl robot stop` halts it now).", as_json)

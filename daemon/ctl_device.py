@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 from daemon.client import Client, ClientTimeout
 from daemon.command_table import COMMANDS, POS, TABLE, Arg, Command
-from daemon.ctl_io import print_result
+from daemon.ctl_io import print_result, say, yes_after_ctrl_c
 from daemon.exitcodes import CtlError, Exit
 from daemon.protocol import CommandError
 
@@ -161,6 +161,15 @@ def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
         raise CtlError(Exit.BAD_INPUT, "bad_input", f"cannot write {out}: {exc.strerror or exc}") from None
 
 
+def _interrupted_motion(c: Client, cmd: Command, as_json: bool) -> int:
+    if yes_after_ctrl_c(f"{cmd.name} may still be moving the robot. stop the robot?", as_json):
+        c.call("robot.stop")
+        say("robot stopped", as_json)
+    else:
+        say("the motion goes on; `ritactl robot stop` stops the robot", as_json)
+    return Exit.INTERRUPTED
+
+
 def cmd_device(c: Client, a: argparse.Namespace) -> int:
     cmd = COMMANDS[a.command]
     args = table_args(cmd, a)
@@ -170,6 +179,10 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
         args.update(pixels=True, save=False)
     try:
         result, extra = c.call_raw(cmd.name, args, timeout=a.timeout or 120)
+    except KeyboardInterrupt:
+        if args.get("confirm"):  # a confirmed motion goes on in the daemon: say so, offer to stop it
+            return _interrupted_motion(c, cmd, a.json)
+        raise
     except ClientTimeout:
         raise
     except CommandError as exc:

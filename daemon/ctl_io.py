@@ -55,6 +55,16 @@ def ask(question: str) -> str | None:
     return line.strip() if line else None
 
 
+def yes_after_ctrl_c(question: str, as_json: bool = False) -> bool:
+    """After a Ctrl-C: ask ``question [y/N]``; y or a second Ctrl-C is yes, Enter or end of input is no."""
+    try:
+        say("", as_json)
+        answer = ask(f"{question} [y/N] (Ctrl-C again: yes) ")
+    except KeyboardInterrupt:
+        return True
+    return (answer or "").lower() in ("y", "yes")
+
+
 def quiet_stdout() -> None:
     """After EPIPE (``ritactl … | head``), point stdout at devnull so the exit flush stays silent."""
     try:
@@ -66,4 +76,4 @@ def quiet_stdout() -> None:
     os.close(devnull)
 
 
-__all__ = ["ask", "fail", "print_result", "quiet_stdout", "say"]
+__all__ = ["ask", "fail", "print_result", "quiet_stdout", "say", "yes_after_ctrl_c"]

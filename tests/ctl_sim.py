@@ -20,6 +20,7 @@ def sim_daemon(rt: Path) -> Iterator[Daemon]:
     cfg.daemon.start_worker = False
     cfg.devices.camera = "sim:?size=64x48&noise=0"
     cfg.devices.tracker = "sim:?time_scale=0.002"
+    cfg.devices.robot = "sim:?time_scale=1"  # real-time motions: a test can interrupt one
     d = Daemon(cfg)
     d.start()
     try:

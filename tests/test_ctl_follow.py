@@ -124,11 +124,11 @@ def test_answer_at_the_prompt_is_delivered(endpoint, c, capsys, monkeypatch):
     assert c.call("calib.inbox", job=job, timeout_s=0) == {"answer": "ok"}  # Enter takes the only choice
 
 
-class Follower:
-    """``ritactl follow`` as a process, its output collected by threads (for real SIGINTs)."""
+class Ritactl:
+    """ritactl as a process, its output collected by threads (for real SIGINTs)."""
 
-    def __init__(self, endpoint: str, job: str) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, "follow", job],
+    def __init__(self, endpoint: str, *argv: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, *argv],
                                      cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
         self.text = {"out": "", "err": ""}
@@ -152,7 +152,7 @@ class Follower:
 def test_ctrl_c_during_a_motion_procedure_asks_to_cancel(endpoint, c, keys, cancelled):
     """y: cancel; Enter or EOF: detach with the hint; a second Ctrl-C: cancel."""
     job = post_job(c, "referencing")
-    f = Follower(endpoint, job)
+    f = Ritactl(endpoint, "follow", job)
     try:
         f.wait_for("moving", "out", poke=lambda: report(c, job, "progress", {"step": "drive", "percent": 20,
                                                                               "waiting_for": "robot moving"}))
@@ -188,3 +188,35 @@ def test_closed_pipe_after_a_daemon_answer(endpoint):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert b"Traceback" not in err and b"Exception ignored" not in err
+
+
+def wait_robot(c: Client, state: str, timeout: float = 20) -> None:
+    end = time.monotonic() + timeout
+    while c.call("robot.status")["state"] != state:
+        assert time.monotonic() < end, f"robot not {state} within {timeout} s"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize("keys", ["y\n", None, "\n"])
+def test_ctrl_c_during_robot_move_offers_to_stop_it(endpoint, c, keys):
+    f = Ritactl(endpoint, "robot", "move", "-300", "--yes", "--speed", "20")
+    try:
+        wait_robot(c, "MOVING")
+        f.proc.send_signal(signal.SIGINT)
+        f.wait_for("stop the robot? [y/N]", "err")
+        if keys is None:
+            f.proc.send_signal(signal.SIGINT)  # a second Ctrl-C: yes
+        else:
+            f.proc.stdin.write(keys)
+            f.proc.stdin.flush()
+        assert f.proc.wait(20) == Exit.INTERRUPTED
+        if keys == "\n":
+            st = c.call("robot.status")
+            assert st["state"] == "MOVING" and "ritactl robot stop" in f.text["out"], (st, f.text)
+            c.call("robot.stop")
+        wait_robot(c, "IDLE", 5)
+        assert "Traceback" not in f.text["err"] + f.text["out"]
+    finally:
+        if f.proc.poll() is None:
+            f.proc.kill()
+            f.proc.wait(10)
