@@ -36,7 +36,7 @@ from daemon import __version__
 from daemon.client import Client, ClientTimeout, default_endpoint
 from daemon.command_table import COMMANDS
 from daemon.ctl_device import add_device_parsers, add_table_args, table_args, write_png
-from daemon.ctl_io import fail, print_result, quiet_stdout, say
+from daemon.ctl_io import fail, print_result, quiet_stdout
 from daemon.exitcodes import CtlError, Exit
 from daemon.protocol import CommandError
 
@@ -332,6 +332,9 @@ def main(argv: list[str] | None = None) -> int:
         return Exit.OK
     except KeyboardInterrupt:
         return fail(Exit.INTERRUPTED, "interrupted", "interrupted (Ctrl-C)", as_json)
+
+
+__all__ = ["GLOBAL_OPTIONS", "build_parser", "check_endpoint", "main", "print_result", "subparsers_of", "write_png"]
 
 
 if __name__ == "__main__":

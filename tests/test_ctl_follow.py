@@ -220,3 +220,10 @@ def test_ctrl_c_during_robot_move_offers_to_stop_it(endpoint, c, keys):
         if f.proc.poll() is None:
             f.proc.kill()
             f.proc.wait(10)
+
+
+def test_daemon_errors_name_the_option_to_type(endpoint, capsys):
+    """`tracker find` before any aim: the adapter asks for approx_distance_mm; ritactl adds --distance."""
+    assert ctl.main(["--endpoint", endpoint, "tracker", "find"]) == Exit.REFUSED
+    err = capsys.readouterr().err
+    assert "approx_distance_mm (ritactl: --distance)" in err and "Traceback" not in err
