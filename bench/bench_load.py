@@ -42,6 +42,8 @@ data_dir = "@TMP@/data"
 tracker = "sim:?packet_rate_hz=100&sigma_mm=0.01"
 camera = "sim:?size=full&prerender=2&fps=10"
 robot = "sim:"
+[security]
+insecure_tcp = true  # loopback only: the benchmark measures the plain bus
 """
 
 

@@ -25,6 +25,8 @@ from calibration.referencing import robot_pose
 from calibration.registration import as_points
 from calibration.uncertainty import perturb_pose
 
+#: tracker 1σ per coordinate when a dataset does not state one (mm); datasets carry ``sigma_t_mm``
+DEFAULT_SIGMA_T_MM = 0.010
 #: finite-difference steps: mm, rad, px
 _STEP_MM, _STEP_RAD, _STEP_PX = 1e-3, 1e-6, 1e-2
 
@@ -85,7 +87,7 @@ def mark_to_abs(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
 
 def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                  abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
-                 sigma_t_mm: float = 0.010, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
+                 sigma_t_mm: float = DEFAULT_SIGMA_T_MM, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
                  cov_rob_H_scn: np.ndarray | None = None) -> MarkMeasurement:
     """ACS position of a mark seen at pixel ``uv`` from a robot stop, with a first-order covariance."""
     uv = np.asarray(uv, dtype=float).reshape(-1)

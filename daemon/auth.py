@@ -8,6 +8,12 @@ file in the authorized-keys directory (``<name>.key``, the format of
 ``ritactl keys allow/revoke`` takes effect for the next connection without a
 restart. ``ipc://`` endpoints stay plain: the file system guards them.
 
+Every refused attempt is logged with the client's key (or "plaintext") and peer
+address: unknown keys by the ZAP handler, which knows both; clients without CURVE
+(or with a broken handshake) by a monitor on each CURVE socket, since they never
+reach ZAP. Repeats from one peer within a minute are counted into one line, because
+a refused client reconnects every 100 ms.
+
 The server's secret key comes from the systemd credentials directory
 (``$CREDENTIALS_DIRECTORY/ritad-server.key_secret``) when present, else from
 ``<data_dir>/keys/server.key_secret``. Secret files are written with mode 0600.
@@ -16,12 +22,15 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import threading
+import time
 from pathlib import Path
 
 import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
+from zmq.utils.monitor import parse_monitor_message
 
 log = logging.getLogger(__name__)
 
@@ -65,11 +74,39 @@ def load_public(path: Path) -> bytes:
     return public
 
 
+class RefusalLog:
+    """One WARNING per refused (who, peer host) per ``window_s``; repeats are counted into the next line."""
+
+    def __init__(self, window_s: float = 60.0) -> None:
+        self.window_s = window_s
+        self._lock = threading.Lock()
+        self._seen: dict[tuple[str, str], list[float]] = {}  # (who, host) -> [last logged, repeats since]
+        self.count = 0
+
+    def refused(self, who: str, peer: str, why: str) -> None:
+        host = peer.rsplit(":", 1)[0] if ":" in peer else peer  # repeats come from new ports
+        now = time.monotonic()
+        with self._lock:
+            self.count += 1
+            entry = self._seen.get((who, host))
+            if entry is not None and now - entry[0] < self.window_s:
+                entry[1] += 1
+                return
+            repeats = int(entry[1]) if entry else 0
+            if len(self._seen) > 1000:  # many keys or addresses: forget the quiet ones, stay bounded
+                self._seen = {k: v for k, v in self._seen.items() if now - v[0] < self.window_s}
+            self._seen[(who, host)] = [now, 0]
+        more = f" ({repeats} more attempt(s) in the last {self.window_s:g} s)" if repeats else ""
+        log.warning("refused %s client from %s: %s%s", who, peer, why, more)
+
+
 class KeyRing:
     """The allow-list: public keys in a directory, re-read when the directory changes."""
 
-    def __init__(self, directory: Path) -> None:
+    def __init__(self, directory: Path, refusals: RefusalLog | None = None) -> None:
         self.directory = Path(directory)
+        self.refusals = refusals or RefusalLog()
+        self.peer = "?"  # the address of the ZAP request being answered (set by _Authenticator)
         self._lock = threading.Lock()
         self._stamp: tuple[int, int] | None = None
         self._keys: dict[bytes, str] = {}
@@ -101,8 +138,109 @@ class KeyRing:
         """Called by the authenticator for every CURVE handshake."""
         allowed = key in self.names()
         if not allowed:
-            log.warning("refused CURVE client with unknown key %s", key.decode(errors="replace"))
+            self.refusals.refused(f"CURVE key {key.decode(errors='replace')}", self.peer,
+                                  f"unknown key, not in the allow-list {self.directory}")
         return allowed
+
+
+class _Authenticator(ThreadAuthenticator):
+    """pyzmq's authenticator, telling the key ring the peer address of each request (for the log)."""
+
+    def __init__(self, ctx: zmq.Context, keyring: KeyRing) -> None:
+        super().__init__(ctx, log=logging.getLogger("daemon.zap"))
+        self.keyring = keyring
+
+    async def handle_zap_message(self, msg: list[bytes]) -> None:
+        # frames: version, request id, domain, address, identity, mechanism, credentials...
+        self.keyring.peer = msg[3].decode(errors="replace") if len(msg) > 3 else "?"
+        await super().handle_zap_message(msg)
+
+
+#: a connection libzmq closed before this thread could read its address (fast local clients)
+UNKNOWN_PEER = "an unknown address (closed before it could be read)"
+
+
+def _peer_of(fd: int) -> str:
+    """host:port of an accepted TCP connection's file descriptor."""
+    try:
+        dup = os.dup(fd)  # the socket object below owns (and closes) only this copy
+    except OSError:
+        return UNKNOWN_PEER
+    try:
+        s = socket.socket(fileno=dup)  # the family is read from the descriptor
+    except OSError:
+        os.close(dup)
+        return UNKNOWN_PEER
+    try:
+        host, port = s.getpeername()[:2]
+        return f"{host}:{port}"
+    except (OSError, ValueError):
+        return UNKNOWN_PEER
+    finally:
+        s.close()
+
+
+class HandshakeWatch(threading.Thread):
+    """Logs connections a CURVE socket refused before ZAP was asked: plaintext clients, wrong keys.
+
+    Such a client either fails the ZMTP greeting (mechanism mismatch) or hangs up
+    before the handshake completes, depending on which side reads the other's greeting
+    first; libzmq may report nothing but the disconnect. So every accepted connection
+    is "handshaking" until a HANDSHAKE_SUCCEEDED; one that disconnects while still
+    handshaking was refused. Success events carry no descriptor: when two handshakes
+    overlap, both are dropped from watch (a refusal may then go unlogged). A failure
+    event is followed by its connection's DISCONNECTED (same I/O thread, in order).
+    ZAP refusals are logged by the key ring, which knows the key.
+    """
+
+    EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL \
+        | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_DISCONNECTED | zmq.EVENT_MONITOR_STOPPED
+
+    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, refusals: RefusalLog) -> None:
+        super().__init__(name="handshake-watch", daemon=True)
+        addr = f"inproc://handshake-watch-{id(sock):x}"
+        sock.monitor(addr, self.EVENTS)
+        self.mon = ctx.socket(zmq.PAIR)
+        self.mon.setsockopt(zmq.LINGER, 0)
+        self.mon.connect(addr)
+        self.refusals = refusals
+        self.stopping = threading.Event()
+        self._handshaking: dict[int, str] = {}  # fd -> peer address
+        self._failed: str | None = None
+
+    def run(self) -> None:
+        try:
+            while not self.stopping.is_set():
+                if not self.mon.poll(200, zmq.POLLIN):
+                    continue
+                if not self.on_event(parse_monitor_message(self.mon.recv_multipart())):
+                    break
+        finally:
+            self.mon.close(linger=0)
+
+    def on_event(self, ev: dict) -> bool:
+        kind, value = ev["event"], ev["value"]
+        if kind == zmq.EVENT_MONITOR_STOPPED:
+            return False
+        if kind == zmq.EVENT_ACCEPTED:
+            self._handshaking[value] = _peer_of(value)
+        elif kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+            self._handshaking.clear()  # exactly one was pending in the normal case; else: ambiguous
+        elif kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+            self._failed = "zap"  # the key ring has logged it, with the key
+        elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
+            self._failed = "plaintext" if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH else f"{value:#x}"
+        elif kind == zmq.EVENT_DISCONNECTED:
+            peer, failed = self._handshaking.pop(value, None), self._failed
+            self._failed = None
+            if failed == "plaintext":
+                self.refusals.refused("plaintext", peer or UNKNOWN_PEER, "this endpoint requires CURVE keys")
+            elif failed not in (None, "zap"):
+                self.refusals.refused("unauthenticated", peer or UNKNOWN_PEER, f"broken handshake ({failed})")
+            elif failed is None and peer is not None:
+                self.refusals.refused("unauthenticated", peer, "hung up before completing the CURVE handshake "
+                                                               "(no keys, or the wrong server key)")
+        return True
 
 
 class Security:
@@ -116,26 +254,38 @@ class Security:
             raise FileNotFoundError(f"CURVE is on but there is no server key at {secret_file}: create one with "
                                     f"`ritactl keys init --server --dir {keys_dir}`")
         self.public, self.secret = load_keypair(secret_file)
-        self.keyring = KeyRing(authorized_dir)
+        self.refusals = RefusalLog()
+        self.keyring = KeyRing(authorized_dir, self.refusals)
         self.auth: ThreadAuthenticator | None = None
+        self._ctx: zmq.Context | None = None
+        self._watches: list[HandshakeWatch] = []
         log.info("CURVE on: server key %s (from %s), allow-list %s", self.public.decode(), secret_file,
                  authorized_dir)
 
     def start(self, ctx: zmq.Context) -> None:
         """Start ZAP before anything binds (a CURVE server without ZAP accepts any key)."""
-        self.auth = ThreadAuthenticator(ctx, log=logging.getLogger("daemon.zap"))
+        self._ctx = ctx
+        self.auth = _Authenticator(ctx, self.keyring)
         self.auth.start()
         self.auth.configure_curve_callback(domain=ZAP_DOMAIN, credentials_provider=self.keyring)
 
     def apply(self, sock: zmq.Socket) -> None:
-        if self.auth is None:
+        if self.auth is None or self._ctx is None:
             raise RuntimeError("Security.start() must run before any CURVE socket is bound")
         sock.curve_secretkey = self.secret
         sock.curve_publickey = self.public
         sock.curve_server = True
         sock.zap_domain = ZAP_DOMAIN.encode()
+        watch = HandshakeWatch(self._ctx, sock, self.refusals)  # before bind: no connection goes unseen
+        watch.start()
+        self._watches.append(watch)
 
     def stop(self) -> None:
+        """After the CURVE sockets are closed (their monitors then stop by themselves)."""
+        for w in self._watches:
+            w.stopping.set()
+            w.join(2.0)
+        self._watches = []
         if self.auth is not None:
             self.auth.stop()
             self.auth = None

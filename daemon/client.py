@@ -4,6 +4,13 @@
 reply with the same id; replies to earlier, timed-out requests are discarded. After
 a timeout the socket is closed and reopened (the zguide's Lazy Pirate), so one lost
 reply never poisons the next call. ``Subscriber`` follows telemetry or frames.
+
+On tcp the client also watches its socket's handshake events: when the daemon's ZAP
+handler refuses the CURVE key, libzmq (>= 4.3) sends a ZMTP ERROR and the monitor
+reports ``EVENT_HANDSHAKE_FAILED_AUTH``; a plaintext client meeting a CURVE server
+sees a mechanism mismatch. Either raises :class:`ClientRefused` at once instead of
+waiting for the timeout. Without such a signal a timeout cannot tell a dead daemon
+from a refused key, and its message says so.
 """
 from __future__ import annotations
 
@@ -23,8 +30,24 @@ ENV_ENDPOINT = "RITA_ENDPOINT"
 
 
 class ClientTimeout(CommandError):
+    """No answer in time (exit code 3 in ritactl)."""
+
+    def __init__(self, message: str, code: str = "timeout") -> None:
+        super().__init__(code, message)
+
+
+class ClientRefused(ClientTimeout):
+    """The daemon refused the handshake (key not allowed, or CURVE on one side only)."""
+
     def __init__(self, message: str) -> None:
-        super().__init__("timeout", message)
+        super().__init__(message, code="refused")
+
+
+#: handshake events that mean "refused" rather than "no daemon"
+#: and a dropped handshake: a CURVE server hangs up on a HELLO it cannot decrypt (wrong server key),
+#: and on a plaintext greeting when it reads ours before we read its
+_REFUSAL_EVENTS = zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL \
+    | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
 
 
 def default_endpoint() -> str:
@@ -45,15 +68,20 @@ def resolve_endpoint(advertised: str, command_endpoint: str) -> str:
 class Client:
     """Synchronous request/reply client."""
 
-    def __init__(self, endpoint: str | None = None, timeout: float = 5.0, curve: dict[str, bytes] | None = None,
-                 ctx: zmq.Context | None = None) -> None:
+    def __init__(self, endpoint: str | None = None, timeout: float = 5.0,
+                 curve: dict[str, bytes] | tuple[dict[str, bytes] | None, str | None] | None = None,
+                 ctx: zmq.Context | None = None, key_id: str | None = None) -> None:
+        if isinstance(curve, tuple):  # the (curve, key_id) pair from daemon.ctl_keys.client_curve
+            curve, key_id = curve[0], key_id or curve[1]
         self.endpoint = endpoint or default_endpoint()
         self.timeout = timeout
         self.curve = curve  # {"public", "secret", "server"} z85 keys, when the daemon requires CURVE
+        self.key_id = key_id or (curve["public"].decode() if curve else None)  # named in refusals
         self.ctx = ctx or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._prefix = uuid.uuid4().hex[:8]
         self.sock: zmq.Socket | None = None
+        self._monitor: zmq.Socket | None = None
         self._hello: dict[str, Any] | None = None
 
     def _socket(self) -> zmq.Socket:
@@ -64,14 +92,55 @@ class Client:
                 s.curve_publickey = self.curve["public"]
                 s.curve_secretkey = self.curve["secret"]
                 s.curve_serverkey = self.curve["server"]
+            if self.endpoint.startswith("tcp://"):  # ipc has no key to refuse
+                addr = f"inproc://client-monitor-{uuid.uuid4().hex}"
+                s.monitor(addr, _REFUSAL_EVENTS)
+                self._monitor = self.ctx.socket(zmq.PAIR)
+                self._monitor.setsockopt(zmq.LINGER, 0)
+                self._monitor.connect(addr)
             s.connect(self.endpoint)
             self.sock = s
         return self.sock
 
     def _reset(self) -> None:
         if self.sock is not None:
+            if self._monitor is not None:
+                self.sock.disable_monitor()
+                self._monitor.close(linger=0)
+                self._monitor = None
             self.sock.close(linger=0)
             self.sock = None
+
+    def _refusal(self) -> ClientRefused | None:
+        """A handshake failure reported by the socket monitor, as the error to raise (or None)."""
+        from zmq.utils.monitor import parse_monitor_message
+
+        assert self._monitor is not None
+        while self._monitor.poll(0, zmq.POLLIN):
+            event = parse_monitor_message(self._monitor.recv_multipart())
+            if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+                return ClientRefused(f"refused: key {self.key_id} is not allowed by the daemon at {self.endpoint} "
+                                     f"(on the robot: `ritactl keys allow FILE.key --name NAME`)")
+            mismatch = event["value"] == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
+            if mismatch and self.curve:
+                return ClientRefused(f"refused: the daemon at {self.endpoint} does not use CURVE, but this "
+                                     f"client does (key {self.key_id})")
+            if not self.curve:  # a mismatch, or a CURVE server hanging up on our plaintext greeting
+                return ClientRefused(f"refused: the daemon at {self.endpoint} requires CURVE keys and this client "
+                                     f"has none (`ritactl keys init`, then --key NAME; docs/operations.md, Keys)")
+            if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
+                return ClientRefused(f"refused: the daemon at {self.endpoint} dropped the CURVE handshake (key "
+                                     f"{self.key_id}): is the server key the robot's current server.key?")
+        return None
+
+    def _no_answer(self, cmd: str, wait: float) -> ClientTimeout:
+        if not self.endpoint.startswith("tcp://"):
+            return ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r} within {wait:g} s "
+                                 f"(is the daemon running? set --endpoint or ${ENV_ENDPOINT})")
+        key = self.key_id or "none: plaintext"
+        return ClientTimeout(f"no answer: the daemon is down, or it refused this key ({key}); nothing from ritad "
+                             f"at {self.endpoint} to {cmd!r} within {wait:g} s (check --endpoint or "
+                             f"${ENV_ENDPOINT})")
 
     def call_raw(self, cmd: str, args: dict[str, Any] | None = None,
                  timeout: float | None = None) -> tuple[Any, list[zmq.Frame]]:
@@ -81,14 +150,22 @@ class Client:
         sock.send(make_request(req_id, cmd, args))
         wait = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + wait
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+        if self._monitor is not None:
+            poller.register(self._monitor, zmq.POLLIN)
         while True:
             left = deadline - time.monotonic()
-            if left <= 0 or not sock.poll(int(left * 1000) + 1, zmq.POLLIN):
+            ready = dict(poller.poll(int(left * 1000) + 1)) if left > 0 else {}
+            refused = self._refusal() if self._monitor is not None and self._monitor in ready else None
+            if refused is not None:
+                self._reset()
+                raise refused
+            if sock not in ready:
                 if time.monotonic() < deadline:
                     continue
                 self._reset()
-                raise ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r} within {wait:g} s "
-                                    f"(is the daemon running? set --endpoint or ${ENV_ENDPOINT})")
+                raise self._no_answer(cmd, wait)
             frames = sock.recv_multipart(copy=False)
             try:
                 msg = unpack(frames[0].buffer)

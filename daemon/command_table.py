@@ -147,6 +147,8 @@ TABLE: tuple[Command, ...] = (
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("calib.results", "active calibration and every stored result", verb="results",
             result="{active, history}"),
+    Command("calib.resume", "queue a failed or cancelled job again; the worker continues from its checkpoint",
+            "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
             result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
@@ -154,7 +156,8 @@ TABLE: tuple[Command, ...] = (
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer", result="{delivered}",
             args=(_job(), Arg("answer", "str", "the answer", default=REQUIRED, cli=POS, metavar="TEXT"))),
-    Command("calib.cancel", "ask the worker to stop a job", "operator", verb="cancel", result="{cancel_requested}",
+    Command("calib.cancel", "ask the worker to stop a job", "operator", verb="cancel",
+            result="{cancel_requested, state}",
             args=(_job(),)),
     Command("calib.jobs", "calibration jobs and their state", verb="jobs", result="{jobs, queued, worker_seen_s_ago}"),
     Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True, args=(

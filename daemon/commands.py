@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from daemon.protocol import CommandError, ErrorCode
 from daemon.server import Reply, Request
+from daemon.storage import tracker_point_dict
 from drivers.base import Frame, TrackerPoint
 
 if TYPE_CHECKING:
@@ -92,10 +93,7 @@ def gather(futures: dict[str, Future]) -> Future:
 
 
 def _point_dict(p: TrackerPoint, abs_H_trk: list[list[float]]) -> dict[str, Any]:
-    d = p.to_dict()
-    H = abs_H_trk
-    d["abs_xyz"] = [sum(H[i][j] * v for j, v in enumerate((p.x, p.y, p.z))) + H[i][3] for i in range(3)]
-    return d
+    return tracker_point_dict(p.to_dict(), abs_H_trk)  # abs_xyz + abs_H_trk: datasets cross-check them
 
 
 def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:

@@ -16,11 +16,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from daemon.registry import schemes
 from drivers.base import CameraSettings, DeviceURL
 
 
 class ConfigError(ValueError):
     """A bad configuration value; the message names the file and the key."""
+
+
+#: keys that were accepted once and are now refused with a pointer to what replaced them
+REMOVED_KEYS = {
+    "security.server_secret_key": "the server key is read from $CREDENTIALS_DIRECTORY/ritad-server.key_secret "
+                                  "(systemd LoadCredential=) or else <data_dir>/keys/server.key_secret; "
+                                  "delete this key (see docs/operations.md, Keys)",
+}
 
 
 @dataclass
@@ -36,6 +45,14 @@ class DaemonSection:
     log_level: str = "INFO"
     #: start the calibration worker process beside the daemon
     start_worker: bool = False
+    #: device reconnect backoff: first wait and ceiling (doubles after every failed attempt)
+    reconnect_min_s: float = 0.5
+    reconnect_max_s: float = 30.0
+    #: a device owner thread whose heartbeat is older than this counts as hung (watchdog withheld);
+    #: runners beat at least every 0.5 s, also while they wait in backoff
+    heartbeat_timeout_s: float = 10.0
+    #: time limit of one device open() (TCP connect + init); longer counts as a hung owner thread
+    open_timeout_s: float = 120.0
 
 
 @dataclass
@@ -71,7 +88,8 @@ class SecuritySection:
     curve: bool = False
     #: directory of allowed client public keys (*.key); relative to data_dir when not absolute
     authorized_keys_dir: str = "authorized_keys"
-    server_secret_key: str = "server.key_secret"
+    #: allow tcp endpoints without CURVE (anyone on the network can drive the robot); warned at every start
+    insecure_tcp: bool = False
 
 
 @dataclass
@@ -133,6 +151,9 @@ def _build(cls: type, data: dict[str, Any], src: str, prefix: str = "") -> Any:
     """Build dataclass ``cls`` from a TOML table; errors read ``file: section.key: ...``."""
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.name != "source"}
+    for key in data:
+        if prefix + key in REMOVED_KEYS:
+            raise ConfigError(f"{src}: {prefix}{key} is no longer supported: {REMOVED_KEYS[prefix + key]}")
     unknown = sorted(set(data) - names)
     if unknown:
         where = f"[{prefix.rstrip('.')}]" if prefix else "top level"
@@ -158,9 +179,13 @@ def _validate(cfg: Config) -> None:
     for kind in ("camera", "tracker", "robot"):
         url = getattr(cfg.devices, kind)
         try:
-            DeviceURL.parse(url)
+            parsed = DeviceURL.parse(url)
         except ValueError as exc:
             raise ConfigError(f"{src}: devices.{kind}: {exc}") from None
+        known = schemes(kind)  # names only: the adapter module is imported when the device opens
+        if parsed.scheme not in known:
+            raise ConfigError(f"{src}: devices.{kind}: unknown scheme {parsed.scheme!r} in {url!r} "
+                              f"(known: {', '.join(sorted(known))})")
     d = cfg.daemon
     for key in ("command_endpoints", "telemetry_endpoints", "frame_endpoints"):
         eps = getattr(d, key)
@@ -169,8 +194,15 @@ def _validate(cfg: Config) -> None:
         for ep in eps:
             if not ep.startswith(("tcp://", "ipc://", "inproc://")):
                 raise ConfigError(f"{src}: daemon.{key}: {ep!r} is not a tcp://, ipc:// or inproc:// endpoint")
+            if ep.startswith("tcp://") and not cfg.security.curve and not cfg.security.insecure_tcp:
+                raise ConfigError(f"{src}: daemon.{key}: {ep!r} is a tcp endpoint without CURVE: anyone who "
+                                  f"reaches the port could move the robot. Set [security] curve = true "
+                                  f"(docs/operations.md, Keys), use ipc only, or accept the risk with "
+                                  f"[security] insecure_tcp = true")
     positive = {"daemon.health_interval_s": d.health_interval_s, "daemon.max_message_bytes": d.max_message_bytes,
                 "daemon.frame_hwm": d.frame_hwm, "daemon.telemetry_hwm": d.telemetry_hwm,
+                "daemon.reconnect_min_s": d.reconnect_min_s, "daemon.heartbeat_timeout_s": d.heartbeat_timeout_s,
+                "daemon.open_timeout_s": d.open_timeout_s,
                 "tracker.stream_rate_hz": cfg.tracker.stream_rate_hz,
                 "robot.max_distance_mm": cfg.robot.max_distance_mm,
                 "robot.max_speed_mm_s": cfg.robot.max_speed_mm_s,
@@ -178,6 +210,11 @@ def _validate(cfg: Config) -> None:
     for key, value in positive.items():
         if not value > 0:
             raise ConfigError(f"{src}: {key} must be > 0, got {value}")
+    if d.heartbeat_timeout_s < 1.0:  # runners beat every 0.5 s: less than two beats would be noise
+        raise ConfigError(f"{src}: daemon.heartbeat_timeout_s must be >= 1.0, got {d.heartbeat_timeout_s}")
+    if d.reconnect_max_s < d.reconnect_min_s:
+        raise ConfigError(f"{src}: daemon.reconnect_max_s ({d.reconnect_max_s}) must be >= "
+                          f"daemon.reconnect_min_s ({d.reconnect_min_s})")
     if d.log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError(f"{src}: daemon.log_level {d.log_level!r} is not DEBUG/INFO/WARNING/ERROR")
     if cfg.camera.trigger not in ("software", "free"):

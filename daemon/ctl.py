@@ -10,11 +10,13 @@ Examples::
     ritactl robot move MM --yes [--speed MM_S] | turn DEG --yes | stop | status
     ritactl camera capture --out frame.png | stream start | stream stop | status
     ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
-    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB | recompute DATASET
+    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
+    ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
 
-The daemon is found at --endpoint, else $RITA_ENDPOINT, else ipc:///run/ritad/cmd.
+The daemon is found at --endpoint, else $RITA_ENDPOINT, else ritactl.toml's endpoint, else
+ipc:///run/ritad/cmd; keys: --key/--keys/--config (docs/operations.md, Keys).
 The device subcommands come from daemon/command_table.py. Exit codes: daemon/exitcodes.py
 (docs/operations.md, "Exit codes"); ``main()`` maps every failure to one of them, never a traceback.
 """
@@ -209,14 +211,20 @@ def _add_globals_everywhere(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from daemon.ctl_calib import add_parsers
     from daemon.ctl_completion import add_parser as add_completion_parser
+    from daemon.ctl_datasets import add_parsers as add_dataset_parsers
     from daemon.ctl_keys import add_parser as add_keys_parser
 
     ap = _Parser(prog="ritactl", description="Operator client for ritad",
-                 epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ipc:///run/ritad/cmd. "
+                 epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ritactl.toml, else ipc:///run/ritad/cmd. "
                         "Exit codes: docs/operations.md.")
     ap.add_argument("--version", action="version", version=f"ritactl {__version__}")
     _global_options(ap, top=True)
-    ap.add_argument("--keys", help="CURVE keys folder for tcp endpoints (default $RITA_KEYS or ~/.config/rita)")
+    ap.add_argument("--key", metavar="NAME", help="CURVE key NAME.key_secret for tcp endpoints (default: `key` in "
+                                                  "ritactl.toml, else client)")
+    ap.add_argument("--keys", metavar="DIR", help="CURVE keys folder (default $RITA_KEYS, else ritactl.toml's "
+                                                  "keys_dir, else ~/.config/rita)")
+    ap.add_argument("--config", metavar="FILE", help="ritactl.toml to read (default $RITA_CONFIG, else "
+                                                     "~/.config/rita/ritactl.toml)")
     ap.set_defaults(fn=None, parser_=ap)
     sub = ap.add_subparsers(title="verbs", metavar="VERB")
     sub.add_parser("status", help="device states at a glance (exit 4 if one is not READY/BUSY)",
@@ -231,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     cap.set_defaults(fn=cmd_capture)
     add_device_parsers(sub, [])
     add_parsers(sub)
+    add_dataset_parsers(sub)
     add_keys_parser(sub)
     call = sub.add_parser("call", help="send any bus command (JSON result)")
     call.add_argument("command", help="bus command name (`ritactl call help` lists them)")
@@ -253,8 +262,8 @@ def _run(fn: Callable[[Any, argparse.Namespace], int], client: Client | None, a:
     where = client.endpoint if client else "-"
     try:
         return int(fn(client, a))
-    except ClientTimeout as exc:
-        return fail(Exit.NO_ANSWER, "no_answer", exc.args[0], a.json)
+    except ClientTimeout as exc:  # ClientRefused too: "refused: key … is not allowed"
+        return fail(Exit.NO_ANSWER, "refused" if exc.code == "refused" else "no_answer", exc.args[0], a.json)
     except CommandError as exc:
         return fail(Exit.REFUSED, exc.code, f"{exc.args[0]} [{exc.code}]", a.json)
     except CtlError as exc:
@@ -302,18 +311,17 @@ def _main(argv: list[str], as_json: bool) -> int:
         return a
     if getattr(a, "offline", False):
         return _run(a.fn, None, a)
-    from daemon.ctl_keys import client_curve
+    from daemon.ctl_keys import resolve_connection
 
-    # TODO(issue 11, --key): use daemon/ctl_config.py's key selection here once it is on main
-    endpoint = a.endpoint or default_endpoint()
-    try:
-        check_endpoint(endpoint, "--endpoint" if a.endpoint else "$RITA_ENDPOINT or the default")
-        curve = client_curve(endpoint, Path(a.keys) if a.keys else None)
+    try:  # the command line beats the environment, which beats ritactl.toml (docs/operations.md, Keys)
+        conn = resolve_connection(a.endpoint, a.key, a.keys, a.config)
+        check_endpoint(conn["endpoint"], "--endpoint" if a.endpoint else "$RITA_ENDPOINT, ritactl.toml or the default")
     except CtlError as exc:
         return fail(exc.exit, exc.code, exc.args[0], a.json)
-    except (OSError, ValueError) as exc:
-        return fail(Exit.BAD_INPUT, "bad_input", f"cannot use the CURVE keys: {exc}", a.json)
-    client = Client(endpoint, timeout=a.timeout or 5.0, curve=curve)
+    except (OSError, ValueError) as exc:  # CtlConfigError, KeyConfigError: they name the file
+        return fail(Exit.BAD_INPUT, "bad_input", str(exc), a.json)
+    client = Client(conn["endpoint"], timeout=a.timeout or conn["timeout"] or 5.0, curve=conn["curve"],
+                    key_id=conn["key_id"])
     try:
         return _run(a.fn, client, a)
     finally:

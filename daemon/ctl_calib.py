@@ -1,4 +1,4 @@
-"""ritactl verbs for the calibration procedures: start, follow, answer prompts, results, recompute.
+"""ritactl verbs for the calibration procedures: start, follow, answer prompts, results.
 
 A procedure runs in the worker on the robot; ritactl only posts it and follows its
 ``calib.*`` telemetry. Ctrl-C detaches (the job goes on) after asking whether to cancel
@@ -48,14 +48,13 @@ def final_of(j: dict[str, Any]) -> dict[str, Any] | None:
     A stored result or error is final whatever ``state`` says (the worker's last
     progress report may have set it back to running).
     """
+    state = j.get("state")
+    if isinstance(j.get("result"), dict) and j["result"]:  # also a failure's, with failed/cancelled set
+        return {"job": j["job"], **j["result"], **({"cancelled": True} if state == "cancelled" else {})}
     err = j.get("error")
-    if err:
-        return {"job": j["job"], "failed": True, **(err if isinstance(err, dict) else {"message": str(err)})}
-    if isinstance(j.get("result"), dict) and j["result"]:
-        return {"job": j["job"], **j["result"]}
-    if j.get("state") in ("failed", "cancelled"):
-        return {"job": j["job"], "failed": True, "cancelled": j["state"] == "cancelled",
-                "message": f"job {j['state']}"}
+    if err or state in ("failed", "cancelled"):
+        msg = err.get("message") if isinstance(err, dict) else (err or f"job {state}")
+        return {"job": j["job"], "failed": True, "cancelled": state == "cancelled", "message": str(msg)}
     return None
 
 
@@ -175,7 +174,6 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     return code
 
 
-_show_result = show_result  # old name (cmd_recompute)
 
 
 def _start(c: Client, a: argparse.Namespace, procedure: str, params: dict[str, Any]) -> int:
@@ -257,37 +255,12 @@ def cmd_cancel(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_resume(c: Client, a: argparse.Namespace) -> int:
-    jobs = {j["job"]: j for j in c.call("calib.jobs")["jobs"]}
-    proc = a.procedure or (jobs.get(a.job_id) or {}).get("procedure")
-    if proc is None:
-        raise CtlError(Exit.USAGE, "usage", f"job {a.job_id!r} is unknown to this daemon: give --procedure")
-    c.call("calib.start", procedure=proc, job=a.job_id, params={})
+    c.call("calib.resume", job=a.job_id)  # the daemon knows the procedure, also for a job of an earlier run
     return follow(c, a.job_id, as_json=a.json)
 
 
 def cmd_follow(c: Client, a: argparse.Namespace) -> int:
     return follow(c, a.job_id, as_json=a.json)
-
-
-def cmd_recompute(c: Client | None, a: argparse.Namespace) -> int:
-    """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
-    try:
-        from calibration.worker.recompute import recompute
-    except ImportError as exc:
-        print(f"ritactl recompute needs the full install (numpy, OpenCV): {exc}", file=sys.stderr)
-        return 2
-    try:
-        result, diff = recompute(Path(a.dataset))
-    except (OSError, ValueError, KeyError) as exc:
-        print(f"ritactl: cannot recompute {a.dataset}: {exc}", file=sys.stderr)
-        return 1
-    if a.json:
-        print(json.dumps(result, indent=2, default=str))
-    else:
-        _show_result({**result, "dataset": a.dataset})
-    if diff is not None:
-        print(f"\nlargest difference to the stored result: {diff:.3g}")
-    return 0
 
 
 def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
@@ -331,16 +304,11 @@ def add_parsers(sub: Any) -> None:
                            ("resume", cmd_resume, "continue a failed or cancelled job from its last step")):
         p = sub.add_parser(name, help=what)
         p.add_argument("job_id", metavar="JOB", help="job id (`ritactl jobs` lists them)")
-        if name == "resume":
-            p.add_argument("--procedure", choices=PROCEDURES, help="the job's procedure, if the daemon forgot it")
         p.set_defaults(fn=fn)
     for verb, cmd, fn in (("cancel", "calib.cancel", cmd_cancel), ("answer", "calib.answer", cmd_answer)):
         p = sub.add_parser(verb, help=COMMANDS[cmd].help)
         add_table_args(p, COMMANDS[cmd])
         p.set_defaults(fn=fn)
-    p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
-    p.add_argument("dataset")
-    p.set_defaults(fn=cmd_recompute, offline=True)
 
 
 __all__ = ["add_parsers", "final_of", "follow", "show_result"]

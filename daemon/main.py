@@ -1,14 +1,16 @@
 """ritad: the acquisition daemon (entry point and supervisor).
 
-Start-up order: load config → (sim) build the world → bind the bus → start the
-device runners → READY=1. Devices connect in the background (their state is in
-``daemon.health``), so a missing tracker never blocks the bus. The main thread is
-the supervisor: it publishes health every second, pings the systemd watchdog only
-while every owner thread's heartbeat is fresh, and shuts down on SIGTERM/SIGINT.
+Start-up order: load config → lock the runtime and data directories (one instance
+each) → (sim) build the world → bind the bus → start the device runners → READY=1.
+Devices connect in the background (their state is in ``daemon.health``), so a missing
+tracker never blocks the bus. The main thread is the supervisor: it publishes health
+every second, pings the systemd watchdog only while every owner thread is responsive
+(a device waiting to reconnect is), and shuts down on SIGTERM/SIGINT.
 """
 from __future__ import annotations
 
 import argparse
+import enum
 import logging
 import os
 import signal
@@ -23,20 +25,36 @@ from typing import Any, Callable
 
 import zmq
 
-from daemon import __version__, config as config_mod
-from daemon.calib_jobs import CalibJobs
-from daemon.commands import build_handlers, chain
-from daemon.logs import setup_logging
-from daemon.notify import Notifier
-from daemon.protocol import SCHEMA_VERSION, CommandError, ErrorCode
-from daemon.publisher import FramePublisher, TelemetryPublisher
-from daemon.registry import open_device
-from daemon.runner import DeviceRunner
-from daemon.server import CommandServer
-from drivers.base import Device, Frame
+try:  # the base install is the laptop client; the daemon needs the robot's packages
+    import numpy  # noqa: F401
+except ModuleNotFoundError as _exc:
+    sys.exit(f"ritad: the robot's packages are not installed (no module {_exc.name!r}): "
+             f"pip install 'rita[robot]' (docs/operations.md, Install)")
+
+from daemon import __version__, config as config_mod  # noqa: E402
+from daemon.calib_jobs import CalibJobs  # noqa: E402
+from daemon.commands import build_handlers, chain  # noqa: E402
+from daemon.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
+from daemon.logs import setup_logging  # noqa: E402
+from daemon.notify import Notifier  # noqa: E402
+from daemon.protocol import SCHEMA_VERSION, CommandError, ErrorCode  # noqa: E402
+from daemon.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
+from daemon.registry import open_device  # noqa: E402
+from daemon.runner import DeviceRunner  # noqa: E402
+from daemon.server import CommandServer  # noqa: E402
+from drivers.base import Device, Frame  # noqa: E402
 
 log = logging.getLogger("ritad")
 KINDS = ("tracker", "robot", "camera")
+
+
+class RitadExit(enum.IntEnum):
+    """ritad's exit codes (docs/operations.md, "Exit codes (ritad)")."""
+
+    OK = 0  #: clean stop, or --check-config found the file valid
+    CANNOT_START = 1  #: a bind or the server key failed at start
+    CONFIG = 2  #: bad configuration (the message names the file and key); not worth a restart
+    ALREADY_RUNNING = 3  #: another ritad holds the runtime or data directory lock
 
 
 class Daemon:
@@ -63,7 +81,9 @@ class Daemon:
         self._motion_lock = threading.Lock()
         self._motion_waiters: list[Future] = []
         self.stop_event = threading.Event()
-        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data))
+        # data_dir lets calib.resume find jobs a previous ritad ran
+        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data),
+                               data_dir=Path(cfg.daemon.data_dir))
         self.worker: subprocess.Popen | None = None
         self._worker_next_start = 0.0
 
@@ -108,7 +128,9 @@ class Daemon:
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         for kind in KINDS:
-            runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish)
+            runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
+                                  backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
+                                  heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s)
             self.runners[kind] = runner
             runner.start()
 
@@ -140,12 +162,16 @@ class Daemon:
                 self.worker.kill()
         for runner in self.runners.values():
             runner.stop()
-        for t in (self.server, self.frames, self.telemetry):
-            t.stop()
+        bound: list[str] = []
+        for t in (getattr(self, "server", None), getattr(self, "frames", None), getattr(self, "telemetry", None)):
+            if t is not None:
+                t.stop()
+                bound += t.endpoints
         self.storage.shutdown(wait=True)
         if self.security is not None:
             self.security.stop()
         self.ctx.term()  # every socket was closed by its owner with LINGER 0
+        remove_socket_files(bound)  # libzmq leaves them; we hold the directory lock, so they are ours
 
     # ------------------------------------------------------------------ services for handlers
 
@@ -239,47 +265,72 @@ class Daemon:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="ritad", description="Rita acquisition daemon")
+    ap = argparse.ArgumentParser(prog="ritad", description="Rita acquisition daemon",
+                                 epilog="exit codes: 0 ok, 1 cannot start, 2 configuration or usage error, "
+                                        "3 another ritad runs in the same runtime or data directory")
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--config", help="TOML config file (see systemd/ritad.toml)")
     src.add_argument("--sim", action="store_true", help="run on the simulated world (built-in config)")
+    src.add_argument("--check-config", metavar="FILE",
+                     help="validate FILE (keys, values, endpoints, device URL schemes) and exit; binds nothing, "
+                          "opens no device, safe beside a running ritad")
     ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
     ap.add_argument("--data-dir", help="override daemon.data_dir")
     ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
-    ap.add_argument("--log-level", help="override daemon.log_level")
+    ap.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+                    help="override daemon.log_level")
     ap.add_argument("--version", action="version", version=f"ritad {__version__}")
     return ap.parse_args(argv)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    try:
-        if args.sim:
-            runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
-            cfg = config_mod.sim_config(runtime, args.data_dir, seed=args.seed)
-        else:
-            cfg = config_mod.load(args.config)
-            if args.data_dir:
-                cfg.daemon.data_dir = args.data_dir
-    except config_mod.ConfigError as exc:
-        print(f"ritad: configuration error: {exc}", file=sys.stderr)
-        return 2
-    setup_logging(args.log_level or cfg.daemon.log_level)
-    notifier = Notifier()
-    daemon = Daemon(cfg)
+def load_config(args: argparse.Namespace) -> config_mod.Config:
+    if args.sim:
+        runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
+        return config_mod.sim_config(runtime, args.data_dir, seed=args.seed)
+    cfg = config_mod.load(args.config or args.check_config)
+    if args.data_dir:
+        cfg.daemon.data_dir = args.data_dir
+    return cfg
+
+
+def check_config(cfg: config_mod.Config) -> int:
+    """``--check-config``: the file passed every check ritad makes before it binds."""
+    d = cfg.daemon
+    print(f"ritad: {cfg.source}: configuration OK")
+    for key in ("command_endpoints", "telemetry_endpoints", "frame_endpoints"):
+        print(f"  daemon.{key} = {getattr(d, key)}")
+    for kind in KINDS:
+        print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
+    print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
+    insecure = _insecure_tcp(cfg)
+    if insecure:
+        print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")
+    return RitadExit.OK
+
+
+def _insecure_tcp(cfg: config_mod.Config) -> list[str]:
+    if cfg.security.curve:
+        return []
+    d = cfg.daemon
+    return [e for e in d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints if e.startswith("tcp://")]
+
+
+def serve(daemon: Daemon, notifier: Notifier) -> int:
+    """Bind, run until SIGTERM/SIGINT, tear down."""
     try:
         daemon.start()
     except (zmq.ZMQError, OSError, ValueError) as exc:
-        log.error("cannot start: %s", exc)
-        print(f"ritad: cannot start: {exc}", file=sys.stderr)
-        return 1
+        log.error("cannot start: %s", exc)  # on stderr (the journal) once: logging writes there
+        d = daemon.config.daemon
+        remove_socket_files(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)  # ours: we hold the lock
+        return RitadExit.CANNOT_START
     from daemon.logs import BusLogHandler
 
     logging.getLogger().addHandler(BusLogHandler(daemon.telemetry.publish))
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     eps = daemon.server.endpoints
-    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), cfg.source)
+    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), daemon.config.source)
     print(f"ritad ready: {' '.join(eps)}", flush=True)
     notifier.ready(f"bus on {eps[0]}")
     try:
@@ -289,7 +340,37 @@ def main(argv: list[str] | None = None) -> int:
         log.info("stopping")
         daemon.stop()
         notifier.close()
-    return 0
+    log.info("stopped")
+    return RitadExit.OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        cfg = load_config(args)
+    except config_mod.ConfigError as exc:
+        print(f"ritad: configuration error: {exc}", file=sys.stderr)
+        return RitadExit.CONFIG
+    if args.check_config:
+        return check_config(cfg)
+    setup_logging(args.log_level or cfg.daemon.log_level)
+    lock = InstanceLock(lock_dirs(cfg))
+    try:
+        lock.acquire()  # before anything binds: a second ritad must not take the first one's ipc sockets
+    except AlreadyRunning as exc:
+        log.error("not started: %s", exc)
+        return RitadExit.ALREADY_RUNNING
+    except OSError as exc:
+        log.error("cannot start: lock: %s", exc)
+        return RitadExit.CANNOT_START
+    insecure = _insecure_tcp(cfg)
+    if insecure:
+        log.warning("insecure_tcp = true: %s accept any client without CURVE; anyone who reaches these ports "
+                    "can move the robot (docs/operations.md, Keys)", ", ".join(insecure))
+    try:
+        return serve(Daemon(cfg), Notifier())
+    finally:
+        lock.release()
 
 
 if __name__ == "__main__":

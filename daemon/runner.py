@@ -5,6 +5,11 @@ The runner is the only thread that touches its adapter. Bus handlers submit jobs
 data and events flow. ``DeviceLost`` from any call closes the adapter and starts
 reconnecting with exponential backoff; the state (DISCONNECTED → CONNECTING →
 READY ⇄ BUSY, FAULT with the reason) is published on every change.
+
+Liveness (``alive()``, which gates the systemd watchdog) is the owner thread's own:
+it beats at least every ``BEAT_S`` while it waits in backoff, and a blocking call
+(a job, an ``open()``) counts as alive until that call's own time limit. So a
+switched-off device is a FAULT state, never a reason for systemd to restart ritad.
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceTim
 log = logging.getLogger(__name__)
 
 PUMP_S = 0.02  # how long pump may block: bounds job latency while idle
+BEAT_S = 0.5  # longest wait between heartbeats while the runner waits in backoff
 
 
 @dataclass(order=True)
@@ -38,7 +44,8 @@ class DeviceRunner(threading.Thread):
     """Owns one device adapter for its whole life."""
 
     def __init__(self, kind: str, factory: Callable[[], Device], publish: Callable[[str, Any], None],
-                 backoff_min: float = 0.5, backoff_max: float = 30.0) -> None:
+                 backoff_min: float = 0.5, backoff_max: float = 30.0, heartbeat_timeout: float = 10.0,
+                 open_timeout: float = 120.0) -> None:
         super().__init__(name=f"device-{kind}", daemon=True)
         self.kind = kind
         self._factory = factory
@@ -47,15 +54,19 @@ class DeviceRunner(threading.Thread):
         self._seq = itertools.count()
         self._stop_evt = threading.Event()
         self.backoff_min, self.backoff_max = backoff_min, backoff_max
+        self.heartbeat_timeout, self.open_timeout = heartbeat_timeout, open_timeout
         self.device: Device | None = None
         self.state = DeviceState.DISCONNECTED
         self.reason = ""
+        #: reconnect attempts: one per lost connection plus one per retry after a failed attempt
         self.reconnects = 0
+        self._retrying = False
         self.opens = 0
         self.jobs_done = 0
         self.jobs_failed = 0
         self.info: dict[str, Any] = {}
         self.heartbeat = time.monotonic()
+        #: end of the time limit of the blocking call in progress (job or open), else None
         self._busy_deadline: float | None = None
         self._last_fault = ""
 
@@ -71,12 +82,14 @@ class DeviceRunner(threading.Thread):
         self._jobs.put(_Job(0 if urgent else 1, next(self._seq), fn, fut, timeout))
         return fut
 
-    def alive(self, stale_after: float = 10.0) -> bool:
-        """Heartbeat fresh (or busy within its job's own time limit)?"""
+    def alive(self, stale_after: float | None = None) -> bool:
+        """Heartbeat fresh (or in a job or open() within its own time limit)?"""
         now = time.monotonic()
-        if self._busy_deadline is not None:
-            return now < self._busy_deadline
-        return self.is_alive() and now - self.heartbeat < stale_after
+        deadline = self._busy_deadline
+        if deadline is not None:
+            return now < deadline
+        limit = self.heartbeat_timeout if stale_after is None else stale_after
+        return self.is_alive() and now - self.heartbeat < limit
 
     def snapshot(self) -> dict[str, Any]:
         return {"state": self.state.value, "reason": self.reason, "reconnects": self.reconnects,
@@ -94,7 +107,7 @@ class DeviceRunner(threading.Thread):
         if state is self.state and reason == self.reason:
             return
         self.state, self.reason = state, reason
-        if state in (DeviceState.FAULT, DeviceState.DISCONNECTED) and reason:
+        if state in (DeviceState.FAULT, DeviceState.DISCONNECTED) and reason and not self._stop_evt.is_set():
             # warn once per distinct reason; retries with the same failure stay at debug level
             level = logging.WARNING if reason != self._last_fault else logging.DEBUG
             self._last_fault = reason
@@ -123,16 +136,24 @@ class DeviceRunner(threading.Thread):
                 log.exception("%s: close failed", self.kind)
 
     def _connect(self) -> bool:
+        if self._retrying:
+            self.reconnects += 1
         self._set_state(DeviceState.CONNECTING)
+        self._busy_deadline = time.monotonic() + self.open_timeout  # open() blocks: it has its own limit
         try:
             if self.device is None:
                 self.device = self._factory()
             self.device.open()
         except Exception as exc:
             self._close()
+            self._retrying = True
             self._set_state(DeviceState.FAULT, f"{type(exc).__name__}: {exc}")
             return False
+        finally:
+            self._busy_deadline = None
+            self.heartbeat = time.monotonic()
         self.opens += 1
+        self._retrying = False
         log.info("%s connected (%s)", self.kind, self.device.url.raw)
         try:
             self.info = self.device.info()
@@ -182,6 +203,15 @@ class DeviceRunner(threading.Thread):
         self._busy_deadline = None
         self._set_state(DeviceState.READY)
 
+    def _backoff(self, seconds: float) -> None:
+        """Wait before the next connect attempt, beating so the watchdog sees a responsive thread."""
+        end = time.monotonic() + seconds
+        while not self._stop_evt.is_set():
+            self.heartbeat = now = time.monotonic()
+            if now >= end:
+                return
+            self._stop_evt.wait(min(BEAT_S, end - now))
+
     def run(self) -> None:
         backoff = self.backoff_min
         while not self._stop_evt.is_set():
@@ -191,7 +221,7 @@ class DeviceRunner(threading.Thread):
                     backoff = self.backoff_min
                     continue
                 self._fail_queued(self.reason)
-                self._stop_evt.wait(backoff)
+                self._backoff(backoff)
                 backoff = min(backoff * 2, self.backoff_max)
                 continue
             try:

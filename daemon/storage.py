@@ -3,7 +3,7 @@
 Every file is written to a temporary name in the same directory, flushed, fsynced
 and renamed over the target, then the directory is fsynced: after a crash a reader
 sees the old file or the new one, never half of one. A dataset is a folder with a
-``dataset.json`` manifest plus one entry per capture (lossless PNG/TIFF image and a
+``dataset.json`` manifest plus one entry per capture (lossless PNG image and a
 JSON sidecar that a person can read without this project); see docs/datasets.md.
 """
 from __future__ import annotations
@@ -124,6 +124,20 @@ class Dataset:
         return self.root / entry["json"]
 
 
+def tracker_point_dict(point: dict[str, Any], abs_H_trk: Any) -> dict[str, Any]:
+    """A tracker point (tracker frame x y z) with ``abs_xyz`` and the ``abs_H_trk`` that gave it.
+
+    Both frames are stored so a reader can check one against the other
+    (docs/datasets.md, "Tracker points"); without ``abs_H_trk`` only x y z are known.
+    """
+    if abs_H_trk is None:
+        return point
+    H = [[float(v) for v in row] for row in abs_H_trk]
+    xyz = (point["x"], point["y"], point["z"])
+    abs_xyz = [sum(H[i][j] * xyz[j] for j in range(3)) + H[i][3] for i in range(3)]
+    return {**point, "abs_xyz": abs_xyz, "abs_H_trk": H}
+
+
 def save_capture(data_dir: Path, parts: dict[str, Any], label: str, dataset: str | None,
                  meta: dict[str, Any]) -> Path:
     """Store a capture (camera Frame / TrackerPoint / RobotState, any subset) as a dataset entry.
@@ -142,7 +156,7 @@ def save_capture(data_dir: Path, parts: dict[str, Any], label: str, dataset: str
     if frame is not None:
         entry["camera"] = frame.header()
     if parts.get("tracker") is not None:
-        entry["tracker"] = parts["tracker"].to_dict()
+        entry["tracker"] = tracker_point_dict(parts["tracker"].to_dict(), meta.get("abs_H_trk"))
     if parts.get("robot") is not None:
         entry["robot"] = parts["robot"].to_dict()
     name = f"{len(ds.manifest['entries']):04d}-{label}"

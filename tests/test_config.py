@@ -33,6 +33,8 @@ def test_sim_config(tmp_path):
     ("[devices]\ntracker = 'emscon://h:notaport'\n", "bad port"),
     ("[daemon]\ncommand_endpoints = ['http://x']\n", "daemon.command_endpoints"),
     ("[tracker]\nabs_H_trk = [[1.0]]\n", "tracker.abs_H_trk"),
+    ("[daemon]\nheartbeat_timeout_s = 0.3\n", "daemon.heartbeat_timeout_s must be >= 1.0"),
+    ("[daemon]\nopen_timeout_s = -1\n", "daemon.open_timeout_s must be > 0"),
     ("bogus = 1\n", "bogus"),
     ("[daemon\n", "not valid TOML"),
 ])
@@ -55,3 +57,70 @@ def test_device_url_options():
     assert url.scheme == "sim" and url.option("sigma_mm", 0.01, float) == 0.02
     with pytest.raises(ValueError, match="drop_after='x'"):
         DeviceURL.parse("sim:?drop_after=x").option("drop_after", 0, int)
+
+
+def test_example_config_runs_the_worker_and_is_secure():
+    cfg = config.load(ROOT / "systemd" / "ritad.toml")
+    assert cfg.daemon.start_worker is True  # else `ritactl calibrate` stays queued forever
+    tcp = [e for e in cfg.daemon.command_endpoints if e.startswith("tcp://")]
+    assert tcp and cfg.security.curve is True and cfg.security.insecure_tcp is False
+
+
+def test_example_config_documents_every_key():
+    """Every key ritad accepts appears in the example (set or commented), so operators can find it."""
+    import dataclasses
+    import re
+
+    text = (ROOT / "systemd" / "ritad.toml").read_text()
+    sections = {f.name: f.type for f in dataclasses.fields(config.Config) if f.name != "source"}
+    missing = []
+    for name in sections:
+        section = getattr(config.Config(), name)
+        header = re.search(rf"^\[{name}\]$", text, re.M)
+        if header is None:
+            missing.append(f"[{name}]")
+            continue
+        body = text[header.start():].split("\n[", 1)[0]
+        for f in dataclasses.fields(section):
+            if not re.search(rf"^#? ?{f.name} = ", body, re.M) and f"{f.name}," not in body:
+                missing.append(f"{name}.{f.name}")
+    assert missing == []
+
+
+@pytest.mark.parametrize("kind, url", [("camera", "usb://0"), ("tracker", "http://192.168.0.1:80"),
+                                       ("robot", "genicam:///x.cti")])
+def test_unknown_device_scheme_is_a_config_error(tmp_path, kind, url):
+    f = tmp_path / "c.toml"
+    f.write_text(f"[devices]\n{kind} = '{url}'\n")
+    with pytest.raises(config.ConfigError) as err:
+        config.load(f)
+    scheme = url.split(":")[0]
+    assert f"devices.{kind}: unknown scheme '{scheme}'" in str(err.value) and "known:" in str(err.value)
+
+
+def test_tcp_without_curve_is_refused_unless_insecure_tcp(tmp_path):
+    f = tmp_path / "c.toml"
+    tcp = "[daemon]\ncommand_endpoints = ['ipc:///tmp/x/cmd', 'tcp://127.0.0.1:5555']\n"
+    f.write_text(tcp)
+    with pytest.raises(config.ConfigError, match=r"daemon.command_endpoints: 'tcp://127.0.0.1:5555' is a tcp "
+                                                 r"endpoint without CURVE.*insecure_tcp = true"):
+        config.load(f)
+    f.write_text(tcp + "[security]\ninsecure_tcp = true\n")
+    assert config.load(f).security.insecure_tcp is True
+    f.write_text(tcp + "[security]\ncurve = true\n")
+    assert config.load(f).security.curve is True
+
+
+def test_unused_server_secret_key_is_refused(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text("[security]\nserver_secret_key = '/etc/ritad/keys/server.key_secret'\n")
+    with pytest.raises(config.ConfigError, match="security.server_secret_key is no longer supported.*"
+                                                 "CREDENTIALS_DIRECTORY"):
+        config.load(f)
+
+
+def test_reconnect_backoff_must_be_ordered(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text("[daemon]\nreconnect_min_s = 5.0\nreconnect_max_s = 1.0\n")
+    with pytest.raises(config.ConfigError, match="daemon.reconnect_max_s"):
+        config.load(f)

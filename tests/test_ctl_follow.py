@@ -63,8 +63,7 @@ def test_status_of_a_ready_daemon_is_0(endpoint, capsys):
 def test_follow_an_ended_job_returns_within_2_s(endpoint, c, capsys, end, data, want, shown):
     job = post_job(c)
     report(c, job, end, data)
-    report(c, job, "progress", {"step": "done", "percent": 100})  # the worker's last word flips state to running
-    assert c.call("calib.jobs")["jobs"][-1]["state"] == "running"
+    report(c, job, "progress", {"step": "done", "percent": 100})  # a late word from the worker changes nothing
     code, took = follow(endpoint, job)
     assert code == want and took < 2.0
     assert shown in capsys.readouterr().out

@@ -2,6 +2,7 @@
 revocation takes effect without a restart, ipc stays plain, commands are logged with the key id."""
 import os
 import signal
+import socket
 import stat
 import subprocess
 import sys
@@ -11,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from daemon.auth import create_keypair, load_keypair, load_public
-from daemon.client import Client, ClientTimeout
+from daemon.client import Client, ClientRefused, ClientTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,15 +77,86 @@ def test_allowed_key_works_and_is_logged(secured):
     assert alice["public"].decode() in secured["log"].read_text()  # audit trail: the key id of who asked
 
 
-def test_unknown_key_and_plaintext_are_refused(secured):
+def test_unknown_key_is_refused_within_a_second_and_logged(secured):
     mallory = curve(secured["keys"], "mallory", secured["server"])
-    with Client(secured["tcp"], timeout=1.0, curve=mallory) as c:
-        with pytest.raises(ClientTimeout):
+    with Client(secured["tcp"], timeout=5.0, curve=mallory, key_id="mallory") as c:
+        t0 = time.monotonic()
+        with pytest.raises(ClientRefused) as e:
             c.call("ping")
-    with Client(secured["tcp"], timeout=1.0) as c:
-        with pytest.raises(ClientTimeout):
+        assert time.monotonic() - t0 < 1.5  # the ZAP refusal, not the 5 s timeout
+    assert str(e.value).startswith("refused: key mallory is not allowed by the daemon")
+    assert isinstance(e.value, ClientTimeout)  # existing handlers map it to exit 3
+    log = wait_for_log(secured["log"], f"refused CURVE key {mallory['public'].decode()} client from 127.0.0.1")
+    assert "unknown key" in log
+
+
+def test_plaintext_attempt_is_refused_and_logged(secured):
+    # a remote client's greeting arrives after the accept: its address is logged
+    host, port = secured["tcp"][len("tcp://"):].rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5) as raw:
+        time.sleep(1.0)  # network latency, as from a laptop (and time for a busy daemon)
+        raw.sendall(b"\xff" + bytes(8) + b"\x7f" + bytes([3, 0]) + b"NULL".ljust(20, b"\0") + bytes(32))
+        raw.settimeout(5)
+        try:
+            while raw.recv(100):
+                pass
+        except OSError:
+            pass
+        local = "%s:%d" % raw.getsockname()[:2]
+    line = wait_for_log(secured["log"], f"refused plaintext client from {local}")
+    assert "requires CURVE" in line
+    # ritactl without keys is told at once (its repeat is counted into the next log line)
+    with Client(secured["tcp"], timeout=5.0) as c:
+        t0 = time.monotonic()
+        with pytest.raises(ClientRefused) as e:
             c.call("ping")
-    assert "refused CURVE client" in secured["log"].read_text()
+        assert time.monotonic() - t0 < 1.5
+    assert "requires CURVE keys" in str(e.value)
+
+
+def test_refusal_log_counts_repeats(caplog):
+    from daemon.auth import RefusalLog
+
+    r = RefusalLog(window_s=0.2)
+    with caplog.at_level("WARNING", logger="daemon.auth"):
+        for port in range(5):
+            r.refused("plaintext", f"10.0.0.7:{4000 + port}", "needs CURVE")
+        r.refused("plaintext", "10.0.0.8:4000", "needs CURVE")
+        time.sleep(0.25)
+        r.refused("plaintext", "10.0.0.7:4100", "needs CURVE")
+    lines = [rec.getMessage() for rec in caplog.records]
+    assert lines == ["refused plaintext client from 10.0.0.7:4000: needs CURVE",
+                     "refused plaintext client from 10.0.0.8:4000: needs CURVE",
+                     "refused plaintext client from 10.0.0.7:4100: needs CURVE (4 more attempt(s) in the last 0.2 s)"]
+    assert r.count == 7
+
+
+def test_silent_refusal_times_out_with_the_key_id():
+    """A peer that accepts and says nothing (no handshake signal at all): the message names both causes."""
+    import zmq
+
+    silent = socket.create_server(("127.0.0.1", 0))
+    try:
+        pub, sec = zmq.curve_keypair()
+        srv, _ = zmq.curve_keypair()
+        endpoint = "tcp://127.0.0.1:%d" % silent.getsockname()[1]
+        with Client(endpoint, timeout=0.5, curve={"public": pub, "secret": sec, "server": srv}, key_id="bob") as c:
+            with pytest.raises(ClientTimeout) as e:
+                c.call("ping")
+        assert not isinstance(e.value, ClientRefused)
+        assert str(e.value).startswith("no answer: the daemon is down, or it refused this key (bob)")
+    finally:
+        silent.close()
+
+
+def wait_for_log(path: Path, text: str, timeout: float = 5.0) -> str:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        lines = [ln for ln in path.read_text().splitlines() if text in ln]
+        if lines:
+            return lines[-1]
+        time.sleep(0.05)
+    raise AssertionError(f"{text!r} not logged:\n{path.read_text()[-2000:]}")
 
 
 def test_local_ipc_stays_plain(secured):
@@ -135,3 +207,39 @@ def test_missing_server_key_is_a_clear_error(tmp_path):
     r = subprocess.run([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
                        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "ritactl keys init --server" in r.stderr
+
+
+def test_key_selected_by_name_end_to_end(secured, tmp_path):
+    """`keys init --name bob` on the laptop, `keys allow` on the robot, key = "bob" in ritactl.toml."""
+    from daemon.ctl_keys import resolve_connection
+
+    laptop = tmp_path / "laptop"
+    ctl = [sys.executable, "-m", "daemon.ctl", "keys"]
+    r = subprocess.run([*ctl, "init", "--name", "bob", "--dir", str(laptop)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "--key bob" in r.stdout, r
+    (laptop / "server.key").write_bytes((secured["data"] / "keys" / "server.key").read_bytes())
+    (laptop / "ritactl.toml").write_text(f'endpoint = "{secured["tcp"]}"\nkey = "bob"\nkeys_dir = "{laptop}"\n')
+    conn = resolve_connection(config_path=laptop / "ritactl.toml")
+    with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:
+        with pytest.raises(ClientRefused, match=r"refused: key bob \("):  # not allowed yet
+            c.call("ping")
+    r = subprocess.run([*ctl, "allow", str(laptop / "bob.key"), "--dir", str(secured["data"] / "authorized_keys")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:
+        assert c.call("ping")["pong"] is True
+    # a name with no key file is an error naming the file, never a plaintext attempt
+    with pytest.raises(ValueError, match="carol.key_secret does not exist"):
+        resolve_connection(key="carol", config_path=laptop / "ritactl.toml")
+
+
+def test_wrong_server_key_is_named(secured):
+    import zmq
+
+    alice = {**curve(secured["keys"], "alice", secured["server"]), "server": zmq.curve_keypair()[0]}
+    with Client(secured["tcp"], timeout=5, curve=alice, key_id="alice") as c:
+        t0 = time.monotonic()
+        with pytest.raises(ClientRefused, match="dropped the CURVE handshake.*server.key"):
+            c.call("ping")
+        assert time.monotonic() - t0 < 1.5

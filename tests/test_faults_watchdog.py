@@ -100,3 +100,99 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
                 r.device.shutdown()
         sock.close()
     print(f"\nhung owner thread noticed after {noticed:.2f} s (job limit 0.5 s + 5 s grace)")
+
+
+def ping_times(sock: socket.socket, duration: float) -> list[float]:
+    """Arrival times of the WATCHDOG=1 datagrams within ``duration`` s."""
+    times: list[float] = []
+    end = time.monotonic() + duration
+    while time.monotonic() < end:
+        try:
+            if b"WATCHDOG=1" in sock.recv(4096):
+                times.append(time.monotonic())
+        except socket.timeout:
+            pass
+    return times
+
+
+def test_runner_stays_alive_while_it_waits_in_backoff() -> None:
+    """A device that never answers: the owner thread keeps beating through backoffs longer than the
+    heartbeat limit, and every retry counts in ``reconnects`` (issue #11, blocker 3)."""
+    from daemon.runner import DeviceRunner
+    from drivers.base import DeviceState
+
+    attempts: list[float] = []
+
+    def unreachable():
+        attempts.append(time.monotonic())
+        raise ConnectionRefusedError("tracker switched off")
+
+    # backoff 0.05 s doubling to 2 s: waits of 1.6 s and 2 s exceed the 1 s heartbeat limit
+    r = DeviceRunner("tracker", unreachable, lambda *_: None, backoff_min=0.05, backoff_max=2.0)
+    r.start()
+    try:
+        dead = []
+        end = time.monotonic() + 6.0
+        while time.monotonic() < end:
+            if not r.alive(stale_after=1.0):
+                dead.append(round(time.monotonic() - end + 6.0, 2))
+            time.sleep(0.02)
+        assert dead == [], f"runner counted as hung while waiting in backoff at t = {dead[:5]} s"
+        assert r.state is DeviceState.FAULT and "switched off" in r.reason
+        gaps = [b - a for a, b in zip(attempts, attempts[1:])]
+        assert max(gaps) >= 1.5  # the backoff really did outlast the heartbeat limit
+        assert r.reconnects == len(attempts) - 1 >= 6  # the first attempt is a connect, the rest retries
+        assert r.snapshot()["heartbeat_age_s"] < 1.0
+    finally:
+        r.stop()
+    assert not r.is_alive()
+
+
+def test_watchdog_pings_with_every_device_unreachable(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """All three devices unreachable for > 2 x WatchdogSec, with reconnect backoffs longer than both
+    the ping interval and the heartbeat limit (the robot's 30 s / 10 s / 20 s scaled by 1/10):
+    pings never stop, ``health.alive`` stays true, devices are FAULT with a reason."""
+    monkeypatch.setenv("WATCHDOG_USEC", "2000000")  # WatchdogSec=2: a ping every second
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    sock.settimeout(0.05)
+    notifier = Notifier(str(path))
+    rt = tmp_path / "rt"
+    cfg = config.from_dict({
+        "daemon": {"command_endpoints": [f"ipc://{rt}/cmd"], "telemetry_endpoints": [f"ipc://{rt}/tel"],
+                   "frame_endpoints": [f"ipc://{rt}/frm"], "data_dir": str(tmp_path / "data"),
+                   "reconnect_min_s": 0.5, "reconnect_max_s": 3.0, "heartbeat_timeout_s": 1.0},
+        "devices": {"camera": "genicam:///nonexistent/producer.cti", "tracker": "emscon://127.0.0.1:1",
+                    "robot": "socket://127.0.0.1:1"}})
+    d = Daemon(cfg)
+    d.start()
+    sup = threading.Thread(target=d.supervise, args=(notifier,), daemon=True)
+    sup.start()
+    try:
+        with Client(d.server.endpoints[0], timeout=10) as c:
+            sub = c.subscriber(["daemon.health"])
+            t0 = time.monotonic()
+            pings = ping_times(sock, 9.0)  # backoffs 0.5, 1, 2, 3, 3 s: two waits of 3 s in here
+            healths = []
+            while (msg := sub.recv(0.05)) is not None:
+                healths.append(msg[1]["data"])
+            sub.close()
+            h = c.call("status")
+    finally:
+        d.stop_event.set()
+        sup.join(5)
+        d.stop()
+        notifier.close()
+        sock.close()
+    gaps = [b - a for a, b in zip([t0] + pings, pings)]
+    assert len(pings) >= 7 and max(gaps) < 2.0, f"{len(pings)} pings, gaps {[round(g, 2) for g in gaps]}"
+    assert len(healths) >= 6 and all(x["alive"] for x in healths)
+    assert h["alive"] is True
+    for kind, dev in h["devices"].items():
+        assert dev["state"] in ("FAULT", "CONNECTING"), (kind, dev)
+        assert dev["reason"] or dev["state"] == "CONNECTING", (kind, dev)
+        assert dev["reconnects"] >= 3, (kind, dev)  # every retry counts
+        assert dev["heartbeat_age_s"] < 1.0, (kind, dev)
+    print(f"\n{len(pings)} pings in 9 s with every device unreachable; largest gap {max(gaps):.2f} s")

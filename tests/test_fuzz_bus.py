@@ -63,7 +63,8 @@ ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
         "robot.move": ("distance_mm", "speed_mm_s", "confirm", "wait", "timeout_s"),
         "robot.turn": ("angle_deg", "speed_deg_s", "confirm", "wait", "timeout_s"),
         "capture": ("label", "dataset"), "calib.start": ("procedure", "params", "job"),
-        "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.next": ("timeout_s",),
+        "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.resume": ("job",),
+        "calib.next": ("timeout_s",),
         "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
         "sim.place_robot_on_plate": ("heading_deg",)}
 # real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)

@@ -44,3 +44,44 @@ def test_security_exposure_at_most_3(unit_copy):
     m = re.search(r"Overall exposure level for \S+: (\d+\.\d+)", res.stdout + res.stderr)
     assert m, res.stdout[-2000:] + res.stderr[-2000:]
     assert float(m.group(1)) <= 3.0, m.group(0)
+
+
+OPS = UNIT.parents[1] / "docs" / "operations.md"
+
+
+def unit_value(key: str) -> str:
+    values = re.findall(rf"^{key}=(.*)$", UNIT.read_text(), re.M)
+    assert len(values) == 1, (key, values)
+    return values[0].strip()
+
+
+def test_documentation_path_is_installed_by_the_documented_steps():
+    doc = unit_value("Documentation")
+    assert doc.startswith("file://")
+    target = Path(doc[len("file://"):])
+    assert (UNIT.parents[1] / "docs" / target.name).exists()
+    install = OPS.read_text().split("## Install", 1)[1].split("\n## ", 1)[0]
+    assert re.search(rf"install -D -m 644 -t {re.escape(str(target.parent))} docs/\*\.md", install), install
+
+
+def test_credential_and_binary_paths_agree_between_unit_and_docs():
+    cred = unit_value("LoadCredential")
+    name, source = cred.split(":", 1)
+    from daemon.auth import CREDENTIAL_NAME
+
+    assert name == CREDENTIAL_NAME
+    ops = OPS.read_text()
+    mentioned = set(re.findall(r"LoadCredential=([^`\s]+)", ops))
+    assert mentioned == {cred}, mentioned  # every mention in the docs is the unit's line
+    assert f"keys init --server --dir {Path(source).parent}" in ops  # the documented key is where systemd looks
+    exec_start = unit_value("ExecStart").split()[0]
+    venv_bin = str(Path(exec_start).parent)
+    install = ops.split("## Install", 1)[1].split("\n## ", 1)[0]
+    assert f"python3 -m venv {Path(venv_bin).parent}" in install
+    assert re.search(rf"ln -sf {re.escape(venv_bin)}/ritad {re.escape(venv_bin)}/ritactl /usr/local/bin/", install)
+
+
+def test_config_errors_are_not_restarted():
+    from daemon.main import RitadExit
+
+    assert unit_value("RestartPreventExitStatus") == str(int(RitadExit.CONFIG))

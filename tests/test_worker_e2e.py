@@ -18,6 +18,7 @@ import pytest
 from calibration.referencing import rob_H_cam_error
 from calibration.worker.recompute import recompute
 from daemon.client import Client
+from daemon.datasets import validate_folder
 from daemon.demo import lock_on_robot, operator_files
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,22 +54,42 @@ def daemon(tmp_path_factory):
         proc.kill()
 
 
-def run_job(c: Client, procedure: str, params: dict, timeout: float = 400) -> dict:
-    """Post a job and wait for its result message (subscribe first: Clone pattern)."""
-    sub = c.subscriber(["calib.result"])
+def run_job(c: Client, procedure: str, params: dict, timeout: float = 400, answers: dict | None = None,
+            job: str | None = None) -> dict:
+    """Post a job (or resume ``job``) and wait for its result message (subscribe first: Clone pattern).
+
+    ``answers`` maps a word of a prompt's question to the answer the 'operator' gives;
+    the prompts seen are returned under ``_prompts``."""
+    sub = c.subscriber(["calib.result", "calib.prompt"])
     time.sleep(0.2)
-    job = c.call("calib.start", procedure=procedure, params=params)["job"]
+    if job is None:
+        job = c.call("calib.start", procedure=procedure, params=params)["job"]
+    else:
+        c.call("calib.resume", job=job)
+    prompts = []
     try:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             msg = sub.recv(1.0)
-            if msg and msg[1]["data"].get("job") == job:
-                data = msg[1]["data"]
-                assert not data.get("failed"), data
-                return {**data, "job": job}
+            if not msg or msg[1]["data"].get("job") != job:
+                continue
+            data = msg[1]["data"]
+            if msg[0] == "calib.prompt":
+                prompts.append(data)
+                word = next((w for w in answers or {} if w in data["question"]), None)
+                assert word is not None, f"unexpected prompt: {data}"
+                c.call("calib.answer", job=job, answer=answers[word])
+                continue
+            return {**data, "job": job, "_prompts": prompts}
         raise AssertionError(f"{procedure} did not finish in {timeout} s: {c.call('calib.jobs')}")
     finally:
         sub.close()
+
+
+def run_ok(c: Client, procedure: str, params: dict, **kw) -> dict:
+    data = run_job(c, procedure, params, **kw)
+    assert not data.get("failed"), data
+    return data
 
 
 def referencing_params(c: Client, tmp: Path) -> dict:
@@ -84,13 +105,13 @@ def ensure_calibrated(c: Client, tmp: Path) -> None:
     """Tests that need an active calibration make one when run on their own."""
     if c.call("calib.results")["active"] is None:
         c.call("sim.place_robot_on_plate")
-        run_job(c, "referencing", referencing_params(c, tmp))
+        run_ok(c, "referencing", referencing_params(c, tmp))
 
 
 def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     c, tmp = daemon
     truth = c.call("sim.truth")
-    ref = run_job(c, "referencing", referencing_params(c, tmp))
+    ref = run_ok(c, "referencing", referencing_params(c, tmp))
     assert ref["verdict"] in ("ok", "warn")
     err = rob_H_cam_error(np.array(ref["rob_H_cam"]), np.array(truth["rob_H_cam"]))
     assert err["t_xy_mm"] < 0.06 and err["t_z_mm"] < 0.045 and err["rot_deg"] < 0.015, err
@@ -98,7 +119,7 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     assert active["job"] == ref["job"] and Path(active["dataset"], "result.yaml").exists()
 
     mark = truth["marks"][0]
-    exp = run_job(c, "experiment", {"mark_xy": [mark["x_mm"] + 1.0, mark["y_mm"] - 1.5], "repetitions": 5})
+    exp = run_ok(c, "experiment", {"mark_xy": [mark["x_mm"] + 1.0, mark["y_mm"] - 1.5], "repetitions": 5})
     stored = json.loads(Path(exp["dataset"], "result.json").read_text())
     m = stored["metrics"]
     assert len(stored["marks"]) == 40 and len(m["clusters"]) == 8
@@ -111,11 +132,14 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
 
     # offline recompute from the stored datasets reproduces the stored results
     for dataset in (ref["dataset"], exp["dataset"]):
+        assert validate_folder(dataset) == [], dataset  # the live worker writes what docs/datasets.md says
         result, diff = recompute(Path(dataset))
         assert diff is not None and diff < 1e-9, (dataset, diff)
     out = subprocess.run([sys.executable, "-m", "daemon.ctl", "recompute", ref["dataset"]], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "largest difference to the stored result" in out.stdout
+    stop = json.loads(Path(exp["dataset"], "state.json").read_text())["obs"]["stops"][0]
+    assert {"x", "y", "z", "abs_xyz", "abs_H_trk"} <= stop["P_at"].keys()  # both frames stored
 
 
 def test_killed_worker_resumes_without_remeasuring(daemon):
@@ -162,23 +186,25 @@ def test_measure_mark_and_intrinsics(daemon):
     truth = c.call("sim.truth")
     ensure_calibrated(c, tmp)
     mark = truth["marks"][1]  # the cross
-    r = run_job(c, "measure-mark", {"mark_xy": [mark["x_mm"] - 1.0, mark["y_mm"] + 1.0], "kind": mark["kind"]})
+    r = run_ok(c, "measure-mark", {"mark_xy": [mark["x_mm"] - 1.0, mark["y_mm"] + 1.0], "kind": mark["kind"]})
     x, y, _ = r["mark"]["abs_xyz"]
     assert np.hypot(x - mark["x_mm"], y - mark["y_mm"]) < 0.1
     assert 0 < r["mark"]["std_mm"] < 0.1
+    assert validate_folder(r["dataset"]) == []
 
     # intrinsics from views of the target: the operator puts the robot back on the plate first
     files = operator_files(c, tmp)
     params = {"plate": json.loads(files["plate"].read_text()), "views": 5,
               "camera_model": json.loads(files["camera_model"].read_text())}
     c.call("sim.place_robot_on_plate")
-    r = run_job(c, "intrinsics", params)
+    r = run_ok(c, "intrinsics", params, answers={"Install": "install"})
     assert r["verdict"] in ("ok", "warn")
     stored = json.loads(Path(r["dataset"], "result.json").read_text())
     f_true = truth["camera_model"]["K"][0][0]
     f_std = stored["report"]["std"]["fx"]
     assert abs(stored["camera_model"]["K"][0][0] - f_true) < max(4 * f_std, 1.0)
     assert stored["report"]["rms_px"] < 0.2
+    assert validate_folder(r["dataset"]) == []
 
 
 def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
@@ -250,3 +276,39 @@ def test_cancel_then_resume(daemon):
     assert state["status"] == "done" and len(state["obs"]["stops"]) == 3
     names = [e["name"] for e in json.loads((root / "dataset.json").read_text())["entries"]]
     assert len(names) == len(set(names)) == 3
+
+
+def test_intrinsics_off_the_plate_fails_its_view_and_resume_retakes_it(daemon):
+    """The target out of view fails the view step (in plain words); a resume after the operator
+    fixed it re-takes that view instead of skipping it, and a warn model is installed only on a yes."""
+    c, tmp = daemon
+    files = operator_files(c, tmp)
+    installed = Path(c.call("data.dir")["data_dir"]) / "calibration" / "camera_model.json"
+    before = installed.read_bytes() if installed.exists() else None
+    c.call("sim.place_robot_on_plate")
+    c.call("robot.move", timeout=120, distance_mm=400.0, speed_mm_s=200.0, confirm=True)  # target out of view
+    params = {"plate": json.loads(files["plate"].read_text()), "views": 4,
+              "camera_model": json.loads(files["camera_model"].read_text())}
+    failed = run_job(c, "intrinsics", params)
+    job = failed["job"]
+    assert failed.get("failed") and failed["state"] == "failed", failed
+    msg = failed["message"]
+    assert msg.startswith("view 1/4: the target is not in view") and "ritactl resume" in msg, msg
+    assert "Error:" not in msg
+    assert {j["job"]: j for j in c.call("calib.jobs")["jobs"]}[job]["state"] == "failed"
+
+    c.call("sim.place_robot_on_plate")  # the operator fixes the cause
+    r = run_job(c, "intrinsics", {}, job=job, answers={"Install": "skip"})
+    assert not r.get("failed"), r
+    root = Path(r["dataset"])
+    assert (root / "view-00.png").exists() and (root / "view-00-try2.png").exists()  # nothing overwritten
+    state = json.loads((root / "state.json").read_text())
+    assert state["status"] == "done" and [v["image"] for v in state["obs"]["views"]][0] == "view-00-try2.png"
+    after = installed.read_bytes() if installed.exists() else None
+    if r["verdict"] == "warn":
+        assert len(r["_prompts"]) == 1 and r["_prompts"][0]["choices"] == ["install", "skip"]
+        assert after == before and any("NOT installed" in m for m in r["messages"]), r["messages"]
+    else:
+        assert r["verdict"] == "ok" and not r["_prompts"] and after is not None and after != before
+    assert len(r["messages"]) == len(set(r["messages"]))
+    assert json.loads((root / "result.json").read_text())["messages"] == r["messages"]  # the note is stored

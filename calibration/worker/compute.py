@@ -15,7 +15,7 @@ import numpy as np
 from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.frames import apply_H
-from calibration.measure import measure_image, robot_pose_at
+from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
@@ -30,12 +30,39 @@ def _abs(point: dict[str, Any]) -> np.ndarray:
     return np.asarray(point["abs_xyz"], dtype=float)
 
 
+def _sigma_t(obs: dict[str, Any]) -> float:
+    """The dataset's tracker 1σ per coordinate (mm), or the documented default."""
+    s = obs.get("sigma_t_mm")
+    return DEFAULT_SIGMA_T_MM if s is None else float(s)
+
+
+def to_8bit(image: np.ndarray) -> np.ndarray:
+    """An 8-bit view for the detectors: 16-bit images (Mono10/12/16 in 16-bit PNG) scaled by their peak.
+
+    Only a gain: corner and mark positions do not depend on it, and an image whose
+    useful bits sit low in the 16-bit word (Mono12 = 0..4095) keeps its full contrast.
+    """
+    img = np.asarray(image)
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype != np.uint16:
+        raise ValueError(f"image: expected 8- or 16-bit pixels, got dtype {img.dtype}")
+    peak = max(int(img.max()), 1)
+    return np.round(img.astype(np.float32) * (255.0 / peak)).astype(np.uint8)
+
+
+def _eight_bit(load: LoadImage) -> LoadImage:
+    """The image loader, every image passed through :func:`to_8bit`."""
+    return lambda file: to_8bit(load(file))
+
+
 def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """rob_H_cam from the nests and one or two on-plate runs (two = 0°/180° reversal)."""
     model = CameraModel.from_dict(obs["camera_model"])
     plate = Plate.from_dict(obs["plate"])
     abs_P_nests = np.array([_abs(obs["nests"][n]) for n in NEST_NAMES])
-    sigma_t = float(obs.get("sigma_t_mm", 0.010))
+    sigma_t = _sigma_t(obs)
+    load = _eight_bit(load)
     runs = []
     for i, run in enumerate(obs["runs"]):
         res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
@@ -72,7 +99,7 @@ MARK_SIZE_MM = {"dot": 0.4, "cross": 0.6}
 
 
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
-                 size_mm: float | None) -> dict[str, Any]:
+                 size_mm: float | None, sigma_t_mm: float) -> dict[str, Any]:
     scs = Scs.from_dict(calib["scs"])
     rob_H_scn = np.array(calib["rob_H_scn"], dtype=float)
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
@@ -82,6 +109,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
         roll = pitch = None
     m = measure_image(load(stop["image"]), scs, rob_H_scn, _abs(stop["P_prev"]), _abs(stop["P_at"]), kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=roll, pitch_deg=pitch,
+                      sigma_t_mm=sigma_t_mm,
                       cov_rob_H_scn=None if cov is None else np.array(cov))
     abs_H_rob = robot_pose_at(_abs(stop["P_prev"]), _abs(stop["P_at"]))
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
@@ -91,15 +119,17 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """One floor mark in ACS from one stop (image + approach positions)."""
-    r = _mark_in_acs(obs["calibration"], obs["stop"], load, obs.get("kind", "dot"), obs.get("mark_size_mm"))
+    r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
+                     obs.get("mark_size_mm"), _sigma_t(obs))
     return {"schema": RESULT_SCHEMA, "procedure": "measure-mark", "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r, "verdict": "ok", "messages": []}
 
 
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
-    kind = obs.get("kind", "dot")
-    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm")) for s in obs["stops"]]
+    kind, load = obs.get("kind", "dot"), _eight_bit(load)
+    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), _sigma_t(obs))
+             for s in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])
@@ -114,6 +144,7 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     from calibration.intrinsics import calibrate_intrinsics
 
     plate = Plate.from_dict(obs["plate"])
+    load = _eight_bit(load)
     images = [load(v["image"]) for v in obs["views"]]
     size = (images[0].shape[1], images[0].shape[0])
     initial = CameraModel.from_dict(obs["initial_model"]) if obs.get("initial_model") else None

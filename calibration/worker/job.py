@@ -27,6 +27,14 @@ class Cancelled(Exception):
     """The operator cancelled the job."""
 
 
+class StepFailed(Exception):
+    """A step failed for a reason the operator can act on; ``resumable`` says whether a resume can help."""
+
+    def __init__(self, message: str, resumable: bool = True) -> None:
+        super().__init__(message)
+        self.resumable = resumable
+
+
 class JobContext:
     """Bus access, progress reporting and persistence for one job."""
 
@@ -45,6 +53,7 @@ class JobContext:
                           "params": job.get("params", {}), "status": "running", "done": [], "obs": {},
                           "started_ns": time.time_ns(), "software": __version__}
             self.resumed = False
+        self.step = "start"  # the step in progress, named in a failure message
         self.dataset = Dataset(self.root, kind=f"procedure:{self.procedure}",
                                meta={"job": self.job_id, "params": self.state["params"], "software": __version__})
         self.checkpoint()
@@ -88,6 +97,7 @@ class JobContext:
             log.warning("could not report %s: %s", kind, exc)
 
     def progress(self, step: str, percent: float, waiting_for: str = "", **extra: Any) -> None:
+        self.step = step
         log.info("[%s] %5.1f%% %s %s", self.job_id, percent, step, waiting_for)
         self.report("progress", {"step": step, "percent": round(percent, 1), "waiting_for": waiting_for, **extra})
 

@@ -30,6 +30,7 @@ class Navigator:
         self.speed = speed_mm_s
         self.turn_speed = turn_speed_deg_s
         self.nav = ctx.state.setdefault("nav", {"heading_deg": None})
+        self.last_points: tuple[dict[str, Any], dict[str, Any]] | None = None
 
     # ------------------------------------------------------------------ primitives
 
@@ -66,9 +67,10 @@ class Navigator:
 
     def straight(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Move and update the heading from the measured displacement; returns (before, after)."""
-        a, _ = self.where()
+        a, pa = self.where()
         self.move(distance_mm)
-        b, _ = self.where()
+        b, pb = self.where()
+        self.last_points = (pa, pb)  # the full tracker points, for the dataset
         if abs(distance_mm) >= MIN_HEADING_MOVE_MM:
             d = (b - a) * math.copysign(1.0, distance_mm)
             self.nav["heading_deg"] = math.degrees(math.atan2(d[1], d[0]))

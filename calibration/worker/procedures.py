@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from calibration.plate import NEST_NAMES
+from calibration.plate import NEST_NAMES, Plate
 from calibration.worker.compute import footprint_abs
-from calibration.worker.job import JobContext
+from calibration.worker.job import JobContext, StepFailed
 from calibration.worker.nav import Navigator
 from daemon.protocol import CommandError
 
@@ -116,11 +116,11 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
                                       [0, 0, 1.0]])
     foot = footprint_abs(calib, abs_H_rob_now)[:2]  # footprint relative to the reflector at this heading
     target = np.asarray(mark_xy, float) - foot - offset
-    P_prev, P_at = nav.approach(target, heading, param(ctx, "distance_mm"))
+    nav.approach(target, heading, param(ctx, "distance_mm"))
+    P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
-    return {"image": file, "header": header, "P_prev": {"abs_xyz": P_prev.tolist()},
-            "P_at": {"abs_xyz": P_at.tolist()}, "robot": robot, "heading_cmd_deg": heading,
+    return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
             "offset_mm": offset.tolist()}
 
 
@@ -153,6 +153,7 @@ def measure_mark(ctx: JobContext) -> None:
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     ctx.obs.setdefault("kind", param(ctx, "kind"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
     if not ctx.done("stop"):
         ctx.progress("approach the mark", 20, "robot moving")
         heading = float(ctx.params.get("heading_deg", nav.heading))
@@ -167,6 +168,7 @@ def experiment(ctx: JobContext) -> None:
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     ctx.obs.setdefault("kind", param(ctx, "kind"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
     k_dirs, reps = int(param(ctx, "directions")), int(param(ctx, "repetitions"))
     rng = np.random.default_rng(int(param(ctx, "seed")))
     plan = [(k, r, rng.uniform(-1, 1, 2) * param(ctx, "offset_mm"), rng.normal(0, 0.5))
@@ -187,11 +189,37 @@ def experiment(ctx: JobContext) -> None:
     ctx.progress("compute the metrics", 92, "")
 
 
+#: corners a view needs to count for the intrinsics (calibrate_intrinsics' default)
+MIN_VIEW_CORNERS = 30
+
+
+def _intrinsics_view(ctx: JobContext, name: str, plate: Any) -> dict[str, Any]:
+    """Capture one view and check the target is in it, so a bad view fails its own step.
+
+    A view without the target would only fail the final calculation, and a resume would
+    then skip every (stored) view and fail the same way; failing here leaves the step
+    undone, and a resume re-takes just that view, under a new file name (nothing is
+    overwritten).
+    """
+    from calibration.target import detect_corners
+
+    tries = int(ctx.state.get(f"{name}.tries", 0))
+    ctx.state[f"{name}.tries"] = tries + 1
+    file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
+    ids, _ = detect_corners(pixels, plate)
+    if len(ids) < MIN_VIEW_CORNERS:
+        ctx.checkpoint()
+        raise StepFailed(f"the target is not in view in {file} ({len(ids)} corners < {MIN_VIEW_CORNERS}): put the "
+                         f"robot on the plate with the target under the camera")
+    return {"image": file, "header": header, "n_corners": int(len(ids))}
+
+
 def intrinsics(ctx: JobContext) -> None:
     """Several views of the plate target from slightly different robot poses."""
     if "plate" not in ctx.obs:
-        ctx.obs["plate"] = ctx.params["plate"]
+        ctx.obs["plate"] = ctx.params.get("plate") or _installed(ctx, "plate.json")
         ctx.obs["initial_model"] = ctx.params.get("camera_model")
+    plate = Plate.from_dict(ctx.obs["plate"])
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     views = ctx.obs.setdefault("views", [])
     n = int(param(ctx, "views"))
@@ -204,12 +232,16 @@ def intrinsics(ctx: JobContext) -> None:
         ctx.progress(f"view {j + 1}/{n}", 5 + 85 * j / n, "robot moving")
         dist, ang = moves[j % len(moves)]
         if j and not ctx.state.get(f"{name}.moved"):
-            ctx.state[f"{name}.moved"] = True
+            ctx.state[f"{name}.moved"] = True  # a worker killed mid-move must not move twice
             ctx.checkpoint()
-            nav.turn(ang)
-            nav.move(dist)
-        file, header, _ = ctx.capture_image(name)
-        views.append({"image": file, "header": header})
+            try:
+                nav.turn(ang)
+                nav.move(dist)
+            except CommandError:
+                ctx.state.pop(f"{name}.moved")  # the base refused or stopped: a resume moves again
+                ctx.checkpoint()
+                raise
+        views.append(_intrinsics_view(ctx, name, plate))
         ctx.mark_done(name)
     ctx.progress("calibrate the camera", 92, "")
 

@@ -1,4 +1,10 @@
-"""Offline recompute: the stored observations of a dataset → the same result as the live run."""
+"""Offline recompute: the stored observations of a dataset → the same result as the live run.
+
+The folder is validated against its contract first (:func:`daemon.datasets.validate_folder`),
+so bad input is reported as a list of problems with file and JSON path, never as a
+bare ``KeyError``. ``camera_model`` / ``plate`` / ``calibration`` replace what the
+dataset stored: this is how old data is re-evaluated after recalibrating the camera.
+"""
 from __future__ import annotations
 
 import json
@@ -8,9 +14,14 @@ from typing import Any
 import numpy as np
 
 from calibration.worker.compute import COMPUTE
+from daemon.datasets import DatasetInvalid, check_file, validate_folder
 
-#: result fields that are numbers computed from the observations (compared on recompute)
-COMPARED = ("rob_H_cam", "rob_H_scn")
+#: which stored inputs each override replaces, per procedure (obs key)
+OVERRIDES = {"camera_model": {"referencing": "camera_model", "intrinsics": "initial_model"},
+             "plate": {"referencing": "plate", "intrinsics": "plate"},
+             "calibration": {"experiment": "calibration", "measure-mark": "calibration"}}
+#: the schema each override file must meet
+_OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibration": "result"}
 
 
 def _load(root: Path):
@@ -35,15 +46,48 @@ def _max_diff(a: Any, b: Any) -> float:
     return 0.0
 
 
-def recompute(root: Path) -> tuple[dict[str, Any], float | None]:
-    """Return (result, largest numeric difference to the stored result.json or None)."""
+def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``obs`` with the given replacement documents, each checked against its schema first."""
+    obs = dict(obs)
+    for name, doc in overrides.items():
+        if doc is None:
+            continue
+        key = OVERRIDES[name].get(proc)
+        if key is None:
+            raise ValueError(f"--{name.replace('_', '-')} does not apply to a {proc} dataset "
+                             f"(it applies to {', '.join(OVERRIDES[name])})")
+        problems = check_file(doc, _OVERRIDE_SCHEMA[name], f"--{name.replace('_', '-')}")
+        if name == "calibration" and not problems and doc.get("procedure") != "referencing":
+            raise ValueError(f"--calibration must be a referencing result, got procedure {doc.get('procedure')!r}")
+        if problems:
+            raise DatasetInvalid(root, problems)
+        obs[key] = doc
+    return obs
+
+
+def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: dict[str, Any] | None = None,
+              calibration: dict[str, Any] | None = None) -> tuple[dict[str, Any], float | None]:
+    """Return (result, largest numeric difference to the stored result.json or None).
+
+    Raises :class:`DatasetInvalid` listing every problem of the folder, ``ValueError``
+    for an override that does not fit, and whatever the computation raises
+    (``CalibrationError`` when the data cannot give a trustworthy result).
+    """
     root = Path(root)
+    problems = validate_folder(root)
+    if problems:
+        raise DatasetInvalid(root, problems)
     state = json.loads((root / "state.json").read_text())
     proc = state["procedure"]
-    if proc not in COMPUTE:
-        raise ValueError(f"{root}: unknown procedure {proc!r}")
-    result = COMPUTE[proc](state["obs"], _load(root))
-    result["job"] = state["job"]
+    overrides = {"camera_model": camera_model, "plate": plate, "calibration": calibration}
+    obs = apply_overrides(root, proc, state["obs"], overrides)
+    result = COMPUTE[proc](obs, _load(root))
+    result["job"] = state.get("job") or root.name
+    result["params"] = {k: v for k, v in (state.get("params") or {}).items()
+                        if k not in ("plate", "camera_model", "calibration")}
+    if any(v is not None for v in overrides.values()):
+        result["recomputed_with"] = sorted(k for k, v in overrides.items() if v is not None)
+        return result, None  # other inputs: a difference to the stored result is expected
     diff = None
     stored_path = root / "result.json"
     if stored_path.exists():

@@ -1,0 +1,135 @@
+"""ritad as a process: one instance per runtime directory, --check-config, clean stops.
+
+A second ritad on the same directories must exit with code 3 naming the first one's
+pid, before it binds anything, and leave the first one's ipc telemetry working.
+``--check-config`` validates without binding or locking. A SIGTERM stop logs nothing
+at WARNING or above and removes the ipc socket files.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from daemon.client import Client, Subscriber
+from daemon.main import RitadExit
+from tests.test_faults_process import Ritad, wait_devices_ready, write_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def ritad(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "daemon.main", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def health_messages(endpoint: str, n: int, timeout: float) -> int:
+    """How many daemon.health messages a fresh subscriber receives (stops at ``n``)."""
+    sub = Subscriber(endpoint, ["daemon.health"])
+    got = 0
+    end = time.monotonic() + timeout
+    try:
+        while got < n and time.monotonic() < end:
+            got += sub.recv(0.2) is not None
+    finally:
+        sub.close()
+    return got
+
+
+def sockets_in(rt: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_ino for p in rt.iterdir() if p.is_socket()}
+
+
+def stop(r: Ritad) -> None:
+    r.proc.send_signal(signal.SIGTERM)
+    assert r.proc.wait(15) == 0
+
+
+def test_second_ritad_leaves_the_first_ones_telemetry_working(tmp_path: Path) -> None:
+    cfg, endpoint = write_config(tmp_path, tmp_path / "data")
+    rt = tmp_path / "rt"
+    first = Ritad(tmp_path, cfg)
+    try:
+        first.wait_ready()
+        telemetry = f"ipc://{rt}/telemetry"
+        assert health_messages(telemetry, 2, 10) == 2
+        before = sockets_in(rt)
+        assert set(before) == {"cmd", "telemetry", "frames"}
+        second = ritad("--config", str(cfg), timeout=30)
+        assert second.returncode == RitadExit.ALREADY_RUNNING, second.stderr
+        assert f"pid {first.proc.pid}" in second.stderr and str(rt) in second.stderr
+        assert "Traceback" not in second.stderr
+        assert sockets_in(rt) == before  # the same socket files: nothing was rebound or removed
+        assert health_messages(telemetry, 2, 10) == 2  # a new subscriber still hears the first ritad
+        with Client(endpoint, timeout=10) as c:
+            assert c.call("hello")["pid"] == first.proc.pid
+        stop(first)
+        assert sockets_in(rt) == {}  # removed at stop
+        # the lock went with the process: the next ritad starts on the same directories
+        third = Ritad(tmp_path, cfg)
+        try:
+            third.wait_ready()
+            assert health_messages(telemetry, 1, 10) == 1
+            stop(third)
+        finally:
+            third.close()
+    finally:
+        first.close()
+
+
+def test_check_config_binds_nothing_and_names_bad_keys(tmp_path: Path) -> None:
+    cfg, _ = write_config(tmp_path, tmp_path / "data")
+    ok = ritad("--check-config", str(cfg))
+    assert ok.returncode == RitadExit.OK and "configuration OK" in ok.stdout, ok.stderr
+    assert "devices.camera = 'sim:?size=" in ok.stdout
+    assert list((tmp_path / "rt").iterdir()) == [] and not (tmp_path / "data").exists()  # no socket, no lock
+    example = ritad("--check-config", str(ROOT / "systemd" / "ritad.toml"))
+    assert example.returncode == RitadExit.OK, example.stderr
+    bad = tmp_path / "bad.toml"
+    bad.write_text(cfg.read_text().replace('tracker = "sim:"', 'tracker = "usb://0"'))
+    for args in (("--check-config", str(bad)), ("--config", str(bad))):  # the same check at a normal start
+        res = ritad(*args)
+        assert res.returncode == RitadExit.CONFIG
+        assert f"{bad}: devices.tracker: unknown scheme 'usb'" in res.stderr and "Traceback" not in res.stderr
+    assert list((tmp_path / "rt").iterdir()) == []
+
+
+def test_clean_sigterm_stop_logs_no_warning(tmp_path: Path) -> None:
+    cfg, endpoint = write_config(tmp_path, tmp_path / "data")
+    cfg.write_text(cfg.read_text().replace("start_worker = false", "start_worker = true"))  # stop it too
+    r = Ritad(tmp_path, cfg)
+    try:
+        r.wait_ready()
+        with Client(endpoint, timeout=10) as c:
+            wait_devices_ready(c)
+            end = time.monotonic() + 60
+            while c.call("status")["worker"]["seen_s_ago"] is None:
+                assert time.monotonic() < end, "worker never polled"
+                time.sleep(0.2)
+        stop(r)
+    finally:
+        r.close()
+    log = (tmp_path / "ritad.log").read_text()
+    assert "INFO ritad: stopped" in log
+    bad = [line for line in log.splitlines() if any(f" {lvl} " in line for lvl in ("WARNING", "ERROR", "CRITICAL"))
+           or "Traceback" in line]
+    assert bad == []
+    assert sockets_in(tmp_path / "rt") == {}
+
+
+def test_insecure_tcp_warns_at_every_start(tmp_path: Path) -> None:
+    cfg, _ = write_config(tmp_path, tmp_path / "data")
+    text = cfg.read_text().replace('command_endpoints = ["ipc://', 'command_endpoints = ["tcp://127.0.0.1:0", "ipc://')
+    cfg.write_text(text + "\n[security]\ninsecure_tcp = true\n")
+    for _ in range(2):
+        r = Ritad(tmp_path, cfg)  # appends to the same ritad.log
+        try:
+            r.wait_ready()
+            stop(r)
+        finally:
+            r.close()
+    log = (tmp_path / "ritad.log").read_text()
+    assert log.count("WARNING ritad: insecure_tcp = true: tcp://127.0.0.1:0 accept any client without CURVE") == 2
