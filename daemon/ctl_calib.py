@@ -176,6 +176,9 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
 
 
 
+_show_result = show_result  # the name daemon/ctl_datasets.py imports (recompute)
+
+
 def _start(c: Client, a: argparse.Namespace, procedure: str, params: dict[str, Any]) -> int:
     r = c.call("calib.start", procedure=procedure, params={k: v for k, v in params.items() if v is not None},
                **({"job": a.job} if getattr(a, "job", None) else {}))
