@@ -29,7 +29,6 @@ import json
 import re
 import sys
 import time
-from pathlib import Path
 from typing import Any, Callable, NoReturn
 
 import zmq

@@ -19,7 +19,7 @@ from daemon.client import Client
 from daemon.command_table import COMMANDS, PROCEDURES
 from daemon.ctl_device import add_table_args, table_args
 from daemon.ctl_io import ask, print_result, say, yes_after_ctrl_c
-from daemon.exitcodes import CtlError, Exit, bad_input, for_verdict
+from daemon.exitcodes import Exit, bad_input, for_verdict
 from daemon.protocol import CommandError, ErrorCode
 
 MOTION_PROCEDURES = PROCEDURES  # every procedure moves the robot (intrinsics: one pose per view)

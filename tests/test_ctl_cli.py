@@ -110,3 +110,17 @@ def test_closed_stdout_pipe_is_quiet():
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert b"Traceback" not in err and b"BrokenPipe" not in err and b"Exception ignored" not in err
+
+
+def test_key_and_config_problems_are_exit_5_naming_the_file(tmp_path, capsys):
+    """main() uses ctl_keys.resolve_connection: --key/--keys/--config, never a silent plaintext fallback."""
+    missing = tmp_path / "nope.toml"
+    assert ctl.main(["--config", str(missing), "--endpoint", "tcp://127.0.0.1:1", "status"]) == Exit.BAD_INPUT
+    assert str(missing) in capsys.readouterr().err
+    assert ctl.main(["--key", "bob", "--keys", str(tmp_path), "--endpoint", "tcp://127.0.0.1:1", "--json",
+                     "status"]) == Exit.BAD_INPUT
+    err = json.loads(capsys.readouterr().out)
+    assert err["error"] == "bad_input" and "bob.key_secret" in err["message"]
+    (tmp_path / "ritactl.toml").write_text('endpoint = "127.0.0.1:5555"\n')
+    assert ctl.main(["--config", str(tmp_path / "ritactl.toml"), "status"]) == Exit.BAD_INPUT
+    assert "endpoint" in capsys.readouterr().err
