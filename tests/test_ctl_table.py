@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import types
+from pathlib import Path
 
 import pytest
 
@@ -119,3 +121,13 @@ def test_bash_completion_completes_from_the_parser():
     assert "--json" in tracker_opts and "--yes" not in tracker_opts and "--speed" not in tracker_opts
     assert {"--yes", "--speed", "--no-wait"} <= complete("robot", "move", "--")
     assert complete("keys", "") >= {"init", "allow", "revoke", "list"}
+
+
+def test_docs_protocol_lists_exactly_the_table_commands():
+    """docs/protocol.md's "Command list" names every command of the table, and no other."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    section = doc[doc.index("### Command list"):doc.index("## Telemetry")]
+    rows = re.findall(r"^\| (`[a-z_.]+`(?: / `[a-z_.]+`)*) \|", section, re.M)
+    named = {name for row in rows for name in re.findall(r"`([a-z_.]+)`", row)}
+    assert set(COMMANDS) - named == set(), "table commands missing in docs/protocol.md"
+    assert named - set(COMMANDS) == set(), "docs/protocol.md lists commands the table does not have"
