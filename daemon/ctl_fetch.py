@@ -202,7 +202,6 @@ def add_parser(sub: Any) -> None:
                    help="file or folder relative to the robot's data dir, e.g. datasets (default: everything)")
     p.add_argument("--to", default="rita-data", metavar="DIR",
                    help="local folder to copy into, keeping the robot's layout (default: ./rita-data)")
-    p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print a JSON summary")
     p.set_defaults(fn=cmd_fetch)
 
 

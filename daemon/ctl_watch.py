@@ -260,8 +260,6 @@ def add_parser(sub: Any) -> None:
     w.add_argument("--topic", action="append", metavar="PREFIX",
                    help="only telemetry topics starting with PREFIX (repeatable; e.g. calib.)")
     w.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
-    w.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                   help="one JSON object per message (as the global --json)")
     w.set_defaults(fn=cmd_watch)
 
 

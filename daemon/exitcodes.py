@@ -25,4 +25,21 @@ def for_verdict(verdict: str | None) -> Exit:
     return {"ok": Exit.OK, "warn": Exit.WARN}.get(verdict or "", Exit.FAIL)
 
 
-__all__ = ["Exit", "for_verdict"]
+class CtlError(Exception):
+    """A failure a ritactl verb reports itself: ``main()`` prints ``message`` and exits with ``exit``.
+
+    ``code`` is the short word shown as ``{"error": code}`` with ``--json`` (e.g. ``bad_input``).
+    """
+
+    def __init__(self, exit: Exit, code: str, message: str) -> None:
+        super().__init__(message)
+        self.exit = exit
+        self.code = code
+
+
+def bad_input(message: str) -> CtlError:
+    """A local file or dataset is missing or invalid (exit 5)."""
+    return CtlError(Exit.BAD_INPUT, "bad_input", message)
+
+
+__all__ = ["CtlError", "Exit", "bad_input", "for_verdict"]

@@ -8,7 +8,7 @@ from daemon import ctl
 
 
 def test_ritactl_imports_no_opencv_harvesters_or_numpy():
-    code = ("import sys, daemon.ctl, daemon.client; "
+    code = ("import sys, daemon.ctl, daemon.client; daemon.ctl.build_parser(); "
             "print([m for m in ('cv2', 'harvesters', 'genicam', 'numpy', 'serial') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]"
@@ -23,13 +23,10 @@ def test_unreachable_daemon_is_a_clear_error(tmp_path):
 
 def test_usage_errors(capsys):
     for argv in (["tracker", "aim", "1", "2"], ["robot", "move"], ["tracker", "stream", "go"],
-                 ["robot", "move", "abc"]):
-        try:
-            ctl.main(argv)
-        except SystemExit as e:
-            assert e.code == 2
-        else:
-            raise AssertionError(f"{argv} accepted")
+                 ["robot", "move", "abc"], ["robot", "turn", "400", "--yes"], ["tracker", "aim", "1", "2", "nan"]):
+        assert ctl.main(argv) == 64, argv
+        err = capsys.readouterr().err
+        assert "usage: ritactl" in err and "Traceback" not in err
 
 
 def test_png_writer_roundtrip(tmp_path):

@@ -13,7 +13,6 @@ import random
 import shutil
 import struct
 import zlib
-from pathlib import Path
 
 import cv2
 import numpy as np

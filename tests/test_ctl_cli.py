@@ -1,0 +1,126 @@
+"""ritactl without a daemon: --version, bare ritactl, usage (64), bad endpoint, no answer (3), JSON errors, closed pipe."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from daemon import __version__, ctl
+from daemon.exitcodes import Exit
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "daemon.ctl", *argv], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT)
+
+
+def test_version():
+    res = run("--version")
+    assert res.returncode == 0 and res.stdout.strip() == f"ritactl {__version__}" and not res.stderr
+
+
+def test_bare_ritactl_prints_help_and_exits_64():
+    res = run()
+    assert res.returncode == 64
+    assert "usage: ritactl" in res.stderr and "tracker" in res.stderr and "required" not in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_a_group_without_its_verb_prints_its_help(capsys):
+    assert ctl.main(["tracker"]) == 64
+    err = capsys.readouterr().err
+    assert "aim" in err and "find" in err and "--yes" not in err
+    assert ctl.main(["tracker", "stream"]) == 64
+    assert "start" in capsys.readouterr().err
+
+
+def test_usage_error_in_json(capsys):
+    assert ctl.main(["--json", "robot", "move", "abc"]) == 64
+    out = capsys.readouterr().out
+    err = json.loads(out)
+    assert err["error"] == "usage" and err["exit"] == 64 and "'abc' is not a number" in err["message"]
+
+
+@pytest.mark.parametrize("endpoint", ["127.0.0.1:5555", "tcp://127.0.0.1", "tcp://127.0.0.1:99999", "http://x:1",
+                                      "tcp://*:5555x"])
+def test_bad_endpoint_is_named(endpoint, capsys):
+    assert ctl.main(["--endpoint", endpoint, "robot", "status"]) == 64
+    err = capsys.readouterr().err
+    assert repr(endpoint) in err and "tcp://HOST:PORT" in err and "Traceback" not in err
+
+
+def test_bad_endpoint_from_the_environment(monkeypatch, capsys):
+    monkeypatch.setenv("RITA_ENDPOINT", "localhost:5555")
+    assert ctl.main(["status"]) == 64
+    assert "'localhost:5555'" in capsys.readouterr().err
+
+
+def test_no_daemon_is_exit_3_in_json_too(tmp_path, capsys):
+    ep = f"ipc://{tmp_path}/none"
+    assert ctl.main(["--endpoint", ep, "--timeout", "0.2", "jobs", "--json"]) == Exit.NO_ANSWER
+    err = json.loads(capsys.readouterr().out)
+    assert err["error"] == "no_answer" and ep in err["message"]
+    assert ctl.main(["jobs", "--endpoint", ep, "--timeout", "0.2"]) == Exit.NO_ANSWER  # options after the verb
+    assert "no answer from ritad" in capsys.readouterr().err
+
+
+def test_local_file_problems_are_exit_5(tmp_path, capsys):
+    ep = f"ipc://{tmp_path}/none"
+    assert ctl.main(["--endpoint", ep, "calibrate", "--plate", str(tmp_path / "missing.json")]) == Exit.BAD_INPUT
+    assert "missing.json" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text("{not json")
+    assert ctl.main(["--json", "--endpoint", ep, "intrinsics", "--plate", str(tmp_path / "bad.json")]) == 5
+    assert json.loads(capsys.readouterr().out)["error"] == "bad_input"
+
+
+def test_call_with_bad_json_is_a_usage_error(tmp_path, capsys):
+    ep = f"ipc://{tmp_path}/none"
+    assert ctl.main(["--endpoint", ep, "call", "ping", "{x"]) == 64
+    assert ctl.main(["--endpoint", ep, "call", "ping", "[1, 2]"]) == 64
+    assert "JSON object" in capsys.readouterr().err
+
+
+def test_status_exits_4_when_a_device_is_not_ready(capsys):
+    """The mapping of `status`, on the daemon's own health payload shape (a live one is in test_ctl_follow)."""
+    dev = {"state": "READY", "reason": "", "reconnects": 0, "jobs_done": 1, "jobs_failed": 0}
+    health = {"version": "x", "uptime_s": 1.0, "alive": True, "telemetry": {"sent": 1, "dropped": {}},
+              "frames": {"sent": 0, "dropped": 0}, "commands": {"requests": 1, "errors": 0},
+              "devices": {"tracker": dict(dev), "robot": dict(dev, state="BUSY"), "camera": dict(dev)}}
+    client = types.SimpleNamespace(call=lambda cmd, **kw: health)
+    args = types.SimpleNamespace(json=False)
+    assert ctl.cmd_status(client, args) == Exit.OK
+    health["devices"]["tracker"].update(state="FAULT", reason="connection refused")
+    assert ctl.cmd_status(client, args) == Exit.REFUSED
+    out = capsys.readouterr()
+    assert "connection refused" in out.out and "not ready: tracker FAULT" in out.err
+    assert ctl.cmd_status(client, types.SimpleNamespace(json=True)) == Exit.REFUSED
+
+
+def test_closed_stdout_pipe_is_quiet():
+    """`ritactl completion bash | head -c0`: the reader is gone before the first write."""
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "completion", "bash"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert b"Traceback" not in err and b"BrokenPipe" not in err and b"Exception ignored" not in err
+
+
+def test_key_and_config_problems_are_exit_5_naming_the_file(tmp_path, capsys):
+    """main() uses ctl_keys.resolve_connection: --key/--keys/--config, never a silent plaintext fallback."""
+    missing = tmp_path / "nope.toml"
+    assert ctl.main(["--config", str(missing), "--endpoint", "tcp://127.0.0.1:1", "status"]) == Exit.BAD_INPUT
+    assert str(missing) in capsys.readouterr().err
+    assert ctl.main(["--key", "bob", "--keys", str(tmp_path), "--endpoint", "tcp://127.0.0.1:1", "--json",
+                     "status"]) == Exit.BAD_INPUT
+    err = json.loads(capsys.readouterr().out)
+    assert err["error"] == "bad_input" and "bob.key_secret" in err["message"]
+    (tmp_path / "ritactl.toml").write_text('endpoint = "127.0.0.1:5555"\n')
+    assert ctl.main(["--config", str(tmp_path / "ritactl.toml"), "status"]) == Exit.BAD_INPUT
+    assert "endpoint" in capsys.readouterr().err

@@ -1,0 +1,133 @@
+"""The command table: it matches the daemon's handlers, and ritactl's device subcommands follow it."""
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import subprocess
+import types
+from pathlib import Path
+
+import pytest
+
+from daemon import config
+from daemon.calib_jobs import PROCEDURES as JOB_PROCEDURES
+from daemon.calib_jobs import CalibJobs
+from daemon.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
+from daemon.commands import build_handlers
+from daemon.ctl import build_parser, main, subparsers_of
+from daemon.ctl_completion import bash_script
+from daemon.ctl_device import table_args
+
+
+def registered_commands(tmp_path) -> set[str]:
+    """The names build_handlers registers, without starting a daemon."""
+    fake = types.SimpleNamespace(config=config.sim_config(tmp_path), calib=CalibJobs(lambda topic, data: None))
+    return set(build_handlers(fake))
+
+
+def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
+    registered = registered_commands(tmp_path)
+    assert registered - set(COMMANDS) == set(), "commands without a table entry"
+    assert set(COMMANDS) - registered == set(), "table entries the daemon does not serve"
+
+
+def test_entries_are_complete():
+    assert PROCEDURES == JOB_PROCEDURES
+    for cmd in TABLE:
+        assert cmd.role in ROLES and cmd.help, cmd.name
+        for arg in cmd.args:
+            assert arg.help and arg.type in ("float", "int", "bool", "str", "map", "any"), (cmd.name, arg.name)
+            assert arg.cli in (None, POS) or arg.cli.startswith("--"), (cmd.name, arg.name)
+
+
+def walk(p: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    yield path, p
+    for name, child in subparsers_of(p).items():
+        yield from walk(child, path + (name,))
+
+
+def options(p: argparse.ArgumentParser) -> set[str]:
+    return {o for a in p._actions for o in a.option_strings}
+
+
+def test_every_option_of_every_verb_has_help():
+    for path, p in walk(build_parser()):
+        for a in p._actions:
+            if a.option_strings:
+                assert a.help, f"ritactl {' '.join(path)}: {a.option_strings} has no help"
+            elif path[:1] in (("tracker",), ("robot",), ("camera",)) and not isinstance(a, argparse._SubParsersAction):
+                assert a.help, f"ritactl {' '.join(path)}: {a.metavar} has no help"
+
+
+def test_device_subcommands_offer_only_their_own_options():
+    tree = dict(walk(build_parser()))
+    for path, p in tree.items():
+        if path[:1] == ("tracker",):
+            assert not options(p) & {"--yes", "--speed", "--no-wait", "--out"}, path
+    assert {"--yes", "--speed", "--no-wait"} <= options(tree[("robot", "move")])
+    assert {"--yes", "--speed"} <= options(tree[("robot", "turn")])
+    assert "--yes" not in options(tree[("robot", "stop")])
+    assert "--distance" in options(tree[("tracker", "find")])
+    assert "--rate" in options(tree[("tracker", "stream", "start")])
+    assert "--out" in options(tree[("camera", "capture")])
+    generated = {c.cli for c in TABLE if c.cli}
+    assert generated <= set(tree), "every table entry with cli words is a subcommand"
+
+
+@pytest.mark.parametrize("argv, cmd, want", [
+    (["robot", "move", "200", "--yes", "--speed", "30"], "robot.move",
+     {"distance_mm": 200.0, "speed_mm_s": 30.0, "confirm": True}),
+    (["robot", "move", "-150", "--no-wait"], "robot.move", {"distance_mm": -150.0, "wait": False}),
+    (["robot", "turn", "90", "--yes"], "robot.turn", {"angle_deg": 90.0, "confirm": True}),
+    (["tracker", "aim", "2800", "-2500", "-830"], "tracker.aim", {"x": 2800.0, "y": -2500.0, "z": -830.0}),
+    (["tracker", "find", "--distance", "4000"], "tracker.find", {"approx_distance_mm": 4000.0}),
+    (["tracker", "find"], "tracker.find", {}),
+    (["tracker", "stream", "start", "--rate", "1000"], "tracker.stream.start", {"rate_hz": 1000.0}),
+    (["camera", "capture", "--label", "x"], "camera.capture", {"label": "x"}),
+])
+def test_command_line_becomes_bus_arguments(argv, cmd, want):
+    a = build_parser().parse_args(argv)
+    assert a.command == cmd and table_args(COMMANDS[cmd], a) == want
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["robot", "turn", "361"], "361"), (["tracker", "stream", "start", "--rate", "0"], "0"),
+    (["tracker", "stream", "start", "--rate", "10001"], "10001"), (["tracker", "find", "--distance", "inf"], "inf"),
+    (["robot", "move", "1e400"], "1e400"), (["robot", "move", "--speed", "-1", "10"], "-1"),
+])
+def test_values_outside_the_table_range_are_usage_errors_naming_them(argv, named, capsys):
+    assert main(argv) == 64
+    err = capsys.readouterr().err
+    assert named in err and "Traceback" not in err
+
+
+def test_bash_completion_completes_from_the_parser():
+    if shutil.which("bash") is None:
+        pytest.skip("no bash here")
+    script = bash_script(build_parser())
+
+    def complete(*words: str) -> set[str]:
+        line = " ".join(["ritactl", *words])
+        prog = (f"{script}\nCOMP_WORDS=(ritactl {' '.join(words)}); COMP_CWORD={len(words)}; "
+                f"COMP_LINE='{line}'; _ritactl; printf '%s\\n' \"${{COMPREPLY[@]}}\"")
+        out = subprocess.run(["bash", "-c", prog], capture_output=True, text=True, timeout=30, check=True)
+        return set(out.stdout.split())
+
+    assert {"status", "tracker", "robot", "calibrate", "jobs"} <= complete("")
+    assert complete("tracker", "") == {"measure", "aim", "find", "stream", "status"}
+    assert complete("tracker", "stream", "") == {"start", "stop"}
+    tracker_opts = complete("tracker", "aim", "--")
+    assert "--json" in tracker_opts and "--yes" not in tracker_opts and "--speed" not in tracker_opts
+    assert {"--yes", "--speed", "--no-wait"} <= complete("robot", "move", "--")
+    assert complete("keys", "") >= {"init", "allow", "revoke", "list"}
+
+
+def test_docs_protocol_lists_exactly_the_table_commands():
+    """docs/protocol.md's "Command list" names every command of the table, and no other."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    section = doc[doc.index("### Command list"):doc.index("## Telemetry")]
+    rows = re.findall(r"^\| (`[a-z_.]+`(?: / `[a-z_.]+`)*) \|", section, re.M)
+    named = {name for row in rows for name in re.findall(r"`([a-z_.]+)`", row)}
+    assert set(COMMANDS) - named == set(), "table commands missing in docs/protocol.md"
+    assert named - set(COMMANDS) == set(), "docs/protocol.md lists commands the table does not have"
