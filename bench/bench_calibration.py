@@ -31,7 +31,7 @@ from calibration.measure import measure_image, measure_mark  # noqa: E402
 from calibration.metrics import experiment_metrics  # noqa: E402
 from calibration.referencing import reference, rob_H_cam_error  # noqa: E402
 from calibration.scs import make_scs  # noqa: E402
-from calibration.simulate import SimConfig, Simulation  # noqa: E402
+from fakes.simulate import SimConfig, Simulation  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402
 
 FULL = (4024, 3036)

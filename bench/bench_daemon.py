@@ -11,7 +11,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
-from daemon.client import Client  # noqa: E402
+from daemon.bus.client import Client  # noqa: E402
 
 TCP_CONFIG = """
 [daemon]

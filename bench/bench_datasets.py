@@ -23,10 +23,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import ROOT, machine  # noqa: E402
 
-from calibration.simulate import SimConfig, Simulation  # noqa: E402
-from calibration.worker.recompute import recompute  # noqa: E402
-from daemon.datasets import validate_folder  # noqa: E402
-from daemon.png_check import png_info  # noqa: E402
+from fakes.simulate import SimConfig, Simulation  # noqa: E402
+from daemon.worker.recompute import recompute  # noqa: E402
+from daemon.bus.datasets import validate_folder  # noqa: E402
+from daemon.bus.png_check import png_info  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402
 
 FULL = (4024, 3036)
@@ -72,7 +72,7 @@ def main() -> int:
     v = timed(lambda: validate_folder(root), 5)
     p = timed(lambda: png_info(root / "run0.png"), 5)
     r = timed(lambda: recompute(root), 3)
-    cli = timed(lambda: subprocess.run([sys.executable, "-m", "daemon.ctl", "validate", str(root)], cwd=ROOT,
+    cli = timed(lambda: subprocess.run([sys.executable, "-m", "daemon.ctl.main", "validate", str(root)], cwd=ROOT,
                                        check=True, capture_output=True), 3)
     med = statistics.median
     print(machine())

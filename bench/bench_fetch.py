@@ -15,8 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from bench.common import machine, start_ritad, stop_ritad  # noqa: E402
-from daemon.client import Client  # noqa: E402
-from daemon.ctl_fetch import fetch  # noqa: E402
+from daemon.bus.client import Client  # noqa: E402
+from daemon.ctl.fetch import fetch  # noqa: E402
 
 SIZES_MB = (200, 1)  # one big file, and many small ones (below)
 SMALL_FILES = 200

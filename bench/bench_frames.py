@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_tracker_daemon import CONFIG, finish, spawn, wait_devices  # noqa: E402
 from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
-from daemon.client import Client  # noqa: E402
+from daemon.bus.client import Client  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -110,8 +110,8 @@ def subscriber_main(endpoint: str, hwm: int, stalled: bool, linger_s: float = 1.
     """Subscribe to frames, print ``subscribed``, count until stdin closes, print JSON."""
     import zmq
 
-    from daemon.client import Subscriber
-    from daemon.protocol import unpack
+    from daemon.bus.client import Subscriber
+    from daemon.bus.protocol import unpack
 
     sub = Subscriber(endpoint, ["camera.frame"], hwm=hwm)
     print("subscribed", flush=True)

@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.bench_frames import FrameStats, cpu_seconds, vm_kib  # noqa: E402
 from bench.bench_tracker_daemon import TelemetryStats, finish, lock_and_stream, spawn, wait_devices  # noqa: E402
 from bench.common import ROOT, machine, pct, start_ritad, stop_ritad  # noqa: E402
-from daemon.client import Client  # noqa: E402
-from daemon.protocol import CommandError  # noqa: E402
+from daemon.bus.client import Client  # noqa: E402
+from daemon.bus.protocol import CommandError  # noqa: E402
 
 CONFIG = """
 [daemon]
@@ -87,8 +87,8 @@ def stalled_main(tel_ep: str, frame_ep: str) -> None:
     """Subscribe to everything and read nothing until told; then drain and report the gaps."""
     import zmq
 
-    from daemon.client import Subscriber
-    from daemon.protocol import unpack
+    from daemon.bus.client import Subscriber
+    from daemon.bus.protocol import unpack
 
     # a small frame RCVHWM keeps this process from queueing gigabytes on the shared machine;
     # once it is full the daemon's PUB has to drop for this peer, which is what we test

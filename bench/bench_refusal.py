@@ -14,8 +14,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
-from daemon.auth import create_keypair, load_keypair, load_public  # noqa: E402
-from daemon.client import Client, ClientRefused  # noqa: E402
+from daemon.bus.auth import create_keypair, load_keypair, load_public  # noqa: E402
+from daemon.bus.client import Client, ClientRefused  # noqa: E402
 
 CONFIG = """
 [daemon]

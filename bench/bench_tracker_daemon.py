@@ -27,7 +27,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import ROOT, machine, pct, start_ritad, stop_ritad  # noqa: E402
-from daemon.client import Client  # noqa: E402
+from daemon.bus.client import Client  # noqa: E402
 
 CONFIG = """
 [daemon]
@@ -117,8 +117,8 @@ def subscriber_main(endpoint: str, topics: list[str], hwm: int, stalled: bool, l
 
     import zmq
 
-    from daemon.client import Subscriber
-    from daemon.protocol import unpack
+    from daemon.bus.client import Subscriber
+    from daemon.bus.protocol import unpack
 
     sub = Subscriber(endpoint, topics or None, hwm=hwm)
     print("subscribed", flush=True)

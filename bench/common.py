@@ -46,7 +46,7 @@ def start_ritad(config_text: str | None = None, notify: bool = True, extra: list
         (tmp / "ritad.toml").write_text(config_text.replace("@TMP@", str(tmp)))
         args = ["--config", str(tmp / "ritad.toml")]
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", *args, *(extra or [])], cwd=ROOT, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", *args, *(extra or [])], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=open(tmp / "ritad.log", "w"), text=True)
     ready = None
     while time.monotonic() - t0 < timeout:

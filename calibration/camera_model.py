@@ -7,9 +7,7 @@ about 4e-5 px of round-trip error in the image corners, the criteria below ~1e-1
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -128,45 +126,3 @@ class CameraModel:
         except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from None
 
-    def save_json(self, path: str | Path) -> None:
-        """Write the model as JSON (atomically)."""
-        from daemon.storage import atomic_write_text  # local import: calibration stays pure
-
-        atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2))
-
-    @classmethod
-    def load_json(cls, path: str | Path) -> "CameraModel":
-        """Read a model written by :meth:`save_json` (ValueError naming the file if it is not JSON)."""
-        try:
-            data = json.loads(Path(path).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{path}: not a JSON camera model ({exc})") from None
-        return cls.from_dict(data, source=str(path))
-
-    def save_yaml(self, path: str | Path) -> None:
-        """Write an OpenCV FileStorage YAML file (camera_matrix, dist_coeffs, image_width/height)."""
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-        try:
-            fs.write("image_width", int(self.size[0]))
-            fs.write("image_height", int(self.size[1]))
-            fs.write("camera_matrix", self.K)
-            fs.write("dist_coeffs", self.dist.reshape(1, 5))
-        finally:
-            fs.release()
-
-    @classmethod
-    def load_yaml(cls, path: str | Path) -> "CameraModel":
-        """Read an OpenCV FileStorage file with camera_matrix, dist_coeffs, image_width/height."""
-        if not Path(path).is_file():
-            raise ValueError(f"{path}: no such camera model file")
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        try:
-            K = fs.getNode("camera_matrix").mat()
-            dist = fs.getNode("dist_coeffs").mat()
-            w = fs.getNode("image_width").real()
-            h = fs.getNode("image_height").real()
-        finally:
-            fs.release()
-        if K is None or dist is None:
-            raise ValueError(f"{path}: camera_matrix or dist_coeffs missing")
-        return cls(K, dist.reshape(-1), (int(w), int(h)))

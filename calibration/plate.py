@@ -8,9 +8,7 @@ ref_P_smr): δ > 0 is the SMR centre's height above the seat, and z points down.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -109,20 +107,6 @@ class Plate:
             return cls(**d)
         except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from None
-
-    def save(self, path: str | Path) -> None:
-        from daemon.storage import atomic_write_text  # local import: calibration stays pure
-
-        atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2))
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Plate":
-        """Read a plate file (OSError if unreadable, ValueError naming the file and key if bad)."""
-        try:
-            data = json.loads(Path(path).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{path}: not a JSON plate definition ({exc})") from None
-        return cls.from_dict(data, source=str(path))
 
 
 #: keys of a plate file and the JSON type each must have

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from daemon.client import Client
-from daemon.protocol import CommandError
+from daemon.bus.client import Client
+from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ def start_daemon(out: Path, seed: int = 1) -> tuple[subprocess.Popen, str]:
     rt = out / "run"
     rt.mkdir(parents=True, exist_ok=True)
     log = open(out / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--sim", "--runtime-dir", str(rt),
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(rt),
                              "--data-dir", str(out / "data"), "--seed", str(seed)],
                             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -76,7 +76,7 @@ def operator_files(c: Client, out: Path) -> dict[str, Path]:
     ``ritad --sim`` installs them in its data dir (the simulated world plays the installer,
     fakes/installer.py); they are fetched over the bus as a laptop would (``ritactl fetch sim``).
     """
-    from daemon.ctl_fetch import fetch
+    from daemon.ctl.fetch import fetch
 
     r = fetch(c, ["sim"], out, say=lambda _: None)
     if r["errors"]:
@@ -87,7 +87,7 @@ def operator_files(c: Client, out: Path) -> dict[str, Path]:
 
 def ritactl(endpoint: str, *args: str, timeout: float = 600) -> int:
     """Run ritactl as the operator would, output straight to the terminal."""
-    cmd = [sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, *args]
+    cmd = [sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, *args]
     print("$ ritactl " + " ".join(args), flush=True)
     return subprocess.run(cmd, cwd=ROOT, timeout=timeout).returncode
 
@@ -96,7 +96,7 @@ def run_calibration(c: Client, out: Path, endpoint: str) -> int:
     """Referencing with reversal, then the 8-direction experiment, compared with the ground truth."""
     import numpy as np
 
-    from calibration.referencing import rob_H_cam_error
+    from fakes.score import score_rob_H_cam
 
     files = operator_files(c, out)
     truth = c.call("sim.truth")
@@ -108,7 +108,7 @@ def run_calibration(c: Client, out: Path, endpoint: str) -> int:
     if rc:
         return rc
     active = c.call("calib.results")["active"]
-    err = rob_H_cam_error(np.array(active["rob_H_cam"]), np.array(truth["rob_H_cam"]))
+    err = score_rob_H_cam(active["rob_H_cam"], truth["rob_H_cam"])
     print(f"\n  vs ground truth: t_xy {err['t_xy_mm'] * 1000:.1f} µm, t_z {err['t_z_mm'] * 1000:.1f} µm, "
           f"rotation {err['rot_deg'] * 3600:.1f} arcsec")
     mark = truth["marks"][0]

@@ -8,7 +8,7 @@ free-run frames, robot DONE/FAULT events, tracker events) is pushed through the
 and never blocks (the daemon drops and counts when a queue is full).
 
 Adapters are chosen by URL (``emscon://host:700``, ``genicam:///x.cti?serial=…``,
-``serial:///dev/ttyUSB0``, ``sim:``) through :mod:`daemon.registry`.
+``serial:///dev/ttyUSB0``, ``sim:``) through :mod:`daemon.ritad.registry`.
 
 Units: millimetres, degrees (API), seconds; times are ``time.time_ns()`` (wall)
 and ``time.monotonic_ns()`` (host monotonic).

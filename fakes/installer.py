@@ -45,7 +45,7 @@ def installed_files(world: World, size: tuple[int, int]) -> dict[str, Any]:
 
 def install(world: World, data_dir: Path, camera_url: str) -> list[Path]:
     """Write the installer's files into ``data_dir/sim`` (atomically) and return their paths."""
-    from daemon.storage import atomic_write_json
+    from daemon.bus.storage import atomic_write_json
 
     files = installed_files(world, camera_size(world, camera_url))
     return [atomic_write_json(data_dir / FOLDER / name, obj) for name, obj in files.items()]

@@ -9,15 +9,11 @@ from __future__ import annotations
 import asyncio
 import struct
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from drivers.emscon.codec import Packet, ProtocolError, encode_answer
 from drivers.emscon.enums import ES_ResultStatus as RS
 from drivers.emscon.framer import TO_SERVER, Framer
-
-if TYPE_CHECKING:
-    from fakes.tracker_server import FakeTrackerServer
-
 
 @dataclass
 class Faults:
@@ -35,10 +31,18 @@ class Dropped(Exception):
     """The fault knob closed the connection."""
 
 
+class Server(Protocol):
+    """What a session needs of the server that accepted it (FakeTrackerServer)."""
+
+    faults: Faults
+
+    async def execute(self, session: "Session", req: Packet) -> None: ...
+
+
 class Session:
     """One client connection."""
 
-    def __init__(self, server: FakeTrackerServer, reader: asyncio.StreamReader,
+    def __init__(self, server: Server, reader: asyncio.StreamReader,
                  writer: asyncio.StreamWriter) -> None:
         self.server, self.reader, self.writer = server, reader, writer
         self.sent = 0

@@ -9,9 +9,9 @@ import time
 from pathlib import Path
 from typing import Iterator
 
-from daemon import config
-from daemon.client import Client
-from daemon.main import Daemon
+from daemon.ritad import config
+from daemon.bus.client import Client
+from daemon.ritad.main import Daemon
 
 
 @contextlib.contextmanager

@@ -6,10 +6,10 @@ import msgpack
 import pytest
 import zmq
 
-from daemon.client import Client, ClientTimeout
-from daemon.protocol import CommandError, ErrorCode, make_request, unpack
-from daemon.publisher import FramePublisher, TelemetryPublisher
-from daemon.server import CommandServer, Reply
+from daemon.bus.client import Client, ClientTimeout
+from daemon.bus.protocol import CommandError, ErrorCode, make_request, unpack
+from daemon.ritad.publisher import FramePublisher, TelemetryPublisher
+from daemon.ritad.server import CommandServer, Reply
 from drivers.base import Frame
 
 import numpy as np

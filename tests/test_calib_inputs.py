@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from calibration.camera_model import CameraModel
+from calibration.io import load_plate, save_plate
 from calibration.plate import Plate
 from fakes.world import World
 
@@ -66,14 +67,14 @@ def test_bad_nest_point_is_named(plate_dict: dict) -> None:
 
 def test_plate_file_round_trip_and_bad_json(plate_dict: dict, tmp_path) -> None:
     p = tmp_path / "plate.json"
-    Plate.from_dict(plate_dict).save(p)
-    assert Plate.load(p).to_dict() == plate_dict
+    save_plate(Plate.from_dict(plate_dict), p)
+    assert load_plate(p).to_dict() == plate_dict
     p.write_text('{"schema": 1, "plate_id": ')
     with pytest.raises(ValueError, match=rf"^{p}: not a JSON plate definition"):
-        Plate.load(p)
+        load_plate(p)
     p.write_text("[]")
     with pytest.raises(ValueError, match=rf"^{p}: expected a JSON object"):
-        Plate.load(p)
+        load_plate(p)
 
 
 @pytest.mark.parametrize("key", ["K", "dist", "size"])

@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from daemon.calib_jobs import CalibJobs
-from daemon.protocol import CommandError
-from daemon.server import Request
+from daemon.ritad.calib_jobs import CalibJobs
+from daemon.bus.protocol import CommandError
+from daemon.ritad.server import Request
 
 
 class Bus:

@@ -17,7 +17,7 @@ from calibration.metrics import experiment_metrics
 from calibration.referencing import reference, rob_H_cam_error
 from calibration.reversal import combine
 from calibration.scs import make_scs
-from calibration.simulate import SimConfig, Simulation
+from fakes.simulate import SimConfig, Simulation
 from calibration.target import estimate_cam_H_ref
 from calibration.uncertainty import footprint
 from fakes.world import World, WorldParams

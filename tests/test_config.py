@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon import config
+from daemon.ritad import config
 from drivers.base import DeviceURL
 
 ROOT = Path(__file__).resolve().parents[1]

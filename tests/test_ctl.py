@@ -4,18 +4,18 @@ import sys
 
 import numpy as np
 
-from daemon import ctl
+from daemon.ctl import main as ctl
 
 
 def test_ritactl_imports_no_opencv_harvesters_or_numpy():
-    code = ("import sys, daemon.ctl, daemon.client; daemon.ctl.build_parser(); "
+    code = ("import sys, daemon.ctl.main, daemon.bus.client; daemon.ctl.main.build_parser(); "
             "print([m for m in ('cv2', 'harvesters', 'genicam', 'numpy', 'serial') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]"
 
 
 def test_unreachable_daemon_is_a_clear_error(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "daemon.ctl", "--endpoint", f"ipc://{tmp_path}/none",
+    res = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "--endpoint", f"ipc://{tmp_path}/none",
                           "--timeout", "0.5", "status"], capture_output=True, text=True, timeout=30)
     assert res.returncode == 3
     assert "no answer from ritad" in res.stderr and "--endpoint" in res.stderr

@@ -9,14 +9,15 @@ from pathlib import Path
 
 import pytest
 
-from daemon import __version__, ctl
-from daemon.exitcodes import Exit
+from daemon import __version__
+from daemon.ctl import main as ctl
+from daemon.ctl.exitcodes import Exit
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "daemon.ctl", *argv], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "daemon.ctl.main", *argv], capture_output=True, text=True,
                           timeout=timeout, cwd=ROOT)
 
 
@@ -104,7 +105,7 @@ def test_status_exits_4_when_a_device_is_not_ready(capsys):
 
 def test_closed_stdout_pipe_is_quiet():
     """`ritactl completion bash | head -c0`: the reader is gone before the first write."""
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "completion", "bash"], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "completion", "bash"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()
     _, err = proc.communicate(timeout=60)

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from daemon import ctl
-from daemon.client import Client
-from daemon.exitcodes import Exit
+from daemon.ctl import main as ctl
+from daemon.bus.client import Client
+from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,7 +127,7 @@ class Ritactl:
     """ritactl as a process, its output collected by threads (for real SIGINTs)."""
 
     def __init__(self, endpoint: str, *argv: str) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, *argv],
+        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, *argv],
                                      cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
         self.text = {"out": "", "err": ""}
@@ -181,7 +181,7 @@ def test_ctrl_c_during_a_motion_procedure_asks_to_cancel(endpoint, c, keys, canc
 
 def test_closed_pipe_after_a_daemon_answer(endpoint):
     """`ritactl robot status | head -0`."""
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl", "--endpoint", endpoint, "robot", "status"],
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, "robot", "status"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()
     _, err = proc.communicate(timeout=60)

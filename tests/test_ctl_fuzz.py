@@ -21,10 +21,10 @@ import sys
 
 import pytest
 
-from daemon import ctl
-from daemon.client import Client
-from daemon.command_table import COMMANDS
-from daemon.exitcodes import Exit
+from daemon.ctl import main as ctl
+from daemon.bus.client import Client
+from daemon.bus.command_table import COMMANDS
+from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
 from tests.test_ctl_table import walk
 

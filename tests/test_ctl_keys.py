@@ -6,10 +6,10 @@ import sys
 
 import pytest
 
-from daemon import ctl_config
-from daemon.ctl_config import CtlConfigError, load_ctl_config
-from daemon.ctl_keys import KeyConfigError, client_curve, resolve_connection
-from daemon.exitcodes import Exit
+from daemon.ctl import config as ctl_config
+from daemon.ctl.config import CtlConfigError, load_ctl_config
+from daemon.ctl.keys import KeyConfigError, client_curve, resolve_connection
+from daemon.ctl.exitcodes import Exit
 
 TCP = "tcp://127.0.0.1:5555"
 
@@ -23,7 +23,7 @@ def clean_env(monkeypatch, tmp_path):
 
 
 def keys(argv):
-    from daemon.ctl_keys import add_parser
+    from daemon.ctl.keys import add_parser
     import argparse
 
     ap = argparse.ArgumentParser()

@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from daemon import config
-from daemon.calib_jobs import PROCEDURES as JOB_PROCEDURES
-from daemon.calib_jobs import CalibJobs
-from daemon.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
-from daemon.commands import build_handlers
-from daemon.ctl import build_parser, main, subparsers_of
-from daemon.ctl_completion import bash_script
-from daemon.ctl_device import table_args
+from daemon.ritad import config
+from daemon.ritad.calib_jobs import PROCEDURES as JOB_PROCEDURES
+from daemon.ritad.calib_jobs import CalibJobs
+from daemon.bus.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
+from daemon.ritad.commands import build_handlers
+from daemon.ctl.main import build_parser, main, subparsers_of
+from daemon.ctl.completion import bash_script
+from daemon.ctl.device import table_args
 
 
 def registered_commands(tmp_path) -> set[str]:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.auth import create_keypair, load_keypair, load_public
-from daemon.client import Client, ClientRefused, ClientTimeout
+from daemon.bus.auth import create_keypair, load_keypair, load_public
+from daemon.bus.client import Client, ClientRefused, ClientTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +45,7 @@ def secured(tmp_path_factory):
     (data / "authorized_keys" / "alice.key").write_bytes((keys / "alice.key").read_bytes())
     (tmp / "ritad.toml").write_text(CONFIG.format(tmp=tmp))
     log = open(tmp / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=log,
                             text=True)
     line = proc.stdout.readline()
@@ -115,10 +115,10 @@ def test_plaintext_attempt_is_refused_and_logged(secured):
 
 
 def test_refusal_log_counts_repeats(caplog):
-    from daemon.auth import RefusalLog
+    from daemon.bus.auth import RefusalLog
 
     r = RefusalLog(window_s=0.2)
-    with caplog.at_level("WARNING", logger="daemon.auth"):
+    with caplog.at_level("WARNING", logger="daemon.bus.auth"):
         for port in range(5):
             r.refused("plaintext", f"10.0.0.7:{4000 + port}", "needs CURVE")
         r.refused("plaintext", "10.0.0.8:4000", "needs CURVE")
@@ -168,13 +168,13 @@ def test_local_ipc_stays_plain(secured):
 def test_revocation_without_restart(secured):
     alice = curve(secured["keys"], "alice", secured["server"])
     allowed = secured["data"] / "authorized_keys" / "alice.key"
-    r = subprocess.run([sys.executable, "-m", "daemon.ctl", "keys", "revoke", "--name", "alice", "--dir",
+    r = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "keys", "revoke", "--name", "alice", "--dir",
                         str(allowed.parent)], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     with Client(secured["tcp"], timeout=1.0, curve=alice) as c:
         with pytest.raises(ClientTimeout):
             c.call("ping")
-    r = subprocess.run([sys.executable, "-m", "daemon.ctl", "keys", "allow", str(secured["keys"] / "alice.key"),
+    r = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "keys", "allow", str(secured["keys"] / "alice.key"),
                         "--name", "alice", "--dir", str(allowed.parent)], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
@@ -193,7 +193,7 @@ def test_telemetry_over_curve(secured):
             sub.close()
     with Client(secured["tcp"], timeout=5, curve=alice) as c:
         eps = c.call("hello")["telemetry_endpoints"]
-    from daemon.client import Subscriber
+    from daemon.bus.client import Subscriber
 
     plain = Subscriber(next(e for e in eps if e.startswith("tcp://")), ["daemon.health"])
     try:
@@ -204,17 +204,17 @@ def test_telemetry_over_curve(secured):
 
 def test_missing_server_key_is_a_clear_error(tmp_path):
     (tmp_path / "ritad.toml").write_text(CONFIG.format(tmp=tmp_path))
-    r = subprocess.run([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
                        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "ritactl keys init --server" in r.stderr
 
 
 def test_key_selected_by_name_end_to_end(secured, tmp_path):
     """`keys init --name bob` on the laptop, `keys allow` on the robot, key = "bob" in ritactl.toml."""
-    from daemon.ctl_keys import resolve_connection
+    from daemon.ctl.keys import resolve_connection
 
     laptop = tmp_path / "laptop"
-    ctl = [sys.executable, "-m", "daemon.ctl", "keys"]
+    ctl = [sys.executable, "-m", "daemon.ctl.main", "keys"]
     r = subprocess.run([*ctl, "init", "--name", "bob", "--dir", str(laptop)], cwd=ROOT, capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0 and "--key bob" in r.stdout, r

@@ -1,7 +1,7 @@
 """The dataset contract: an independent writer's folder recomputes exactly; bad folders give clear reports.
 
 The writer (tests/dataset_writer.py) uses only docs/datasets.md and the schemas, its own
-projection and its own ChArUco rendering; nothing of calibration/simulate.py or fakes/.
+projection and its own ChArUco rendering; nothing of fakes/simulate.py or fakes/.
 """
 import json
 import shutil
@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from daemon import ctl
-from daemon.datasets import check_file, png_info, validate_folder
+from daemon.ctl import main as ctl
+from daemon.bus.datasets import check_file, png_info, validate_folder
 from tests.dataset_writer import ABS_H_TRK, write_experiment, write_referencing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +47,7 @@ def rob_H_cam_error(H: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 def run_ctl(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "daemon.ctl", *args], cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "daemon.ctl.main", *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
 
 
@@ -188,7 +188,7 @@ def test_validate_json_output_and_missing_folder(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def calibration(written):
     """The referencing result of the writer's folder: what an experiment is measured with."""
-    from calibration.worker.recompute import recompute
+    from daemon.worker.recompute import recompute
 
     return recompute(written[0])[0]
 
@@ -209,7 +209,7 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
 
 
 def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):
-    from calibration.worker.recompute import recompute
+    from daemon.worker.recompute import recompute
 
     stds = []
     for sigma in (0.005, 0.050):
@@ -235,7 +235,7 @@ def test_recompute_an_experiment_with_another_calibration(written, calibration, 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_captures_store_both_tracker_frames_and_validate(tmp_path, dtype):
-    from daemon.storage import save_capture
+    from daemon.bus.storage import save_capture
     from drivers.base import Frame, RobotState, TrackerPoint
 
     pixels = (np.arange(48 * 64).reshape(48, 64) % 251).astype(dtype)

@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from daemon import ctl
-from daemon.datasets import Problem, validate_folder
+from daemon.ctl import main as ctl
+from daemon.bus.datasets import Problem, validate_folder
 from tests.dataset_writer import write_referencing
 
 N_MUTATIONS = 1000

@@ -13,7 +13,7 @@ from urllib.parse import parse_qsl
 import numpy as np
 import pytest
 
-from daemon.registry import open_device
+from daemon.ritad.registry import open_device
 from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import TO_CLIENT, encode_request

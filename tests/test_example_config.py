@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.auth import create_keypair, load_keypair, load_public
-from daemon.client import Client, ClientTimeout
+from daemon.bus.auth import create_keypair, load_keypair, load_public
+from daemon.bus.client import Client, ClientTimeout
 from tests.test_worker_e2e import referencing_params, run_job
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,7 +52,7 @@ def example(tmp_path_factory):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("CREDENTIALS_DIRECTORY", None)
     log = open(tmp / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
                             env=env, stdout=subprocess.PIPE, stderr=log, text=True)
     line = proc.stdout.readline()
     assert line.startswith("ritad ready"), (line, (tmp / "ritad.log").read_text()[-3000:])
@@ -101,7 +101,7 @@ def test_example_config_refuses_plaintext_tcp(tmp_path):
     """The same file with CURVE off does not start: tcp without CURVE is a config error (exit 2)."""
     text = example_copy(tmp_path).replace("curve = true", "curve = false")
     (tmp_path / "plain.toml").write_text(text)
-    res = subprocess.run([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "plain.toml")], cwd=ROOT,
+    res = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "plain.toml")], cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "daemon.command_endpoints" in res.stderr and "without CURVE" in res.stderr
     assert not (tmp_path / "rt").exists()

@@ -14,12 +14,12 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from daemon import config
-from daemon.client import Client, Subscriber
+from daemon.ritad import config
+from daemon.bus.client import Client, Subscriber
 from daemon.demo import lock_on_robot
-from daemon.main import Daemon
-from daemon.notify import Notifier
-from daemon.protocol import CommandError
+from daemon.ritad.main import Daemon
+from daemon.ritad.notify import Notifier
+from daemon.bus.protocol import CommandError
 from drivers.emscon.enums import ES_Command
 
 SMALL_CAMERA = "sim:?size=64x48&noise=0"

@@ -24,10 +24,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon import config
-from daemon.client import Client
-from daemon.main import Daemon
-from daemon.protocol import CommandError
+from daemon.ritad import config
+from daemon.bus.client import Client
+from daemon.ritad.main import Daemon
+from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
 from tests.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
@@ -177,7 +177,7 @@ def test_emscon_streams_through_a_live_daemon(emscon_daemon: tuple[Daemon, Injec
     print(f"\nlive emScon fuzz: {n[0]} streams in {time.monotonic() - t0:.1f} s, {resynced[0]} reconnects, "
           f"first probe: {codes}")
     assert resynced[0] > 20
-    assert not [r for r in caplog.records if r.name == "daemon.runner" and r.levelname == "ERROR"]
+    assert not [r for r in caplog.records if r.name == "daemon.ritad.runner" and r.levelname == "ERROR"]
 
 
 

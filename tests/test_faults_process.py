@@ -23,9 +23,9 @@ from typing import Any
 
 import cv2
 
-from daemon.client import Client
+from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
-from daemon.protocol import CommandError
+from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA_SIZE = (160, 120)
@@ -69,7 +69,7 @@ class Ritad:
         if watchdog_usec:
             env["WATCHDOG_USEC"] = str(watchdog_usec)
         self.log = open(tmp / "ritad.log", "ab")
-        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--config", str(config)], cwd=ROOT,
+        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(config)], cwd=ROOT,
                                      env=env, stdout=self.log, stderr=subprocess.STDOUT)
         self.messages: list[str] = []
 

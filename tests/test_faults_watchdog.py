@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from daemon import config
-from daemon.client import Client
-from daemon.main import Daemon
-from daemon.notify import Notifier
+from daemon.ritad import config
+from daemon.bus.client import Client
+from daemon.ritad.main import Daemon
+from daemon.ritad.notify import Notifier
 from tests.test_faults import SMALL_CAMERA, all_ready, wait_for
 from tests.test_faults_process import Ritad, write_config
 
@@ -118,7 +118,7 @@ def ping_times(sock: socket.socket, duration: float) -> list[float]:
 def test_runner_stays_alive_while_it_waits_in_backoff() -> None:
     """A device that never answers: the owner thread keeps beating through backoffs longer than the
     heartbeat limit, and every retry counts in ``reconnects`` (issue #11, blocker 3)."""
-    from daemon.runner import DeviceRunner
+    from daemon.ritad.runner import DeviceRunner
     from drivers.base import DeviceState
 
     attempts: list[float] = []

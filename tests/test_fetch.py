@@ -14,12 +14,13 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import pytest
 
-from daemon import config, ctl
-from daemon.client import Client
-from daemon.ctl_fetch import FetchError, fetch, fetch_file, local_target
-from daemon.files import CHUNK_MAX
-from daemon.main import Daemon
-from daemon.protocol import CommandError
+from daemon.ritad import config
+from daemon.ctl import main as ctl
+from daemon.bus.client import Client
+from daemon.ctl.fetch import FetchError, fetch, fetch_file, local_target
+from daemon.ritad.files import CHUNK_MAX
+from daemon.ritad.main import Daemon
+from daemon.bus.protocol import CommandError
 
 BIG = 2_600_000  # bytes: several chunks at the small chunk size below
 SMALL_CHUNK = 256 * 1024
@@ -213,7 +214,7 @@ def test_a_listing_that_would_leave_the_target_is_refused(tmp_path: Path) -> Non
 def test_progress_bar_only_on_a_terminal(monkeypatch) -> None:
     import io
 
-    from daemon.ctl_fetch import Progress
+    from daemon.ctl.fetch import Progress
 
     class Tty(io.StringIO):
         def isatty(self) -> bool:
@@ -242,7 +243,7 @@ def test_ctrl_c_during_fetch_says_how_to_resume(served, monkeypatch, capsys) -> 
     def interrupted(*args: Any, **kw: Any) -> str:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("daemon.ctl_fetch.fetch_file", interrupted)
+    monkeypatch.setattr("daemon.ctl.fetch.fetch_file", interrupted)
     assert ctl.main(["--endpoint", d.server.endpoints[0], "fetch", "--to", str(tmp / "laptop")]) == 130
     assert "run the same `ritactl fetch` again to resume" in capsys.readouterr().err
 
@@ -253,7 +254,7 @@ def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    from daemon.auth import create_keypair, load_keypair, load_public
+    from daemon.bus.auth import create_keypair, load_keypair, load_public
     from tests.test_curve import CONFIG, ROOT
 
     data = tmp_path / "data"
@@ -265,7 +266,7 @@ def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
     body = np.random.default_rng(5).bytes(3 * CHUNK_MAX + 123)
     (data / "datasets" / "d" / "x.png").write_bytes(body)
     (tmp_path / "ritad.toml").write_text(CONFIG.format(tmp=tmp_path))
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--config", str(tmp_path / "ritad.toml")],
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")],
                             cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
                             stderr=open(tmp_path / "ritad.log", "w"), text=True)
     try:

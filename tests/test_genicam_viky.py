@@ -15,7 +15,7 @@ from typing import Any, Iterator
 import numpy as np
 import pytest
 
-from daemon.registry import adapter_class
+from daemon.ritad.registry import adapter_class
 from drivers.base import CameraSettings, DeviceError, DeviceLost, DeviceURL, Frame
 from drivers.genicam import GenICamCamera, select_device
 

@@ -10,7 +10,7 @@ from calibration.frames import apply_H, make_H, rot_x, rot_y, rot_z
 from calibration.measure import mark_to_abs, measure_mark, robot_pose_at
 from calibration.referencing import reference_pose
 from calibration.scs import make_scs
-from calibration.simulate import SimConfig, Simulation
+from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
 

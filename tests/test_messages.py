@@ -15,10 +15,11 @@ from typing import Iterator
 import numpy as np
 import pytest
 
-from daemon import config, ctl
-from daemon.client import Client
-from daemon.main import Daemon
-from daemon.protocol import CommandError
+from daemon.ritad import config
+from daemon.ctl import main as ctl
+from daemon.bus.client import Client
+from daemon.ritad.main import Daemon
+from daemon.bus.protocol import CommandError
 from drivers.base import DeviceLost, DeviceURL
 from drivers.emscon.adapter import EmsconTracker
 from drivers.emscon.client import EmsconClient

@@ -2,7 +2,7 @@
 import os
 import socket
 
-from daemon.notify import Notifier
+from daemon.ritad.notify import Notifier
 
 
 def test_notify_sends_datagrams(tmp_path):

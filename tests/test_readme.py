@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.client import Client
-from daemon.protocol import CommandError
+from daemon.bus.client import Client
+from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[1]
 README_RUNTIME = "/tmp/rita"

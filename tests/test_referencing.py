@@ -11,7 +11,7 @@ from calibration.errors import CalibrationError
 from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_y, rot_z
 from calibration.referencing import (Gates, board_corners_ref, chain, plate_normal, reference, reference_pose,
                                      rob_H_cam_error, robot_pose, seat_tilt_deg)
-from calibration.simulate import SimConfig, Simulation
+from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
 FLIP = make_H(rot_x(np.pi), np.zeros(3))  # scn_H_ref of a simple SCS: PCS z down -> SCS z up

@@ -10,7 +10,7 @@ from calibration.frames import rot_x, rot_z
 from calibration.referencing import reference_pose
 from calibration.reversal import chordal_mean, combine
 from calibration.scs import make_scs
-from calibration.simulate import SimConfig, Simulation
+from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
 BIAS = ((0.1, 0.0, 0.0), (0.0, -0.07, 0.07), (-0.05, 0.05, -0.07))  # ~0.1 mm per nest

@@ -14,15 +14,15 @@ import sys
 import time
 from pathlib import Path
 
-from daemon.client import Client, Subscriber
-from daemon.main import RitadExit
+from daemon.bus.client import Client, Subscriber
+from daemon.ritad.main import RitadExit
 from tests.test_faults_process import Ritad, wait_devices_ready, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def ritad(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "daemon.main", *args], cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "daemon.ritad.main", *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=timeout, env={**os.environ, "PYTHONPATH": str(ROOT)})
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.client import Client
+from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +41,7 @@ def ritad(tmp_path):
            "PYTHONPATH": str(ROOT)}
     env.pop("WATCHDOG_PID", None)
     rt = tmp_path / "rt"
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--sim", "--runtime-dir", str(rt),
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(rt),
                              "--data-dir", str(tmp_path / "data")],
                             cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import serial
 
-from daemon.registry import adapter_class
+from daemon.ritad.registry import adapter_class
 from drivers import robot_protocol as rp
 from drivers.base import DeviceError, DeviceLost, DeviceURL
 from drivers.robot import SerialRobot

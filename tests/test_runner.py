@@ -4,8 +4,8 @@ import time
 
 import pytest
 
-from daemon.protocol import CommandError, ErrorCode
-from daemon.runner import DeviceRunner
+from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.ritad.runner import DeviceRunner
 from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceURL
 
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daemon.registry import adapter_class, open_device
+from daemon.ritad.registry import adapter_class, open_device
 from drivers.base import CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
 from fakes.camera import SimCamera, renderer_for
 from fakes.world import RobotPose, World, WorldParams

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from daemon import storage
+from daemon.bus import storage
 
 
 def test_atomic_write_replaces_and_leaves_no_temp(tmp_path):

@@ -67,7 +67,7 @@ def test_documentation_path_is_installed_by_the_documented_steps():
 def test_credential_and_binary_paths_agree_between_unit_and_docs():
     cred = unit_value("LoadCredential")
     name, source = cred.split(":", 1)
-    from daemon.auth import CREDENTIAL_NAME
+    from daemon.bus.auth import CREDENTIAL_NAME
 
     assert name == CREDENTIAL_NAME
     ops = OPS.read_text()
@@ -82,6 +82,6 @@ def test_credential_and_binary_paths_agree_between_unit_and_docs():
 
 
 def test_config_errors_are_not_restarted():
-    from daemon.main import RitadExit
+    from daemon.ritad.main import RitadExit
 
     assert unit_value("RestartPreventExitStatus") == str(int(RitadExit.CONFIG))

@@ -6,7 +6,7 @@ import pytest
 
 from calibration.frames import inv_H, make_H, rot_x
 from calibration.referencing import chain, reference_pose
-from calibration.simulate import SimConfig, Simulation
+from fakes.simulate import SimConfig, Simulation
 from calibration.target import pose_from_corners
 from calibration.uncertainty import footprint, monte_carlo, perturb_pose, pnp_covariance, pose_delta
 from fakes.render import true_corner_projections

@@ -13,11 +13,12 @@ from typing import Iterator
 
 import pytest
 
-from daemon import config, ctl
-from daemon.client import Client
-from daemon.ctl_watch import NO_FRAMES, LiveStatus, Screen
+from daemon.ritad import config
+from daemon.ctl import main as ctl
+from daemon.bus.client import Client
+from daemon.ctl.watch import NO_FRAMES, LiveStatus, Screen
 from daemon.demo import lock_on_robot
-from daemon.main import Daemon
+from daemon.ritad.main import Daemon
 from tests.test_faults import all_ready, wait_for
 
 

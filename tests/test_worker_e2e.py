@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from calibration.referencing import rob_H_cam_error
-from calibration.worker.recompute import recompute
-from daemon.client import Client
-from daemon.datasets import validate_folder
+from daemon.worker.recompute import recompute
+from daemon.bus.client import Client
+from daemon.bus.datasets import validate_folder
 from daemon.demo import lock_on_robot, operator_files
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,7 +28,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("e2e")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "--sim", "--runtime-dir", str(tmp / "rt"),
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(tmp / "rt"),
                              "--data-dir", str(tmp / "data"), "--seed", "3"], cwd=ROOT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)},
                             stdout=subprocess.DEVNULL, stderr=open(tmp / "ritad.log", "w"))
@@ -135,7 +135,7 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
         assert validate_folder(dataset) == [], dataset  # the live worker writes what docs/datasets.md says
         result, diff = recompute(Path(dataset))
         assert diff is not None and diff < 1e-9, (dataset, diff)
-    out = subprocess.run([sys.executable, "-m", "daemon.ctl", "recompute", ref["dataset"]], cwd=ROOT,
+    out = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "recompute", ref["dataset"]], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "largest difference to the stored result" in out.stdout
     stop = json.loads(Path(exp["dataset"], "state.json").read_text())["obs"]["stops"][0]

@@ -5,11 +5,11 @@ from pathlib import Path
 import pytest
 
 from calibration.errors import CalibrationError
-from calibration.worker.__main__ import operator_message
-from calibration.worker.job import StepFailed
-from calibration.worker.store import install_camera_model
-from daemon.client import ClientTimeout
-from daemon.protocol import CommandError
+from daemon.worker.__main__ import operator_message
+from daemon.worker.job import StepFailed
+from daemon.worker.store import install_camera_model
+from daemon.bus.client import ClientTimeout
+from daemon.bus.protocol import CommandError
 
 
 class FakeCtx:
@@ -89,7 +89,7 @@ class FakeClient:
 
 def test_resume_of_a_failed_calculation_says_nothing_changed(tmp_path):
     """All steps stored, the calculation fails: a resume re-runs it and says the data is unchanged."""
-    from calibration.worker.__main__ import run_job
+    from daemon.worker.__main__ import run_job
 
     root = tmp_path / "procedures" / "mm-1"
     root.mkdir(parents=True)

@@ -1,0 +1,189 @@
+"""The bus commands, declared once: arguments (type, range, unit, default), role, help, CLI shape.
+
+ritactl generates its per-device subcommands from this table (``daemon/ctl/device.py``)
+and a test checks that it lists exactly the commands ``build_handlers`` registers. The
+daemon still validates with ``need()`` in ``daemon/ritad/commands.py``; moving validation,
+``help`` and the docs/protocol.md table onto this table is issue #13's next step.
+Pure stdlib, so the laptop client imports it without numpy or OpenCV.
+
+An argument's ``cli`` says how it appears on the command line: ``POS`` (a positional
+value, shown as ``metavar``), ``--flag`` (an option; for a bool, the flag sets the
+opposite of the default), or None (bus only). Ranges are inclusive unless ``lo_open``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+ROLES = ("viewer", "operator", "admin")
+PROCEDURES = ("referencing", "intrinsics", "measure-mark", "experiment")
+POS = "POS"
+REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
+
+
+@dataclass(frozen=True)
+class Arg:
+    name: str                      # key in the request's ``args``
+    type: str                      # float | int | bool | str | map | any
+    help: str
+    unit: str = ""
+    default: Any = None            # None: optional, the daemon decides (``default_text`` says how)
+    default_text: str = ""
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    choices: tuple[str, ...] = ()
+    cli: str | None = None         # POS, "--flag" or None
+    metavar: str = ""
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+    def range_text(self) -> str:
+        if self.lo is None and self.hi is None:
+            return ""
+        if self.hi is None:
+            return f"{'>' if self.lo_open else '≥'} {self.lo:g}"
+        if self.lo is None:
+            return f"≤ {self.hi:g}"
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+
+    def check(self, value: float) -> str | None:
+        """Why ``value`` is out of range, or None."""
+        too_low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
+        if too_low or (self.hi is not None and value > self.hi):
+            word = "outside" if self.lo is not None and self.hi is not None else "not"
+            return f"{value:g} is {word} {self.range_text()}{' ' + self.unit if self.unit else ''}"
+        return None
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    help: str
+    role: str = "viewer"
+    args: tuple[Arg, ...] = ()
+    result: str = ""
+    cli: tuple[str, ...] = ()      # words of a generated ritactl subcommand, e.g. ("tracker", "aim")
+    verb: str = ""                 # or: the hand-written ritactl verb that sends it
+    worker_only: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+_CONFIRM = Arg("confirm", "bool", "confirm that the robot may move", default=False, cli="--yes")
+_WAIT = Arg("wait", "bool", "return once the motion started instead of at its end", default=True, cli="--no-wait")
+
+
+def _motion_timeout(unit_speed: str) -> Arg:
+    return Arg("timeout_s", "float", "give up on the motion after this long", unit="s", lo=0, lo_open=True,
+               default_text=f"60 + 2 × distance / {unit_speed}")
+
+
+def _job(help_: str = "job id") -> Arg:
+    return Arg("job", "str", help_, default=REQUIRED, cli=POS, metavar="JOB")
+
+
+TABLE: tuple[Command, ...] = (
+    Command("ping", "liveness check", result="{pong, t_ns}"),
+    Command("help", "list the commands", result="{commands: [...]}"),
+    Command("hello", "who is this daemon: version, schema, endpoints", result="name, version, schema, pid, sim, endpoints, device URLs"),
+    Command("status", "device states at a glance", verb="status", result="the daemon.health payload"),
+    Command("health", "same as status", result="the daemon.health payload"),
+    Command("state", "Clone snapshot for late joiners", verb="watch"),
+    Command("tracker.measure", "one stationary point of the locked reflector", "operator",
+            cli=("tracker", "measure"), result="point: x y z (mm, tracker frame), abs_xyz (ACS), std, status"),
+    Command("tracker.aim", "turn the tracker head to a point", "operator", cli=("tracker", "aim"), args=tuple(
+        Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
+            metavar=k.upper()) for k in "xyz"), result="{aimed}"),
+    Command("tracker.find", "search and lock the reflector near where the tracker points", "operator",
+            cli=("tracker", "find"), result="{locked: true}", args=(
+                Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
+                    lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),)),
+    Command("tracker.stream.start", "stream tracker points as tracker.point telemetry", "operator",
+            cli=("tracker", "stream", "start"), result="{streaming, rate_hz}", args=(
+                Arg("rate_hz", "float", "points per second", unit="Hz", lo=0, lo_open=True, hi=10000,
+                    default_text="config [tracker] stream_rate_hz", cli="--rate", metavar="HZ"),)),
+    Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),
+            result="{streaming: false}"),
+    Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status")),
+    Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
+            result="{header, path?}; pixels as one attachment", args=(
+                Arg("pixels", "bool", "send the pixels back as an attachment", default=False),
+                Arg("save", "bool", "store the frame as a dataset entry on the robot", default_text="not pixels"),
+                Arg("label", "str", "name of the stored entry", default="frame", cli="--label"))),
+    Command("camera.stream.start", "free-running frames on the frame socket", "operator",
+            cli=("camera", "stream", "start"), result="{streaming: true}"),
+    Command("camera.stream.stop", "stop the free run", "operator", cli=("camera", "stream", "stop"),
+            result="{streaming: false}"),
+    Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status")),
+    Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
+            result="controller's DONE, or {started} with wait: false", args=(
+                Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
+                    unit="mm", default=REQUIRED, cli=POS, metavar="MM"),
+                Arg("speed_mm_s", "float", "speed (limit: config [robot] max_speed_mm_s)", unit="mm/s",
+                    default=50.0, lo=0, lo_open=True, cli="--speed", metavar="MM_S"),
+                _CONFIRM, _WAIT, _motion_timeout("speed"))),
+    Command("robot.turn", "turn on the spot (positive: counter-clockwise)", "operator", cli=("robot", "turn"),
+            result="as robot.move", args=(
+                Arg("angle_deg", "float", "angle to turn", unit="°", default=REQUIRED, lo=-360, hi=360, cli=POS,
+                    metavar="DEG"),
+                Arg("speed_deg_s", "float", "turn rate (limit: config [robot] max_turn_speed_deg_s)",
+                    unit="°/s", default=20.0, lo=0, lo_open=True, cli="--speed", metavar="DEG_S"),
+                _CONFIRM, _WAIT, _motion_timeout("speed"))),
+    Command("robot.stop", "stop the base now (jumps every queue, no confirmation)", "operator",
+            cli=("robot", "stop"), result="{stopped}"),
+    Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
+            result="RobotState"),
+    Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
+            verb="capture", result="{path, header, tracker, robot}", args=(
+                Arg("label", "str", "name of the entry", default="capture", cli="--label"),
+                Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),
+    Command("sim.truth", "simulated world only: ground truth", result="rob_H_cam, abs_H_ref, ..."),
+    Command("sim.place_robot_on_plate", "simulated world only: put the robot on the plate, target in view",
+            "operator", result="{x_mm, y_mm, heading_deg}", args=(
+                Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
+                    default_text="plate yaw + 60"),)),
+    Command("data.dir", "the daemon's data folder", result="{data_dir}"),
+    Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
+            result="{root, files: [{path, size, mtime_ns}], truncated}", args=(
+                Arg("path", "str", "folder or file relative to the data dir", default_text="the whole data dir"),)),
+    Command("files.read", "one chunk of a data-dir file; the bytes follow as an attachment", verb="fetch",
+            result="{path, offset, length, size, mtime_ns, eof}", args=(
+                Arg("path", "str", "file relative to the data dir", default=REQUIRED),
+                Arg("offset", "int", "first byte", unit="B", default=0, lo=0),
+                Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576))),
+    Command("files.hash", "sha256 of the first length bytes of a data-dir file", verb="fetch",
+            result="{path, length, size, sha256}", args=(
+                Arg("path", "str", "file relative to the data dir", default=REQUIRED),
+                Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file"))),
+    Command("calib.results", "active calibration and every stored result", verb="results",
+            result="{active, history}"),
+    Command("calib.resume", "queue a failed or cancelled job again; the worker continues from its checkpoint",
+            "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
+    Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
+            result="{job, worker_seen_s_ago}", args=(
+                Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
+                Arg("params", "map", "the procedure's parameters", default={}),
+                Arg("job", "str", "job id", default_text="generated"))),
+    Command("calib.answer", "answer a job's prompt", "operator", verb="answer", result="{delivered}",
+            args=(_job(), Arg("answer", "str", "the answer", default=REQUIRED, cli=POS, metavar="TEXT"))),
+    Command("calib.cancel", "ask the worker to stop a job", "operator", verb="cancel",
+            result="{cancel_requested, state}",
+            args=(_job(),)),
+    Command("calib.jobs", "calibration jobs and their state", verb="jobs", result="{jobs, queued, worker_seen_s_ago}"),
+    Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True, args=(
+        Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),)),
+    Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator", worker_only=True,
+            args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60))),
+    Command("calib.report", "worker: progress, prompt, result or error of a job", "operator", worker_only=True,
+            args=(_job(), Arg("kind", "str", "report kind", default=REQUIRED,
+                              choices=("progress", "result", "prompt", "error")),
+                  Arg("data", "any", "the report"), Arg("procedure", "str", "procedure of a resumed job"))),
+)
+
+COMMANDS: dict[str, Command] = {c.name: c for c in TABLE}
+assert len(COMMANDS) == len(TABLE), "duplicate command in TABLE"
+assert all(c.role in ROLES for c in TABLE)
+
+__all__ = ["Arg", "Command", "COMMANDS", "POS", "PROCEDURES", "REQUIRED", "ROLES", "TABLE"]

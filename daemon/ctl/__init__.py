@@ -1,0 +1,1 @@
+"""ritactl, the operator's client (a laptop needs only the bus library)."""

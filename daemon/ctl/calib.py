@@ -1,0 +1,317 @@
+"""ritactl verbs for the calibration procedures: start, follow, answer prompts, results.
+
+A procedure runs in the worker on the robot; ritactl only posts it and follows its
+``calib.*`` telemetry. Ctrl-C detaches (the job goes on) after asking whether to cancel
+it, since every procedure drives the robot; ``ritactl follow JOB`` attaches again,
+``ritactl cancel JOB`` stops it, ``ritactl resume JOB`` continues a failed or cancelled
+job from its last completed step. Procedure verbs exit with ``for_verdict``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from daemon.bus.client import Client
+from daemon.bus.command_table import COMMANDS, PROCEDURES
+from daemon.ctl.device import add_table_args, table_args
+from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
+from daemon.ctl.exitcodes import Exit, bad_input, for_verdict
+from daemon.bus.protocol import CommandError, ErrorCode
+
+MOTION_PROCEDURES = PROCEDURES  # every procedure moves the robot (intrinsics: one pose per view)
+POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
+
+
+def _load_json(path: str | None, what: str) -> Any:
+    if not path:
+        return None
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise bad_input(f"cannot read {what} {path}: {exc}") from None
+
+
+def job_record(c: Client, job: str) -> dict[str, Any]:
+    for j in c.call("calib.jobs")["jobs"]:
+        if j.get("job") == job:
+            return j
+    raise CommandError(ErrorCode.NOT_FOUND, f"no such job {job!r} (`ritactl jobs` lists them)")
+
+
+def final_of(j: dict[str, Any]) -> dict[str, Any] | None:
+    """A job's end as a result message, or None while it runs.
+
+    A stored result or error is final whatever ``state`` says (the worker's last
+    progress report may have set it back to running).
+    """
+    state = j.get("state")
+    if isinstance(j.get("result"), dict) and j["result"]:  # also a failure's, with failed/cancelled set
+        return {"job": j["job"], **j["result"], **({"cancelled": True} if state == "cancelled" else {})}
+    err = j.get("error")
+    if err or state in ("failed", "cancelled"):
+        msg = err.get("message") if isinstance(err, dict) else (err or f"job {state}")
+        return {"job": j["job"], "failed": True, "cancelled": state == "cancelled", "message": str(msg)}
+    return None
+
+
+def _prompt_key(d: dict[str, Any]) -> tuple[Any, ...]:
+    return d.get("question"), tuple(d.get("choices") or ())
+
+
+def _interactive() -> bool:
+    try:
+        return sys.stdin is not None and sys.stdin.isatty()
+    except (ValueError, OSError):  # stdin closed
+        return False
+
+
+def _answer_prompt(c: Client, job: str, d: dict[str, Any], interactive: bool, as_json: bool) -> None:
+    say(f"\n>>> {d.get('question')}  {d.get('choices')}", as_json)
+    hint = f"    answer with: ritactl answer {job} <text>"
+    if not (interactive and _interactive()):
+        say(hint, as_json)
+        return
+    text = ask("answer> ")
+    if text is None:  # Ctrl-D: leave the answer to another terminal and keep following
+        say(f"\n{hint}", as_json)
+        return
+    choices = d.get("choices") or []
+    c.call("calib.answer", job=job, answer=text or (choices[0] if len(choices) == 1 else ""))
+
+
+def _follow(c: Client, sub: Any, j: dict[str, Any] | None, job: str, interactive: bool, as_json: bool) -> int:
+    shown: tuple[Any, ...] | None = None
+    next_poll = 0.0
+    while True:
+        if time.monotonic() >= next_poll:
+            j = j or job_record(c, job)
+            end = final_of(j)
+            if end is not None:
+                return show_result(end, as_json)
+            if isinstance(j.get("prompt"), dict) and _prompt_key(j["prompt"]) != shown:
+                shown = _prompt_key(j["prompt"])
+                _answer_prompt(c, job, j["prompt"], interactive, as_json)
+            j, next_poll = None, time.monotonic() + POLL_S
+        msg = sub.recv(0.25)
+        if msg is None or not isinstance(msg[1].get("data"), dict) or msg[1]["data"].get("job") != job:
+            continue
+        topic, d = msg[0], msg[1]["data"]
+        if topic == "calib.result":
+            return show_result(d, as_json)
+        if topic == "calib.progress":
+            wait = f" — waiting for {d['waiting_for']}" if d.get("waiting_for") else ""
+            say(f"[{d.get('percent') or 0:5.1f}%] {d.get('step')}{wait}", as_json)
+        elif topic == "calib.prompt" and _prompt_key(d) != shown:
+            shown = _prompt_key(d)
+            _answer_prompt(c, job, d, interactive, as_json)
+
+
+def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> int:
+    """Ctrl-C while following: detach, or cancel a motion procedure (asked; a second Ctrl-C says yes)."""
+    reattach = f"`ritactl follow {job}` re-attaches"
+    if procedure not in MOTION_PROCEDURES:
+        say(f"\ndetached; job {job} goes on. {reattach}, `ritactl cancel {job}` stops it.", as_json)
+        return Exit.INTERRUPTED
+    if yes_after_ctrl_c(f"job {job} moves the robot. cancel the job too?", as_json):
+        c.call("calib.cancel", job=job)
+        say(f"\ncancel requested for {job}: the worker stops at its next step; the base finishes its current "
+            "motion (`ritactl robot stop` halts it now).", as_json)
+    else:
+        say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl cancel {job}` stops the job, "
+            f"`ritactl robot stop` halts the base; {reattach}.", as_json)
+    return Exit.INTERRUPTED
+
+
+def follow(c: Client, job: str, interactive: bool = True, as_json: bool = False) -> int:
+    """Print the progress of ``job`` until its end and exit with its verdict; answer prompts from the keyboard.
+
+    Returns at once for a job that has ended; an unknown job raises ``not_found``.
+    """
+    sub = c.subscriber(["calib."])  # subscribe first: the snapshot below covers what came before
+    procedure = None
+    try:
+        j = job_record(c, job)
+        procedure = j.get("procedure")
+        return _follow(c, sub, j, job, interactive, as_json)
+    except KeyboardInterrupt:
+        return _interrupted(c, job, procedure, as_json)
+    finally:
+        sub.close()
+
+
+def show_result(d: dict[str, Any], as_json: bool = False) -> int:
+    """Print a job's result (or failure); its exit code (``for_verdict``; failed/cancelled: FAIL)."""
+    code = Exit.FAIL if d.get("failed") else for_verdict(d.get("verdict"))
+    if as_json:
+        print_result(d, True)
+        return code
+    if d.get("failed"):
+        print(f"{'CANCELLED' if d.get('cancelled') else 'FAILED'}: {d.get('message')}")
+        return code
+    print(f"\nresult: {d.get('procedure')} verdict={d.get('verdict')}")
+    for m in d.get("messages") or []:
+        print(f"  - {m}")
+    if d.get("rob_H_cam"):
+        print("  rob_H_cam =")
+        for row in d["rob_H_cam"]:
+            print("    " + " ".join(f"{v:12.6f}" for v in row))
+    unc = d.get("uncertainty")
+    if unc:
+        t = ", ".join(f"{v * 1000:.1f}" for v in unc["std_t_mm"])
+        r = ", ".join(f"{v * 3600:.1f}" for v in unc["std_rot_deg"])
+        print(f"  1σ: translation ({t}) µm, rotation ({r}) arcsec, camera footprint "
+              f"{unc['footprint_std_mm'] * 1000:.1f} µm")
+    if d.get("mark"):
+        x, y, z = d["mark"]["abs_xyz"]
+        print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
+    if d.get("table_markdown"):
+        print("\n" + d["table_markdown"])
+    print(f"  dataset: {d.get('dataset')}  {' '.join(d.get('files') or [])}")
+    return code
+
+
+
+
+_show_result = show_result  # the name daemon/ctl/datasets.py imports (recompute)
+
+
+def _start(c: Client, a: argparse.Namespace, procedure: str, params: dict[str, Any]) -> int:
+    r = c.call("calib.start", procedure=procedure, params={k: v for k, v in params.items() if v is not None},
+               **({"job": a.job} if getattr(a, "job", None) else {}))
+    job = r["job"]
+    if a.detach and a.json:
+        print_result(r, True)
+    else:
+        say(f"job {job} posted", a.json)
+    if r.get("worker_seen_s_ago") is None:
+        say("  (no calibration worker has contacted the daemon yet: is it running?)", a.json)
+    return Exit.OK if a.detach else follow(c, job, as_json=a.json)
+
+
+def cmd_calibrate(c: Client, a: argparse.Namespace) -> int:
+    params = {"plate": _load_json(a.plate, "plate definition"),
+              "camera_model": _load_json(a.camera_model, "camera model"),
+              "nests_approx_trk": _load_json(a.nests_approx, "approximate nest positions"),
+              "robot_approx_trk": a.robot_approx, "reversal": a.reversal, "distance_mm": a.distance}
+    return _start(c, a, "referencing", params)
+
+
+def cmd_intrinsics(c: Client, a: argparse.Namespace) -> int:
+    return _start(c, a, "intrinsics", {"plate": _load_json(a.plate, "plate definition"), "views": a.views,
+                                       "camera_model": _load_json(a.camera_model, "camera model")})
+
+
+def cmd_measure_mark(c: Client, a: argparse.Namespace) -> int:
+    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind})
+
+
+def cmd_experiment(c: Client, a: argparse.Namespace) -> int:
+    return _start(c, a, "experiment", {"mark_xy": a.mark, "directions": a.directions, "repetitions": a.reps,
+                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0})
+
+
+def cmd_results(c: Client, a: argparse.Namespace) -> int:
+    r = c.call("calib.results")
+    if a.json:
+        print_result(r, True)
+        return Exit.OK
+    act = r.get("active")
+    if act:
+        print(f"active calibration: job {act.get('job')} ({act.get('created')}), verdict {act.get('verdict')}")
+        show_result(act)
+    else:
+        print("no active calibration yet (run `ritactl calibrate`)")
+    print("\nhistory:")
+    for h in r["history"]:
+        print(f"  {h.get('created')}  {h.get('procedure')!s:13s} {h.get('verdict')!s:5s} {h.get('job')}")
+    return Exit.OK
+
+
+def cmd_jobs(c: Client, a: argparse.Namespace) -> int:
+    r = c.call("calib.jobs")
+    if a.json:
+        print_result(r, True)
+        return Exit.OK
+    for j in r["jobs"]:
+        end = final_of(j)
+        state = j["state"] if end is None else ("cancelled" if end.get("cancelled") else
+                                                "failed" if end.get("failed") else "done")
+        p = {} if end else (j.get("progress") or {})
+        print(f"{j['job']:50s} {j['procedure']!s:13s} {state:9s} {p.get('percent', '')} {p.get('step', '')}")
+    print(f"worker last seen {r.get('worker_seen_s_ago')} s ago")
+    return Exit.OK
+
+
+def cmd_answer(c: Client, a: argparse.Namespace) -> int:
+    print_result(c.call_raw("calib.answer", table_args(COMMANDS["calib.answer"], a))[0], a.json)
+    return Exit.OK
+
+
+def cmd_cancel(c: Client, a: argparse.Namespace) -> int:
+    r = c.call_raw("calib.cancel", table_args(COMMANDS["calib.cancel"], a))[0]
+    print_result(r, True) if a.json else print(f"cancel requested for {a.arg_job}")
+    return Exit.OK
+
+
+def cmd_resume(c: Client, a: argparse.Namespace) -> int:
+    c.call("calib.resume", job=a.job_id)  # the daemon knows the procedure, also for a job of an earlier run
+    return follow(c, a.job_id, as_json=a.json)
+
+
+def cmd_follow(c: Client, a: argparse.Namespace) -> int:
+    return follow(c, a.job_id, as_json=a.json)
+
+
+def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
+    p = sub.add_parser("calibrate", parents=[common], help="referencing: rob_H_cam with the plate")
+    p.add_argument("--plate", help="plate definition JSON (default: the robot's installed one)")
+    p.add_argument("--camera-model", help="camera model JSON (default: the robot's installed one)")
+    p.add_argument("--nests-approx", help='JSON {"red": [x, y, z], ...}: approximate nests, tracker frame, mm')
+    p.add_argument("--robot-approx", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="approximate robot reflector, tracker frame, mm")
+    p.add_argument("--reversal", action="store_true", help="second referencing turned 180° (instrument reversal)")
+    p.add_argument("--distance", type=float, help="straight drive between P0 and P1, mm (default 200)")
+    p.set_defaults(fn=cmd_calibrate)
+    p = sub.add_parser("intrinsics", parents=[common], help="camera model from several views of the target")
+    p.add_argument("--plate", help="plate definition JSON (default: the robot's installed one)")
+    p.add_argument("--camera-model", help="camera model JSON used as the initial guess")
+    p.add_argument("--views", type=int, default=6, help="number of views (default 6)")
+    p.set_defaults(fn=cmd_intrinsics)
+    for name, fn in (("measure-mark", cmd_measure_mark), ("experiment", cmd_experiment)):
+        p = sub.add_parser(name, parents=[common], help=f"{name} with the active calibration")
+        p.add_argument("--mark", nargs=2, type=float, required=True, metavar=("X", "Y"),
+                       help="approximate mark position, ACS mm")
+        p.add_argument("--kind", default="dot", choices=["dot", "cross"], help="mark shape (default dot)")
+        if name == "measure-mark":
+            p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
+        else:
+            p.add_argument("--directions", type=int, default=8, help="approach directions (default 8)")
+            p.add_argument("--reps", type=int, default=5, help="repetitions per direction (default 5)")
+            p.add_argument("--seed", type=int, default=1, help="seed of the approach order (default 1)")
+            p.add_argument("--psi0", type=float, default=0.0, help="heading of the first direction, deg")
+        p.set_defaults(fn=fn)
+
+
+def add_parsers(sub: Any) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--detach", action="store_true", help="post the job and return (exit 0)")
+    common.add_argument("--job", help="job id (default: generated)")
+    _procedure_parsers(sub, common)
+    sub.add_parser("results", help="active calibration and history").set_defaults(fn=cmd_results)
+    sub.add_parser("jobs", help="calibration jobs and their state").set_defaults(fn=cmd_jobs)
+    for name, fn, what in (("follow", cmd_follow, "print a job's progress until it ends; exit with its verdict"),
+                           ("resume", cmd_resume, "continue a failed or cancelled job from its last step")):
+        p = sub.add_parser(name, help=what)
+        p.add_argument("job_id", metavar="JOB", help="job id (`ritactl jobs` lists them)")
+        p.set_defaults(fn=fn)
+    for verb, cmd, fn in (("cancel", "calib.cancel", cmd_cancel), ("answer", "calib.answer", cmd_answer)):
+        p = sub.add_parser(verb, help=COMMANDS[cmd].help)
+        add_table_args(p, COMMANDS[cmd])
+        p.set_defaults(fn=fn)
+
+
+__all__ = ["add_parsers", "final_of", "follow", "show_result"]

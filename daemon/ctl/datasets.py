@@ -1,0 +1,128 @@
+"""ritactl verbs on dataset folders, offline (no daemon): ``validate`` and ``recompute``.
+
+``validate FOLDER`` checks a folder against docs/datasets.md and the shipped JSON
+Schemas and lists every problem with its file and JSON path. ``recompute FOLDER``
+validates, then re-runs the procedure's computation (numpy + OpenCV needed here);
+``--out DIR`` writes the result files as the live procedure does, ``--camera-model``,
+``--plate`` and ``--calibration`` re-evaluate old data with other inputs. Exit codes
+are daemon/ctl/exitcodes.py's: 0/1/2 by verdict, 2 for a calibration error (or any other
+failure of the computation, without a traceback), 5 for a missing or invalid dataset
+or input file, 64 for usage, 130 for Ctrl-C.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
+from daemon.ctl.exitcodes import Exit, for_verdict
+
+
+def _err(text: str) -> None:
+    print(f"ritactl: {text}", file=sys.stderr)
+
+
+def _print_problems(folder: str, problems: list[Problem]) -> None:
+    for p in problems:
+        print(f"  {p}")
+    print(f"{folder}: {len(problems)} problem(s)" if problems else f"{folder}: valid")
+
+
+def cmd_validate(c: Any, a: argparse.Namespace) -> int:
+    """Every problem of each dataset folder at once; exit 0 when all are clean, 5 when not."""
+    reports = []
+    for folder in a.folder:
+        try:
+            problems = validate_folder(Path(folder))
+        except KeyboardInterrupt:
+            return Exit.INTERRUPTED
+        reports.append({"folder": folder, "problems": [p.to_dict() for p in problems]})
+        if not a.json:
+            _print_problems(folder, problems)
+    if a.json:  # one folder: its report; several: a list of them
+        print(json.dumps(reports[0] if len(reports) == 1 else reports, indent=2))
+    return Exit.BAD_INPUT if any(r["problems"] for r in reports) else Exit.OK
+
+
+def _input_file(path: str | None, what: str) -> Any:
+    """A JSON input file given on the command line, or None; errors name the file."""
+    if not path:
+        return None
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"cannot read {what} {path}: {type(exc).__name__}: {exc}") from None
+
+
+def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:
+    from daemon.worker.recompute import recompute
+
+    return recompute(Path(a.dataset), camera_model=_input_file(a.camera_model, "camera model"),
+                     plate=_input_file(a.plate, "plate definition"),
+                     calibration=_input_file(a.calibration, "calibration result"))
+
+
+def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]:
+    from daemon.worker.store import write_result_files
+
+    return write_result_files(Path(out), result, dataset=dataset)
+
+
+def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
+    """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
+    try:
+        from daemon.worker.recompute import CalibrationError  # fails here, clearly, without OpenCV
+    except ImportError as exc:
+        _err(f"recompute needs the full install (numpy, OpenCV): {exc}")
+        return Exit.FAIL
+    try:
+        result, diff = _run(a)
+        if a.out:
+            result = _write_out(a.out, a.dataset, result)
+    except KeyboardInterrupt:
+        return Exit.INTERRUPTED
+    except DatasetInvalid as exc:
+        _err(f"cannot recompute {a.dataset}: {len(exc.problems)} problem(s) in its files or the given inputs:")
+        for p in exc.problems:
+            print(f"  {p}", file=sys.stderr)
+        return Exit.BAD_INPUT
+    except CalibrationError as exc:
+        _err(f"calibration failed on {a.dataset}: {exc}")
+        return Exit.FAIL
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        # the schema passed but a value does not make sense (e.g. a plate whose nests coincide)
+        what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
+        _err(f"cannot recompute {a.dataset}: {what}")
+        return Exit.BAD_INPUT
+    except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
+        _err(f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}")
+        return Exit.FAIL
+    if a.json:
+        print(json.dumps(result, indent=2, default=str))
+    else:
+        from daemon.ctl.calib import _show_result
+
+        _show_result({**result, "dataset": a.out or a.dataset})
+        if diff is not None:
+            print(f"\nlargest difference to the stored result: {diff:.3g}")
+    return for_verdict(result.get("verdict"))
+
+
+def add_parsers(sub: Any) -> None:
+    p = sub.add_parser("validate", help="check a dataset folder against its documented format (offline)")
+    p.add_argument("folder", nargs="+", help="dataset folder(s): a procedure folder or a captures folder")
+    p.set_defaults(fn=cmd_validate, offline=True)
+    p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
+    p.add_argument("dataset")
+    p.add_argument("--out", metavar="DIR", help="write result.json, result.yaml (+ experiment report, plot) here")
+    p.add_argument("--camera-model", metavar="FILE", help="camera_model.json to use instead of the stored one")
+    p.add_argument("--plate", metavar="FILE", help="plate.json to use instead of the stored one")
+    p.add_argument("--calibration", metavar="FILE",
+                   help="referencing result.json to use instead of the stored one (experiment, measure-mark)")
+    p.set_defaults(fn=cmd_recompute, offline=True)
+
+
+__all__ = ["add_parsers", "cmd_recompute", "cmd_validate"]

@@ -1,0 +1,198 @@
+"""ritactl's per-device subcommands (``tracker``, ``robot``, ``camera``), generated from the command table.
+
+Each table entry with ``cli`` words becomes one subcommand with exactly its own
+arguments, typed and range-checked here so a bad value is a usage error (exit 64)
+that names it. Bus argument names in the daemon's error messages get the option that
+sets them appended, so the operator knows what to type.
+"""
+from __future__ import annotations
+
+import argparse
+import array
+import json
+import math
+import re
+import struct
+import zlib
+from pathlib import Path
+from typing import Any, Callable
+
+from daemon.bus.client import Client, ClientTimeout
+from daemon.bus.command_table import COMMANDS, POS, TABLE, Arg, Command
+from daemon.ctl.io import print_result, say, yes_after_ctrl_c
+from daemon.ctl.exitcodes import CtlError, Exit
+from daemon.bus.protocol import CommandError
+
+# options that act on this computer only, not sent to the daemon
+LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
+    "camera.capture": (("--out", {"metavar": "FILE.png", "help": "save the frame here, on this computer, as a "
+                                  "lossless PNG (+ FILE.json metadata) instead of storing it on the robot"}),),
+}
+
+
+def write_png(path: Path, pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8) -> None:
+    """Minimal lossless PNG writer (greyscale or RGB), so the laptop needs no imaging library."""
+    colour = {1: 0, 3: 2, 4: 6}[channels]
+    stride = width * channels * bit_depth // 8
+    raw = b"".join(b"\x00" + pixels[y * stride:(y + 1) * stride] for y in range(height))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, bit_depth, colour, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(png)
+    tmp.replace(path)
+
+
+def _number(arg: Arg) -> Callable[[str], float]:
+    """argparse type for a numeric table argument: finite and inside the table's range."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text) if arg.type == "float" else int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'a number' if arg.type == 'float' else 'an integer'}")
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        why = arg.check(value)
+        if why:
+            raise argparse.ArgumentTypeError(why)
+        return value
+
+    return parse
+
+
+def option_help(arg: Arg) -> str:
+    """The table's help, plus unit, range and default: every option gets a help text."""
+    notes = [n for n in (arg.unit, arg.range_text()) if n]
+    if arg.type != "bool" and not arg.required:
+        shown = arg.default_text or (None if arg.default is None else f"{arg.default:g}"
+                                     if isinstance(arg.default, float) else arg.default)
+        if shown is not None:
+            notes.append(f"default {shown}")
+    return arg.help + (f" ({'; '.join(notes)})" if notes else "")
+
+
+def _dest(arg: Arg) -> str:
+    return "arg_" + arg.name
+
+
+def add_table_args(p: argparse.ArgumentParser, cmd: Command) -> None:
+    """Add the CLI form of ``cmd``'s arguments to ``p``."""
+    for arg in cmd.args:
+        if arg.cli is None:
+            continue
+        kind: dict[str, Any] = {"help": option_help(arg)}
+        if arg.type in ("float", "int"):
+            kind["type"] = _number(arg)
+        if arg.choices:
+            kind["choices"] = arg.choices
+        if arg.cli == POS:
+            p.add_argument(_dest(arg), metavar=arg.metavar or arg.name.upper(), **kind)
+        elif arg.type == "bool":
+            p.add_argument(arg.cli, dest=_dest(arg), action="store_const", const=not arg.default, help=kind["help"])
+        else:
+            p.add_argument(arg.cli, dest=_dest(arg), metavar=arg.metavar or None, **kind)
+
+
+def table_args(cmd: Command, a: argparse.Namespace) -> dict[str, Any]:
+    """The bus arguments given on the command line (absent ones: the daemon's default)."""
+    out = {}
+    for arg in cmd.args:
+        value = getattr(a, _dest(arg), None) if arg.cli else None
+        if value is not None:
+            out[arg.name] = value
+    return out
+
+
+def with_cli_names(cmd: Command, message: str) -> str:
+    """Append the ritactl spelling to bus argument names in a daemon message."""
+    for arg in cmd.args:
+        if arg.cli:
+            shown = (arg.metavar or arg.name.upper()) if arg.cli == POS else arg.cli
+            message = re.sub(rf"\b{re.escape(arg.name)}\b", f"{arg.name} (ritactl: {shown})", message, count=1)
+    return message
+
+
+def add_device_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
+    """One subcommand per table entry with ``cli`` words; groups (``tracker stream``) nest."""
+    nodes: dict[tuple[str, ...], Any] = {(): sub}
+    for cmd in TABLE:
+        for depth in range(1, len(cmd.cli)):
+            path = cmd.cli[:depth]
+            if path not in nodes:
+                words = sorted({c.cli[depth] for c in TABLE if c.cli[:depth] == path})
+                p = nodes[path[:-1]].add_parser(path[-1], parents=parents, help=f"{' '.join(path)}: "
+                                                f"{', '.join(words)}", description=f"{' '.join(path)} commands")
+                p.set_defaults(fn=None, parser_=p)
+                nodes[path] = p.add_subparsers(title="commands", metavar="COMMAND")
+        if cmd.cli:
+            leaf = nodes[cmd.cli[:-1]].add_parser(cmd.cli[-1], parents=parents, help=cmd.help,
+                                                  description=f"{cmd.help} (bus command {cmd.name})")
+            add_table_args(leaf, cmd)
+            for flag, kw in LOCAL_OPTIONS.get(cmd.name, ()):
+                leaf.add_argument(flag, **kw)
+            leaf.set_defaults(fn=cmd_device, command=cmd.name, parser_=leaf)
+
+
+def _check_out(out: str) -> None:
+    """Refuse an unusable --out before the camera is triggered (exit 5)."""
+    path = Path(out)
+    if not path.name or path.name in (".", "..") or path.is_dir():
+        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r} is a folder: give a file name like frame.png")
+    if not path.parent.is_dir():
+        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r}: folder {str(path.parent)!r} does not exist")
+
+
+def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
+    h = result["header"]
+    shape = h["shape"]
+    depth = 16 if h["dtype"].endswith("2") else 8
+    data = bytes(extra[0].buffer)
+    if depth == 16 and h["dtype"].startswith("<"):  # PNG stores 16-bit samples big-endian
+        words = array.array("H", data)
+        words.byteswap()
+        data = words.tobytes()
+    try:
+        write_png(Path(out), data, shape[1], shape[0], shape[2] if len(shape) == 3 else 1, depth)
+        Path(out).with_suffix(".json").write_text(json.dumps(h, indent=2))
+    except OSError as exc:
+        raise CtlError(Exit.BAD_INPUT, "bad_input", f"cannot write {out}: {exc.strerror or exc}") from None
+
+
+def _interrupted_motion(c: Client, cmd: Command, as_json: bool) -> int:
+    if yes_after_ctrl_c(f"{cmd.name} may still be moving the robot. stop the robot?", as_json):
+        c.call("robot.stop")
+        say("robot stopped", as_json)
+    else:
+        say("the motion goes on; `ritactl robot stop` stops the robot", as_json)
+    return Exit.INTERRUPTED
+
+
+def cmd_device(c: Client, a: argparse.Namespace) -> int:
+    cmd = COMMANDS[a.command]
+    args = table_args(cmd, a)
+    out = getattr(a, "out", None)
+    if out:
+        _check_out(out)
+        args.update(pixels=True, save=False)
+    try:
+        result, extra = c.call_raw(cmd.name, args, timeout=a.timeout or 120)
+    except KeyboardInterrupt:
+        if args.get("confirm"):  # a confirmed motion goes on in the daemon: say so, offer to stop it
+            return _interrupted_motion(c, cmd, a.json)
+        raise
+    except ClientTimeout:
+        raise
+    except CommandError as exc:
+        raise CommandError(exc.code, with_cli_names(cmd, exc.args[0])) from None
+    if out:
+        _save_png(out, result, extra)
+        print_result({"saved": out, "metadata": str(Path(out).with_suffix(".json"))}, a.json)
+        return Exit.OK
+    print_result(result, a.json)
+    return Exit.OK
+
+
+__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "option_help", "table_args", "write_png"]

@@ -1,0 +1,190 @@
+"""``ritactl keys``: CURVE key files for the laptop and the robot's allow-list.
+
+On the laptop: ``ritactl keys init --name bob`` makes ``bob.key`` + ``bob.key_secret``
+in the keys folder (``$RITA_KEYS``, else the config folder of
+:mod:`daemon.ctl.config`, ``~/.config/rita``); copy the robot's ``server.key`` there
+too, and select the key with ``--key bob`` or ``key = "bob"`` in ``ritactl.toml``
+(the default name is ``client``). On the robot: ``ritactl keys init --server --dir
+/etc/ritad/keys`` once, then ``ritactl keys allow bob.key --name bob`` for each
+operator; ``revoke`` takes effect for the next connection, without a restart.
+
+Once keys are configured (a key name, a keys folder or a server key given, or key
+files present in the default folder), a tcp endpoint never falls back to plaintext:
+a missing or bad file is a :class:`KeyConfigError` naming it. Only pyzmq is needed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from daemon.ctl.config import ENV_KEYS, KEY_NAME, default_keys_dir
+from daemon.ctl.exitcodes import Exit
+
+DEFAULT_AUTH_DIR = "/var/lib/ritad/authorized_keys"
+DEFAULT_KEY = "client"
+
+
+class KeyConfigError(ValueError):
+    """CURVE keys were configured but a file is missing or unusable; the message names the file."""
+
+
+def _configured(d: Path, key_name: str | None, keys_dir: Path | None, server_key: Path | None) -> bool:
+    if key_name is not None or keys_dir is not None or server_key is not None or os.environ.get(ENV_KEYS):
+        return True
+    return (d / f"{DEFAULT_KEY}.key_secret").exists() or (d / "server.key").exists()
+
+
+def client_curve(endpoint: str, keys_dir: Path | None = None, key_name: str | None = None,
+                 server_key: Path | None = None) -> tuple[dict[str, bytes] | None, str | None]:
+    """``(curve, key_id)`` for :class:`daemon.bus.client.Client` (``Client(ep, curve=(curve, key_id))`` works too).
+
+    ``curve`` is ``{"public", "secret", "server"}`` from ``KEYS_DIR/NAME.key_secret`` and
+    ``server_key`` (default ``KEYS_DIR/server.key``); ``key_id`` is ``"NAME (public key)"``,
+    for messages. ``(None, None)`` for ipc endpoints, and for tcp when no keys are
+    configured at all (the daemon then decides; a CURVE daemon refuses). Raises
+    KeyConfigError naming the file when configured keys are missing or bad.
+    """
+    if not endpoint.startswith("tcp://"):
+        return None, None
+    d = Path(keys_dir).expanduser() if keys_dir is not None else default_keys_dir()
+    if not _configured(d, key_name, keys_dir, server_key):
+        return None, None
+    name = key_name or DEFAULT_KEY
+    if not KEY_NAME.fullmatch(name):
+        raise KeyConfigError(f"key name {name!r} is not a key name (letters, digits, . _ -)")
+    secret = d / f"{name}.key_secret"
+    server = Path(server_key).expanduser() if server_key is not None else d / "server.key"
+    if not secret.exists():
+        init = "ritactl keys init" + ("" if name == DEFAULT_KEY else f" --name {name}")
+        raise KeyConfigError(f"CURVE key {secret} does not exist: create it with `{init}` (then have it allowed "
+                             f"on the robot), or choose another with --key NAME")
+    if not server.exists():
+        raise KeyConfigError(f"the robot's public key {server} does not exist: copy the robot's "
+                             f"/etc/ritad/keys/server.key to it")
+    from daemon.bus.auth import load_keypair, load_public
+
+    try:
+        public, sec = load_keypair(secret)
+    except Exception as exc:  # noqa: BLE001 - pyzmq's parser raises several kinds for a mangled file
+        raise KeyConfigError(f"CURVE key {secret} is unusable: {exc}") from None
+    try:
+        server_public = load_public(server)
+    except Exception as exc:  # noqa: BLE001
+        raise KeyConfigError(f"the robot's public key {server} is unusable: {exc}") from None
+    if not server_public:
+        raise KeyConfigError(f"{server} holds no public key")
+    return {"public": public, "secret": sec, "server": server_public}, f"{name} ({public.decode()})"
+
+
+def resolve_connection(endpoint: str | None = None, key: str | None = None, keys_dir: str | Path | None = None,
+                       config_path: str | Path | None = None) -> dict[str, Any]:
+    """Where and how ritactl connects: the command line beats the environment, which beats ritactl.toml.
+
+    Returns ``{"endpoint", "curve", "key_id", "timeout"}`` (``timeout`` None unless the
+    config file sets it). Raises CtlConfigError (a bad config file) or KeyConfigError
+    (configured keys missing or bad); both are ValueErrors naming the file.
+    """
+    from daemon.bus.client import DEFAULT_ENDPOINT, ENV_ENDPOINT
+    from daemon.ctl.config import load_ctl_config
+
+    cfg = load_ctl_config(config_path)
+    ep = endpoint or os.environ.get(ENV_ENDPOINT) or cfg.get("endpoint") or DEFAULT_ENDPOINT
+    if keys_dir is None and not os.environ.get(ENV_KEYS):
+        keys_dir = cfg.get("keys_dir")
+    curve, key_id = client_curve(ep, Path(keys_dir) if keys_dir is not None else None, key or cfg.get("key"),
+                                 cfg.get("server_key"))
+    return {"endpoint": ep, "curve": curve, "key_id": key_id, "timeout": cfg.get("timeout")}
+
+
+def _err(msg: str, code: Exit) -> int:
+    print(f"ritactl: {msg}", file=sys.stderr)
+    return int(code)
+
+
+def _init(a: argparse.Namespace) -> int:
+    from daemon.bus.auth import create_keypair
+
+    d = Path(a.dir).expanduser() if a.dir else default_keys_dir()
+    name = "server" if a.server else (a.name or DEFAULT_KEY)
+    if not KEY_NAME.fullmatch(name):
+        return _err(f"--name {name!r} is not a key name (letters, digits, . _ -)", Exit.USAGE)
+    if (d / f"{name}.key_secret").exists() and not a.force:
+        return _err(f"{d / (name + '.key_secret')} exists (use --force to replace it)", Exit.BAD_INPUT)
+    public, secret = create_keypair(d, name)
+    print(f"created {public} (public, share it) and {secret} (secret, mode 600)")
+    if not a.server:
+        select = "" if name == DEFAULT_KEY else f"; select this key with --key {name} or key = \"{name}\" in ritactl.toml"
+        print(f"now copy the robot's server.key into {d} and have the robot allow {public}{select}")
+    return 0
+
+
+def _allow(a: argparse.Namespace, auth: Path) -> int:
+    from daemon.bus.auth import load_public
+
+    if not a.file:
+        return _err("keys allow needs the client's public key file (NAME.key)", Exit.USAGE)
+    src = Path(a.file).expanduser()
+    if not src.is_file():
+        return _err(f"{src} does not exist" if not src.exists() else f"{src} is not a file", Exit.BAD_INPUT)
+    if src.name.endswith(".key_secret"):
+        return _err(f"{src} is a secret key: allow the public one ({src.name[:-len('_secret')]}), the secret "
+                    f"never leaves the laptop", Exit.BAD_INPUT)
+    try:
+        key = load_public(src)
+    except Exception as exc:  # noqa: BLE001 - pyzmq's parser raises several kinds for a mangled file
+        return _err(f"{src} is not a CURVE public key file: {exc}", Exit.BAD_INPUT)
+    name = a.name or src.stem
+    if not KEY_NAME.fullmatch(name):
+        return _err(f"--name {name!r} is not a key name (letters, digits, . _ -)", Exit.USAGE)
+    auth.mkdir(parents=True, exist_ok=True)
+    dest = auth / f"{name}.key"
+    tmp = dest.with_suffix(".tmp")
+    shutil.copyfile(src, tmp)
+    tmp.replace(dest)
+    print(f"allowed {dest.stem}: {key.decode()}")
+    return 0
+
+
+def cmd_keys(c: Any, a: argparse.Namespace) -> int:
+    from daemon.bus.auth import load_public
+
+    if a.action == "init":
+        return _init(a)
+    auth = Path(a.dir or DEFAULT_AUTH_DIR).expanduser()
+    if a.action == "allow":
+        return _allow(a, auth)
+    if a.action == "revoke":
+        if not a.name:
+            return _err("keys revoke needs --name", Exit.USAGE)
+        target = auth / f"{a.name}.key"
+        if not KEY_NAME.fullmatch(a.name) or not target.exists():
+            return _err(f"no key named {a.name!r} in {auth}", Exit.BAD_INPUT)
+        target.unlink()
+        print(f"revoked {a.name} (new connections with that key are refused now)")
+        return 0
+    if a.action == "list":
+        if not auth.is_dir():
+            return _err(f"{auth} does not exist (no key allowed yet)", Exit.BAD_INPUT)
+        for f in sorted(auth.glob("*.key")):
+            try:
+                print(f"{f.stem:20s} {load_public(f).decode()}")
+            except Exception as exc:  # noqa: BLE001
+                print(f"{f.stem:20s} unreadable: {exc}")
+        return 0
+    return _err(f"unknown keys action {a.action!r}", Exit.USAGE)
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("keys", help="CURVE keys: init | allow FILE | revoke --name N | list")
+    p.add_argument("action", choices=["init", "allow", "revoke", "list"])
+    p.add_argument("file", nargs="?", help="allow: the client's public key file")
+    p.add_argument("--dir", help=f"keys folder (init; default {default_keys_dir()}) or allow-list "
+                                 f"(allow/revoke/list; default {DEFAULT_AUTH_DIR})")
+    p.add_argument("--name", help="init: key name; allow/revoke: the client's name in the allow-list")
+    p.add_argument("--server", action="store_true", help="init: the robot's server key pair")
+    p.add_argument("--force", action="store_true", help="init: replace an existing key pair")
+    p.set_defaults(fn=cmd_keys, offline=True)

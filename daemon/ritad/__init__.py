@@ -1,0 +1,1 @@
+"""ritad, the daemon on the robot: config, device runners, command server, publishers."""

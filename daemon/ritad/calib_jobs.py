@@ -1,0 +1,256 @@
+"""Calibration job mailbox: how operators and the worker meet on the bus.
+
+The worker is a plain bus client. Operators (ritactl) post jobs with ``calib.start``
+and answers with ``calib.answer``; the worker long-polls ``calib.next`` for jobs and
+``calib.inbox`` for answers/cancels, and sends ``calib.report`` which the daemon
+republishes as ``calib.progress`` / ``calib.result`` / ``calib.prompt`` telemetry.
+Long polls are Futures completed by a post or by a timer, so the ROUTER thread
+never blocks.
+"""
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import re
+import threading
+import time
+import uuid
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, Callable
+
+from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.ritad.server import Request
+
+PROCEDURES = ("referencing", "intrinsics", "measure-mark", "experiment")
+REPORT_KINDS = ("progress", "result", "prompt", "error")
+#: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
+FINAL_STATES = ("done", "failed", "cancelled")
+RESUMABLE = ("failed", "cancelled")
+#: job ids name dataset folders: no separators, no leading dot
+JOB_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,127}")
+
+log = logging.getLogger(__name__)
+
+
+class _Mailbox:
+    """A FIFO whose ``get`` returns a Future (completed now, on the next put, or None on timeout)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._items: collections.deque[Any] = collections.deque()
+        self._waiters: collections.deque[Future] = collections.deque()
+
+    def put(self, item: Any) -> None:
+        with self._lock:
+            while self._waiters:
+                w = self._waiters.popleft()
+                if not w.done():
+                    w.set_result(item)
+                    return
+            self._items.append(item)
+
+    def get(self, timeout: float) -> Future:
+        fut: Future = Future()
+        with self._lock:
+            if self._items:
+                fut.set_result(self._items.popleft())
+                return fut
+            self._waiters.append(fut)
+
+        def expire() -> None:
+            with self._lock:
+                if fut in self._waiters:
+                    self._waiters.remove(fut)
+                    fut.set_result(None)
+
+        timer = threading.Timer(timeout, expire)
+        timer.daemon = True
+        timer.start()
+        fut.add_done_callback(lambda _: timer.cancel())
+        return fut
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+class CalibJobs:
+    """Job bookkeeping shared by the calib.* handlers.
+
+    States: ``queued`` → ``running`` ⇄ ``waiting`` (a prompt) → ``done`` | ``failed`` |
+    ``cancelled``. The last three are final: once a job has a result or an error, later
+    progress or prompt reports cannot move it back (a stale report is ignored), and only
+    ``calib.resume`` of a failed or cancelled job queues it again.
+    """
+
+    def __init__(self, publish: Callable[[str, Any], None], data_dir: Path | None = None) -> None:
+        self._publish = publish
+        self._data_dir = Path(data_dir) if data_dir is not None else None  # finds jobs of an earlier daemon run
+        self._queue = _Mailbox()
+        self._inboxes: dict[str, _Mailbox] = collections.defaultdict(_Mailbox)
+        self.jobs: dict[str, dict[str, Any]] = {}
+        self.worker_seen: float | None = None
+
+    def _job_id(self, req: Request) -> str:
+        job_id = req.args.get("job")
+        if not isinstance(job_id, str) or not JOB_ID.fullmatch(job_id):
+            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: 'job' must be a job id (letters, digits, . _ -), "
+                                                   f"got {job_id!r}")
+        return job_id
+
+    def _need_job(self, req: Request) -> dict[str, Any]:
+        job_id = self._job_id(req)
+        if job_id not in self.jobs:
+            raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: no calibration job {job_id!r} "
+                                                    f"(recent: {', '.join(list(self.jobs)[-5:]) or 'none'}; "
+                                                    f"`ritactl jobs` lists them)")
+        return self.jobs[job_id]
+
+    def _new_job(self, job_id: str, proc: str, params: dict[str, Any], by: str, state: str) -> dict[str, Any]:
+        job = {"job": job_id, "procedure": proc, "params": params, "state": state, "by": by,
+               "posted_ns": time.time_ns(), "progress": None, "result": None, "prompt": None, "error": None}
+        self.jobs[job_id] = job
+        return job
+
+    def _enqueue(self, job: dict[str, Any], step: str) -> dict[str, Any]:
+        job.update(state="queued", progress=None, result=None, prompt=None, error=None)
+        self._inboxes.pop(job["job"], None)  # a stale answer or cancel must not hit the new run
+        self._queue.put({k: job[k] for k in ("job", "procedure", "params")})
+        self._publish("calib.progress", {"job": job["job"], "step": step, "percent": 0.0,
+                                         "waiting_for": "the calibration worker"})
+        return {"job": job["job"], "worker_seen_s_ago": self._worker_age()}
+
+    # ---------------------------------------------------------------- operator side
+
+    def start(self, req: Request) -> Any:
+        proc = req.args.get("procedure")
+        if proc not in PROCEDURES:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.start: procedure {proc!r} is not one of {PROCEDURES}")
+        params = req.args.get("params", {})
+        if not isinstance(params, dict):
+            raise CommandError(ErrorCode.BAD_ARGS, "calib.start: 'params' must be a map")
+        if req.args.get("job") is None:
+            job_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{proc}-{uuid.uuid4().hex[:6]}"
+        else:
+            job_id = self._job_id(req)
+        if job_id in self.jobs:  # posting an existing id resumes it (as calib.resume does)
+            job = self._resumable(req.cmd, self.jobs[job_id])
+            if job["procedure"] != proc:
+                raise CommandError(ErrorCode.BAD_ARGS, f"calib.start: job {job_id!r} is a {job['procedure']} job, "
+                                                       f"not {proc}")
+            return self._enqueue(job, "queued (resumed)")
+        return self._enqueue(self._new_job(job_id, proc, params, req.peer, "queued"), "queued")
+
+    def resume(self, req: Request) -> Any:
+        """Queue a failed or cancelled job again; the worker continues from its checkpoint."""
+        job_id = self._job_id(req)
+        job = self.jobs.get(job_id) or self._from_disk(req.cmd, job_id)
+        return self._enqueue(self._resumable(req.cmd, job), "queued (resumed)")
+
+    @staticmethod
+    def _resumable(cmd: str, job: dict[str, Any]) -> dict[str, Any]:
+        state = job["state"]
+        if state == "done":
+            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is done; there is nothing to resume "
+                                                   f"(start a new job to measure again)")
+        if state not in RESUMABLE:
+            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is still {state}; `ritactl follow "
+                                                   f"{job['job']}` to watch it or `ritactl cancel {job['job']}`")
+        return job
+
+    def _from_disk(self, cmd: str, job_id: str) -> dict[str, Any]:
+        """A job this daemon has not seen: adopt it from its dataset's checkpoint, if there is one."""
+        path = None if self._data_dir is None else self._data_dir / "procedures" / job_id / "state.json"
+        try:
+            st = json.loads(path.read_text()) if path is not None else None
+        except (OSError, ValueError):
+            st = None
+        if not isinstance(st, dict) or st.get("procedure") not in PROCEDURES:
+            raise CommandError(ErrorCode.NOT_FOUND, f"{cmd}: no calibration job {job_id!r} "
+                                                    f"(recent: {', '.join(list(self.jobs)[-5:]) or 'none'})")
+        status = st.get("status")
+        state = status if status in FINAL_STATES else "failed"  # "running" on disk: its worker died
+        return self._new_job(job_id, st["procedure"], {}, "dataset on disk", state)
+
+    def answer(self, req: Request) -> Any:
+        job = self._need_job(req)
+        prompt = job.get("prompt")
+        if job["state"] != "waiting" or not isinstance(prompt, dict):
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: job {job['job']!r} is {job['state']} and is not "
+                                                   f"asking anything now")
+        answer = req.args.get("answer")
+        choices = [str(c) for c in prompt.get("choices") or ["ok"]]
+        if not isinstance(answer, str) or answer.strip() not in choices:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: answer {answer!r} is not one of the choices "
+                                                   f"{choices} (question: {prompt.get('question')})")
+        self._inboxes[job["job"]].put({"answer": answer.strip()})
+        job.update(prompt=None, state="running")
+        return {"delivered": True}
+
+    def cancel(self, req: Request) -> Any:
+        job = self._need_job(req)
+        if job["state"] in FINAL_STATES:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.cancel: job {job['job']!r} is already {job['state']}; "
+                                                   f"there is nothing to cancel")
+        self._inboxes[job["job"]].put({"cancel": True})
+        return {"cancel_requested": True, "state": job["state"]}
+
+    def list(self, req: Request) -> Any:
+        return {"jobs": list(self.jobs.values()), "queued": len(self._queue),
+                "worker_seen_s_ago": self._worker_age()}
+
+    def _worker_age(self) -> float | None:
+        return None if self.worker_seen is None else round(time.monotonic() - self.worker_seen, 1)
+
+    # ---------------------------------------------------------------- worker side
+
+    def next(self, req: Request) -> Any:
+        self.worker_seen = time.monotonic()
+        timeout = req.args.get("timeout_s", 10.0)
+        if not isinstance(timeout, (int, float)) or not 0 <= timeout <= 60:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.next: timeout_s={timeout!r} must be 0..60")
+        return self._queue.get(float(timeout))
+
+    def inbox(self, req: Request) -> Any:
+        self.worker_seen = time.monotonic()
+        job = self._need_job(req)
+        timeout = req.args.get("timeout_s", 0.0)
+        if not isinstance(timeout, (int, float)) or not 0 <= timeout <= 60:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.inbox: timeout_s={timeout!r} must be 0..60")
+        return self._inboxes[job["job"]].get(float(timeout))
+
+    def report(self, req: Request) -> Any:
+        self.worker_seen = time.monotonic()
+        kind = req.args.get("kind")
+        if kind not in REPORT_KINDS:
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.report: kind {kind!r} is not one of {REPORT_KINDS}")
+        job_id = self._job_id(req)  # it becomes a dict key, a name in messages and a folder name
+        data = req.args.get("data", {})
+        data = data if isinstance(data, dict) else {"data": data}
+        job = self.jobs.get(job_id)
+        if job is None:  # a job resumed by a restarted worker after a daemon restart: adopt it
+            proc = req.args.get("procedure")
+            job = self._new_job(job_id, proc if proc in PROCEDURES else "?", {}, "worker (resumed)", "running")
+        if job["state"] in FINAL_STATES:
+            log.info("job %s is %s: ignoring a late %s report", job_id, job["state"], kind)
+            return {"ok": True, "ignored": f"job {job_id} is already {job['state']}"}
+        if kind == "progress":
+            job.update(progress=data, state="running")
+            self._publish("calib.progress", {"job": job_id, **data})
+        elif kind == "prompt":
+            job.update(prompt=data, state="waiting")
+            self._publish("calib.prompt", {"job": job_id, **data})
+        else:
+            state = "done" if kind == "result" else ("cancelled" if data.get("cancelled") else "failed")
+            payload = {"job": job_id, **data, "state": state, **({"failed": True} if kind == "error" else {})}
+            job.update(state=state, result=payload, prompt=None,
+                       error=str(data.get("message", "failed")) if kind == "error" else None)
+            log.info("job %s %s", job_id, state)
+            self._publish("calib.result", payload)
+        return {"ok": True}
+
+    def handlers(self) -> dict[str, Callable[[Request], Any]]:
+        return {"calib.start": self.start, "calib.resume": self.resume, "calib.answer": self.answer,
+                "calib.cancel": self.cancel, "calib.jobs": self.list, "calib.next": self.next,
+                "calib.inbox": self.inbox, "calib.report": self.report}

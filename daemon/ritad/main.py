@@ -1,0 +1,384 @@
+"""ritad: the acquisition daemon (entry point and supervisor).
+
+Start-up order: load config → lock the runtime and data directories (one instance
+each) → (sim) build the world → bind the bus → start the device runners → READY=1.
+Devices connect in the background (their state is in ``daemon.health``), so a missing
+tracker never blocks the bus. The main thread is the supervisor: it publishes health
+every second, pings the systemd watchdog only while every owner thread is responsive
+(a device waiting to reconnect is), and shuts down on SIGTERM/SIGINT.
+"""
+from __future__ import annotations
+
+import argparse
+import enum
+import logging
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Callable
+
+import zmq
+
+try:  # the base install is the laptop client; the daemon needs the robot's packages
+    import numpy  # noqa: F401
+except ModuleNotFoundError as _exc:
+    sys.exit(f"ritad: the robot's packages are not installed (no module {_exc.name!r}): "
+             f"pip install 'rita[robot]' (docs/operations.md, Install)")
+
+from daemon import __version__  # noqa: E402
+from daemon.ritad import config as config_mod
+from daemon.ritad.calib_jobs import CalibJobs  # noqa: E402
+from daemon.ritad.commands import build_handlers, chain  # noqa: E402
+from daemon.ritad.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
+from daemon.ritad.logs import setup_logging  # noqa: E402
+from daemon.ritad.notify import Notifier  # noqa: E402
+from daemon.bus.protocol import SCHEMA_VERSION, CommandError, ErrorCode  # noqa: E402
+from daemon.ritad.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
+from daemon.ritad.registry import open_device  # noqa: E402
+from daemon.ritad.runner import DeviceRunner  # noqa: E402
+from daemon.ritad.server import CommandServer  # noqa: E402
+from drivers.base import Device, Frame  # noqa: E402
+
+log = logging.getLogger("ritad")
+KINDS = ("tracker", "robot", "camera")
+
+
+class RitadExit(enum.IntEnum):
+    """ritad's exit codes (docs/operations.md, "Exit codes (ritad)")."""
+
+    OK = 0  #: clean stop, or --check-config found the file valid
+    CANNOT_START = 1  #: a bind or the server key failed at start
+    CONFIG = 2  #: bad configuration (the message names the file and key); not worth a restart
+    ALREADY_RUNNING = 3  #: another ritad holds the runtime or data directory lock
+
+
+class Daemon:
+    """Everything ritad runs; ``start()`` binds and launches, ``stop()`` tears down."""
+
+    def __init__(self, cfg: config_mod.Config) -> None:
+        self.config = cfg
+        self.started = time.monotonic()
+        self.world = None
+        if cfg.uses_sim:
+            from fakes.world import World, WorldParams
+
+            self.world = World(WorldParams(seed=cfg.sim.seed, tracker_sigma_mm=cfg.sim.tracker_sigma_mm))
+            if cfg.devices.tracker.startswith("sim:"):
+                # the simulated tracker stands somewhere in the world: its frame → ACS is known
+                cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()
+        self.ctx = zmq.Context()
+        self.telemetry: TelemetryPublisher
+        self.frames: FramePublisher
+        self.server: CommandServer
+        self.runners: dict[str, DeviceRunner] = {}
+        self.security: Any = None
+        self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
+        self._motion_lock = threading.Lock()
+        self._motion_waiters: list[Future] = []
+        self.stop_event = threading.Event()
+        # data_dir lets calib.resume find jobs a previous ritad ran
+        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data),
+                               data_dir=Path(cfg.daemon.data_dir))
+        self.worker: subprocess.Popen | None = None
+        self._worker_next_start = 0.0
+
+    # ------------------------------------------------------------------ wiring
+
+    def emit(self, topic: str, payload: Any) -> None:
+        """The sink handed to every device (thread-safe, never blocks)."""
+        if isinstance(payload, Frame):
+            self.frames.publish(payload)
+            return
+        if topic == "robot.event" and isinstance(payload, dict) and payload.get("event") in ("DONE", "FAULT"):
+            with self._motion_lock:
+                waiters, self._motion_waiters = self._motion_waiters, []
+            for fut in waiters:
+                if payload.get("event") == "DONE":
+                    fut.set_result({"event": "DONE", **payload})
+                else:
+                    fut.set_exception(CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT: {payload}"))
+        self.telemetry.publish(topic, payload)
+
+    def _factory(self, kind: str) -> Callable[[], Device]:
+        url = getattr(self.config.devices, kind)
+        settings = self.config.camera if kind == "camera" else None
+        return lambda: open_device(kind, url, emit=self.emit, world=self.world, settings=settings)
+
+    def start(self) -> None:
+        cfg = self.config.daemon
+        data = Path(cfg.data_dir)
+        data.mkdir(parents=True, exist_ok=True)
+        if self.world is not None:  # the simulated world plays the installer (fakes/installer.py)
+            from fakes.installer import install
+
+            install(self.world, data, self.config.devices.camera)
+        if self.config.security.curve:
+            from daemon.bus.auth import Security
+
+            sec = self.config.security
+            auth_dir = Path(sec.authorized_keys_dir)
+            self.security = Security(data / "keys", auth_dir if auth_dir.is_absolute() else data / auth_dir)
+            self.security.start(self.ctx)  # ZAP first: a CURVE server without it accepts any key
+        s = self.security
+        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
+        self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes,
+                                    security=s)
+        for t in (self.telemetry, self.frames, self.server):
+            t.start()
+        for kind in KINDS:
+            runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
+                                  backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
+                                  heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s)
+            self.runners[kind] = runner
+            runner.start()
+
+    def _worker_cmd(self) -> list[str]:
+        ep = next((e for e in self.server.endpoints if e.startswith("ipc://")), self.server.endpoints[0])
+        return [sys.executable, "-m", "daemon.worker", "--endpoint", ep, "--parent-pid", str(os.getpid()),
+                "--data-dir", str(Path(self.config.daemon.data_dir).resolve())]
+
+    def tend_worker(self) -> None:
+        """Keep the calibration worker process running (restart it when it exits)."""
+        if not self.config.daemon.start_worker or self.stop_event.is_set():
+            return
+        if self.worker is not None and self.worker.poll() is None:
+            return
+        if time.monotonic() < self._worker_next_start:
+            return
+        self._worker_next_start = time.monotonic() + 5.0  # a worker that dies at once is retried slowly
+        if self.worker is not None:
+            log.warning("calibration worker exited with %s; restarting it", self.worker.returncode)
+        with open(Path(self.config.daemon.data_dir) / "worker.log", "ab") as log_file:  # the child keeps its copy
+            self.worker = subprocess.Popen(self._worker_cmd(), stdout=log_file, stderr=subprocess.STDOUT)
+
+    def stop(self) -> None:
+        if self.worker is not None and self.worker.poll() is None:
+            self.worker.terminate()
+            try:
+                self.worker.wait(3)
+            except subprocess.TimeoutExpired:
+                self.worker.kill()
+        for runner in self.runners.values():
+            runner.stop()
+        bound: list[str] = []
+        for t in (getattr(self, "server", None), getattr(self, "frames", None), getattr(self, "telemetry", None)):
+            if t is not None:
+                t.stop()
+                bound += t.endpoints
+        self.storage.shutdown(wait=True)
+        if self.security is not None:
+            self.security.stop()
+        self.ctx.term()  # every socket was closed by its owner with LINGER 0
+        remove_socket_files(bound)  # libzmq leaves them; we hold the directory lock, so they are ours
+
+    # ------------------------------------------------------------------ services for handlers
+
+    def job(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
+        return self.runners[kind].submit(fn, urgent=urgent, timeout=timeout)
+
+    def motion(self, fn: Callable[[Any], Any], wait: bool, timeout: float) -> Future:
+        """Start a robot motion; with ``wait`` complete on the controller's DONE/FAULT event."""
+        if not wait:
+            return chain(self.job("robot", fn), lambda _: {"started": True})
+        done: Future = Future()
+        with self._motion_lock:
+            self._motion_waiters.append(done)
+
+        def started(f: Future) -> None:
+            if f.exception() is not None and not done.done():
+                with self._motion_lock:
+                    if done in self._motion_waiters:
+                        self._motion_waiters.remove(done)
+                done.set_exception(f.exception())
+
+        def expire() -> None:
+            with self._motion_lock:
+                if done not in self._motion_waiters:
+                    return
+                self._motion_waiters.remove(done)
+            done.set_exception(CommandError(ErrorCode.TIMEOUT, f"robot motion not done after {timeout:.0f} s"))
+
+        self.job("robot", fn).add_done_callback(started)
+        timer = threading.Timer(timeout, expire)
+        timer.daemon = True
+        timer.start()
+        done.add_done_callback(lambda _: timer.cancel())
+        return done
+
+    def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
+        """Store a capture (called in the storage thread, never in a device or bus thread)."""
+        from daemon.bus.storage import save_capture
+
+        return save_capture(Path(self.config.daemon.data_dir), parts, label, dataset,
+                            meta={"daemon_version": __version__, "sim": self.world is not None,
+                                  "abs_H_trk": self.config.tracker.abs_H_trk})
+
+    def hello(self) -> dict[str, Any]:
+        return {"name": "ritad", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
+                "sim": self.world is not None, "command_endpoints": self.server.endpoints,
+                "telemetry_endpoints": self.telemetry.endpoints, "frame_endpoints": self.frames.endpoints,
+                "devices": {k: getattr(self.config.devices, k) for k in KINDS},
+                "curve_server_key": None if self.security is None else self.security.public.decode()}
+
+    def health(self) -> dict[str, Any]:
+        return {"uptime_s": round(time.monotonic() - self.started, 3), "version": __version__,
+                "devices": {k: r.snapshot() for k, r in self.runners.items()},
+                "telemetry": self.telemetry.counters(), "frames": self.frames.counters(),
+                "commands": {"requests": self.server.requests, "errors": self.server.errors,
+                             "pending": self.server.pending},
+                "worker": {"pid": None if self.worker is None else self.worker.pid,
+                           "seen_s_ago": self.calib._worker_age()},
+                "alive": self.alive()}
+
+    def alive(self) -> bool:
+        now = time.monotonic()
+        threads_ok = all(now - t.heartbeat < 5.0 and t.is_alive() for t in (self.server, self.telemetry, self.frames))
+        return threads_ok and all(r.alive() for r in self.runners.values())
+
+    # ------------------------------------------------------------------ supervisor
+
+    def supervise(self, notifier: Notifier) -> None:
+        interval = self.config.daemon.health_interval_s
+        wd = notifier.watchdog_interval
+        next_health = next_wd = time.monotonic()
+        last_status = ""
+        while not self.stop_event.is_set():
+            now = time.monotonic()
+            if now >= next_health:
+                self.tend_worker()
+                h = self.health()
+                self.telemetry.publish("daemon.health", h)
+                status = ", ".join(f"{k} {v['state']}" for k, v in h["devices"].items())
+                if status != last_status:
+                    notifier.status(status)
+                    last_status = status
+                next_health = now + interval
+            if wd is not None and now >= next_wd:
+                if self.alive():  # a hung owner thread stops the pings, so systemd restarts us
+                    notifier.watchdog()
+                else:
+                    log.error("watchdog withheld: an owner thread is not responding")
+                next_wd = now + wd
+            self.stop_event.wait(min(0.1, interval))
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="ritad", description="Rita acquisition daemon",
+                                 epilog="exit codes: 0 ok, 1 cannot start, 2 configuration or usage error, "
+                                        "3 another ritad runs in the same runtime or data directory")
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--config", help="TOML config file (see systemd/ritad.toml)")
+    src.add_argument("--sim", action="store_true", help="run on the simulated world (built-in config)")
+    src.add_argument("--check-config", metavar="FILE",
+                     help="validate FILE (keys, values, endpoints, device URL schemes) and exit; binds nothing, "
+                          "opens no device, safe beside a running ritad")
+    ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
+    ap.add_argument("--data-dir", help="override daemon.data_dir")
+    ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
+    ap.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+                    help="override daemon.log_level")
+    ap.add_argument("--version", action="version", version=f"ritad {__version__}")
+    return ap.parse_args(argv)
+
+
+def load_config(args: argparse.Namespace) -> config_mod.Config:
+    if args.sim:
+        runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
+        return config_mod.sim_config(runtime, args.data_dir, seed=args.seed)
+    cfg = config_mod.load(args.config or args.check_config)
+    if args.data_dir:
+        cfg.daemon.data_dir = args.data_dir
+    return cfg
+
+
+def check_config(cfg: config_mod.Config) -> int:
+    """``--check-config``: the file passed every check ritad makes before it binds."""
+    d = cfg.daemon
+    print(f"ritad: {cfg.source}: configuration OK")
+    for key in ("command_endpoints", "telemetry_endpoints", "frame_endpoints"):
+        print(f"  daemon.{key} = {getattr(d, key)}")
+    for kind in KINDS:
+        print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
+    print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
+    insecure = _insecure_tcp(cfg)
+    if insecure:
+        print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")
+    return RitadExit.OK
+
+
+def _insecure_tcp(cfg: config_mod.Config) -> list[str]:
+    if cfg.security.curve:
+        return []
+    d = cfg.daemon
+    return [e for e in d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints if e.startswith("tcp://")]
+
+
+def serve(daemon: Daemon, notifier: Notifier) -> int:
+    """Bind, run until SIGTERM/SIGINT, tear down."""
+    try:
+        daemon.start()
+    except (zmq.ZMQError, OSError, ValueError) as exc:
+        log.error("cannot start: %s", exc)  # on stderr (the journal) once: logging writes there
+        d = daemon.ritad.config.daemon
+        remove_socket_files(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)  # ours: we hold the lock
+        return RitadExit.CANNOT_START
+    from daemon.ritad.logs import BusLogHandler
+
+    logging.getLogger().addHandler(BusLogHandler(daemon.telemetry.publish))
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        # set the event from another thread: Event.set() in a handler that interrupts the main
+        # thread's own Event.wait() would deadlock on the Event's (non-reentrant) lock
+        signal.signal(sig, lambda *_: threading.Thread(target=daemon.stop_event.set, daemon=True).start())
+    eps = daemon.ritad.server.endpoints
+    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), daemon.ritad.config.source)
+    print(f"ritad ready: {' '.join(eps)}", flush=True)
+    notifier.ready(f"bus on {eps[0]}")
+    try:
+        daemon.supervise(notifier)
+    finally:
+        notifier.stopping()
+        log.info("stopping")
+        daemon.stop()
+        notifier.close()
+    log.info("stopped")
+    return RitadExit.OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        cfg = load_config(args)
+    except config_mod.ConfigError as exc:
+        print(f"ritad: configuration error: {exc}", file=sys.stderr)
+        return RitadExit.CONFIG
+    if args.check_config:
+        return check_config(cfg)
+    setup_logging(args.log_level or cfg.daemon.log_level)
+    lock = InstanceLock(lock_dirs(cfg))
+    try:
+        lock.acquire()  # before anything binds: a second ritad must not take the first one's ipc sockets
+    except AlreadyRunning as exc:
+        log.error("not started: %s", exc)
+        return RitadExit.ALREADY_RUNNING
+    except OSError as exc:
+        log.error("cannot start: lock: %s", exc)
+        return RitadExit.CANNOT_START
+    insecure = _insecure_tcp(cfg)
+    if insecure:
+        log.warning("insecure_tcp = true: %s accept any client without CURVE; anyone who reaches these ports "
+                    "can move the robot (docs/operations.md, Keys)", ", ".join(insecure))
+    try:
+        return serve(Daemon(cfg), Notifier())
+    finally:
+        lock.release()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""Telemetry and frame publishers: each PUB socket has its own owner thread.
+
+Producers (device runners, the server, the supervisor) call ``publish`` from any
+thread; it only appends to a bounded queue and never blocks. When a queue is full
+the message is dropped and counted, so a stalled publisher or subscriber can never
+stall acquisition. Telemetry keeps a last-value cache per topic with the sequence
+number, which the ``state`` command returns (Clone pattern: subscribe first, then
+fetch the snapshot, then drop updates with ``seq`` <= the snapshot's).
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import threading
+import time
+from typing import Any
+
+import zmq
+
+from daemon.bus.protocol import SCHEMA_VERSION, pack, telemetry
+from drivers.base import Frame
+
+log = logging.getLogger(__name__)
+
+
+def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Any = None,
+                 setup: Any = None) -> tuple[list[zmq.Socket], list[str]]:
+    """One socket for the plain endpoints and, with ``security``, one CURVE socket for the tcp ones.
+
+    The security mechanism is a property of a socket, so local ipc clients and remote
+    CURVE clients need separate sockets; the owner thread serves both.
+    """
+    from daemon.bus.auth import is_secure_endpoint
+
+    secure = [e for e in endpoints if security is not None and is_secure_endpoint(e)]
+    plain = [e for e in endpoints if e not in secure]
+    socks, bound = [], []
+    for group, secured in ((plain, False), (secure, True)):
+        if not group:
+            continue
+        sock = ctx.socket(kind)
+        sock.setsockopt(zmq.LINGER, 0)
+        if setup is not None:
+            setup(sock)
+        if secured:
+            security.apply(sock)
+        bound += bind_all(sock, group)
+        socks.append(sock)
+    return socks, bound
+
+
+def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
+    """Bind to every endpoint; return the endpoints actually bound (tcp port 0 resolved)."""
+    bound = []
+    for ep in endpoints:
+        if ep.startswith("ipc://"):
+            from pathlib import Path
+
+            Path(ep[len("ipc://"):]).parent.mkdir(parents=True, exist_ok=True)
+        sock.bind(ep)
+        bound.append(sock.getsockopt_string(zmq.LAST_ENDPOINT))
+    return bound
+
+
+class TelemetryPublisher(threading.Thread):
+    """Owner of the telemetry PUB socket."""
+
+    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 10000, queue_size: int = 20000,
+                 security: Any = None) -> None:
+        super().__init__(name="pub-telemetry", daemon=True)
+        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
+                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
+        self._q: queue.Queue[tuple[str, Any, int]] = queue.Queue(queue_size)
+        self._stop_evt = threading.Event()
+        self._lock = threading.Lock()
+        self.seq = 0
+        self.latest: dict[str, dict[str, Any]] = {}
+        self.sent = 0
+        self.dropped: collections.Counter[str] = collections.Counter()
+        self.heartbeat = time.monotonic()
+
+    def publish(self, topic: str, data: Any) -> None:
+        try:
+            self._q.put_nowait((topic, data, time.time_ns()))
+        except queue.Full:
+            self.dropped[topic] += 1
+
+    def snapshot(self) -> dict[str, Any]:
+        """Last value per topic and the sequence number they are current at."""
+        with self._lock:
+            return {"seq": self.seq, "latest": dict(self.latest)}
+
+    def counters(self) -> dict[str, Any]:
+        return {"sent": self.sent, "queued": self._q.qsize(), "dropped": dict(self.dropped)}
+
+    def run(self) -> None:
+        while not self._stop_evt.is_set():
+            self.heartbeat = time.monotonic()
+            try:
+                topic, data, t_ns = self._q.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            with self._lock:
+                self.seq += 1
+                seq = self.seq
+                self.latest[topic] = {"seq": seq, "t_ns": t_ns, "data": data}
+            try:
+                msg = [topic.encode(), telemetry(seq, t_ns, data)]
+            except (TypeError, ValueError) as exc:  # a payload msgpack cannot encode: a bug, not a crash
+                log.error("cannot publish %s: %s", topic, exc)
+                self.dropped[topic] += 1
+                continue
+            for sock in self.socks:
+                try:
+                    sock.send_multipart(msg, flags=zmq.NOBLOCK)
+                except zmq.Again:
+                    self.dropped[topic] += 1
+            self.sent += 1
+        for sock in self.socks:
+            sock.close(linger=0)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop_evt.set()
+        self.join(timeout)
+
+
+class FramePublisher(threading.Thread):
+    """Owner of the frame PUB socket: ``[topic, header, pixels]`` zero-copy, small HWM."""
+
+    def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4,
+                 security: Any = None) -> None:
+        super().__init__(name="pub-frames", daemon=True)
+        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
+                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
+        self._q: queue.Queue[Frame] = queue.Queue(queue_size)
+        self._stop_evt = threading.Event()
+        self.seq = 0
+        self.sent = 0
+        self.dropped = 0  # frames dropped before the socket (publisher could not keep up)
+        self.last_header: dict[str, Any] | None = None
+        self.heartbeat = time.monotonic()
+
+    def publish(self, frame: Frame) -> None:
+        try:
+            self._q.put_nowait(frame)
+        except queue.Full:
+            self.dropped += 1
+
+    def counters(self) -> dict[str, Any]:
+        return {"sent": self.sent, "dropped": self.dropped, "queued": self._q.qsize(), "seq": self.seq}
+
+    def run(self) -> None:
+        while not self._stop_evt.is_set():
+            self.heartbeat = time.monotonic()
+            try:
+                frame = self._q.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self.seq += 1
+            header = {"v": SCHEMA_VERSION, "seq": self.seq, "dropped": self.dropped,
+                      "publish_monotonic_ns": time.monotonic_ns(), **frame.header()}
+            pixels = frame.pixels if frame.pixels.flags.c_contiguous else frame.pixels.copy()
+            packed = pack(header)
+            for sock in self.socks:
+                try:
+                    # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
+                    sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
+                except zmq.Again:
+                    self.dropped += 1
+            self.sent += 1
+            self.last_header = header
+        for sock in self.socks:
+            sock.close(linger=0)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop_evt.set()
+        self.join(timeout)

@@ -1,0 +1,249 @@
+"""One owner thread per device: connection state machine, job queue, reconnect with backoff.
+
+The runner is the only thread that touches its adapter. Bus handlers submit jobs
+(``submit(fn)`` → Future); between jobs the runner calls ``device.pump`` so stream
+data and events flow. ``DeviceLost`` from any call closes the adapter and starts
+reconnecting with exponential backoff; the state (DISCONNECTED → CONNECTING →
+READY ⇄ BUSY, FAULT with the reason) is published on every change.
+
+Liveness (``alive()``, which gates the systemd watchdog) is the owner thread's own:
+it beats at least every ``BEAT_S`` while it waits in backoff, and a blocking call
+(a job, an ``open()``) counts as alive until that call's own time limit. So a
+switched-off device is a FAULT state, never a reason for systemd to restart ritad.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+import queue
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from daemon.bus.protocol import CommandError, ErrorCode
+from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceTimeout
+
+log = logging.getLogger(__name__)
+
+PUMP_S = 0.02  # how long pump may block: bounds job latency while idle
+BEAT_S = 0.5  # longest wait between heartbeats while the runner waits in backoff
+
+
+@dataclass(order=True)
+class _Job:
+    priority: int
+    seq: int
+    fn: Callable[[Device], Any] = field(compare=False)
+    future: Future = field(compare=False)
+    timeout: float = field(compare=False, default=60.0)
+
+
+class DeviceRunner(threading.Thread):
+    """Owns one device adapter for its whole life."""
+
+    def __init__(self, kind: str, factory: Callable[[], Device], publish: Callable[[str, Any], None],
+                 backoff_min: float = 0.5, backoff_max: float = 30.0, heartbeat_timeout: float = 10.0,
+                 open_timeout: float = 120.0) -> None:
+        super().__init__(name=f"device-{kind}", daemon=True)
+        self.kind = kind
+        self._factory = factory
+        self._publish = publish
+        self._jobs: queue.PriorityQueue[_Job] = queue.PriorityQueue()
+        self._seq = itertools.count()
+        self._stop_evt = threading.Event()
+        self.backoff_min, self.backoff_max = backoff_min, backoff_max
+        self.heartbeat_timeout, self.open_timeout = heartbeat_timeout, open_timeout
+        self.device: Device | None = None
+        self.state = DeviceState.DISCONNECTED
+        self.reason = ""
+        #: reconnect attempts: one per lost connection plus one per retry after a failed attempt
+        self.reconnects = 0
+        self._retrying = False
+        self.opens = 0
+        self.jobs_done = 0
+        self.jobs_failed = 0
+        self.info: dict[str, Any] = {}
+        self.heartbeat = time.monotonic()
+        #: end of the time limit of the blocking call in progress (job or open), else None
+        self._busy_deadline: float | None = None
+        self._last_fault = ""
+
+    # ------------------------------------------------------------------ API (any thread)
+
+    def submit(self, fn: Callable[[Device], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
+        """Queue ``fn(device)`` for the owner thread; urgent jobs (STOP) jump the queue."""
+        fut: Future = Future()
+        if self.state not in (DeviceState.READY, DeviceState.BUSY):
+            fut.set_exception(CommandError(
+                ErrorCode.NOT_READY, f"{self.kind} is {self.state.value}" + (f": {self.reason}" if self.reason else "")))
+            return fut
+        self._jobs.put(_Job(0 if urgent else 1, next(self._seq), fn, fut, timeout))
+        return fut
+
+    def alive(self, stale_after: float | None = None) -> bool:
+        """Heartbeat fresh (or in a job or open() within its own time limit)?"""
+        now = time.monotonic()
+        deadline = self._busy_deadline
+        if deadline is not None:
+            return now < deadline
+        limit = self.heartbeat_timeout if stale_after is None else stale_after
+        return self.is_alive() and now - self.heartbeat < limit
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"state": self.state.value, "reason": self.reason, "reconnects": self.reconnects,
+                "opens": self.opens, "jobs_done": self.jobs_done, "jobs_failed": self.jobs_failed,
+                "queued": self._jobs.qsize(), "heartbeat_age_s": round(time.monotonic() - self.heartbeat, 3),
+                "info": self.info}
+
+    def stop(self, timeout: float = 3.0) -> None:
+        self._stop_evt.set()
+        self.join(timeout)
+
+    # ------------------------------------------------------------------ owner thread
+
+    def _set_state(self, state: DeviceState, reason: str = "") -> None:
+        if state is self.state and reason == self.reason:
+            return
+        self.state, self.reason = state, reason
+        if state in (DeviceState.FAULT, DeviceState.DISCONNECTED) and reason and not self._stop_evt.is_set():
+            # warn once per distinct reason; retries with the same failure stay at debug level
+            level = logging.WARNING if reason != self._last_fault else logging.DEBUG
+            self._last_fault = reason
+            log.log(level, "%s %s: %s", self.kind, state.value, reason)
+        else:
+            if state is DeviceState.READY:
+                self._last_fault = ""
+            log.debug("%s %s", self.kind, state.value)
+        self._publish("daemon.state", {"device": self.kind, "state": state.value, "reason": reason,
+                                       "reconnects": self.reconnects})
+
+    def _fail_queued(self, why: str) -> None:
+        while True:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                return
+            if not job.future.done():
+                job.future.set_exception(CommandError(ErrorCode.NOT_READY, f"{self.kind}: {why}"))
+
+    def _close(self) -> None:
+        if self.device is not None:
+            try:
+                self.device.close()
+            except Exception:  # close must not take the runner down
+                log.exception("%s: close failed", self.kind)
+
+    def _connect(self) -> bool:
+        if self._retrying:
+            self.reconnects += 1
+        self._set_state(DeviceState.CONNECTING)
+        self._busy_deadline = time.monotonic() + self.open_timeout  # open() blocks: it has its own limit
+        try:
+            if self.device is None:
+                self.device = self._factory()
+            self.device.open()
+        except Exception as exc:
+            self._close()
+            self._retrying = True
+            self._set_state(DeviceState.FAULT, f"{type(exc).__name__}: {exc}")
+            return False
+        finally:
+            self._busy_deadline = None
+            self.heartbeat = time.monotonic()
+        self.opens += 1
+        self._retrying = False
+        log.info("%s connected (%s)", self.kind, self.device.url.raw)
+        try:
+            self.info = self.device.info()
+        except Exception as exc:
+            self.info = {"error": str(exc)}
+        self._set_state(DeviceState.READY)
+        return True
+
+    def _lost(self, exc: BaseException) -> None:
+        self._close()
+        self.reconnects += 1
+        self._set_state(DeviceState.DISCONNECTED, f"connection lost: {exc}")
+        self._fail_queued(f"connection lost: {exc}")
+
+    def _run_job(self, job: _Job) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        self._set_state(DeviceState.BUSY)
+        self._busy_deadline = time.monotonic() + job.timeout + 5.0
+        try:
+            result = job.fn(self.device)
+        except DeviceLost as exc:
+            self.jobs_failed += 1
+            job.future.set_exception(CommandError(ErrorCode.DEVICE_LOST, f"{self.kind}: {exc}"))
+            self._busy_deadline = None
+            self._lost(exc)
+            return
+        except DeviceTimeout as exc:
+            self.jobs_failed += 1
+            job.future.set_exception(CommandError(ErrorCode.TIMEOUT, f"{self.kind}: {exc}"))
+        except DeviceError as exc:
+            self.jobs_failed += 1
+            job.future.set_exception(CommandError(exc.code, f"{self.kind}: {exc}"))
+        except CommandError as exc:
+            self.jobs_failed += 1
+            job.future.set_exception(exc)
+        except ValueError as exc:  # adapters refuse bad arguments with a ValueError naming the value
+            self.jobs_failed += 1
+            job.future.set_exception(CommandError(ErrorCode.BAD_ARGS, f"{self.kind}: {exc}"))
+        except Exception as exc:
+            self.jobs_failed += 1
+            log.exception("%s: job failed", self.kind)
+            job.future.set_exception(CommandError(ErrorCode.INTERNAL, f"{self.kind}: {type(exc).__name__}: {exc}"))
+        else:
+            self.jobs_done += 1
+            job.future.set_result(result)
+        self._busy_deadline = None
+        self._set_state(DeviceState.READY)
+
+    def _backoff(self, seconds: float) -> None:
+        """Wait before the next connect attempt, beating so the watchdog sees a responsive thread."""
+        end = time.monotonic() + seconds
+        while not self._stop_evt.is_set():
+            self.heartbeat = now = time.monotonic()
+            if now >= end:
+                return
+            self._stop_evt.wait(min(BEAT_S, end - now))
+
+    def run(self) -> None:
+        backoff = self.backoff_min
+        while not self._stop_evt.is_set():
+            self.heartbeat = time.monotonic()
+            if self.state not in (DeviceState.READY, DeviceState.BUSY):
+                if self._connect():
+                    backoff = self.backoff_min
+                    continue
+                self._fail_queued(self.reason)
+                self._backoff(backoff)
+                backoff = min(backoff * 2, self.backoff_max)
+                continue
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                job = None
+            if job is not None:
+                self._run_job(job)
+                continue
+            try:
+                self.device.pump(PUMP_S)  # type: ignore[union-attr]
+            except DeviceLost as exc:
+                self._lost(exc)
+            except Exception as exc:  # a pump bug must not kill the owner thread
+                log.exception("%s: pump failed", self.kind)
+                self._lost(exc)
+        self._fail_queued("daemon stopping")
+        self._close()
+        shutdown = getattr(self.device, "shutdown", None)  # simulated devices also stop their fake peer
+        if callable(shutdown):
+            try:
+                shutdown()
+            except Exception:
+                log.exception("%s: shutdown failed", self.kind)
+        self._set_state(DeviceState.DISCONNECTED, "stopped")

@@ -1,0 +1,202 @@
+"""Command server: the ROUTER socket and its owner thread.
+
+Requests are decoded and validated here; every request gets exactly one reply,
+``ok`` + result or an error with a stable code, whatever the input was. Handlers
+either return a result at once or a ``Future`` (device jobs); completed futures are
+handed back to this thread through a pipe that wakes the poller, so the ROUTER is
+only ever touched by its owner.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import zmq
+
+from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
+                             parse_request)
+from daemon.ritad.publisher import open_sockets
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Reply:
+    """A handler result with raw binary attachments sent as extra frames (e.g. pixels)."""
+
+    result: Any
+    attachments: list[Any] = field(default_factory=list)
+
+
+@dataclass
+class Request:
+    """What a handler sees of the request."""
+
+    id: Any
+    cmd: str
+    args: dict[str, Any]
+    peer: str  # client key id (CURVE) or a short routing-id hex
+
+
+Handler = Callable[[Request], Any]
+
+
+class CommandServer(threading.Thread):
+    """Owner of the ROUTER socket."""
+
+    def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
+                 max_message_bytes: int = 1 << 20, security: Any = None) -> None:
+        super().__init__(name="cmd-server", daemon=True)
+        self.handlers = handlers
+        self.max_bytes = max_message_bytes
+
+        def setup(sock: zmq.Socket) -> None:
+            sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
+            # hard guard against memory abuse; our own check below answers politely first
+            sock.setsockopt(zmq.MAXMSGSIZE, max(4 * max_message_bytes, 1 << 22))
+            sock.setsockopt(zmq.HEARTBEAT_IVL, 2000)
+            sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 6000)
+
+        self.socks, self.endpoints = open_sockets(ctx, zmq.ROUTER, endpoints, security, setup)
+        self._done: queue.Queue[tuple[tuple[zmq.Socket, list[bytes]], Any, str, Future]] = queue.Queue()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._stop_evt = threading.Event()
+        self.requests = 0
+        self.errors = 0
+        self.pending = 0
+        self.heartbeat = time.monotonic()
+
+    # ------------------------------------------------------------------ helpers
+
+    def _send(self, envelope: tuple[zmq.Socket, list[bytes]], payload: bytes,
+              attachments: list[Any] | None = None) -> None:
+        sock, route = envelope
+        frames = [*route, payload, *(attachments or [])]
+        try:
+            sock.send_multipart(frames, copy=not attachments)
+        except zmq.ZMQError as exc:  # EHOSTUNREACH: the client went away; nothing to do
+            log.info("reply to a vanished client dropped: %s", exc)
+
+    def _reply(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, result: Any) -> None:
+        if isinstance(result, Reply):
+            self._send(envelope, ok_reply(req_id, result.result), result.attachments)
+        else:
+            self._send(envelope, ok_reply(req_id, result))
+
+    def _error(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, code: str, message: str,
+               cmd: str = "") -> None:
+        self.errors += 1
+        log.info("command %s failed: [%s] %s", cmd or "?", code, message)
+        self._send(envelope, error_reply(req_id, code, message))
+
+    @staticmethod
+    def _peer(frames: list[zmq.Frame]) -> str:
+        try:
+            user = frames[-1].get("User-Id")
+        except (zmq.ZMQError, AttributeError):
+            user = None
+        return user or f"peer-{bytes(frames[0].bytes).hex()[:10]}"
+
+    # ------------------------------------------------------------------ owner thread
+
+    def _on_request(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> None:
+        self.requests += 1
+        envelope = (sock, [f.bytes for f in frames[:-1]])
+        body = frames[-1]
+        if len(frames) < 2:
+            return  # no routing id: nothing we could answer
+        req_id: Any = None
+        if len(body) > self.max_bytes:
+            self._error(envelope, None, ErrorCode.TOO_LARGE,
+                        f"request of {len(body)} bytes exceeds the {self.max_bytes}-byte limit")
+            return
+        try:
+            msg = parse_request(body.buffer)
+        except ProtocolError as exc:
+            self._error(envelope, None, exc.code, str(exc))
+            return
+        req_id, cmd = msg["id"], msg["cmd"]
+        handler = self.handlers.get(cmd)
+        if handler is None:
+            self._error(envelope, req_id, ErrorCode.UNKNOWN_COMMAND,
+                        f"unknown command {cmd!r}; 'help' lists the commands", cmd)
+            return
+        request = Request(req_id, cmd, msg["args"], self._peer(frames))
+        if cmd not in ("ping", "state", "status", "health"):
+            log.info("command %s id=%s from %s", cmd, req_id, request.peer)
+        try:
+            result = handler(request)
+        except CommandError as exc:
+            self._error(envelope, req_id, exc.code, exc.args[0], cmd)
+            return
+        except Exception as exc:
+            log.exception("handler %s crashed", cmd)
+            self._error(envelope, req_id, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}", cmd)
+            return
+        if isinstance(result, Future):
+            self.pending += 1
+            result.add_done_callback(lambda f, e=envelope, i=req_id, c=cmd: self._complete(e, i, c, f))
+        else:
+            self._reply(envelope, req_id, cmd, result)
+
+    def _complete(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, fut: Future) -> None:
+        """Called in whatever thread finished the future: hand it to the owner thread."""
+        self._done.put((envelope, req_id, cmd, fut))
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+
+    def _drain_done(self) -> None:
+        try:
+            os.read(self._wake_r, 4096)
+        except BlockingIOError:
+            pass
+        while True:
+            try:
+                envelope, req_id, cmd, fut = self._done.get_nowait()
+            except queue.Empty:
+                return
+            self.pending -= 1
+            exc = fut.exception()
+            if exc is None:
+                self._reply(envelope, req_id, cmd, fut.result())
+            elif isinstance(exc, CommandError):
+                self._error(envelope, req_id, exc.code, exc.args[0], cmd)
+            else:
+                self._error(envelope, req_id, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}", cmd)
+
+    def run(self) -> None:
+        poller = zmq.Poller()
+        for sock in self.socks:
+            poller.register(sock, zmq.POLLIN)
+        poller.register(self._wake_r, zmq.POLLIN)
+        while not self._stop_evt.is_set():
+            self.heartbeat = time.monotonic()
+            events = dict(poller.poll(200))
+            if self._wake_r in events:
+                self._drain_done()
+            for sock in self.socks:
+                if sock not in events:
+                    continue
+                for _ in range(100):  # bounded batch so completions are not starved
+                    try:
+                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                    except zmq.Again:
+                        break
+                    self._on_request(sock, frames)
+        for sock in self.socks:
+            sock.close(linger=0)
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop_evt.set()
+        self.join(timeout)

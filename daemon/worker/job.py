@@ -1,0 +1,143 @@
+"""One running procedure: its dataset folder, its checkpointed state, and its bus conversation.
+
+The state (``state.json``) holds the parameters, the observations gathered so far
+and the names of completed steps; it is rewritten atomically after every step, so a
+worker killed at any moment resumes where it stopped without re-measuring what is
+already stored. Images go next to it as lossless PNG with a JSON sidecar.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calibration import __version__
+from daemon.bus.client import Client
+from daemon.bus.protocol import CommandError
+from daemon.bus.storage import Dataset, atomic_write_json
+
+log = logging.getLogger("daemon.worker")
+
+
+class Cancelled(Exception):
+    """The operator cancelled the job."""
+
+
+class StepFailed(Exception):
+    """A step failed for a reason the operator can act on; ``resumable`` says whether a resume can help."""
+
+    def __init__(self, message: str, resumable: bool = True) -> None:
+        super().__init__(message)
+        self.resumable = resumable
+
+
+class JobContext:
+    """Bus access, progress reporting and persistence for one job."""
+
+    def __init__(self, client: Client, job: dict[str, Any], data_dir: Path) -> None:
+        self.client = client
+        self.job_id: str = job["job"]
+        self.procedure: str = job["procedure"]
+        self.data_dir = Path(data_dir)
+        self.root = self.data_dir / "procedures" / self.job_id
+        self.state_path = self.root / "state.json"
+        if self.state_path.exists():
+            self.state = json.loads(self.state_path.read_text())
+            self.resumed = True
+        else:
+            self.state = {"schema": 1, "job": self.job_id, "procedure": self.procedure,
+                          "params": job.get("params", {}), "status": "running", "done": [], "obs": {},
+                          "started_ns": time.time_ns(), "software": __version__}
+            self.resumed = False
+        self.step = "start"  # the step in progress, named in a failure message
+        self.dataset = Dataset(self.root, kind=f"procedure:{self.procedure}",
+                               meta={"job": self.job_id, "params": self.state["params"], "software": __version__})
+        self.checkpoint()
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return self.state["params"]
+
+    @property
+    def obs(self) -> dict[str, Any]:
+        return self.state["obs"]
+
+    def done(self, step: str) -> bool:
+        return step in self.state["done"]
+
+    def mark_done(self, step: str) -> None:
+        self.state["done"].append(step)
+        self.checkpoint()
+
+    def checkpoint(self) -> None:
+        atomic_write_json(self.state_path, self.state)
+
+    def finish(self, status: str) -> None:
+        self.state["status"] = status
+        self.state["finished_ns"] = time.time_ns()
+        self.checkpoint()
+
+    # ------------------------------------------------------------------ bus
+
+    def call(self, cmd: str, timeout: float = 120.0, **args: Any) -> Any:
+        self.check_cancel()
+        return self.client.call(cmd, timeout=timeout, **args)
+
+    def report(self, kind: str, data: dict[str, Any]) -> None:
+        try:
+            self.client.call("calib.report", timeout=10, job=self.job_id, kind=kind, procedure=self.procedure,
+                             data=data)
+        except CommandError as exc:  # progress is best effort; the procedure goes on
+            log.warning("could not report %s: %s", kind, exc)
+
+    def progress(self, step: str, percent: float, waiting_for: str = "", **extra: Any) -> None:
+        self.step = step
+        log.info("[%s] %5.1f%% %s %s", self.job_id, percent, step, waiting_for)
+        self.report("progress", {"step": step, "percent": round(percent, 1), "waiting_for": waiting_for, **extra})
+
+    def check_cancel(self) -> None:
+        msg = self.client.call("calib.inbox", timeout=10, job=self.job_id, timeout_s=0)
+        if msg and msg.get("cancel"):
+            raise Cancelled(f"job {self.job_id} cancelled by the operator")
+
+    def ask(self, question: str, choices: list[str] | None = None, timeout_s: float = 3600.0) -> str:
+        """Prompt the operator (calib.prompt) and wait for ``calib.answer``."""
+        self.report("prompt", {"question": question, "choices": choices or ["ok"]})
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            msg = self.client.call("calib.inbox", timeout=40, job=self.job_id, timeout_s=30)
+            if not msg:
+                continue
+            if msg.get("cancel"):
+                raise Cancelled(f"job {self.job_id} cancelled by the operator")
+            answer = str(msg.get("answer", ""))
+            if choices and answer not in choices:
+                self.report("prompt", {"question": f"please answer one of {choices}: {question}",
+                                       "choices": choices})
+                continue
+            return answer
+        raise TimeoutError(f"no answer to {question!r} within {timeout_s:.0f} s")
+
+    # ------------------------------------------------------------------ data
+
+    def capture_image(self, name: str) -> tuple[str, dict[str, Any], np.ndarray]:
+        """Software-trigger one frame, store it losslessly; returns (file, header, pixels)."""
+        result, extra = self.client.call_raw("camera.capture", {"pixels": True, "save": False}, timeout=60)
+        h = result["header"]
+        pixels = np.frombuffer(extra[0].buffer, dtype=np.dtype(h["dtype"])).reshape(h["shape"]).copy()
+        self.dataset.add_entry(name, {"camera": h, "job": self.job_id}, image=pixels)
+        return f"{name}.png", h, pixels
+
+    def load_image(self, file: str) -> np.ndarray:
+        import cv2
+
+        img = cv2.imread(str(self.root / file), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise FileNotFoundError(f"{self.root / file}: missing or unreadable image")
+        return img

@@ -1,0 +1,250 @@
+"""The guided procedures as resumable step sequences.
+
+Every step first checks ``ctx.done(step)``: a resumed job skips what it already
+measured. Steps gather raw observations into ``ctx.obs``; the result is always
+computed from those stored observations by :mod:`daemon.worker.compute`, the
+same code ``ritactl recompute`` runs.
+"""
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from calibration.plate import NEST_NAMES, Plate
+from daemon.worker.compute import footprint_abs
+from daemon.worker.job import JobContext, StepFailed
+from daemon.worker.nav import Navigator
+from daemon.bus.protocol import CommandError
+
+#: default parameters (mm, degrees)
+DEFAULTS = {"distance_mm": 200.0, "sigma_t_mm": 0.010, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
+            "offset_mm": 3.0, "seed": 1, "kind": "dot", "views": 6}
+
+
+def param(ctx: JobContext, key: str) -> Any:
+    return ctx.params.get(key, DEFAULTS.get(key))
+
+
+def _measure_reflector(ctx: JobContext, name: str, approx_trk: list[float] | None, pct: float) -> dict[str, Any]:
+    """Aim + find + measure; when the tracker cannot find it, ask the operator to help."""
+    ctx.progress(f"measure {name}", pct, f"tracker: find the reflector at {name}")
+    if approx_trk is not None:
+        try:
+            ctx.call("tracker.aim", timeout=60, x=approx_trk[0], y=approx_trk[1], z=approx_trk[2])
+            ctx.call("tracker.find", timeout=60)
+            return ctx.call("tracker.measure", timeout=60)
+        except CommandError as exc:
+            reason = f"the tracker could not find it ({exc.args[0]})"
+    else:
+        reason = "no approximate position is known"
+    where = f"in the {name} nest" if name in NEST_NAMES else "on the robot"
+    ctx.ask(f"{reason}: put the reflector {where}, lock the tracker onto it, then answer 'ok'", ["ok"])
+    return ctx.call("tracker.measure", timeout=60)
+
+
+def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) -> None:
+    """Image + P0 at one standstill, drive d straight, P1 (paper: Robot pose estimation)."""
+    runs = ctx.obs.setdefault("runs", [])
+    if not ctx.done(f"{tag}.image"):
+        ctx.progress(f"{tag}: image and P0", base_pct, "camera + tracker at standstill")
+        file, header, _ = ctx.capture_image(f"{tag}-p0")
+        P0 = ctx.call("tracker.measure", timeout=60)
+        robot = ctx.call("robot.status")
+        runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot})
+        ctx.mark_done(f"{tag}.image")
+    run = next(r for r in runs if r["tag"] == tag)
+    if not ctx.done(f"{tag}.drive"):
+        ctx.progress(f"{tag}: drive {param(ctx, 'distance_mm'):.0f} mm", base_pct + 10, "robot moving")
+        if not run.get("drive_started"):
+            run["drive_started"] = True  # never drive twice after a crash mid-move
+            ctx.checkpoint()
+            nav.move(param(ctx, "distance_mm"))
+        ctx.mark_done(f"{tag}.drive")
+    if not ctx.done(f"{tag}.P1"):
+        run["P1"] = ctx.call("tracker.measure", timeout=60)
+        v = np.asarray(run["P1"]["abs_xyz"]) - np.asarray(run["P0"]["abs_xyz"])
+        nav.nav["heading_deg"] = math.degrees(math.atan2(v[1], v[0]))
+        ctx.mark_done(f"{tag}.P1")
+
+
+def referencing(ctx: JobContext) -> None:
+    """Nests, robot on the plate (image + P0), drive, P1; optional 180° reversal run."""
+    from daemon.worker.compute import compute_referencing
+
+    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
+    for key in ("plate", "camera_model"):
+        if key not in ctx.obs:
+            ctx.obs[key] = ctx.params.get(key) or _installed(ctx, f"{key}.json")
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    nests = ctx.obs.setdefault("nests", {})
+    approx = ctx.params.get("nests_approx_trk", {})
+    for i, name in enumerate(NEST_NAMES):
+        if name not in nests:
+            nests[name] = _measure_reflector(ctx, name, approx.get(name), 5 + 10 * i)
+            ctx.checkpoint()
+    if not ctx.done("lock_robot"):
+        _measure_reflector(ctx, "robot", ctx.params.get("robot_approx_trk"), 35)
+        ctx.mark_done("lock_robot")
+    _on_plate_run(ctx, nav, "run0", 40)
+    if ctx.params.get("reversal"):
+        if not ctx.done("reverse"):
+            ctx.progress("reversal: turn the robot 180° on the plate", 60, "robot moving")
+            first = compute_referencing({**ctx.obs, "runs": ctx.obs["runs"][:1]}, ctx.load_image)
+            run0 = ctx.obs["runs"][0]
+            P0 = np.asarray(run0["P0"]["abs_xyz"])
+            abs_H_rob0 = np.array(first["runs"][0]["abs_H_rob"])
+            foot = footprint_abs(first, abs_H_rob0)
+            heading = math.degrees(math.atan2(abs_H_rob0[1, 0], abs_H_rob0[0, 0])) + 180.0
+            # the reflector spot that puts the same footprint on the target at the reversed
+            # heading: the horizontal reflector→footprint offset turns by 180°
+            target = 2 * foot[:2] - P0[:2]
+            nav.approach(target, heading, param(ctx, "distance_mm"))
+            ctx.mark_done("reverse")
+        _on_plate_run(ctx, nav, "run1", 70)
+    ctx.progress("compute rob_H_cam", 90, "")
+
+
+def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray, heading: float,
+                 offset: np.ndarray, calib: dict[str, Any]) -> dict[str, Any]:
+    """Approach so the mark falls near the image centre (+ offset), then image + positions."""
+    abs_H_rob_now = np.eye(4)
+    abs_H_rob_now[:3, :3] = np.array([[math.cos(math.radians(heading)), -math.sin(math.radians(heading)), 0],
+                                      [math.sin(math.radians(heading)), math.cos(math.radians(heading)), 0],
+                                      [0, 0, 1.0]])
+    foot = footprint_abs(calib, abs_H_rob_now)[:2]  # footprint relative to the reflector at this heading
+    target = np.asarray(mark_xy, float) - foot - offset
+    nav.approach(target, heading, param(ctx, "distance_mm"))
+    P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
+    file, header, _ = ctx.capture_image(name)
+    robot = ctx.call("robot.status")
+    return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
+            "offset_mm": offset.tolist()}
+
+
+def _installed(ctx: JobContext, name: str) -> dict[str, Any]:
+    """A definition file installed on the robot (data_dir/calibration/NAME)."""
+    path = ctx.data_dir / "calibration" / name
+    if not path.exists():
+        raise ValueError(f"{path} does not exist: pass it with the command (e.g. ritactl calibrate --plate FILE) "
+                         f"or install it there")
+    return json.loads(path.read_text())
+
+
+def _calibration(ctx: JobContext) -> dict[str, Any]:
+    if "calibration" not in ctx.obs:
+        calib = ctx.params.get("calibration") or _installed(ctx, "active.json")
+        ctx.obs["calibration"] = calib
+        ctx.checkpoint()
+    return ctx.obs["calibration"]
+
+
+def _mark_xy(ctx: JobContext) -> np.ndarray:
+    mark = ctx.params.get("mark_xy")
+    if mark is None or len(mark) != 2:
+        raise ValueError(f"params.mark_xy must be the approximate ACS x, y of the mark (mm), got {mark!r}")
+    return np.asarray(mark, float)
+
+
+def measure_mark(ctx: JobContext) -> None:
+    calib = _calibration(ctx)
+    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
+    ctx.obs.setdefault("kind", param(ctx, "kind"))
+    ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    if not ctx.done("stop"):
+        ctx.progress("approach the mark", 20, "robot moving")
+        heading = float(ctx.params.get("heading_deg", nav.heading))
+        ctx.obs["stop"] = measure_stop(ctx, nav, "stop", _mark_xy(ctx), heading, np.zeros(2), calib)
+        ctx.mark_done("stop")
+    ctx.progress("compute the mark position", 90, "")
+
+
+def experiment(ctx: JobContext) -> None:
+    """The paper's validation: N repetitions from each of K equidistant headings."""
+    calib = _calibration(ctx)
+    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
+    ctx.obs.setdefault("kind", param(ctx, "kind"))
+    ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
+    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    k_dirs, reps = int(param(ctx, "directions")), int(param(ctx, "repetitions"))
+    rng = np.random.default_rng(int(param(ctx, "seed")))
+    plan = [(k, r, rng.uniform(-1, 1, 2) * param(ctx, "offset_mm"), rng.normal(0, 0.5))
+            for r in range(reps) for k in range(k_dirs)]
+    psi0 = float(ctx.params.get("psi0_deg", 0.0))
+    stops = ctx.obs.setdefault("stops", [])
+    mark = _mark_xy(ctx)
+    for j, (k, r, offset, jitter) in enumerate(plan):
+        name = f"stop-{j:03d}-k{k}-r{r}"
+        if ctx.done(name):
+            continue
+        heading = psi0 + k * 360.0 / k_dirs + jitter
+        ctx.progress(f"direction {k + 1}/{k_dirs}, repetition {r + 1}/{reps}", 5 + 85 * j / len(plan),
+                     "robot approaching the mark")
+        stop = measure_stop(ctx, nav, name, mark, heading, offset, calib)
+        stops.append({**stop, "k": k, "rep": r})
+        ctx.mark_done(name)
+    ctx.progress("compute the metrics", 92, "")
+
+
+#: corners a view needs to count for the intrinsics (calibrate_intrinsics' default)
+MIN_VIEW_CORNERS = 30
+
+
+def _intrinsics_view(ctx: JobContext, name: str, plate: Any) -> dict[str, Any]:
+    """Capture one view and check the target is in it, so a bad view fails its own step.
+
+    A view without the target would only fail the final calculation, and a resume would
+    then skip every (stored) view and fail the same way; failing here leaves the step
+    undone, and a resume re-takes just that view, under a new file name (nothing is
+    overwritten).
+    """
+    from calibration.target import detect_corners
+
+    tries = int(ctx.state.get(f"{name}.tries", 0))
+    ctx.state[f"{name}.tries"] = tries + 1
+    file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
+    ids, _ = detect_corners(pixels, plate)
+    if len(ids) < MIN_VIEW_CORNERS:
+        ctx.checkpoint()
+        raise StepFailed(f"the target is not in view in {file} ({len(ids)} corners < {MIN_VIEW_CORNERS}): put the "
+                         f"robot on the plate with the target under the camera")
+    return {"image": file, "header": header, "n_corners": int(len(ids))}
+
+
+def intrinsics(ctx: JobContext) -> None:
+    """Several views of the plate target from slightly different robot poses."""
+    if "plate" not in ctx.obs:
+        ctx.obs["plate"] = ctx.params.get("plate") or _installed(ctx, "plate.json")
+        ctx.obs["initial_model"] = ctx.params.get("camera_model")
+    plate = Plate.from_dict(ctx.obs["plate"], source="plate file")
+    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
+    views = ctx.obs.setdefault("views", [])
+    n = int(param(ctx, "views"))
+    # small moves and turns keep the target in view while varying where it falls in the image
+    moves = [(0.0, 0.0), (8.0, 4.0), (-16.0, -8.0), (8.0, 8.0), (6.0, -6.0), (-12.0, 3.0), (6.0, -5.0), (4.0, 6.0)]
+    for j in range(n):
+        name = f"view-{j:02d}"
+        if ctx.done(name):
+            continue
+        ctx.progress(f"view {j + 1}/{n}", 5 + 85 * j / n, "robot moving")
+        dist, ang = moves[j % len(moves)]
+        if j and not ctx.state.get(f"{name}.moved"):
+            ctx.state[f"{name}.moved"] = True  # a worker killed mid-move must not move twice
+            ctx.checkpoint()
+            try:
+                nav.turn(ang)
+                nav.move(dist)
+            except CommandError:
+                ctx.state.pop(f"{name}.moved")  # the base refused or stopped: a resume moves again
+                ctx.checkpoint()
+                raise
+        views.append(_intrinsics_view(ctx, name, plate))
+        ctx.mark_done(name)
+    ctx.progress("calibrate the camera", 92, "")
+
+
+PROCEDURES = {"referencing": referencing, "measure-mark": measure_mark, "experiment": experiment,
+              "intrinsics": intrinsics}
