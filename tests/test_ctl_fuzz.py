@@ -33,8 +33,9 @@ CASE_S = 30.0  # no case may take longer (a hang is a finding, not a stuck test 
 DOCUMENTED = {int(e) for e in Exit}
 PROCEDURE_VERBS = {"calibrate", "intrinsics", "measure-mark", "experiment"}
 JOB_VERBS = {"follow", "resume", "answer", "cancel"}
-# offline verbs that report their own errors as text even with --json (ctl_keys.py, ctl_datasets.py): TODO there
-OWN_ERROR_TEXT = {"keys", "recompute", "validate"}
+# verbs whose --json output is not the error object: validate prints its problem report (a JSON
+# document, docs/datasets.md); keys reports its errors as text (daemon/ctl/keys.py)
+OWN_ERROR_TEXT = {"keys", "validate"}
 # the ended jobs follow may see: no case may post them again (calibrate --job, call calib.start)
 ENDED = ("fz-done", "fz-failed")
 # bus commands `call` may send: no motion, no long poll that would hold the reply

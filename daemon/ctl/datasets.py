@@ -13,16 +13,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
 from daemon.ctl.exitcodes import Exit, for_verdict
-
-
-def _err(text: str) -> None:
-    print(f"ritactl: {text}", file=sys.stderr)
+from daemon.ctl.io import fail
 
 
 def _print_problems(folder: str, problems: list[Problem]) -> None:
@@ -76,8 +72,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     try:
         from daemon.worker.recompute import CalibrationError  # fails here, clearly, without OpenCV
     except ImportError as exc:
-        _err(f"recompute needs the full install (numpy, OpenCV): {exc}")
-        return Exit.FAIL
+        return fail(Exit.FAIL, "unavailable", f"recompute needs the full install (numpy, OpenCV): {exc}", a.json)
     try:
         result, diff = _run(a)
         if a.out:
@@ -85,21 +80,17 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return Exit.INTERRUPTED
     except DatasetInvalid as exc:
-        _err(f"cannot recompute {a.dataset}: {len(exc.problems)} problem(s) in its files or the given inputs:")
-        for p in exc.problems:
-            print(f"  {p}", file=sys.stderr)
-        return Exit.BAD_INPUT
+        lines = "".join(f"\n  {p}" for p in exc.problems)
+        return fail(Exit.BAD_INPUT, "invalid_dataset", f"cannot recompute {a.dataset}: {len(exc.problems)} "
+                                                       f"problem(s) in its files or the given inputs:{lines}", a.json)
     except CalibrationError as exc:
-        _err(f"calibration failed on {a.dataset}: {exc}")
-        return Exit.FAIL
+        return fail(Exit.FAIL, "calibration_failed", f"calibration failed on {a.dataset}: {exc}", a.json)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
         # the schema passed but a value does not make sense (e.g. a plate whose nests coincide)
         what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
-        _err(f"cannot recompute {a.dataset}: {what}")
-        return Exit.BAD_INPUT
+        return fail(Exit.BAD_INPUT, "bad_input", f"cannot recompute {a.dataset}: {what}", a.json)
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
-        _err(f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}")
-        return Exit.FAIL
+        return fail(Exit.FAIL, "failed", f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}", a.json)
     if a.json:
         print(json.dumps(result, indent=2, default=str))
     else:

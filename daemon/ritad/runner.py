@@ -27,6 +27,18 @@ from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceTim
 
 log = logging.getLogger(__name__)
 
+# operator words for the errors a switched-off or unplugged device gives
+_PLAIN: tuple[tuple[type[BaseException], str], ...] = (
+    (ConnectionRefusedError, "connection refused"), (ConnectionResetError, "connection reset"),
+    (TimeoutError, "timed out"), (FileNotFoundError, "not found"), (PermissionError, "permission denied"))
+
+
+def describe(exc: BaseException) -> str:
+    """A device error for the operator: plain words first, then the driver's own message."""
+    words = next((w for kind, w in _PLAIN if isinstance(exc, kind)), "")
+    text = str(exc) or type(exc).__name__
+    return f"{words} ({text})" if words else text
+
 PUMP_S = 0.02  # how long pump may block: bounds job latency while idle
 BEAT_S = 0.5  # longest wait between heartbeats while the runner waits in backoff
 
@@ -147,7 +159,7 @@ class DeviceRunner(threading.Thread):
         except Exception as exc:
             self._close()
             self._retrying = True
-            self._set_state(DeviceState.FAULT, f"{type(exc).__name__}: {exc}")
+            self._set_state(DeviceState.FAULT, f"cannot open: {describe(exc)}")
             return False
         finally:
             self._busy_deadline = None

@@ -148,12 +148,16 @@ def _mark_xy(ctx: JobContext) -> np.ndarray:
     return np.asarray(mark, float)
 
 
-def measure_mark(ctx: JobContext) -> None:
-    calib = _calibration(ctx)
-    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
-    ctx.obs.setdefault("kind", param(ctx, "kind"))
+def _mark_setup(ctx: JobContext) -> tuple[dict[str, Any], Navigator]:
+    """The active calibration, a navigator, and the mark's parameters recorded in the observations."""
+    for key in ("kind", "sigma_t_mm"):
+        ctx.obs.setdefault(key, param(ctx, key))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
-    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    return _calibration(ctx), Navigator(ctx, param(ctx, "speed_mm_s"))
+
+
+def measure_mark(ctx: JobContext) -> None:
+    calib, nav = _mark_setup(ctx)
     if not ctx.done("stop"):
         ctx.progress("approach the mark", 20, "robot moving")
         heading = float(ctx.params.get("heading_deg", nav.heading))
@@ -164,11 +168,7 @@ def measure_mark(ctx: JobContext) -> None:
 
 def experiment(ctx: JobContext) -> None:
     """The paper's validation: N repetitions from each of K equidistant headings."""
-    calib = _calibration(ctx)
-    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
-    ctx.obs.setdefault("kind", param(ctx, "kind"))
-    ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
-    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    calib, nav = _mark_setup(ctx)
     k_dirs, reps = int(param(ctx, "directions")), int(param(ctx, "repetitions"))
     rng = np.random.default_rng(int(param(ctx, "seed")))
     plan = [(k, r, rng.uniform(-1, 1, 2) * param(ctx, "offset_mm"), rng.normal(0, 0.5))
