@@ -3,7 +3,9 @@
 An in-process ``Daemon`` on the simulated world (small camera images, a fast tracker
 fake, no calibration worker) receives batches of random requests on one DEALER:
 random bytes, random msgpack values, maps with missing or wrong-typed ``v``/``id``/
-``cmd``/``args`` and real command names with random arguments. Motion commands are
+``cmd``/``args`` and real command names with random arguments. Which commands and
+arguments exist, and the types, range edges and choices the values are drawn around,
+come from the command table (``daemon/bus/command_table.py``). Motion commands are
 never sent with ``confirm: true`` and long polls are kept short. Each batch must
 get exactly one well-formed reply per message (the id echoed when the envelope was
 valid, ``null`` otherwise), never an ``internal`` error, and ``status`` must still
@@ -28,7 +30,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from daemon.ritad import config
-from daemon.ritad.calib_jobs import PROCEDURES, REPORT_KINDS
+from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
+from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
@@ -53,43 +56,43 @@ numbers = st.one_of(st.floats(-100, 100), st.floats(-1e4, 1e4), st.integers(-10*
 texts = st.one_of(st.text(max_size=30), st.text(string.ascii_letters, min_size=250, max_size=300),
                   st.sampled_from(["", ".", "..", "/", "a/b", "x" * 300]))
 
-FLOAT_ARGS = ("x", "y", "z", "approx_distance_mm", "rate_hz", "distance_mm", "speed_mm_s", "timeout_s",
-              "angle_deg", "speed_deg_s", "heading_deg", "offset", "length")  # any number, ints too
-BOOL_ARGS = ("pixels", "save", "wait", "confirm")
-TEXT_ARGS = {"label": texts, "dataset": texts, "procedure": st.sampled_from(PROCEDURES) | texts,
-             "kind": st.sampled_from(REPORT_KINDS) | texts, "job": texts,
-             "path": texts | st.sampled_from(["../etc/passwd", "/etc/passwd", "keys/server.key_secret", "worker.log",
-                                              "C:/x", "a\\..\\b", "sim", "sim/plate.json", "a" * 5000])}
-ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
-        "tracker.stream.start": ("rate_hz",), "camera.capture": ("pixels", "save", "label"),
-        "robot.move": ("distance_mm", "speed_mm_s", "confirm", "wait", "timeout_s"),
-        "robot.turn": ("angle_deg", "speed_deg_s", "confirm", "wait", "timeout_s"),
-        "capture": ("label", "dataset"), "calib.start": ("procedure", "params", "job"),
-        "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.resume": ("job",),
-        "calib.next": ("timeout_s",),
-        "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
-        "sim.place_robot_on_plate": ("heading_deg",), "files.list": ("path",),
-        "files.read": ("path", "offset", "length"), "files.hash": ("path", "length")}
-# real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)
-COMMANDS = sorted({"ping", "help", "hello", "status", "health", "state", "tracker.measure", "tracker.stream.stop",
-                   "tracker.status", "camera.stream.start", "camera.stream.stop", "camera.status", "robot.stop",
-                   "robot.status", "sim.truth", "data.dir", "calib.results", "calib.jobs", *ARGS})
+# Strings that probe paths and names; every str argument gets them (they are not tied to one argument).
+NASTY_TEXTS = st.sampled_from(["../etc/passwd", "/etc/passwd", "keys/server.key_secret", "worker.log", "C:/x",
+                               "a\\..\\b", "sim", "sim/plate.json", "a" * 5000])
+TYPED: dict[str, st.SearchStrategy[Any]] = {"float": numbers, "int": numbers, "bool": st.booleans(),
+                                            "str": texts | NASTY_TEXTS, "map": st.dictionaries(st.text(max_size=6),
+                                                                                             values, max_size=3),
+                                            "any": values}
 
 
-def arg_value(name: str) -> st.SearchStrategy[Any]:
-    if name in FLOAT_ARGS:
-        return numbers | values
-    if name in BOOL_ARGS:
-        return st.booleans() | values
-    if name in TEXT_ARGS:
-        return TEXT_ARGS[name] | values
-    return values
+def edges(arg: Arg) -> list[float]:
+    """The table's range limits and their neighbours: where an off-by-one would show."""
+    out: list[float] = []
+    for limit in (arg.lo, arg.hi):
+        if limit is not None:
+            out += [limit, math.nextafter(limit, -math.inf), math.nextafter(limit, math.inf), limit - 1, limit + 1]
+            out += [int(limit) - 1, int(limit), int(limit) + 1]
+    return out
+
+
+def arg_value(arg: Arg) -> st.SearchStrategy[Any]:
+    """Values for ``arg`` derived from its table entry: its type, range edges, choices, and anything else."""
+    s = TYPED[arg.type]
+    if arg.choices:
+        s = st.sampled_from(arg.choices) | s
+    if edges(arg):
+        s = st.sampled_from(edges(arg)) | s
+    return s | values
+
+
+# every command of the table (the daemon's ``help`` is checked against it)
+COMMANDS = sorted(TABLE_COMMANDS)
 
 
 @st.composite
 def command_args(draw: st.DrawFn, cmd: str) -> dict[Any, Any]:
     """Known argument names with random (often wrong) values, plus stray keys."""
-    args: dict[Any, Any] = {n: draw(arg_value(n)) for n in ARGS.get(cmd, ()) if draw(st.booleans())}
+    args: dict[Any, Any] = {a.name: draw(arg_value(a)) for a in TABLE_COMMANDS[cmd].args if draw(st.booleans())}
     args.update(draw(st.dictionaries(st.text(max_size=8), values, max_size=2)))
     return make_safe(cmd, args)
 
@@ -284,10 +287,11 @@ def match(bodies: list[bytes], replies: list[dict[str, Any]]) -> None:
 
 
 def test_command_names_cover_the_daemon(daemon: Daemon) -> None:
-    """The fuzzer knows every command the daemon offers (so none escapes fuzzing)."""
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
-        offered = set(c.call("help")["commands"])
-    assert offered - set(COMMANDS) == set()
+    """The fuzzer knows every command the daemon offers (so none escapes fuzzing), and help says what the table says."""
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        offered = c.call("help")["commands"]
+    assert set(offered) == set(COMMANDS)
+    assert offered["robot.move"]["role"] == "operator" and offered["robot.move"]["args"][0]["unit"] == "mm"
 
 
 def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
@@ -317,20 +321,20 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     print(f"\nbus fuzz: {sent[0]} messages ({len(distinct)} distinct) in {elapsed:.1f} s; "
           f"replies by code: {dict(codes.most_common())}")
     assert len(distinct) >= 10_000
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
         h = wait_ready(c)
     assert h["alive"] is True
     assert h["commands"]["requests"] >= sent[0]
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
     # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
-    data = Path(daemon.ritad.config.daemon.data_dir)
+    data = Path(daemon.config.daemon.data_dir)
     assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
     folders = list((data / "datasets").iterdir())
     assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
 
 def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> None:
-    limit = daemon.ritad.config.daemon.max_message_bytes
+    limit = daemon.config.daemon.max_message_bytes
     big = pack({"v": 1, "id": "big", "cmd": "ping", "args": {"pad": b"x" * limit}})
     replies = exchange(dealer, [big, b"", b"\xc1"])
     assert [r["error"]["code"] for r in replies] == [ErrorCode.TOO_LARGE, ErrorCode.BAD_REQUEST,
@@ -341,8 +345,8 @@ def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> Non
 
 def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
     """Random labels and dataset names on captures that succeed: files land under datasets/ only."""
-    data = Path(daemon.ritad.config.daemon.data_dir)
-    with Client(daemon.ritad.server.endpoints[0], timeout=30) as c:
+    data = Path(daemon.config.daemon.data_dir)
+    with Client(daemon.server.endpoints[0], timeout=30) as c:
         wait_ready(c)
         lock_on_robot(c)
         saved: list[Path] = []
