@@ -125,3 +125,12 @@ def test_bash_completion_completes_from_the_parser():
     assert "--json" in tracker_opts and "--yes" not in tracker_opts and "--speed" not in tracker_opts
     assert {"--yes", "--speed", "--no-wait"} <= complete("robot", "move", "--")
     assert complete("keys", "") >= {"init", "allow", "revoke", "list"}
+
+
+def test_a_table_entry_without_handler_stops_ritad(tmp_path, monkeypatch):
+    """build_handlers refuses to run when the handlers and the table differ (ritad would not start)."""
+    from daemon.ritad import commands
+
+    monkeypatch.setattr(commands, "GROUPS", tuple(g for g in commands.GROUPS if g is not commands._sim))
+    with pytest.raises(RuntimeError, match="sim.place_robot_on_plate"):
+        registered_commands(tmp_path)

@@ -35,7 +35,7 @@ from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
-from daemon.bus.protocol import ErrorCode, pack, unpack
+from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
 
 BATCH = 40
 EXAMPLES = 340  # × BATCH messages: about 13,600 (over 10,000 of them distinct)
@@ -364,3 +364,19 @@ def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
         run()
     assert len(saved) >= 100
     assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
+
+
+@pytest.mark.parametrize("cmd,args,code,words", [
+    ("robot.turn", {"angle_deg": 400, "confirm": True}, ErrorCode.BAD_ARGS, ["'angle_deg'", "[-360, 360] °"]),
+    ("robot.move", {"distance_mm": 1e6}, ErrorCode.BAD_ARGS, ["|distance_mm|", "configured limit 2000"]),
+    ("robot.move", {"distance_mm": 10, "speed_mm_s": 1e4}, ErrorCode.BAD_ARGS, ["speed_mm_s", "configured limit"]),
+    ("robot.move", {"distance_mm": 10}, ErrorCode.CONFIRM_REQUIRED, ["confirm=true", "--yes"]),
+    ("tracker.aim", {"x": "a", "y": 0, "z": 0}, ErrorCode.BAD_ARGS, ["'x'", "must be float (mm)"]),
+    ("files.read", {}, ErrorCode.BAD_ARGS, ["missing argument 'path'"]),
+])
+def test_the_daemon_checks_arguments_by_the_table_then_the_config(daemon: Daemon, cmd, args, code, words) -> None:
+    """Over the bus: table checks (type, range) first, then the config's limits, then the confirmation."""
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        with pytest.raises(CommandError) as ei:
+            c.call(cmd, **args)
+    assert ei.value.code == code and all(w in ei.value.args[0] for w in words), ei.value.args[0]

@@ -98,14 +98,16 @@ TABLE: tuple[Command, ...] = (
     Command("ping", "liveness check", result="{pong, t_ns}"),
     Command("help", "list the commands", result="{commands: {name: {help, role, result, worker_only, args: "
             "[{name, type, unit, range, choices, required, default, help}]}}}"),
-    Command("hello", "who is this daemon: version, schema, endpoints", result="name, version, schema, pid, sim, endpoints, device URLs"),
+    Command("hello", "who is this daemon: version, schema, endpoints",
+            result="name, version, schema, pid, sim, endpoints, device URLs"),
     Command("status", "device states at a glance", verb="status", result="the daemon.health payload"),
     Command("health", "same as status", result="the daemon.health payload"),
     Command("state", "Clone snapshot for late joiners", verb="watch",
             result="{seq, latest: {topic: {seq, t_ns, data}}, devices}"),
     Command("tracker.measure", "one stationary point of the locked reflector", "operator",
-            cli=("tracker", "measure"), result="stationary point: x y z (mm, tracker frame), abs_xyz (ACS via tracker.abs_H_trk), abs_H_trk (the 4×4 "
-                   "used), std, environment, tracker status, host_time_ns, host_monotonic_ns"),
+            cli=("tracker", "measure"),
+            result="stationary point: x y z (mm, tracker frame), abs_xyz (ACS via tracker.abs_H_trk), "
+                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, host_monotonic_ns"),
     Command("tracker.aim", "turn the tracker head to a point", "operator", cli=("tracker", "aim"), args=tuple(
         Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
             metavar=k.upper()) for k in "xyz"), result="{aimed}"),
@@ -155,7 +157,8 @@ TABLE: tuple[Command, ...] = (
             verb="capture", result="{path, header, tracker, robot}", args=(
                 Arg("label", "str", "name of the entry", default="capture", cli="--label"),
                 Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),
-    Command("sim.truth", "simulated world only: ground truth", result="rob_H_cam, abs_H_ref, abs_H_trk, abs_H_rob, nests, marks, camera_model, plate; not_found "
+    Command("sim.truth", "simulated world only: ground truth",
+            result="rob_H_cam, abs_H_ref, abs_H_trk, abs_H_rob, nests, marks, camera_model, plate; not_found "
             "without a simulated world"),
     Command("sim.place_robot_on_plate", "simulated world only: put the robot on the plate, target in view",
             "operator", result="{x_mm, y_mm, heading_deg}", args=(
@@ -184,14 +187,17 @@ TABLE: tuple[Command, ...] = (
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
                 Arg("params", "map", "the procedure's parameters", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
-    Command("calib.answer", "answer a job's prompt", "operator", verb="answer", result="{delivered}; answer must be one of the prompt's choices",
+    Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
+            result="{delivered}; answer must be one of the prompt's choices",
             args=(_job(), Arg("answer", "str", "the answer", default=REQUIRED, cli=POS, metavar="TEXT"))),
     Command("calib.cancel", "ask the worker to stop a job", "operator", verb="cancel",
             result="{cancel_requested, state}; the job's data stays (calib.resume continues it)",
             args=(_job(),)),
-    Command("calib.jobs", "calibration jobs and their state", verb="jobs", result="{jobs: [{job, procedure, state, progress, result, prompt, error, params, by, "
+    Command("calib.jobs", "calibration jobs and their state", verb="jobs",
+            result="{jobs: [{job, procedure, state, progress, result, prompt, error, params, by, "
             "posted_ns}], queued, worker_seen_s_ago}"),
-    Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True, result="the job, or null on timeout",
+    Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True,
+            result="the job, or null on timeout",
             args=(
         Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),)),
     Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator", worker_only=True,
