@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from daemon.bus.command_table import validate
 from daemon.ritad.calib_jobs import CalibJobs
 from daemon.bus.protocol import CommandError
 from daemon.ritad.server import Request
@@ -15,8 +16,8 @@ class Bus:
         self.published = []
         self.jobs = CalibJobs(lambda topic, data: self.published.append((topic, data)), data_dir=tmp_path)
 
-    def __call__(self, cmd, **args):
-        return self.jobs.handlers()[cmd](Request("1", cmd, args, "test"))
+    def __call__(self, cmd, **args):  # as ritad's dispatch: the command table validates first
+        return self.jobs.handlers()[cmd](Request("1", cmd, validate(cmd, args), "test"))
 
     def state(self, job):
         return {j["job"]: j for j in self("calib.jobs")["jobs"]}[job]

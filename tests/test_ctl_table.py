@@ -2,28 +2,32 @@
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import subprocess
-import types
-from pathlib import Path
+from typing import Any
 
 import pytest
 
 from daemon.ritad import config
-from daemon.ritad.calib_jobs import PROCEDURES as JOB_PROCEDURES
 from daemon.ritad.calib_jobs import CalibJobs
+from daemon.ritad.services import Services
 from daemon.bus.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
 from daemon.ritad.commands import build_handlers
 from daemon.ctl.main import build_parser, main, subparsers_of
 from daemon.ctl.completion import bash_script
 from daemon.ctl.device import table_args
+from daemon.worker.procedures import RUNNERS
 
 
 def registered_commands(tmp_path) -> set[str]:
     """The names build_handlers registers, without starting a daemon."""
-    fake = types.SimpleNamespace(config=config.sim_config(tmp_path), calib=CalibJobs(lambda topic, data: None))
-    return set(build_handlers(fake))
+    cfg = config.sim_config(tmp_path)
+    unused: Any = None  # building the handlers calls no service
+    s = Services(job=unused, motion=unused, storage=unused, data_dir=tmp_path, private_dirs=(),
+                 save_capture=unused, abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=1.0, robot=cfg.robot,
+                 calib=CalibJobs(lambda topic, data: None), world=None, device_info=unused, hello=unused,
+                 health=unused, state=unused)
+    return set(build_handlers(s))
 
 
 def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
@@ -33,7 +37,7 @@ def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
 
 
 def test_entries_are_complete():
-    assert PROCEDURES == JOB_PROCEDURES
+    assert tuple(RUNNERS) == PROCEDURES  # the worker runs exactly the table's procedures
     for cmd in TABLE:
         assert cmd.role in ROLES and cmd.help, cmd.name
         for arg in cmd.args:
@@ -123,11 +127,10 @@ def test_bash_completion_completes_from_the_parser():
     assert complete("keys", "") >= {"init", "allow", "revoke", "list"}
 
 
-def test_docs_protocol_lists_exactly_the_table_commands():
-    """docs/protocol.md's "Command list" names every command of the table, and no other."""
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
-    section = doc[doc.index("### Command list"):doc.index("## Telemetry")]
-    rows = re.findall(r"^\| (`[a-z_.]+`(?: / `[a-z_.]+`)*) \|", section, re.M)
-    named = {name for row in rows for name in re.findall(r"`([a-z_.]+)`", row)}
-    assert set(COMMANDS) - named == set(), "table commands missing in docs/protocol.md"
-    assert named - set(COMMANDS) == set(), "docs/protocol.md lists commands the table does not have"
+def test_a_table_entry_without_handler_stops_ritad(tmp_path, monkeypatch):
+    """build_handlers refuses to run when the handlers and the table differ (ritad would not start)."""
+    from daemon.ritad import commands
+
+    monkeypatch.setattr(commands, "GROUPS", tuple(g for g in commands.GROUPS if g is not commands._sim))
+    with pytest.raises(RuntimeError, match="sim.place_robot_on_plate"):
+        registered_commands(tmp_path)

@@ -3,7 +3,9 @@
 An in-process ``Daemon`` on the simulated world (small camera images, a fast tracker
 fake, no calibration worker) receives batches of random requests on one DEALER:
 random bytes, random msgpack values, maps with missing or wrong-typed ``v``/``id``/
-``cmd``/``args`` and real command names with random arguments. Motion commands are
+``cmd``/``args`` and real command names with random arguments. Which commands and
+arguments exist, and the types, range edges and choices the values are drawn around,
+come from the command table (``daemon/bus/command_table.py``). Motion commands are
 never sent with ``confirm: true`` and long polls are kept short. Each batch must
 get exactly one well-formed reply per message (the id echoed when the envelope was
 valid, ``null`` otherwise), never an ``internal`` error, and ``status`` must still
@@ -28,11 +30,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from daemon.ritad import config
-from daemon.ritad.calib_jobs import PROCEDURES, REPORT_KINDS
+from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
+from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
-from daemon.bus.protocol import ErrorCode, pack, unpack
+from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
 
 BATCH = 40
 EXAMPLES = 340  # × BATCH messages: about 13,600 (over 10,000 of them distinct)
@@ -53,43 +56,43 @@ numbers = st.one_of(st.floats(-100, 100), st.floats(-1e4, 1e4), st.integers(-10*
 texts = st.one_of(st.text(max_size=30), st.text(string.ascii_letters, min_size=250, max_size=300),
                   st.sampled_from(["", ".", "..", "/", "a/b", "x" * 300]))
 
-FLOAT_ARGS = ("x", "y", "z", "approx_distance_mm", "rate_hz", "distance_mm", "speed_mm_s", "timeout_s",
-              "angle_deg", "speed_deg_s", "heading_deg", "offset", "length")  # any number, ints too
-BOOL_ARGS = ("pixels", "save", "wait", "confirm")
-TEXT_ARGS = {"label": texts, "dataset": texts, "procedure": st.sampled_from(PROCEDURES) | texts,
-             "kind": st.sampled_from(REPORT_KINDS) | texts, "job": texts,
-             "path": texts | st.sampled_from(["../etc/passwd", "/etc/passwd", "keys/server.key_secret", "worker.log",
-                                              "C:/x", "a\\..\\b", "sim", "sim/plate.json", "a" * 5000])}
-ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
-        "tracker.stream.start": ("rate_hz",), "camera.capture": ("pixels", "save", "label"),
-        "robot.move": ("distance_mm", "speed_mm_s", "confirm", "wait", "timeout_s"),
-        "robot.turn": ("angle_deg", "speed_deg_s", "confirm", "wait", "timeout_s"),
-        "capture": ("label", "dataset"), "calib.start": ("procedure", "params", "job"),
-        "calib.answer": ("job", "answer"), "calib.cancel": ("job",), "calib.resume": ("job",),
-        "calib.next": ("timeout_s",),
-        "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
-        "sim.place_robot_on_plate": ("heading_deg",), "files.list": ("path",),
-        "files.read": ("path", "offset", "length"), "files.hash": ("path", "length")}
-# real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)
-COMMANDS = sorted({"ping", "help", "hello", "status", "health", "state", "tracker.measure", "tracker.stream.stop",
-                   "tracker.status", "camera.stream.start", "camera.stream.stop", "camera.status", "robot.stop",
-                   "robot.status", "sim.truth", "data.dir", "calib.results", "calib.jobs", *ARGS})
+# Strings that probe paths and names; every str argument gets them (they are not tied to one argument).
+NASTY_TEXTS = st.sampled_from(["../etc/passwd", "/etc/passwd", "keys/server.key_secret", "worker.log", "C:/x",
+                               "a\\..\\b", "sim", "sim/plate.json", "a" * 5000])
+TYPED: dict[str, st.SearchStrategy[Any]] = {"float": numbers, "int": numbers, "bool": st.booleans(),
+                                            "str": texts | NASTY_TEXTS, "map": st.dictionaries(st.text(max_size=6),
+                                                                                             values, max_size=3),
+                                            "any": values}
 
 
-def arg_value(name: str) -> st.SearchStrategy[Any]:
-    if name in FLOAT_ARGS:
-        return numbers | values
-    if name in BOOL_ARGS:
-        return st.booleans() | values
-    if name in TEXT_ARGS:
-        return TEXT_ARGS[name] | values
-    return values
+def edges(arg: Arg) -> list[float]:
+    """The table's range limits and their neighbours: where an off-by-one would show."""
+    out: list[float] = []
+    for limit in (arg.lo, arg.hi):
+        if limit is not None:
+            out += [limit, math.nextafter(limit, -math.inf), math.nextafter(limit, math.inf), limit - 1, limit + 1]
+            out += [int(limit) - 1, int(limit), int(limit) + 1]
+    return out
+
+
+def arg_value(arg: Arg) -> st.SearchStrategy[Any]:
+    """Values for ``arg`` derived from its table entry: its type, range edges, choices, and anything else."""
+    s = TYPED[arg.type]
+    if arg.choices:
+        s = st.sampled_from(arg.choices) | s
+    if edges(arg):
+        s = st.sampled_from(edges(arg)) | s
+    return s | values
+
+
+# every command of the table (the daemon's ``help`` is checked against it)
+COMMANDS = sorted(TABLE_COMMANDS)
 
 
 @st.composite
 def command_args(draw: st.DrawFn, cmd: str) -> dict[Any, Any]:
     """Known argument names with random (often wrong) values, plus stray keys."""
-    args: dict[Any, Any] = {n: draw(arg_value(n)) for n in ARGS.get(cmd, ()) if draw(st.booleans())}
+    args: dict[Any, Any] = {a.name: draw(arg_value(a)) for a in TABLE_COMMANDS[cmd].args if draw(st.booleans())}
     args.update(draw(st.dictionaries(st.text(max_size=8), values, max_size=2)))
     return make_safe(cmd, args)
 
@@ -284,10 +287,11 @@ def match(bodies: list[bytes], replies: list[dict[str, Any]]) -> None:
 
 
 def test_command_names_cover_the_daemon(daemon: Daemon) -> None:
-    """The fuzzer knows every command the daemon offers (so none escapes fuzzing)."""
+    """The fuzzer knows every command the daemon offers (so none escapes fuzzing), and help says what the table says."""
     with Client(daemon.server.endpoints[0], timeout=10) as c:
-        offered = set(c.call("help")["commands"])
-    assert offered - set(COMMANDS) == set()
+        offered = c.call("help")["commands"]
+    assert set(offered) == set(COMMANDS)
+    assert offered["robot.move"]["role"] == "operator" and offered["robot.move"]["args"][0]["unit"] == "mm"
 
 
 def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
@@ -360,3 +364,19 @@ def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
         run()
     assert len(saved) >= 100
     assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
+
+
+@pytest.mark.parametrize("cmd,args,code,words", [
+    ("robot.turn", {"angle_deg": 400, "confirm": True}, ErrorCode.BAD_ARGS, ["'angle_deg'", "[-360, 360] °"]),
+    ("robot.move", {"distance_mm": 1e6}, ErrorCode.BAD_ARGS, ["|distance_mm|", "configured limit 2000"]),
+    ("robot.move", {"distance_mm": 10, "speed_mm_s": 1e4}, ErrorCode.BAD_ARGS, ["speed_mm_s", "configured limit"]),
+    ("robot.move", {"distance_mm": 10}, ErrorCode.CONFIRM_REQUIRED, ["confirm=true", "--yes"]),
+    ("tracker.aim", {"x": "a", "y": 0, "z": 0}, ErrorCode.BAD_ARGS, ["'x'", "must be float (mm)"]),
+    ("files.read", {}, ErrorCode.BAD_ARGS, ["missing argument 'path'"]),
+])
+def test_the_daemon_checks_arguments_by_the_table_then_the_config(daemon: Daemon, cmd, args, code, words) -> None:
+    """Over the bus: table checks (type, range) first, then the config's limits, then the confirmation."""
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        with pytest.raises(CommandError) as ei:
+            c.call(cmd, **args)
+    assert ei.value.code == code and all(w in ei.value.args[0] for w in words), ei.value.args[0]

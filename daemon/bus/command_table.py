@@ -1,10 +1,10 @@
 """The bus commands, declared once: arguments (type, range, unit, default), role, help, CLI shape.
 
-ritactl generates its per-device subcommands from this table (``daemon/ctl/device.py``)
-and a test checks that it lists exactly the commands ``build_handlers`` registers. The
-daemon still validates with ``need()`` in ``daemon/ritad/commands.py``; moving validation,
-``help`` and the docs/protocol.md table onto this table is issue #13's next step.
-Pure stdlib, so the laptop client imports it without numpy or OpenCV.
+The table drives: the daemon's argument validation (``validate``: handlers receive checked,
+defaulted args), the ``help`` command (``help_entry``), ritactl's per-device subcommands
+(``daemon/ctl/device.py``), the bus fuzzer's argument generator and the command table in
+docs/protocol.md (``python -m daemon.bus.command_table --markdown``; a test compares).
+Stdlib and msgpack only, so the laptop client imports it without numpy or OpenCV.
 
 An argument's ``cli`` says how it appears on the command line: ``POS`` (a positional
 value, shown as ``metavar``), ``--flag`` (an option; for a bool, the flag sets the
@@ -12,13 +12,23 @@ opposite of the default), or None (bus only). Ranges are inclusive unless ``lo_o
 """
 from __future__ import annotations
 
+import copy
+import json
+import math
 from dataclasses import dataclass, field
 from typing import Any
+
+from daemon.bus.protocol import CommandError, ErrorCode
 
 ROLES = ("viewer", "operator", "admin")
 PROCEDURES = ("referencing", "intrinsics", "measure-mark", "experiment")
 POS = "POS"
 REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
+
+
+def _num(v: float) -> str:
+    """1048576, not 1.04858e+06: a limit is quoted exactly."""
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
 
 
 @dataclass(frozen=True)
@@ -44,17 +54,17 @@ class Arg:
         if self.lo is None and self.hi is None:
             return ""
         if self.hi is None:
-            return f"{'>' if self.lo_open else '≥'} {self.lo:g}"
+            return f"{'>' if self.lo_open else '≥'} {_num(self.lo)}"
         if self.lo is None:
-            return f"≤ {self.hi:g}"
-        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+            return f"≤ {_num(self.hi)}"
+        return f"{'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}]"
 
     def check(self, value: float) -> str | None:
         """Why ``value`` is out of range, or None."""
         too_low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
         if too_low or (self.hi is not None and value > self.hi):
             word = "outside" if self.lo is not None and self.hi is not None else "not"
-            return f"{value:g} is {word} {self.range_text()}{' ' + self.unit if self.unit else ''}"
+            return f"{_num(value)} is {word} {self.range_text()}{' ' + self.unit if self.unit else ''}"
         return None
 
 
@@ -75,9 +85,9 @@ _CONFIRM = Arg("confirm", "bool", "confirm that the robot may move", default=Fal
 _WAIT = Arg("wait", "bool", "return once the motion started instead of at its end", default=True, cli="--no-wait")
 
 
-def _motion_timeout(unit_speed: str) -> Arg:
+def _motion_timeout(how_far: str, speed: str) -> Arg:
     return Arg("timeout_s", "float", "give up on the motion after this long", unit="s", lo=0, lo_open=True,
-               default_text=f"60 + 2 × distance / {unit_speed}")
+               default_text=f"60 + 2 × |{how_far}| / {speed}")
 
 
 def _job(help_: str = "job id") -> Arg:
@@ -86,27 +96,33 @@ def _job(help_: str = "job id") -> Arg:
 
 TABLE: tuple[Command, ...] = (
     Command("ping", "liveness check", result="{pong, t_ns}"),
-    Command("help", "list the commands", result="{commands: [...]}"),
-    Command("hello", "who is this daemon: version, schema, endpoints", result="name, version, schema, pid, sim, endpoints, device URLs"),
+    Command("help", "list the commands", result="{commands: {name: {help, role, result, worker_only, args: "
+            "[{name, type, unit, range, choices, required, default, help}]}}}"),
+    Command("hello", "who is this daemon: version, schema, endpoints",
+            result="name, version, schema, pid, sim, endpoints, device URLs"),
     Command("status", "device states at a glance", verb="status", result="the daemon.health payload"),
     Command("health", "same as status", result="the daemon.health payload"),
-    Command("state", "Clone snapshot for late joiners", verb="watch"),
+    Command("state", "Clone snapshot for late joiners", verb="watch",
+            result="{seq, latest: {topic: {seq, t_ns, data}}, devices}"),
     Command("tracker.measure", "one stationary point of the locked reflector", "operator",
-            cli=("tracker", "measure"), result="point: x y z (mm, tracker frame), abs_xyz (ACS), std, status"),
+            cli=("tracker", "measure"),
+            result="stationary point: x y z (mm, tracker frame), abs_xyz (ACS via tracker.abs_H_trk), "
+                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, host_monotonic_ns"),
     Command("tracker.aim", "turn the tracker head to a point", "operator", cli=("tracker", "aim"), args=tuple(
         Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
             metavar=k.upper()) for k in "xyz"), result="{aimed}"),
     Command("tracker.find", "search and lock the reflector near where the tracker points", "operator",
-            cli=("tracker", "find"), result="{locked: true}", args=(
+            cli=("tracker", "find"), result="{locked: true}; tracker_<Status> when nothing is found", args=(
                 Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
                     lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),)),
     Command("tracker.stream.start", "stream tracker points as tracker.point telemetry", "operator",
-            cli=("tracker", "stream", "start"), result="{streaming, rate_hz}", args=(
+            cli=("tracker", "stream", "start"), result="{streaming, rate_hz}; points then flow as tracker.point", args=(
                 Arg("rate_hz", "float", "points per second", unit="Hz", lo=0, lo_open=True, hi=10000,
                     default_text="config [tracker] stream_rate_hz", cli="--rate", metavar="HZ"),)),
     Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),
             result="{streaming: false}"),
-    Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status")),
+    Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status"),
+            result="adapter status and counters"),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),
@@ -116,40 +132,45 @@ TABLE: tuple[Command, ...] = (
             cli=("camera", "stream", "start"), result="{streaming: true}"),
     Command("camera.stream.stop", "stop the free run", "operator", cli=("camera", "stream", "stop"),
             result="{streaming: false}"),
-    Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status")),
+    Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status"),
+            result="applied settings, warnings, counters"),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
                     unit="mm", default=REQUIRED, cli=POS, metavar="MM"),
                 Arg("speed_mm_s", "float", "speed (limit: config [robot] max_speed_mm_s)", unit="mm/s",
                     default=50.0, lo=0, lo_open=True, cli="--speed", metavar="MM_S"),
-                _CONFIRM, _WAIT, _motion_timeout("speed"))),
+                _CONFIRM, _WAIT, _motion_timeout("distance_mm", "speed_mm_s"))),
     Command("robot.turn", "turn on the spot (positive: counter-clockwise)", "operator", cli=("robot", "turn"),
             result="as robot.move", args=(
                 Arg("angle_deg", "float", "angle to turn", unit="°", default=REQUIRED, lo=-360, hi=360, cli=POS,
                     metavar="DEG"),
                 Arg("speed_deg_s", "float", "turn rate (limit: config [robot] max_turn_speed_deg_s)",
                     unit="°/s", default=20.0, lo=0, lo_open=True, cli="--speed", metavar="DEG_S"),
-                _CONFIRM, _WAIT, _motion_timeout("speed"))),
+                _CONFIRM, _WAIT, _motion_timeout("angle_deg", "speed_deg_s"))),
     Command("robot.stop", "stop the base now (jumps every queue, no confirmation)", "operator",
             cli=("robot", "stop"), result="{stopped}"),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
-            result="RobotState"),
+            result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
+                   "inclinometer), battery_v"),
     Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
             verb="capture", result="{path, header, tracker, robot}", args=(
                 Arg("label", "str", "name of the entry", default="capture", cli="--label"),
                 Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),
-    Command("sim.truth", "simulated world only: ground truth", result="rob_H_cam, abs_H_ref, ..."),
+    Command("sim.truth", "simulated world only: ground truth",
+            result="rob_H_cam, abs_H_ref, abs_H_trk, abs_H_rob, nests, marks, camera_model, plate; not_found "
+            "without a simulated world"),
     Command("sim.place_robot_on_plate", "simulated world only: put the robot on the plate, target in view",
             "operator", result="{x_mm, y_mm, heading_deg}", args=(
                 Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
                     default_text="plate yaw + 60"),)),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
-            result="{root, files: [{path, size, mtime_ns}], truncated}", args=(
+            result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "
+                   "20000 entries", args=(
                 Arg("path", "str", "folder or file relative to the data dir", default_text="the whole data dir"),)),
     Command("files.read", "one chunk of a data-dir file; the bytes follow as an attachment", verb="fetch",
-            result="{path, offset, length, size, mtime_ns, eof}", args=(
+            result="{path, offset, length, size, mtime_ns, eof}; fewer than length bytes at the end of the file", args=(
                 Arg("path", "str", "file relative to the data dir", default=REQUIRED),
                 Arg("offset", "int", "first byte", unit="B", default=0, lo=0),
                 Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576))),
@@ -166,24 +187,129 @@ TABLE: tuple[Command, ...] = (
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
                 Arg("params", "map", "the procedure's parameters", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
-    Command("calib.answer", "answer a job's prompt", "operator", verb="answer", result="{delivered}",
+    Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
+            result="{delivered}; answer must be one of the prompt's choices",
             args=(_job(), Arg("answer", "str", "the answer", default=REQUIRED, cli=POS, metavar="TEXT"))),
     Command("calib.cancel", "ask the worker to stop a job", "operator", verb="cancel",
-            result="{cancel_requested, state}",
+            result="{cancel_requested, state}; the job's data stays (calib.resume continues it)",
             args=(_job(),)),
-    Command("calib.jobs", "calibration jobs and their state", verb="jobs", result="{jobs, queued, worker_seen_s_ago}"),
-    Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True, args=(
+    Command("calib.jobs", "calibration jobs and their state", verb="jobs",
+            result="{jobs: [{job, procedure, state, progress, result, prompt, error, params, by, "
+            "posted_ns}], queued, worker_seen_s_ago}"),
+    Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True,
+            result="the job, or null on timeout",
+            args=(
         Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),)),
     Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator", worker_only=True,
+            result="{answer} or {cancel: true}, or null on timeout",
             args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60))),
     Command("calib.report", "worker: progress, prompt, result or error of a job", "operator", worker_only=True,
+            result="{ok}; republished as calib.progress, calib.prompt or calib.result telemetry",
             args=(_job(), Arg("kind", "str", "report kind", default=REQUIRED,
                               choices=("progress", "result", "prompt", "error")),
-                  Arg("data", "any", "the report"), Arg("procedure", "str", "procedure of a resumed job"))),
+                  Arg("data", "any", "the report", default_text="{}"),
+                  Arg("procedure", "str", "procedure of a resumed job", default_text="the posted job's"))),
 )
 
 COMMANDS: dict[str, Command] = {c.name: c for c in TABLE}
 assert len(COMMANDS) == len(TABLE), "duplicate command in TABLE"
 assert all(c.role in ROLES for c in TABLE)
 
-__all__ = ["Arg", "Command", "COMMANDS", "POS", "PROCEDURES", "REQUIRED", "ROLES", "TABLE"]
+# ---------------------------------------------------------------------------- validation
+
+_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
+                                          "map": (dict,), "any": (object,)}
+
+
+def _bad(cmd: str, text: str) -> CommandError:
+    return CommandError(ErrorCode.BAD_ARGS, f"{cmd}: {text}")
+
+
+def _kind_text(arg: Arg) -> str:
+    return arg.type + (f" ({arg.unit})" if arg.unit else "")
+
+
+def check_arg(cmd: str, arg: Arg, value: Any) -> Any:
+    """``value`` checked against ``arg`` (type, finiteness, range, choices); ints become floats for float args."""
+    ok_types = _PY_TYPES[arg.type]
+    if isinstance(value, bool) and arg.type not in ("bool", "any") or not isinstance(value, ok_types):
+        raise _bad(cmd, f"argument {arg.name!r} must be {_kind_text(arg)}, got {value!r}")
+    if arg.type == "float":
+        value = float(value)  # msgpack ints beyond 2**63 still fit a float
+        if not math.isfinite(value):
+            raise _bad(cmd, f"argument {arg.name!r} must be finite, got {value!r}")
+    if arg.type in ("float", "int") and (why := arg.check(value)):
+        raise _bad(cmd, f"argument {arg.name!r}: {why}")
+    if arg.choices and value not in arg.choices:
+        raise _bad(cmd, f"argument {arg.name!r}: {value!r} is not one of {', '.join(arg.choices)}")
+    return value
+
+
+def validate(cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+    """Every declared argument of ``cmd``, checked and defaulted; ``bad_args`` names the first bad one.
+
+    An optional argument whose default is None ("the daemon decides") may also be sent as null.
+    Keys the table does not declare are ignored (older and newer clients keep working).
+    """
+    out: dict[str, Any] = {}
+    for arg in COMMANDS[cmd].args:
+        value = args.get(arg.name)
+        if arg.name not in args or (value is None and arg.default is None):
+            if arg.required:
+                raise _bad(cmd, f"missing argument {arg.name!r} ({_kind_text(arg)})")
+            out[arg.name] = copy.deepcopy(arg.default)  # a handler may keep a default map
+            continue
+        out[arg.name] = check_arg(cmd, arg, value)
+    return out
+
+
+# ---------------------------------------------------------------------------- help and docs
+
+def _default_text(arg: Arg) -> str:
+    if arg.required:
+        return "required"
+    if arg.default is None:
+        return arg.default_text or "optional"
+    return json.dumps(arg.default)
+
+
+def help_entry(cmd: Command) -> dict[str, Any]:
+    """What the ``help`` command says about ``cmd``."""
+    return {"help": cmd.help, "role": cmd.role, "result": cmd.result, "worker_only": cmd.worker_only,
+            "args": [{"name": a.name, "type": a.type, "unit": a.unit, "range": a.range_text(),
+                      "choices": list(a.choices), "required": a.required, "default": _default_text(a),
+                      "help": a.help} for a in cmd.args]}
+
+
+def _arg_cell(arg: Arg) -> str:
+    facts = [arg.type + (f", {arg.unit}" if arg.unit else "")]
+    if arg.range_text():
+        facts.append(arg.range_text())
+    if arg.choices:
+        facts.append(" \\| ".join(f"`{c}`" for c in arg.choices))
+    if not arg.required:
+        facts.append(f"default {_default_text(arg)}")
+    return f"`{arg.name}`{'' if arg.required else '?'} ({'; '.join(facts)})"
+
+
+def markdown_table() -> str:
+    """The command table of docs/protocol.md, generated from ``TABLE``."""
+    rows = ["| command | role | args | result | what it does |", "|---|---|---|---|---|"]
+    for c in TABLE:
+        args = "<br>".join(_arg_cell(a) for a in c.args) or "–"
+        what = c.help
+        result = c.result.replace("|", "\\|") or "–"  # a bar inside a cell would split it
+        rows.append(f"| `{c.name}` | {c.role} | {args} | {result} | {what} |")
+    return "\n".join(rows) + "\n"
+
+
+__all__ = ["Arg", "Command", "COMMANDS", "POS", "PROCEDURES", "REQUIRED", "ROLES", "TABLE", "check_arg",
+           "help_entry", "markdown_table", "validate"]
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] != ["--markdown"]:
+        sys.exit("usage: python -m daemon.bus.command_table --markdown")
+    sys.stdout.write(markdown_table())
+

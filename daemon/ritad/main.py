@@ -14,7 +14,6 @@ import enum
 import logging
 import os
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -34,15 +33,19 @@ except ModuleNotFoundError as _exc:
 from daemon import __version__  # noqa: E402
 from daemon.ritad import config as config_mod
 from daemon.ritad.calib_jobs import CalibJobs  # noqa: E402
-from daemon.ritad.commands import build_handlers, chain  # noqa: E402
+from daemon.ritad import files  # noqa: E402
+from daemon.ritad.commands import build_handlers  # noqa: E402
 from daemon.ritad.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
 from daemon.ritad.logs import setup_logging  # noqa: E402
 from daemon.ritad.notify import Notifier  # noqa: E402
-from daemon.bus.protocol import SCHEMA_VERSION, CommandError, ErrorCode  # noqa: E402
+from daemon.bus.protocol import SCHEMA_VERSION  # noqa: E402
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
 from daemon.ritad.registry import open_device  # noqa: E402
+from daemon.ritad.motion import MotionWaiters  # noqa: E402
 from daemon.ritad.runner import DeviceRunner  # noqa: E402
 from daemon.ritad.server import CommandServer  # noqa: E402
+from daemon.ritad.services import Services  # noqa: E402
+from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
 from drivers.base import Device, Frame  # noqa: E402
 
 log = logging.getLogger("ritad")
@@ -79,14 +82,13 @@ class Daemon:
         self.runners: dict[str, DeviceRunner] = {}
         self.security: Any = None
         self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
-        self._motion_lock = threading.Lock()
-        self._motion_waiters: list[Future] = []
+        self.motions = MotionWaiters(lambda fn: self.job("robot", fn))
         self.stop_event = threading.Event()
         # data_dir lets calib.resume find jobs a previous ritad ran
         self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data),
                                data_dir=Path(cfg.daemon.data_dir))
-        self.worker: subprocess.Popen | None = None
-        self._worker_next_start = 0.0
+        self.worker = WorkerSupervisor(self._worker_cmd, Path(cfg.daemon.data_dir) / "worker.log",
+                                       enabled=cfg.daemon.start_worker)
 
     # ------------------------------------------------------------------ wiring
 
@@ -95,14 +97,8 @@ class Daemon:
         if isinstance(payload, Frame):
             self.frames.publish(payload)
             return
-        if topic == "robot.event" and isinstance(payload, dict) and payload.get("event") in ("DONE", "FAULT"):
-            with self._motion_lock:
-                waiters, self._motion_waiters = self._motion_waiters, []
-            for fut in waiters:
-                if payload.get("event") == "DONE":
-                    fut.set_result({"event": "DONE", **payload})
-                else:
-                    fut.set_exception(CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT: {payload}"))
+        if topic == "robot.event":
+            self.motions.on_event(payload)
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:
@@ -128,8 +124,8 @@ class Daemon:
         s = self.security
         self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
         self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
-        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes,
-                                    security=s)
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self.services()),
+                                    cfg.max_message_bytes, security=s)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         for kind in KINDS:
@@ -144,27 +140,8 @@ class Daemon:
         return [sys.executable, "-m", "daemon.worker", "--endpoint", ep, "--parent-pid", str(os.getpid()),
                 "--data-dir", str(Path(self.config.daemon.data_dir).resolve())]
 
-    def tend_worker(self) -> None:
-        """Keep the calibration worker process running (restart it when it exits)."""
-        if not self.config.daemon.start_worker or self.stop_event.is_set():
-            return
-        if self.worker is not None and self.worker.poll() is None:
-            return
-        if time.monotonic() < self._worker_next_start:
-            return
-        self._worker_next_start = time.monotonic() + 5.0  # a worker that dies at once is retried slowly
-        if self.worker is not None:
-            log.warning("calibration worker exited with %s; restarting it", self.worker.returncode)
-        with open(Path(self.config.daemon.data_dir) / "worker.log", "ab") as log_file:  # the child keeps its copy
-            self.worker = subprocess.Popen(self._worker_cmd(), stdout=log_file, stderr=subprocess.STDOUT)
-
     def stop(self) -> None:
-        if self.worker is not None and self.worker.poll() is None:
-            self.worker.terminate()
-            try:
-                self.worker.wait(3)
-            except subprocess.TimeoutExpired:
-                self.worker.kill()
+        self.worker.stop()
         for runner in self.runners.values():
             runner.stop()
         bound: list[str] = []
@@ -180,37 +157,24 @@ class Daemon:
 
     # ------------------------------------------------------------------ services for handlers
 
+    def services(self) -> Services:
+        """The narrow view bus handlers get of this daemon."""
+        cfg = self.config
+        auth_top = Path(cfg.security.authorized_keys_dir)
+        private = (*files.PRIVATE_DIRS, *(() if auth_top.is_absolute() else auth_top.parts[:1]))
+        return Services(job=self.job, motion=self.motions.start, storage=self.storage,
+                        data_dir=Path(cfg.daemon.data_dir), private_dirs=private, save_capture=self.save_capture,
+                        abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
+                        robot=cfg.robot, calib=self.calib, world=self.world,
+                        device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
+                        state=self.state)
+
+    def state(self) -> dict[str, Any]:
+        """Clone snapshot for late joiners, with the devices' states."""
+        return {**self.telemetry.snapshot(), "devices": {k: r.snapshot() for k, r in self.runners.items()}}
+
     def job(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
         return self.runners[kind].submit(fn, urgent=urgent, timeout=timeout)
-
-    def motion(self, fn: Callable[[Any], Any], wait: bool, timeout: float) -> Future:
-        """Start a robot motion; with ``wait`` complete on the controller's DONE/FAULT event."""
-        if not wait:
-            return chain(self.job("robot", fn), lambda _: {"started": True})
-        done: Future = Future()
-        with self._motion_lock:
-            self._motion_waiters.append(done)
-
-        def started(f: Future) -> None:
-            if f.exception() is not None and not done.done():
-                with self._motion_lock:
-                    if done in self._motion_waiters:
-                        self._motion_waiters.remove(done)
-                done.set_exception(f.exception())
-
-        def expire() -> None:
-            with self._motion_lock:
-                if done not in self._motion_waiters:
-                    return
-                self._motion_waiters.remove(done)
-            done.set_exception(CommandError(ErrorCode.TIMEOUT, f"robot motion not done after {timeout:.0f} s"))
-
-        self.job("robot", fn).add_done_callback(started)
-        timer = threading.Timer(timeout, expire)
-        timer.daemon = True
-        timer.start()
-        done.add_done_callback(lambda _: timer.cancel())
-        return done
 
     def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
         """Store a capture (called in the storage thread, never in a device or bus thread)."""
@@ -233,8 +197,7 @@ class Daemon:
                 "telemetry": self.telemetry.counters(), "frames": self.frames.counters(),
                 "commands": {"requests": self.server.requests, "errors": self.server.errors,
                              "pending": self.server.pending},
-                "worker": {"pid": None if self.worker is None else self.worker.pid,
-                           "seen_s_ago": self.calib._worker_age()},
+                "worker": {"pid": self.worker.pid, "seen_s_ago": self.calib.worker_age()},
                 "alive": self.alive()}
 
     def alive(self) -> bool:
@@ -252,7 +215,7 @@ class Daemon:
         while not self.stop_event.is_set():
             now = time.monotonic()
             if now >= next_health:
-                self.tend_worker()
+                self.worker.tend()
                 h = self.health()
                 self.telemetry.publish("daemon.health", h)
                 status = ", ".join(f"{k} {v['state']}" for k, v in h["devices"].items())

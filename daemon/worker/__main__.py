@@ -19,7 +19,7 @@ from typing import Any
 from calibration.errors import CalibrationError
 from daemon.worker.compute import COMPUTE
 from daemon.worker.job import Cancelled, JobContext, StepFailed
-from daemon.worker.procedures import PROCEDURES
+from daemon.worker.procedures import RUNNERS
 from daemon.worker.store import add_message, install_camera_model, save_result
 from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.protocol import CommandError
@@ -84,7 +84,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                      + (f"; re-running the failed step ({failed})" if failed else ""))
     try:
         ctx.check_cancel()
-        PROCEDURES[ctx.procedure](ctx)
+        RUNNERS[ctx.procedure](ctx)
         result = _compute(ctx, previous)
         result.update(job=ctx.job_id, messages=_dedupe(result.get("messages")),
                       params={k: v for k, v in ctx.params.items() if k not in ("plate", "camera_model", "calibration")})

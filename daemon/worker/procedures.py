@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from calibration.plate import NEST_NAMES, Plate
 from daemon.worker.compute import footprint_abs
 from daemon.worker.job import JobContext, StepFailed
 from daemon.worker.nav import Navigator
+from daemon.bus.command_table import PROCEDURES
 from daemon.bus.protocol import CommandError
 
 #: default parameters (mm, degrees)
@@ -246,5 +247,8 @@ def intrinsics(ctx: JobContext) -> None:
     ctx.progress("calibrate the camera", 92, "")
 
 
-PROCEDURES = {"referencing": referencing, "measure-mark": measure_mark, "experiment": experiment,
-              "intrinsics": intrinsics}
+_RUNNERS = {"referencing": referencing, "measure-mark": measure_mark, "experiment": experiment,
+            "intrinsics": intrinsics}
+#: one runner per procedure the command table lists (the one list of procedures): a listed
+#: procedure without a runner fails here, at import, not when a job of it arrives
+RUNNERS: dict[str, Callable[[JobContext], None]] = {name: _RUNNERS[name] for name in PROCEDURES}

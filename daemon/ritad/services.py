@@ -1,0 +1,41 @@
+"""What bus handlers may use of the daemon: exactly this, never the ``Daemon`` itself.
+
+``Daemon.services()`` fills it in; tests build one with fakes. Each field says what a
+handler group needs: device jobs, robot motions, the storage thread, the data dir, the
+few config values handlers read, the calibration mailbox and the simulated world.
+"""
+from __future__ import annotations
+
+from concurrent.futures import Executor, Future
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Protocol
+
+from daemon.ritad.calib_jobs import CalibJobs
+from daemon.ritad.config import RobotSection
+
+
+class SubmitJob(Protocol):
+    """Run ``fn(device)`` in the device's owner thread (``urgent`` jumps its queue)."""
+
+    def __call__(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False,
+                 timeout: float = 60.0) -> Future: ...
+
+
+@dataclass(frozen=True)
+class Services:
+    job: SubmitJob
+    motion: Callable[[Callable[[Any], Any], bool, float], Future]  # (fn(robot), wait, timeout_s)
+    storage: Executor                    # the one storage thread: file work never holds up a device or the bus
+    data_dir: Path
+    private_dirs: tuple[str, ...]        # top-level data-dir folders files.* never serve
+    save_capture: Callable[..., Path]    # (parts, label, dataset=None) -> entry path; call in ``storage``
+    abs_H_trk: list[list[float]]         # tracker frame -> ACS (config [tracker])
+    stream_rate_hz: float                # default tracker stream rate (config [tracker])
+    robot: RobotSection                  # motion limits (config [robot])
+    calib: CalibJobs
+    world: Any                           # the simulated world, or None
+    device_info: Callable[[str], dict[str, Any]]
+    hello: Callable[[], dict[str, Any]]
+    health: Callable[[], dict[str, Any]]
+    state: Callable[[], dict[str, Any]]
