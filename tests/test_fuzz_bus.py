@@ -285,7 +285,7 @@ def match(bodies: list[bytes], replies: list[dict[str, Any]]) -> None:
 
 def test_command_names_cover_the_daemon(daemon: Daemon) -> None:
     """The fuzzer knows every command the daemon offers (so none escapes fuzzing)."""
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
         offered = set(c.call("help")["commands"])
     assert offered - set(COMMANDS) == set()
 
@@ -317,20 +317,20 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     print(f"\nbus fuzz: {sent[0]} messages ({len(distinct)} distinct) in {elapsed:.1f} s; "
           f"replies by code: {dict(codes.most_common())}")
     assert len(distinct) >= 10_000
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
         h = wait_ready(c)
     assert h["alive"] is True
     assert h["commands"]["requests"] >= sent[0]
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
     # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
-    data = Path(daemon.ritad.config.daemon.data_dir)
+    data = Path(daemon.config.daemon.data_dir)
     assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
     folders = list((data / "datasets").iterdir())
     assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
 
 def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> None:
-    limit = daemon.ritad.config.daemon.max_message_bytes
+    limit = daemon.config.daemon.max_message_bytes
     big = pack({"v": 1, "id": "big", "cmd": "ping", "args": {"pad": b"x" * limit}})
     replies = exchange(dealer, [big, b"", b"\xc1"])
     assert [r["error"]["code"] for r in replies] == [ErrorCode.TOO_LARGE, ErrorCode.BAD_REQUEST,
@@ -341,8 +341,8 @@ def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> Non
 
 def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
     """Random labels and dataset names on captures that succeed: files land under datasets/ only."""
-    data = Path(daemon.ritad.config.daemon.data_dir)
-    with Client(daemon.ritad.server.endpoints[0], timeout=30) as c:
+    data = Path(daemon.config.daemon.data_dir)
+    with Client(daemon.server.endpoints[0], timeout=30) as c:
         wait_ready(c)
         lock_on_robot(c)
         saved: list[Path] = []

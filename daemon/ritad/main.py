@@ -326,7 +326,7 @@ def serve(daemon: Daemon, notifier: Notifier) -> int:
         daemon.start()
     except (zmq.ZMQError, OSError, ValueError) as exc:
         log.error("cannot start: %s", exc)  # on stderr (the journal) once: logging writes there
-        d = daemon.ritad.config.daemon
+        d = daemon.config.daemon
         remove_socket_files(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)  # ours: we hold the lock
         return RitadExit.CANNOT_START
     from daemon.ritad.logs import BusLogHandler
@@ -336,8 +336,8 @@ def serve(daemon: Daemon, notifier: Notifier) -> int:
         # set the event from another thread: Event.set() in a handler that interrupts the main
         # thread's own Event.wait() would deadlock on the Event's (non-reentrant) lock
         signal.signal(sig, lambda *_: threading.Thread(target=daemon.stop_event.set, daemon=True).start())
-    eps = daemon.ritad.server.endpoints
-    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), daemon.ritad.config.source)
+    eps = daemon.server.endpoints
+    log.info("ritad %s ready: commands on %s (config %s)", __version__, ", ".join(eps), daemon.config.source)
     print(f"ritad ready: {' '.join(eps)}", flush=True)
     notifier.ready(f"bus on {eps[0]}")
     try:
