@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from daemon.ritad import files
+from daemon.ritad.key_admin import key_handlers
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Reply, Request
 from daemon.bus.storage import tracker_point_dict
@@ -276,5 +277,6 @@ def build_handlers(d: "Daemon") -> dict[str, Callable[[Request], Any]]:
         "capture": capture, "sim.truth": sim_truth, "sim.place_robot_on_plate": sim_place_robot_on_plate, "data.dir": data_dir, "calib.results": calib_results,
         "files.list": files_list, "files.read": files_read, "files.hash": files_hash,
         **d.calib.handlers(),
+        **key_handlers(auth_top if auth_top.is_absolute() else root / auth_top, lambda fn: d.storage.submit(fn)),
     }
     return handlers

@@ -129,7 +129,7 @@ class Daemon:
         self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
         self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
         self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self), cfg.max_message_bytes,
-                                    security=s)
+                                    security=s, plain_role=self.config.security.ipc_role)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         for kind in KINDS:
