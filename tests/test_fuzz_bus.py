@@ -69,11 +69,12 @@ ARGS = {"tracker.aim": ("x", "y", "z"), "tracker.find": ("approx_distance_mm",),
         "calib.next": ("timeout_s",),
         "calib.inbox": ("job", "timeout_s"), "calib.report": ("kind", "job", "data", "procedure"),
         "sim.place_robot_on_plate": ("heading_deg",), "files.list": ("path",),
-        "files.read": ("path", "offset", "length"), "files.hash": ("path", "length")}
+        "files.read": ("path", "offset", "length"), "files.hash": ("path", "length"),
+        "keys.allow": ("name", "public_key", "role"), "keys.role": ("name", "role"), "keys.revoke": ("name",)}
 # real commands with argument-free or fuzzed handlers (the daemon's ``help`` is checked against it)
 COMMANDS = sorted({"ping", "help", "hello", "status", "health", "state", "tracker.measure", "tracker.stream.stop",
                    "tracker.status", "camera.stream.start", "camera.stream.stop", "camera.status", "robot.stop",
-                   "robot.status", "sim.truth", "data.dir", "calib.results", "calib.jobs", *ARGS})
+                   "robot.status", "sim.truth", "data.dir", "calib.results", "calib.jobs", "keys.list", *ARGS})
 
 
 def arg_value(name: str) -> st.SearchStrategy[Any]:
