@@ -3,10 +3,11 @@
 Every ``tcp://`` endpoint is a CURVE server; the ZAP authenticator (a pyzmq
 ``ThreadAuthenticator``) is started *before* any bind, because a CURVE server
 without a running authenticator accepts any key. Client public keys live one per
-file in the authorized-keys directory (``<name>.key``, a ZeroMQ certificate with the key's role, see
-:mod:`daemon.bus.roles`); the directory is re-read whenever it changes, so
-``ritactl keys allow/revoke/role`` takes effect without a restart: ZAP checks new
-connections, the command server checks every request. ``ipc://`` endpoints stay plain: the file system guards them.
+file in the authorized-keys directory (``<name>.key``, a ZeroMQ certificate with the
+key's role, see :mod:`daemon.bus.roles`); the directory is re-read whenever it changes,
+so ``ritactl keys allow/role/revoke`` takes effect without a restart: ZAP checks new
+connections, the command server every request. ``ipc://`` endpoints stay plain: the
+file system guards them.
 
 Every refused attempt is logged with the client's key (or "plaintext") and peer
 address: unknown keys by the ZAP handler, which knows both; clients without CURVE

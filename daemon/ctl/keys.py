@@ -5,8 +5,10 @@ in the keys folder (``$RITA_KEYS``, else the config folder of
 :mod:`daemon.ctl.config`, ``~/.config/rita``); copy the robot's ``server.key`` there
 too, and select the key with ``--key bob`` or ``key = "bob"`` in ``ritactl.toml``
 (the default name is ``client``). On the robot: ``ritactl keys init --server --dir
-/etc/ritad/keys`` once, then ``ritactl keys allow bob.key --name bob`` for each
-operator; ``revoke`` takes effect for the next connection, without a restart.
+/etc/ritad/keys`` once, then ``ritactl keys allow bob.key --name bob --role operator``
+for each operator (default role viewer: least privilege); ``role`` and ``revoke`` apply
+from the key's next request, without a restart. With ``--bus`` the same actions go to
+the daemon's ``keys.*`` commands, which only an admin key may send.
 
 Once keys are configured (a key name, a keys folder or a server key given, or key
 files present in the default folder), a tcp endpoint never falls back to plaintext:
