@@ -5,6 +5,7 @@ from __future__ import annotations
 import random
 import stat
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,20 @@ def test_keyring_sees_role_changes_and_revocation_without_a_restart(tmp_path):
     assert ring.lookup(public).role == "operator"
     roles.revoke(tmp_path, "bob")
     assert ring.lookup(public) is None and ring.callback("rita", public) is False
+
+
+def test_keyring_rescans_for_a_file_edited_in_place(tmp_path):
+    """A request stats only the folder; an in-place edit (folder mtime unchanged) is seen at the next rescan."""
+    public, _ = zmq.curve_keypair()
+    roles.write_entry(tmp_path, "bob", public, "viewer")
+    ring = KeyRing(tmp_path, rescan_s=1.0)
+    ring.RACY_NS = -10**12  # this test only: trust the folder's mtime however recent
+    assert ring.lookup(public).role == "viewer"
+    f = tmp_path / "bob.key"
+    f.write_text(f.read_text().replace('role = "viewer"', 'role = "admin"'))  # same inode, folder untouched
+    assert ring.lookup(public).role == "viewer"  # not scanned: one stat said nothing changed
+    time.sleep(1.05)
+    assert ring.lookup(public).role == "admin"
 
 
 def test_fixed_facts_of_the_table():

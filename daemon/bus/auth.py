@@ -108,22 +108,48 @@ class KeyRing:
 
     ZAP asks it at every CURVE handshake; the command server asks it again at every
     request (``lookup``), so a revocation or a new role applies to open connections too.
+    A request costs one stat of the folder: ``ritactl keys`` and ``keys.*`` replace or
+    remove files, which changes the folder's mtime. The full scan (every file's stat)
+    runs when that mtime changed, while it is too recent to tell two changes in one
+    clock tick apart, and at least every ``rescan_s`` (a file edited in place).
     """
 
-    def __init__(self, directory: Path, refusals: RefusalLog | None = None) -> None:
+    RACY_NS = 2_000_000_000  # folder changed this close before a scan: the next request scans again
+
+    def __init__(self, directory: Path, refusals: RefusalLog | None = None, rescan_s: float = 1.0) -> None:
         self.directory = Path(directory)
         self.refusals = refusals or RefusalLog()
         self.peer = "?"  # the address of the ZAP request being answered (set by _Authenticator)
+        self.rescan_ns = int(rescan_s * 1e9)
         self._lock = threading.Lock()
         self._stamp: tuple[int, int, int] | None = None
         self._keys: dict[bytes, KeyEntry] = {}
+        self._dir_stamp: tuple[int, int] | None = None
+        self._scanned_ns = 0
+
+    def _unchanged(self) -> bool:
+        """True when one stat of the folder shows nothing can have changed since the last scan."""
+        try:
+            st = self.directory.stat()
+            dir_stamp = (st.st_mtime_ns, st.st_ino)
+        except FileNotFoundError:
+            dir_stamp = (0, 0)
+        now = time.time_ns()
+        if (dir_stamp == self._dir_stamp and self._scanned_ns - dir_stamp[0] > self.RACY_NS
+                and now - self._scanned_ns < self.rescan_ns):
+            return True
+        self._dir_stamp, self._scanned_ns = dir_stamp, now
+        return False
 
     def _reload(self) -> None:
+        if self._unchanged():
+            return
         try:
             st = self.directory.stat()
             files = sorted(self.directory.glob("*.key"))
+            stats = [f.stat() for f in files]
             # a role change rewrites one file: its mtime and inode change even within one clock tick
-            stamp = (st.st_mtime_ns, sum(f.stat().st_mtime_ns for f in files), sum(f.stat().st_ino for f in files))
+            stamp = (st.st_mtime_ns, sum(s.st_mtime_ns for s in stats), sum(s.st_ino for s in stats))
         except FileNotFoundError:
             stamp, files = (0, 0, 0), []
         if stamp == self._stamp:
