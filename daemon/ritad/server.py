@@ -50,7 +50,7 @@ class Request:
     cmd: str
     args: dict[str, Any]
     peer: str  # "name (public key)" of a CURVE client, "local peer-<routing id hex>" of a plain one
-    role: str = "operator"  # the sender's role; the server already checked it against the command's
+    role: str = "viewer"  # the sender's role; the server already checked it against the command's
     key: str | None = None  # the CURVE client's z85 public key; None for plain (ipc) clients
 
 
