@@ -7,7 +7,7 @@ from __future__ import annotations
 import contextlib
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 from daemon.ritad import config
 from daemon.bus.client import Client
@@ -15,12 +15,15 @@ from daemon.ritad.main import Daemon
 
 
 @contextlib.contextmanager
-def sim_daemon(rt: Path) -> Iterator[Daemon]:
+def sim_daemon(rt: Path, configure: Callable[[config.Config], None] | None = None) -> Iterator[Daemon]:
+    """``configure`` edits the config before the daemon starts (e.g. tcp endpoints with CURVE)."""
     cfg = config.sim_config(rt)
     cfg.daemon.start_worker = False
     cfg.devices.camera = "sim:?size=64x48&noise=0"
     cfg.devices.tracker = "sim:?time_scale=0.002"
     cfg.devices.robot = "sim:?time_scale=1"  # real-time motions: a test can interrupt one
+    if configure is not None:
+        configure(cfg)
     d = Daemon(cfg)
     d.start()
     try:

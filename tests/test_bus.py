@@ -36,7 +36,8 @@ def server(tmp_path):
         "boom": boom,
         "refuse": lambda req: (_ for _ in ()).throw(CommandError(ErrorCode.BAD_ARGS, "nope")),
     }
-    srv = CommandServer(ctx, [f"ipc://{tmp_path}/cmd"], handlers, max_message_bytes=1000)
+    # stub commands outside the command table need admin (fail closed): this tests the reply machinery
+    srv = CommandServer(ctx, [f"ipc://{tmp_path}/cmd"], handlers, max_message_bytes=1000, plain_role="admin")
     srv.start()
     yield srv, ctx, pending
     srv.stop()

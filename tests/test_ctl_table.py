@@ -24,7 +24,7 @@ def registered_commands(tmp_path) -> set[str]:
     cfg = config.sim_config(tmp_path)
     unused: Any = None  # building the handlers calls no service
     s = Services(job=unused, motion=unused, storage=unused, data_dir=tmp_path, private_dirs=(),
-                 save_capture=unused, abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=1.0, robot=cfg.robot,
+                 auth_dir=tmp_path / "authorized_keys", save_capture=unused, abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=1.0, robot=cfg.robot,
                  calib=CalibJobs(lambda topic, data: None), world=None, device_info=unused, hello=unused,
                  health=unused, state=unused)
     return set(build_handlers(s))

@@ -3,10 +3,11 @@
 Every ``tcp://`` endpoint is a CURVE server; the ZAP authenticator (a pyzmq
 ``ThreadAuthenticator``) is started *before* any bind, because a CURVE server
 without a running authenticator accepts any key. Client public keys live one per
-file in the authorized-keys directory (``<name>.key``, the format of
-``zmq.auth.create_certificates``); the directory is re-read whenever it changes, so
-``ritactl keys allow/revoke`` takes effect for the next connection without a
-restart. ``ipc://`` endpoints stay plain: the file system guards them.
+file in the authorized-keys directory (``<name>.key``, a ZeroMQ certificate with the
+key's role, see :mod:`daemon.bus.roles`); the directory is re-read whenever it changes,
+so ``ritactl keys allow/role/revoke`` takes effect without a restart: ZAP checks new
+connections, the command server every request. ``ipc://`` endpoints stay plain: the
+file system guards them.
 
 Every refused attempt is logged with the client's key (or "plaintext") and peer
 address: unknown keys by the ZAP handler, which knows both; clients without CURVE
@@ -31,6 +32,8 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils.monitor import parse_monitor_message
+
+from daemon.bus.roles import KeyEntry, read_entry
 
 log = logging.getLogger(__name__)
 
@@ -101,42 +104,81 @@ class RefusalLog:
 
 
 class KeyRing:
-    """The allow-list: public keys in a directory, re-read when the directory changes."""
+    """The allow-list: public keys with their roles in a directory, re-read when the directory changes.
 
-    def __init__(self, directory: Path, refusals: RefusalLog | None = None) -> None:
+    ZAP asks it at every CURVE handshake; the command server asks it again at every
+    request (``lookup``), so a revocation or a new role applies to open connections too.
+    A request costs one stat of the folder: ``ritactl keys`` and ``keys.*`` replace or
+    remove files, which changes the folder's mtime. The full scan (every file's stat)
+    runs when that mtime changed, while it is too recent to tell two changes in one
+    clock tick apart, and at least every ``rescan_s`` (a file edited in place).
+    """
+
+    RACY_NS = 2_000_000_000  # folder changed this close before a scan: the next request scans again
+
+    def __init__(self, directory: Path, refusals: RefusalLog | None = None, rescan_s: float = 1.0) -> None:
         self.directory = Path(directory)
         self.refusals = refusals or RefusalLog()
         self.peer = "?"  # the address of the ZAP request being answered (set by _Authenticator)
+        self.rescan_ns = int(rescan_s * 1e9)
         self._lock = threading.Lock()
-        self._stamp: tuple[int, int] | None = None
-        self._keys: dict[bytes, str] = {}
+        self._stamp: tuple[int, int, int] | None = None
+        self._keys: dict[bytes, KeyEntry] = {}
+        self._dir_stamp: tuple[int, int] | None = None
+        self._scanned_ns = 0
+
+    def _unchanged(self) -> bool:
+        """True when one stat of the folder shows nothing can have changed since the last scan."""
+        try:
+            st = self.directory.stat()
+            dir_stamp = (st.st_mtime_ns, st.st_ino)
+        except FileNotFoundError:
+            dir_stamp = (0, 0)
+        now = time.time_ns()
+        if (dir_stamp == self._dir_stamp and self._scanned_ns - dir_stamp[0] > self.RACY_NS
+                and now - self._scanned_ns < self.rescan_ns):
+            return True
+        self._dir_stamp, self._scanned_ns = dir_stamp, now
+        return False
 
     def _reload(self) -> None:
+        if self._unchanged():
+            return
         try:
             st = self.directory.stat()
             files = sorted(self.directory.glob("*.key"))
-            stamp = (st.st_mtime_ns, sum(f.stat().st_mtime_ns for f in files))
+            stats = [f.stat() for f in files]
+            # a role change rewrites one file: its mtime and inode change even within one clock tick
+            stamp = (st.st_mtime_ns, sum(s.st_mtime_ns for s in stats), sum(s.st_ino for s in stats))
         except FileNotFoundError:
-            stamp, files = (0, 0), []
+            stamp, files = (0, 0, 0), []
         if stamp == self._stamp:
             return
         keys = {}
         for f in files:
             try:
-                keys[load_public(f)] = f.stem
-            except Exception as exc:  # a broken key file must not open or close the door for others
-                log.warning("ignoring unreadable key file %s: %s", f, exc)
+                entry = read_entry(f)
+                keys[entry.public] = entry
+            except (OSError, ValueError) as exc:  # a broken file must not open or close the door for others
+                log.warning("ignoring unusable key file %s: %s", f, exc)
         self._keys, self._stamp = keys, stamp
-        log.info("allow-list %s: %d key(s)", self.directory, len(keys))
+        log.info("allow-list %s: %d key(s) (%s)", self.directory, len(keys),
+                 ", ".join(f"{e.name}: {e.role}" for e in keys.values()) or "none")
 
     def names(self) -> dict[bytes, str]:
         with self._lock:
             self._reload()
-            return dict(self._keys)
+            return {k: e.name for k, e in self._keys.items()}
+
+    def lookup(self, public: bytes) -> KeyEntry | None:
+        """The entry of a z85 public key, or None when it is not (or no longer) allowed."""
+        with self._lock:
+            self._reload()
+            return self._keys.get(public)
 
     def callback(self, domain: str, key: bytes) -> bool:
         """Called by the authenticator for every CURVE handshake."""
-        allowed = key in self.names()
+        allowed = self.lookup(key) is not None
         if not allowed:
             self.refusals.refused(f"CURVE key {key.decode(errors='replace')}", self.peer,
                                   f"unknown key, not in the allow-list {self.directory}")

@@ -94,6 +94,8 @@ def _job(help_: str = "job id") -> Arg:
     return Arg("job", "str", help_, default=REQUIRED, cli=POS, metavar="JOB")
 
 
+_KEY_NAME = Arg("name", "str", "the key's name in the allow-list", default=REQUIRED)
+
 TABLE: tuple[Command, ...] = (
     Command("ping", "liveness check", result="{pong, t_ns}"),
     Command("help", "list the commands", result="{commands: {name: {help, role, result, worker_only, args: "
@@ -209,6 +211,17 @@ TABLE: tuple[Command, ...] = (
                               choices=("progress", "result", "prompt", "error")),
                   Arg("data", "any", "the report", default_text="{}"),
                   Arg("procedure", "str", "procedure of a resumed job", default_text="the posted job's"))),
+    Command("keys.list", "the allow-list: names, roles and public keys of the CURVE keys", "admin", verb="keys",
+            result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
+    Command("keys.allow", "allow a CURVE key with a role (replaces an entry of that name)", "admin", verb="keys",
+            result="{name, role, public_key}", args=(
+                _KEY_NAME, Arg("public_key", "str", "the client's public key (z85, 40 characters)", default=REQUIRED),
+                Arg("role", "str", "what the key may do", default="viewer", choices=ROLES))),
+    Command("keys.role", "change the role of an allowed key", "admin", verb="keys",
+            result="{name, role, public_key}", args=(
+                _KEY_NAME, Arg("role", "str", "what the key may do", default=REQUIRED, choices=ROLES))),
+    Command("keys.revoke", "remove a key from the allow-list (its open connections too)", "admin", verb="keys",
+            result="{revoked}", args=(_KEY_NAME,)),
 )
 
 COMMANDS: dict[str, Command] = {c.name: c for c in TABLE}

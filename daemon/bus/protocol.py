@@ -41,7 +41,8 @@ class ErrorCode:
     BUSY = "busy"
     NOT_FOUND = "not_found"
     INTERNAL = "internal"
-    UNAUTHORIZED = "unauthorized"
+    UNAUTHORIZED = "unauthorized"  # the CURVE key was revoked while connected
+    FORBIDDEN = "forbidden"  # the caller's role may not send this command; the message names both roles
 
 
 class ProtocolError(Exception):

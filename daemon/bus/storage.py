@@ -31,8 +31,12 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: Path, data: bytes | memoryview) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file + fsync + rename)."""
+def atomic_write_bytes(path: Path, data: bytes | memoryview, mode: int | None = None) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
+
+    The file is private (0600, from mkstemp) unless ``mode`` says otherwise, e.g. 0644 for
+    a public key that root writes and the daemon's user must read.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -41,6 +45,8 @@ def atomic_write_bytes(path: Path, data: bytes | memoryview) -> Path:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -52,8 +58,8 @@ def atomic_write_bytes(path: Path, data: bytes | memoryview) -> Path:
     return path
 
 
-def atomic_write_text(path: Path, text: str) -> Path:
-    return atomic_write_bytes(path, text.encode("utf-8"))
+def atomic_write_text(path: Path, text: str, mode: int | None = None) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"), mode)
 
 
 def atomic_write_json(path: Path, obj: Any) -> Path:

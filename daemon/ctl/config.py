@@ -22,11 +22,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from daemon.bus.roles import KEY_NAME  # key names become file names: one rule, shared with the daemon
+
 ENV_CONFIG = "RITA_CONFIG"
 ENV_KEYS = "RITA_KEYS"
 FILE_NAME = "ritactl.toml"
-#: key names become file names (NAME.key_secret): no separators
-KEY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,63}")
 
 
 class CtlConfigError(ValueError):

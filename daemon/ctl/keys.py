@@ -5,8 +5,10 @@ in the keys folder (``$RITA_KEYS``, else the config folder of
 :mod:`daemon.ctl.config`, ``~/.config/rita``); copy the robot's ``server.key`` there
 too, and select the key with ``--key bob`` or ``key = "bob"`` in ``ritactl.toml``
 (the default name is ``client``). On the robot: ``ritactl keys init --server --dir
-/etc/ritad/keys`` once, then ``ritactl keys allow bob.key --name bob`` for each
-operator; ``revoke`` takes effect for the next connection, without a restart.
+/etc/ritad/keys`` once, then ``ritactl keys allow bob.key --name bob --role operator``
+for each operator (default role viewer: least privilege); ``role`` and ``revoke`` apply
+from the key's next request, without a restart. With ``--bus`` the same actions go to
+the daemon's ``keys.*`` commands, which only an admin key may send.
 
 Once keys are configured (a key name, a keys folder or a server key given, or key
 files present in the default folder), a tcp endpoint never falls back to plaintext:
@@ -16,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -122,7 +123,8 @@ def _init(a: argparse.Namespace) -> int:
     return 0
 
 
-def _allow(a: argparse.Namespace, auth: Path) -> int:
+def _public_of(a: argparse.Namespace) -> tuple[bytes, str] | int:
+    """(public key, name) from ``keys allow FILE [--name N]``, or the exit code of a bad FILE/name."""
     from daemon.bus.auth import load_public
 
     if not a.file:
@@ -140,51 +142,91 @@ def _allow(a: argparse.Namespace, auth: Path) -> int:
     name = a.name or src.stem
     if not KEY_NAME.fullmatch(name):
         return _err(f"--name {name!r} is not a key name (letters, digits, . _ -)", Exit.USAGE)
-    auth.mkdir(parents=True, exist_ok=True)
-    dest = auth / f"{name}.key"
-    tmp = dest.with_suffix(".tmp")
-    shutil.copyfile(src, tmp)
-    tmp.replace(dest)
-    print(f"allowed {dest.stem}: {key.decode()}")
-    return 0
+    return key, name
+
+
+def _show(entries: list[dict[str, str]], unreadable: dict[str, str]) -> None:
+    for e in entries:
+        print(f"{e['name']:20s} {e['role']:9s} {e['public_key']}")
+    for f, why in unreadable.items():
+        print(f"{Path(f).stem:20s} unreadable: {why}")
+
+
+def _local(a: argparse.Namespace, auth: Path) -> int:
+    """The allow-list files on this computer (the robot, as root)."""
+    from daemon.bus import roles
+
+    try:
+        if a.action == "allow":
+            got = _public_of(a)
+            if isinstance(got, int):
+                return got
+            e = roles.write_entry(auth, got[1], got[0], a.role or roles.DEFAULT_ROLE)
+            print(f"allowed {e.name} as {e.role}: {e.public.decode()}")
+        elif a.action == "role":
+            e = roles.set_role(auth, a.name, a.role)
+            print(f"{e.name} is now {e.role} (from its next request, no restart)")
+        elif a.action == "revoke":
+            roles.revoke(auth, a.name)
+            print(f"revoked {a.name} (refused from its next request or connection, no restart)")
+        else:
+            if not auth.is_dir():
+                return _err(f"{auth} does not exist (no key allowed yet)", Exit.BAD_INPUT)
+            entries, broken = roles.list_entries(auth)
+            _show([{"name": e.name, "role": e.role, "public_key": e.public.decode()} for e in entries], broken)
+    except (LookupError, ValueError) as exc:
+        return _err(str(exc.args[0]) if isinstance(exc, LookupError) else str(exc), Exit.BAD_INPUT)
+    return Exit.OK
+
+
+def _remote(c: Any, a: argparse.Namespace) -> int:
+    """The daemon's allow-list over the bus (``--bus``; the daemon refuses unless this key is admin)."""
+    if a.action == "allow":
+        got = _public_of(a)
+        if isinstance(got, int):
+            return got
+        args = {"name": got[1], "public_key": got[0].decode(), **({"role": a.role} if a.role else {})}
+        e = c.call("keys.allow", **args)
+        print(f"allowed {e['name']} as {e['role']}: {e['public_key']}")
+    elif a.action == "role":
+        e = c.call("keys.role", name=a.name, role=a.role)
+        print(f"{e['name']} is now {e['role']}")
+    elif a.action == "revoke":
+        print(f"revoked {c.call('keys.revoke', name=a.name)['revoked']}")
+    else:
+        r = c.call("keys.list")
+        _show(r["keys"], r["unreadable"])
+    return Exit.OK
 
 
 def cmd_keys(c: Any, a: argparse.Namespace) -> int:
-    from daemon.bus.auth import load_public
-
     if a.action == "init":
-        return _init(a)
-    auth = Path(a.dir or DEFAULT_AUTH_DIR).expanduser()
-    if a.action == "allow":
-        return _allow(a, auth)
-    if a.action == "revoke":
-        if not a.name:
-            return _err("keys revoke needs --name", Exit.USAGE)
-        target = auth / f"{a.name}.key"
-        if not KEY_NAME.fullmatch(a.name) or not target.exists():
-            return _err(f"no key named {a.name!r} in {auth}", Exit.BAD_INPUT)
-        target.unlink()
-        print(f"revoked {a.name} (new connections with that key are refused now)")
-        return 0
-    if a.action == "list":
-        if not auth.is_dir():
-            return _err(f"{auth} does not exist (no key allowed yet)", Exit.BAD_INPUT)
-        for f in sorted(auth.glob("*.key")):
-            try:
-                print(f"{f.stem:20s} {load_public(f).decode()}")
-            except Exception as exc:  # noqa: BLE001
-                print(f"{f.stem:20s} unreadable: {exc}")
-        return 0
-    return _err(f"unknown keys action {a.action!r}", Exit.USAGE)
+        return _init(a) if c is None else _err("keys init makes files on this computer: drop --bus", Exit.USAGE)
+    if a.action in ("revoke", "role") and not a.name:
+        return _err(f"keys {a.action} needs --name", Exit.USAGE)
+    if a.action == "role" and not a.role:
+        return _err("keys role needs --role (viewer, operator or admin)", Exit.USAGE)
+    if c is not None:
+        return _remote(c, a)
+    return _local(a, Path(a.dir or DEFAULT_AUTH_DIR).expanduser())
 
 
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("keys", help="CURVE keys: init | allow FILE | revoke --name N | list")
-    p.add_argument("action", choices=["init", "allow", "revoke", "list"])
+    from daemon.bus.command_table import ROLES
+    from daemon.bus.roles import DEFAULT_ROLE
+
+    p = sub.add_parser("keys", help="CURVE keys: init | allow FILE [--role R] | role --name N --role R | "
+                                    "revoke --name N | list")
+    p.add_argument("action", choices=["init", "allow", "role", "revoke", "list"])
     p.add_argument("file", nargs="?", help="allow: the client's public key file")
     p.add_argument("--dir", help=f"keys folder (init; default {default_keys_dir()}) or allow-list "
-                                 f"(allow/revoke/list; default {DEFAULT_AUTH_DIR})")
-    p.add_argument("--name", help="init: key name; allow/revoke: the client's name in the allow-list")
+                                 f"(allow/role/revoke/list; default {DEFAULT_AUTH_DIR})")
+    p.add_argument("--name", help="init: key name; allow/role/revoke: the client's name in the allow-list")
+    p.add_argument("--role", choices=ROLES, help=f"allow (default {DEFAULT_ROLE}: may watch, not move) and "
+                                                 f"role: what the key may do")
+    p.add_argument("--bus", dest="offline", action="store_false",
+                   help="allow/role/revoke/list: change the daemon's allow-list over the bus, with an admin key "
+                        "(--endpoint/--key), instead of the files on this computer")
     p.add_argument("--server", action="store_true", help="init: the robot's server key pair")
     p.add_argument("--force", action="store_true", help="init: replace an existing key pair")
     p.set_defaults(fn=cmd_keys, offline=True)

@@ -9,6 +9,7 @@ storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, Callable
 
@@ -17,6 +18,7 @@ from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
 from daemon.ritad import files
 from daemon.ritad.futures import chain, gather
+from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
 from daemon.ritad.services import Services
 from drivers.base import Frame, TrackerPoint
@@ -149,6 +151,10 @@ def _files(s: Services) -> dict[str, Handler]:
                                                        private)}
 
 
+def _keys(s: Services) -> dict[str, Handler]:
+    return key_handlers(s.auth_dir, lambda fn: s.storage.submit(fn))  # admin: the allow-list over the bus
+
+
 def _sim(s: Services) -> dict[str, Handler]:
     def world(req: Request) -> Any:
         if s.world is None:
@@ -175,12 +181,12 @@ def _sim(s: Services) -> dict[str, Handler]:
     return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate}
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _sim)
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim)
 
 
 def validated(cmd: str, handler: Handler) -> Handler:
     """``handler`` seeing ``req.args`` checked and defaulted by the command table."""
-    return lambda req: handler(Request(req.id, req.cmd, validate(cmd, req.args), req.peer))
+    return lambda req: handler(dataclasses.replace(req, args=validate(cmd, req.args)))
 
 
 def build_handlers(s: Services) -> dict[str, Handler]:

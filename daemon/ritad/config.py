@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from daemon.bus.command_table import ROLES
 from daemon.ritad.registry import schemes
 from drivers.base import CameraSettings, DeviceURL
 
@@ -90,6 +91,9 @@ class SecuritySection:
     authorized_keys_dir: str = "authorized_keys"
     #: allow tcp endpoints without CURVE (anyone on the network can drive the robot); warned at every start
     insecure_tcp: bool = False
+    #: role of clients without a CURVE key: local ipc clients (the worker among them: it needs operator)
+    #: and, with insecure_tcp, everyone on the tcp endpoints. CURVE keys carry their own role.
+    ipc_role: str = "operator"
 
 
 @dataclass
@@ -226,10 +230,20 @@ def _validate(cfg: Config) -> None:
         raise ConfigError(f"{src}: sim.tracker_sigma_mm must be >= 0, got {cfg.sim.tracker_sigma_mm}")
 
 
+def _validate_security(cfg: Config) -> None:
+    role = cfg.security.ipc_role
+    if role not in ROLES:
+        raise ConfigError(f"{cfg.source}: security.ipc_role {role!r} is not one of {', '.join(ROLES)}")
+    if cfg.daemon.start_worker and role == "viewer":
+        raise ConfigError(f"{cfg.source}: security.ipc_role = \"viewer\" with daemon.start_worker = true: the "
+                          f"calibration worker connects over ipc and needs operator")
+
+
 def from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
     cfg = _build(Config, data, source)
     cfg.source = source
     _validate(cfg)
+    _validate_security(cfg)
     return cfg
 
 

@@ -125,7 +125,8 @@ class Daemon:
         self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
         self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
         self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self.services()),
-                                    cfg.max_message_bytes, security=s)
+                                    cfg.max_message_bytes, security=s,
+                                    plain_role=self.config.security.ipc_role)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         for kind in KINDS:
@@ -160,10 +161,10 @@ class Daemon:
     def services(self) -> Services:
         """The narrow view bus handlers get of this daemon."""
         cfg = self.config
-        auth_top = Path(cfg.security.authorized_keys_dir)
+        data, auth_top = Path(cfg.daemon.data_dir), Path(cfg.security.authorized_keys_dir)
         private = (*files.PRIVATE_DIRS, *(() if auth_top.is_absolute() else auth_top.parts[:1]))
         return Services(job=self.job, motion=self.motions.start, storage=self.storage,
-                        data_dir=Path(cfg.daemon.data_dir), private_dirs=private, save_capture=self.save_capture,
+                        data_dir=data, private_dirs=private, auth_dir=data / auth_top, save_capture=self.save_capture,
                         abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
                         robot=cfg.robot, calib=self.calib, world=self.world,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,

@@ -5,22 +5,30 @@ Requests are decoded and validated here; every request gets exactly one reply,
 either return a result at once or a ``Future`` (device jobs); completed futures are
 handed back to this thread through a pipe that wakes the poller, so the ROUTER is
 only ever touched by its owner.
+
+Every request is checked against its sender's role before a handler sees it
+(:mod:`daemon.bus.roles`): CURVE clients have the role of their allow-list entry,
+looked up again at every request so a revocation or a new role applies to open
+connections; plain (ipc) clients have ``[security] ipc_role``. Motion commands are
+logged with the key that asked for them.
 """
 from __future__ import annotations
 
 import logging
 import os
 import queue
+import reprlib
 import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import zmq
 
 from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
                              parse_request)
+from daemon.bus.roles import refusal
 from daemon.ritad.publisher import open_sockets
 
 log = logging.getLogger(__name__)
@@ -41,8 +49,24 @@ class Request:
     id: Any
     cmd: str
     args: dict[str, Any]
-    peer: str  # client key id (CURVE) or a short routing-id hex
+    peer: str  # "name (public key)" of a CURVE client, "local peer-<routing id hex>" of a plain one
+    role: str = "viewer"  # the sender's role; the server already checked it against the command's
+    key: str | None = None  # the CURVE client's z85 public key; None for plain (ipc) clients
 
+
+class Caller(NamedTuple):
+    peer: str  # for logs and job owners
+    who: str  # for messages: "key bob" or "local client"
+    role: str
+    key: str | None
+
+
+#: commands that move something physical (or the simulated robot): logged with the caller's key
+MOTION_COMMANDS = frozenset({"robot.move", "robot.turn", "robot.stop", "tracker.aim", "tracker.find",
+                             "sim.place_robot_on_plate"})
+QUIET_COMMANDS = frozenset({"ping", "state", "status", "health"})  # polled: not logged
+_ARGS = reprlib.Repr()  # motion args in the log, bounded whatever a client sends
+_ARGS.maxdict, _ARGS.maxstring, _ARGS.maxother = 10, 60, 60
 
 Handler = Callable[[Request], Any]
 
@@ -51,10 +75,12 @@ class CommandServer(threading.Thread):
     """Owner of the ROUTER socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
-                 max_message_bytes: int = 1 << 20, security: Any = None) -> None:
+                 max_message_bytes: int = 1 << 20, security: Any = None, plain_role: str = "operator") -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
         self.max_bytes = max_message_bytes
+        self.plain_role = plain_role  # of clients on sockets without CURVE (ipc; tcp with insecure_tcp)
+        self.keyring = security.keyring if security is not None else None
 
         def setup(sock: zmq.Socket) -> None:
             sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
@@ -64,6 +90,7 @@ class CommandServer(threading.Thread):
             sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 6000)
 
         self.socks, self.endpoints = open_sockets(ctx, zmq.ROUTER, endpoints, security, setup)
+        self._curve_socks = {s for s in self.socks if s.getsockopt(zmq.CURVE_SERVER)}
         self._done: queue.Queue[tuple[tuple[zmq.Socket, list[bytes]], Any, str, Future]] = queue.Queue()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -96,13 +123,37 @@ class CommandServer(threading.Thread):
         log.info("command %s failed: [%s] %s", cmd or "?", code, message)
         self._send(envelope, error_reply(req_id, code, message))
 
-    @staticmethod
-    def _peer(frames: list[zmq.Frame]) -> str:
+    def _caller(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> Caller | None:
+        """Who sent ``frames`` and their role; None for a CURVE key that is no longer allowed."""
+        if sock not in self._curve_socks:
+            return Caller(f"local peer-{bytes(frames[0].bytes).hex()[:10]}", "local client", self.plain_role, None)
         try:
-            user = frames[-1].get("User-Id")
+            key = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
         except (zmq.ZMQError, AttributeError):
-            user = None
-        return user or f"peer-{bytes(frames[0].bytes).hex()[:10]}"
+            key = None
+        entry = self.keyring.lookup(key.encode()) if key and self.keyring is not None else None
+        if entry is None:
+            return None
+        return Caller(f"{entry.name} ({key})", f"key {entry.name}", entry.role, key)
+
+    def _admit(self, envelope: tuple[zmq.Socket, list[bytes]], frames: list[zmq.Frame], req_id: Any,
+               cmd: str) -> Caller | None:
+        """The caller when it may send ``cmd``; else the error is sent here and None returned."""
+        caller = self._caller(envelope[0], frames)
+        if caller is None:
+            self._error(envelope, req_id, ErrorCode.UNAUTHORIZED, "this key is no longer in the daemon's "
+                                                                  "allow-list (revoked)", cmd)
+            return None
+        if cmd not in self.handlers:
+            self._error(envelope, req_id, ErrorCode.UNKNOWN_COMMAND,
+                        f"unknown command {cmd!r}; 'help' lists the commands", cmd)
+            return None
+        why = refusal(cmd, caller.role, caller.who)
+        if why is not None:
+            log.warning("forbidden: %s id=%s from %s (role %s)", cmd, req_id, caller.peer, caller.role)
+            self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd)
+            return None
+        return caller
 
     # ------------------------------------------------------------------ owner thread
 
@@ -123,16 +174,17 @@ class CommandServer(threading.Thread):
             self._error(envelope, None, exc.code, str(exc))
             return
         req_id, cmd = msg["id"], msg["cmd"]
-        handler = self.handlers.get(cmd)
-        if handler is None:
-            self._error(envelope, req_id, ErrorCode.UNKNOWN_COMMAND,
-                        f"unknown command {cmd!r}; 'help' lists the commands", cmd)
+        caller = self._admit(envelope, frames, req_id, cmd)
+        if caller is None:
             return
-        request = Request(req_id, cmd, msg["args"], self._peer(frames))
-        if cmd not in ("ping", "state", "status", "health"):
+        request = Request(req_id, cmd, msg["args"], caller.peer, caller.role, caller.key)
+        if cmd in MOTION_COMMANDS:
+            log.info("motion %s id=%s from %s (role %s): %s", cmd, req_id, caller.peer, caller.role,
+                     _ARGS.repr(msg["args"]))
+        elif cmd not in QUIET_COMMANDS:
             log.info("command %s id=%s from %s", cmd, req_id, request.peer)
         try:
-            result = handler(request)
+            result = self.handlers[cmd](request)
         except CommandError as exc:
             self._error(envelope, req_id, exc.code, exc.args[0], cmd)
             return

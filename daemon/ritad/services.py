@@ -29,6 +29,7 @@ class Services:
     storage: Executor                    # the one storage thread: file work never holds up a device or the bus
     data_dir: Path
     private_dirs: tuple[str, ...]        # top-level data-dir folders files.* never serve
+    auth_dir: Path                       # the CURVE allow-list folder (keys.* commands, admin)
     save_capture: Callable[..., Path]    # (parts, label, dataset=None) -> entry path; call in ``storage``
     abs_H_trk: list[list[float]]         # tracker frame -> ACS (config [tracker])
     stream_rate_hz: float                # default tracker stream rate (config [tracker])
