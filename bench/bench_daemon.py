@@ -19,6 +19,10 @@ command_endpoints = ["tcp://127.0.0.1:0"]
 telemetry_endpoints = ["tcp://127.0.0.1:0"]
 frame_endpoints = ["tcp://127.0.0.1:0"]
 data_dir = "@TMP@/data"
+[devices]
+camera = "sim:"
+tracker = "sim:"
+robot = "sim:"
 [security]
 insecure_tcp = true  # loopback only: the benchmark measures the plain bus
 """

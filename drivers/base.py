@@ -120,11 +120,10 @@ class Device(ABC):
 
     kind: ClassVar[str] = "device"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
         self.url = url
         self.emit = emit
-        self.world = world
         self.settings = settings
 
     @abstractmethod

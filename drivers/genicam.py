@@ -61,9 +61,9 @@ class _Counter(Callback):
 class GenICamCamera(Camera):
     """A GenICam camera through harvesters; see the module docstring for the URL."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: CameraSettings | None = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+        super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - set(OPTIONS))
         if unknown:
             raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "

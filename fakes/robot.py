@@ -42,6 +42,7 @@ from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, _no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase
+from fakes import worlds
 from fakes.world import World, WorldParams
 
 log = logging.getLogger(__name__)
@@ -189,17 +190,16 @@ class SimRobot(SerialRobot):
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
-    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate"}
+    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
+                                             worlds.OPTION}
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
-                 settings: Any = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+        super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - self.OWN_OPTIONS)
         if unknown:
             raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
                              f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
-        if self.world is None:
-            self.world = World()
+        self.world = worlds.world_for(url)
         self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),
                              fault_rate=url.option("fault_rate", 0.0, float))
         self.garbage_rate: float = url.option("garbage_rate", 0.0, float)
