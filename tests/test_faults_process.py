@@ -100,16 +100,6 @@ class Ritad:
         self.log.close()
 
 
-def wait_devices_ready(c: Client, timeout: float = 60) -> None:
-    end = time.monotonic() + timeout
-    while True:
-        h = c.call("status")
-        if all(d["state"] == "READY" for d in h["devices"].values()):
-            return
-        assert time.monotonic() < end, f"devices not READY: {h['devices']}"
-        time.sleep(0.1)
-
-
 def hammer(endpoint: str, tag: str, acked: list[str], stop: threading.Event) -> None:
     """Capture as fast as the daemon allows until it stops answering."""
     with Client(endpoint, timeout=3) as c:
@@ -169,7 +159,7 @@ def test_sigkill_while_capturing(tmp_path: Path) -> None:
         try:
             ritad.wait_ready()
             with Client(endpoint, timeout=10) as c:
-                wait_devices_ready(c)
+                c.wait_ready()
                 lock_on_robot(c)
             n_before = len(acked)
             stop = threading.Event()

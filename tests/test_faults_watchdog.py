@@ -21,7 +21,7 @@ from daemon.ritad import config
 from daemon.bus.client import Client
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
-from tests.test_faults import SMALL_CAMERA, all_ready, wait_for
+from tests.test_faults import SMALL_CAMERA, wait_for
 from tests.test_faults_process import Ritad, write_config
 
 
@@ -70,7 +70,7 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
     release = threading.Event()
     try:
         with Client(d.server.endpoints[0], timeout=10) as c:
-            wait_for(lambda: all_ready(c), 30, "devices READY")
+            c.wait_ready(timeout=30)
             assert count_pings(sock, 1.6) >= 2
             # the job may take 0.5 s; the runner counts as alive until 5 s past that
             hang = d.job("camera", lambda cam: release.wait(60), timeout=0.5)

@@ -27,12 +27,12 @@ import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.ritad import config
 from daemon.ritad.calib_jobs import PROCEDURES, REPORT_KINDS
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.bus.protocol import ErrorCode, pack, unpack
+from tests.ritad_up import ritad_in_process
 
 BATCH = 40
 EXAMPLES = 340  # × BATCH messages: about 13,600 (over 10,000 of them distinct)
@@ -206,35 +206,10 @@ def check_reply(frames: list[bytes]) -> dict[str, Any]:
 # ---------------------------------------------------------------------------- daemon
 
 
-def wait_ready(c: Client, timeout: float = 30.0) -> dict[str, Any]:
-    end = time.monotonic() + timeout
-    while True:
-        h = c.call("status")
-        if all(v["state"] == "READY" for v in h["devices"].values()):
-            return h
-        assert time.monotonic() < end, f"devices not READY: {h['devices']}"
-        time.sleep(0.05)
-
-
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory: pytest.TempPathFactory):
-    rt = tmp_path_factory.mktemp("fuzzbus")
-    cfg = config.sim_config(rt)
-    cfg.daemon.start_worker = False
-    cfg.devices.camera = "sim:?size=64x48&noise=0"
-    cfg.devices.tracker = "sim:?time_scale=0.002"
-    d = Daemon(cfg)
-    d.start()
-    try:
-        with Client(d.server.endpoints[0], timeout=10) as c:
-            wait_ready(c)
+    with ritad_in_process(tmp_path_factory.mktemp("fuzzbus"), timeout=30, tracker="sim:?time_scale=0.002") as (d, _):
         yield d
-    finally:
-        d.stop_event.set()
-        d.stop()
-        for r in d.runners.values():
-            if hasattr(r.device, "shutdown"):
-                r.device.shutdown()
 
 
 @contextlib.contextmanager
@@ -285,7 +260,7 @@ def match(bodies: list[bytes], replies: list[dict[str, Any]]) -> None:
 
 def test_command_names_cover_the_daemon(daemon: Daemon) -> None:
     """The fuzzer knows every command the daemon offers (so none escapes fuzzing)."""
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
         offered = set(c.call("help")["commands"])
     assert offered - set(COMMANDS) == set()
 
@@ -317,20 +292,20 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     print(f"\nbus fuzz: {sent[0]} messages ({len(distinct)} distinct) in {elapsed:.1f} s; "
           f"replies by code: {dict(codes.most_common())}")
     assert len(distinct) >= 10_000
-    with Client(daemon.ritad.server.endpoints[0], timeout=10) as c:
-        h = wait_ready(c)
+    with Client(daemon.server.endpoints[0], timeout=10) as c:
+        h = c.wait_ready(timeout=30)
     assert h["alive"] is True
     assert h["commands"]["requests"] >= sent[0]
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
     # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
-    data = Path(daemon.ritad.config.daemon.data_dir)
+    data = Path(daemon.config.daemon.data_dir)
     assert sorted(p.name for p in data.iterdir()) == ["datasets", "sim"]  # sim: the installer's files
     folders = list((data / "datasets").iterdir())
     assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
 
 def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> None:
-    limit = daemon.ritad.config.daemon.max_message_bytes
+    limit = daemon.config.daemon.max_message_bytes
     big = pack({"v": 1, "id": "big", "cmd": "ping", "args": {"pad": b"x" * limit}})
     replies = exchange(dealer, [big, b"", b"\xc1"])
     assert [r["error"]["code"] for r in replies] == [ErrorCode.TOO_LARGE, ErrorCode.BAD_REQUEST,
@@ -341,9 +316,9 @@ def test_oversized_and_empty_requests(daemon: Daemon, dealer: zmq.Socket) -> Non
 
 def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
     """Random labels and dataset names on captures that succeed: files land under datasets/ only."""
-    data = Path(daemon.ritad.config.daemon.data_dir)
-    with Client(daemon.ritad.server.endpoints[0], timeout=30) as c:
-        wait_ready(c)
+    data = Path(daemon.config.daemon.data_dir)
+    with Client(daemon.server.endpoints[0], timeout=30) as c:
+        c.wait_ready(timeout=30)
         lock_on_robot(c)
         saved: list[Path] = []
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from daemon.bus.client import Client, Subscriber
 from daemon.ritad.main import RitadExit
-from tests.test_faults_process import Ritad, wait_devices_ready, write_config
+from tests.test_faults_process import Ritad, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,7 +104,7 @@ def test_clean_sigterm_stop_logs_no_warning(tmp_path: Path) -> None:
     try:
         r.wait_ready()
         with Client(endpoint, timeout=10) as c:
-            wait_devices_ready(c)
+            c.wait_ready()
             end = time.monotonic() + 60
             while c.call("status")["worker"]["seen_s_ago"] is None:
                 assert time.monotonic() < end, "worker never polled"

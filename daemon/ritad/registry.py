@@ -80,7 +80,8 @@ def _load(target: str, what: str) -> Any:
         hint = INSTALL_HINTS.get(top)
         if hint is None:
             raise
-        raise AdapterError(f"{what} needs the Python package {top!r}, which is not installed: {hint}") from exc
+        raise AdapterError(f"{what} needs the Python package {top!r}, which is not installed: "
+                           f"{hint}") from exc
     return getattr(module, attr)
 
 
