@@ -33,6 +33,7 @@ class RitadProcess:
         self.endpoint = ""
         self.endpoints: list[str] = []
         self.ready_s = float("nan")  #: seconds from start to READY=1
+        self.started = time.monotonic()
 
     @property
     def log(self) -> Path:
@@ -53,8 +54,9 @@ class RitadProcess:
         self.messages += got
         return got
 
-    def wait_notify_ready(self, timeout: float, t0: float) -> None:
+    def wait_notify_ready(self, timeout: float = 60.0) -> None:
         """Wait for READY=1, then read the "ritad ready: <endpoints>" line from stdout."""
+        t0 = self.started
         end = t0 + timeout
         while not any("READY=1" in m for m in self.messages):
             if self.proc.poll() is not None:
@@ -78,6 +80,13 @@ class RitadProcess:
         with self.client() as c:
             return c.wait_ready(devices, timeout, worker=worker, alive=lambda: self.proc.poll() is None)
 
+    def kill(self) -> None:
+        """SIGKILL (a crash, for fault tests) and release the notify socket."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self.stop()
+
     def stop(self, timeout: float = 10.0) -> int:
         """SIGTERM, then kill after ``timeout`` s; returns the exit code."""
         if self.proc.poll() is None:
@@ -99,44 +108,56 @@ class RitadProcess:
         self.stop()
 
 
-def start_ritad(config_text: str | None = None, *, tmp: Path | None = None, args: Iterable[str] = (),
-                env: dict[str, str] | None = None, timeout: float = 60.0, keep_notify: bool = False) -> RitadProcess:
-    """Start ritad and wait for READY=1 (bus bound; devices may still connect).
+def spawn_ritad(args: Iterable[str], *, tmp: Path, env: dict[str, str] | None = None) -> RitadProcess:
+    """Run ``ritad ARGS`` with a private NOTIFY_SOCKET in ``tmp``; returns at once (no wait).
 
-    Without ``config_text`` it runs ``--sim`` with its runtime and data dirs in ``tmp``;
-    else ``config_text`` (``@TMP@`` replaced by ``tmp``) is written to ``tmp/ritad.toml``.
-    ``env`` adds to the environment (e.g. ``WATCHDOG_USEC``). Stops ritad on failure.
-    The notify socket is closed after READY=1 unless ``keep_notify``: ritad's notify
-    datagrams block once an unread socket's queue is full, which would stall its supervisor.
+    ``env`` adds to the environment (e.g. ``WATCHDOG_USEC``); stderr goes to ``tmp/ritad.log``.
     """
-    tmp = Path(tmp or tempfile.mkdtemp(prefix="ritad-fakes-"))
     tmp.mkdir(parents=True, exist_ok=True)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock_path = tmp / f"notify-{time.monotonic_ns()}.sock"
     sock.bind(str(sock_path))
     sock.settimeout(0.05)
-    if config_text is None:
-        where = ["--sim", "--runtime-dir", str(tmp / "rt"), "--data-dir", str(tmp / "data")]
-    else:
-        (tmp / "ritad.toml").write_text(config_text.replace("@TMP@", str(tmp)))
-        where = ["--config", str(tmp / "ritad.toml")]
     full_env = {**os.environ, "PYTHONPATH": str(ROOT), "NOTIFY_SOCKET": str(sock_path)}
     full_env.pop("WATCHDOG_PID", None)
     full_env.pop("WATCHDOG_USEC", None)
     full_env.update(env or {})
     t0 = time.monotonic()
     with open(tmp / "ritad.log", "ab") as log:  # the child keeps its own copy of the descriptor
-        proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", *where, *args], cwd=ROOT,
+        proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", *args], cwd=ROOT,
                                 env=full_env, stdout=subprocess.PIPE, stderr=log, text=True)
     ritad = RitadProcess(proc, tmp, sock)
+    ritad.started = t0
+    return ritad
+
+
+def start_ritad(config_text: str | None = None, *, tmp: Path | None = None, args: Iterable[str] = (),
+                env: dict[str, str] | None = None, timeout: float = 60.0,
+                keep_notify: bool = False) -> RitadProcess:
+    """Start ritad and wait for READY=1 (bus bound; devices may still connect).
+
+    Without ``config_text`` it runs ``--sim`` with its runtime and data dirs in ``tmp``;
+    else ``config_text`` (``@TMP@`` replaced by ``tmp``) is written to ``tmp/ritad.toml``.
+    Stops ritad on failure. The notify socket is closed after READY=1 unless
+    ``keep_notify``: ritad's notify datagrams block once an unread socket's queue is
+    full, which would stall its supervisor.
+    """
+    tmp = Path(tmp or tempfile.mkdtemp(prefix="ritad-fakes-"))
+    if config_text is None:
+        where = ["--sim", "--runtime-dir", str(tmp / "rt"), "--data-dir", str(tmp / "data")]
+    else:
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / "ritad.toml").write_text(config_text.replace("@TMP@", str(tmp)))
+        where = ["--config", str(tmp / "ritad.toml")]
+    ritad = spawn_ritad([*where, *args], tmp=tmp, env=env)
     try:
-        ritad.wait_notify_ready(timeout, t0)
+        ritad.wait_notify_ready(timeout)
     except BaseException:
         ritad.stop()
         raise
     if not keep_notify:
-        sock.close()  # ritad's sends now fail at once (ECONNREFUSED), which it ignores
+        ritad.sock.close()  # ritad's sends now fail at once (ECONNREFUSED), which it ignores
     return ritad
 
 
-__all__ = ["RitadProcess", "start_ritad"]
+__all__ = ["RitadProcess", "spawn_ritad", "start_ritad"]

@@ -40,14 +40,14 @@ def test_watchdog_pings_from_a_ritad_process(tmp_path: Path) -> None:
     cfg, endpoint = write_config(tmp_path, tmp_path / "data")
     ritad = Ritad(tmp_path, cfg, watchdog_usec=1_000_000)
     try:
-        ritad.wait_ready()
+        ritad.wait_notify_ready()
         pings = count_pings(ritad.sock, 2.6)
         assert 3 <= pings <= 7  # every 0.5 s: about 5 in 2.6 s
         ritad.proc.send_signal(signal.SIGTERM)
         assert ritad.proc.wait(10) == 0
         assert any("STOPPING=1" in m for m in ritad.recv(0.3))
     finally:
-        ritad.close()
+        ritad.kill()
 
 
 def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
