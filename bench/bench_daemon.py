@@ -14,15 +14,12 @@ from bench.common import machine, pct, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 
 TCP_CONFIG = """
+devices = { camera = "sim:", tracker = "sim:", robot = "sim:" }
 [daemon]
 command_endpoints = ["tcp://127.0.0.1:0"]
 telemetry_endpoints = ["tcp://127.0.0.1:0"]
 frame_endpoints = ["tcp://127.0.0.1:0"]
 data_dir = "@TMP@/data"
-[devices]
-camera = "sim:"
-tracker = "sim:"
-robot = "sim:"
 [security]
 insecure_tcp = true  # loopback only: the benchmark measures the plain bus
 """

@@ -87,13 +87,9 @@ class GenICamCamera(Camera):
         self._ia: ImageAcquirer | None = None
         self._incomplete = _Counter()
         self._facts: dict[str, Any] = {}
-        self._warnings: list[str] = []
         self._logged: set[str] = set()
-        self._applied: dict[str, Any] = {}
         self._software = False
         self._acquiring = False
-        self._streaming = False
-        self._want_stream = False
         self._access = 0
         self._next_status_poll = 0.0
         self._last_frame = 0.0

@@ -123,13 +123,9 @@ class SimCamera(Camera):
         self._prerendered: list[np.ndarray] = []
         self._open = False
         self._lost = False
-        self._streaming = False
-        self._want_stream = False
         self._next_due = 0.0
         self._frame_id = 0
         self._frames_this_open = 0
-        self._applied: dict[str, Any] = {}
-        self._warnings: list[str] = []
         self.counters = {"opens": 0, "applies": 0, "frames": 0, "renders": 0, "dropped": 0,
                          "incomplete": 0, "disconnects": 0}
 

@@ -41,7 +41,7 @@ import numpy as np
 from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, _no_emit
 from drivers.robot import SerialRobot
-from fakes.robot_base import FakeBase
+from fakes.robot_base import FakeBase, unit_interval
 from fakes import worlds
 from fakes.world import World, WorldParams
 
@@ -56,12 +56,9 @@ class PtyServer:
 
     def __init__(self, base: FakeBase, *, garbage_rate: float = 0.0, corrupt_rate: float = 0.0,
                  rng: np.random.Generator | None = None) -> None:
-        for name, value in (("garbage_rate", garbage_rate), ("corrupt_rate", corrupt_rate)):
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name}={value!r} must be within 0..1")
         self.base = base
-        self.garbage_rate = garbage_rate
-        self.corrupt_rate = corrupt_rate
+        self.garbage_rate = unit_interval("garbage_rate", garbage_rate)
+        self.corrupt_rate = unit_interval("corrupt_rate", corrupt_rate)
         self.silent = False
         self.rng = rng or base.world.rng("robot.line")
         self.master, self._slave = os.openpty()

@@ -33,7 +33,11 @@ def register(world: World, name: str | None = None) -> str:
 
 
 def sim_url(world: World, query: str = "") -> DeviceURL:
-    """A ``sim:`` URL naming ``world`` (registered on the way): a test's fake in a world it made."""
+    """A ``sim:`` URL naming ``world`` (registered on the way): a test's fake in a world it made.
+
+    The registry holds worlds weakly (a finished test's world and its renderers go), so
+    the caller keeps ``world`` alive until the adapter is built.
+    """
     name = register(world)
     return DeviceURL.parse(f"sim:?{OPTION}={name}" + (f"&{query}" if query else ""))
 

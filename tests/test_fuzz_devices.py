@@ -251,7 +251,8 @@ def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int],
 
 def test_robot_lines_into_the_driver() -> None:
     events: list[dict[str, Any]] = []
-    robot = SimRobot(sim_url(World(), "state_hz=0&timeout=0.3"),
+    world = World()  # registered weakly: held here for as long as the robot lives
+    robot = SimRobot(sim_url(world, "state_hz=0&timeout=0.3"),
                      emit=lambda t, p: events.append(p) if t == "robot.event" else None)
     robot.open()
     n = [0]
