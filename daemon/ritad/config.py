@@ -112,7 +112,9 @@ class Config:
 
     @property
     def uses_sim(self) -> bool:
-        return any(getattr(self.devices, k).startswith("sim:") for k in ("camera", "tracker", "robot"))
+        """Any device simulated (``sim:``, any case): then ritad builds the shared world."""
+        return any(getattr(self.devices, k) and DeviceURL.parse(getattr(self.devices, k)).scheme == "sim"
+                   for k in ("camera", "tracker", "robot"))
 
 
 # --------------------------------------------------------------------------- loading
