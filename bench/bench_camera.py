@@ -21,6 +21,7 @@ from bench.common import machine  # noqa: E402
 from drivers.base import CameraSettings, DeviceURL, Frame  # noqa: E402
 from fakes.camera import SimCamera, renderer_for  # noqa: E402
 from fakes.world import World  # noqa: E402
+from fakes.worlds import sim_url  # noqa: E402
 
 
 def timed(fn: Callable[[], Any]) -> float:
@@ -61,7 +62,7 @@ def rate(cam: Any, frames: list[Frame], seconds: float) -> float:
 
 def bench_sim_stream(world: World, query: str, label: str, seconds: float) -> tuple[str, str]:
     frames: list[Frame] = []
-    cam = SimCamera(DeviceURL.parse(f"sim:?{query}"), world=world,
+    cam = SimCamera(sim_url(world, query),
                     emit=lambda topic, f: frames.append(f))
     cam.open()
     try:

@@ -10,10 +10,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.common import machine, pct, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 
 TCP_CONFIG = """
+devices = { camera = "sim:", tracker = "sim:", robot = "sim:" }
 [daemon]
 command_endpoints = ["tcp://127.0.0.1:0"]
 telemetry_endpoints = ["tcp://127.0.0.1:0"]
@@ -40,13 +41,15 @@ def main() -> None:
     print(f"# bench_daemon\n\nMachine: {machine()}\n")
     readies = []
     for _ in range(3):
-        proc, ep, ready, _ = start_ritad()
+        r = start_ritad()
+        ep, ready = r.endpoint, r.ready_s
         readies.append(ready)
-        stop_ritad(proc)
+        r.stop()
     print("| metric | value | goal |\n|---|---|---|")
     print(f"| start → READY=1, `ritad --sim` (median of 3; min–max) | {sorted(readies)[1]:.2f} s "
           f"({min(readies):.2f}–{max(readies):.2f}) | ≤ 3 s |")
-    proc, ep, _, _ = start_ritad()
+    r = start_ritad()
+    ep = r.endpoint
     try:
         time.sleep(3)  # let the sim devices connect so the daemon is in its steady state
         for cmd in ("ping", "status"):
@@ -54,15 +57,16 @@ def main() -> None:
             print(f"| `{cmd}` round trip, ipc, n={len(rt)} | p50 {pct(rt, 50):.3f} ms, p99 {pct(rt, 99):.3f} ms "
                   f"| p99 ≤ 5 ms |")
     finally:
-        stop_ritad(proc)
-    proc, ep, _, _ = start_ritad(TCP_CONFIG, extra=[])
+        r.stop()
+    r = start_ritad(TCP_CONFIG)
+    ep = r.endpoint
     try:
         time.sleep(3)
         rt = round_trips(ep)
         print(f"| `ping` round trip, tcp 127.0.0.1, n={len(rt)} | p50 {pct(rt, 50):.3f} ms, "
               f"p99 {pct(rt, 99):.3f} ms | p99 ≤ 5 ms |")
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from bench.common import machine, start_ritad, stop_ritad  # noqa: E402
+from bench.common import machine, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 from daemon.ctl.fetch import fetch  # noqa: E402
 
@@ -24,7 +24,8 @@ SMALL_FILES = 200
 
 def main() -> None:
     print(f"# bench_fetch\n\nMachine: {machine()}\n")
-    proc, ep, _, tmp = start_ritad()
+    r = start_ritad()
+    ep, tmp = r.endpoint, r.tmp
     data = tmp / "data" / "datasets"
     rng = np.random.default_rng(1)
     (data / "big").mkdir(parents=True)
@@ -48,7 +49,7 @@ def main() -> None:
                 rows.append((what, total / first / 1e6, first, again))
                 shutil.rmtree(dest)
     finally:
-        stop_ritad(proc)
+        r.stop()
     print("| what | throughput | time | re-run (all skipped) | goal |\n|---|---|---|---|---|")
     for what, mbs, first, again in rows:
         print(f"| {what}, ipc | {mbs:.0f} MB/s | {first:.2f} s | {again:.2f} s | ≥ 100 MB/s |")

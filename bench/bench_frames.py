@@ -28,8 +28,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_tracker_daemon import CONFIG, finish, spawn, wait_devices  # noqa: E402
-from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.bench_tracker_daemon import CONFIG, finish, spawn  # noqa: E402
+from bench.common import machine, pct, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -144,10 +144,11 @@ def subscriber_main(endpoint: str, hwm: int, stalled: bool, linger_s: float = 1.
 def run(fps: float, seconds: float) -> dict[str, Any]:
     """One daemon with a full-size prerendered camera at ``fps``; one frame subscriber process."""
     cam = f"sim:?size=full&prerender=2&fps={fps:g}"
-    proc, ep, _, _ = start_ritad(CONFIG.format(tracker="sim:", camera=cam), timeout=120)
+    r = start_ritad(CONFIG.format(tracker="sim:", camera=cam), timeout=120)
+    proc, ep = r.proc, r.endpoint
     try:
         with Client(ep, timeout=30) as c:
-            wait_devices(c, ("camera",), timeout=300)
+            c.wait_ready(("camera",), 300)
             sub = spawn("bench_frames.py", "--sub", c.hello()["frame_endpoints"][0])
             c.call("camera.stream.start")
             time.sleep(1.0)  # the first frames include start-up; measure the steady state
@@ -166,7 +167,7 @@ def run(fps: float, seconds: float) -> dict[str, Any]:
                    vmhwm_mib=hwm / 1024, daemon_frames=health["frames"])
         return res
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 def main() -> None:

@@ -27,8 +27,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_frames import FrameStats, cpu_seconds, vm_kib  # noqa: E402
-from bench.bench_tracker_daemon import TelemetryStats, finish, lock_and_stream, spawn, wait_devices  # noqa: E402
-from bench.common import ROOT, machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.bench_tracker_daemon import TelemetryStats, finish, lock_and_stream, spawn  # noqa: E402
+from bench.common import ROOT, machine, pct, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 
@@ -129,10 +129,11 @@ def spawn_self(*args: str) -> subprocess.Popen:
 
 
 def run(duration: float, sample_s: float = 5.0) -> dict[str, Any]:
-    proc, ep, _, _ = start_ritad(CONFIG, timeout=120)
+    r = start_ritad(CONFIG, timeout=120)
+    proc, ep = r.proc, r.endpoint
     try:
         with Client(ep, timeout=30) as c:
-            wait_devices(c, ("tracker", "camera", "robot"), timeout=300)
+            c.wait_ready(("tracker", "camera", "robot"), 300)
             hello = c.hello()
             tel, frm, cmd = hello["telemetry_endpoints"], hello["frame_endpoints"], hello["command_endpoints"]
             worker = spawn("bench_tracker_daemon.py", "--sub", pick(tel, "ipc://"))
@@ -160,7 +161,7 @@ def run(duration: float, sample_s: float = 5.0) -> dict[str, Any]:
                    "adapter_points": st["counters"]["points"], "health": health}
         return res
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 def report(r: dict[str, Any], duration: float) -> None:

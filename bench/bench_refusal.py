@@ -13,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.common import machine, pct, start_ritad  # noqa: E402
 from daemon.bus.auth import create_keypair, load_keypair, load_public  # noqa: E402
 from daemon.bus.client import Client, ClientRefused  # noqa: E402
 
@@ -61,7 +61,8 @@ def main(n: int = 50) -> None:
     for name in ("alice", "mallory"):
         public, secret = load_keypair(base / "laptop" / f"{name}.key_secret")
         keys[name] = {"public": public, "secret": secret, "server": server}
-    proc, ep, _, _ = start_ritad(CONFIG.format(data=base / "data"), extra=[])
+    r = start_ritad(CONFIG.format(data=base / "data"))
+    ep = r.endpoint
     try:
         time.sleep(2)
         print("| client, fresh connection each time | first answer or refusal | refused | goal |\n|---|---|---|---|")
@@ -72,7 +73,7 @@ def main(n: int = 50) -> None:
             print(f"| {label}, n={n} | p50 {pct(t, 50):.1f} ms, p99 {pct(t, 99):.1f} ms, max {max(t):.1f} ms "
                   f"| {refused}/{n} | {goal} |")
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 if __name__ == "__main__":

@@ -15,14 +15,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine, pct  # noqa: E402
 from drivers import robot_protocol as rp  # noqa: E402
-from drivers.base import DeviceLost, DeviceURL  # noqa: E402
+from drivers.base import DeviceLost  # noqa: E402
 from fakes.robot import SimRobot  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402
+from fakes.worlds import sim_url  # noqa: E402
 
 
 def _robot(query: str) -> SimRobot:
     world = World(WorldParams(start_pose=(3000.0, 3000.0, 0.0)))
-    robot = SimRobot(DeviceURL.parse(f"sim:?state_hz=0&{query}"), world=world)
+    robot = SimRobot(sim_url(world, f"state_hz=0&{query}"))
     return robot
 
 

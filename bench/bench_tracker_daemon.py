@@ -26,7 +26,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import ROOT, machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.common import ROOT, machine, pct, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 
 CONFIG = """
@@ -168,16 +168,6 @@ def finish(proc: subprocess.Popen, timeout: float = 60) -> dict[str, Any]:
 # --------------------------------------------------------------------------- daemon side
 
 
-def wait_devices(c: Client, kinds: tuple[str, ...], timeout: float = 180) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        devs = c.call("status")["devices"]
-        if all(devs[k]["state"] == "READY" for k in kinds):
-            return
-        time.sleep(0.3)
-    raise RuntimeError(f"devices {kinds} not READY after {timeout} s: {devs}")
-
-
 def lock_and_stream(c: Client, rate_hz: float = 1000.0) -> None:
     from daemon.demo import lock_on_robot
 
@@ -187,10 +177,11 @@ def lock_and_stream(c: Client, rate_hz: float = 1000.0) -> None:
 
 def run(tracker_url: str, seconds: float, camera_url: str = "sim:?size=40x30") -> dict[str, Any]:
     """One daemon, one tracker subscriber process, streaming at 1 kHz for ``seconds``."""
-    proc, ep, _, _ = start_ritad(CONFIG.format(tracker=tracker_url, camera=camera_url))
+    r = start_ritad(CONFIG.format(tracker=tracker_url, camera=camera_url))
+    ep = r.endpoint
     try:
         with Client(ep, timeout=10) as c:
-            wait_devices(c, ("tracker",))
+            c.wait_ready(("tracker",), 180)
             tel = c.hello()["telemetry_endpoints"][0]
             sub = spawn("bench_tracker_daemon.py", "--sub", tel, "--topic", "tracker.point")
             lock_and_stream(c)
@@ -204,7 +195,7 @@ def run(tracker_url: str, seconds: float, camera_url: str = "sim:?size=40x30") -
         res["telemetry_dropped"] = health["telemetry"]["dropped"].get("tracker.point", 0)
         return res
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 def main() -> None:

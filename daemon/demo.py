@@ -10,9 +10,7 @@ the daemon with SIGTERM. Output goes to ``demo-out/`` (emptied first).
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -21,40 +19,13 @@ from typing import Any
 
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
+from fakes.launch import start_ritad
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def say(text: str) -> None:
     print(f"\n== {text}", flush=True)
-
-
-def start_daemon(out: Path, seed: int = 1) -> tuple[subprocess.Popen, str]:
-    rt = out / "run"
-    rt.mkdir(parents=True, exist_ok=True)
-    log = open(out / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(rt),
-                             "--data-dir", str(out / "data"), "--seed", str(seed)],
-                            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-    return proc, f"ipc://{rt}/cmd"
-
-
-def wait_ready(c: Client, proc: subprocess.Popen, timeout: float = 90.0) -> dict[str, Any]:
-    end = time.monotonic() + timeout
-    last: dict[str, Any] = {}
-    while time.monotonic() < end:
-        if proc.poll() is not None:
-            raise SystemExit(f"ritad exited with {proc.returncode}; see demo-out/ritad.log")
-        try:
-            last = c.call("status", timeout=2)
-        except CommandError:
-            time.sleep(0.2)
-            continue
-        if all(d["state"] == "READY" for d in last["devices"].values()):
-            return last
-        time.sleep(0.3)
-    raise SystemExit(f"devices not ready after {timeout:.0f} s: {json.dumps(last.get('devices'), indent=1)}")
 
 
 def lock_on_robot(c: Client) -> dict[str, Any]:
@@ -143,11 +114,14 @@ def main() -> int:
     out.mkdir()
     t0 = time.monotonic()
     say("starting ritad --sim (simulated camera, tracker and robot in one world)")
-    proc, endpoint = start_daemon(out)
-    rc = 0
     try:
-        with Client(endpoint, timeout=10) as c:
-            h = wait_ready(c, proc)
+        ritad = start_ritad(tmp=out, args=["--seed", "1"])
+    except RuntimeError as exc:
+        raise SystemExit(f"ritad did not start: {exc}") from None
+    endpoint, rc = ritad.endpoint, 0
+    try:
+        h = ritad.wait_ready(timeout=90)
+        with ritad.client() as c:
             print(f"ritad ready on {endpoint} after {time.monotonic() - t0:.1f} s")
             for kind, s in h["devices"].items():
                 print(f"  {kind:8s} {s['state']}  {s['info']}")
@@ -165,19 +139,15 @@ def main() -> int:
             sub.close()
             print("  " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
             rc = run_calibration(c, out, endpoint)
-    except CommandError as exc:
-        print(f"demo failed: {exc}", file=sys.stderr)
+    except CommandError as exc:  # ClientTimeout (devices never READY, ritad gone) included
+        print(f"demo failed: {exc}; see {ritad.log}", file=sys.stderr)
         rc = 1
     finally:
         say("stopping ritad (SIGTERM)")
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(10)
-            print(f"  ritad exited with {code}")
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            print("  ritad did not stop within 10 s: killed", file=sys.stderr)
-            rc = 1
+        code = ritad.stop(10)
+        print(f"  ritad exited with {code}")
+        if code not in (0, None):
+            rc = rc or 1
     print(f"\ndemo finished in {time.monotonic() - t0:.1f} s; outputs in {out}")
     return rc
 

@@ -120,11 +120,10 @@ class Device(ABC):
 
     kind: ClassVar[str] = "device"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
         self.url = url
         self.emit = emit
-        self.world = world
         self.settings = settings
 
     @abstractmethod
@@ -180,7 +179,20 @@ class TrackerPoint:
         return d
 
 
-class Tracker(Device):
+class StreamingDevice(Device):
+    """What tracker and camera share: a stream that can be stopped, and a status dict."""
+
+    @abstractmethod
+    def stop_stream(self) -> None:
+        """Stop streaming (no error if not streaming)."""
+
+    @abstractmethod
+    def status(self) -> dict[str, Any]:
+        """Streaming flag and counters, plus the kind's own (tracker: state strings;
+        camera: applied settings and warnings)."""
+
+
+class Tracker(StreamingDevice):
     """Laser tracker: stationary measurements, pointing, lock-on and streaming."""
 
     kind = "tracker"
@@ -200,14 +212,6 @@ class Tracker(Device):
     @abstractmethod
     def start_stream(self, rate_hz: float) -> None:
         """Start continuous measurement; points go to ``emit('tracker.point', {...})``."""
-
-    @abstractmethod
-    def stop_stream(self) -> None:
-        """Stop continuous measurement (no error if not streaming)."""
-
-    @abstractmethod
-    def status(self) -> dict[str, Any]:
-        """Tracker status: state strings, streaming flag, counters."""
 
 
 # --------------------------------------------------------------------------- camera
@@ -262,10 +266,22 @@ class Frame:
         }
 
 
-class Camera(Device):
-    """Area camera: software-triggered single frames and free-run streaming."""
+class Camera(StreamingDevice):
+    """Area camera: software-triggered single frames and free-run streaming.
+
+    The bookkeeping every camera keeps: whether free run is wanted (it survives a
+    reconnect: ``open`` restarts it) and running, and the settings last applied with
+    the warnings that produced, for ``status``.
+    """
 
     kind = "camera"
+
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+        super().__init__(url, emit=emit, settings=settings)
+        self._want_stream = False
+        self._streaming = False
+        self._applied: dict[str, Any] = {}
+        self._warnings: list[str] = []
 
     @abstractmethod
     def trigger(self, timeout: float = 5.0) -> Frame:
@@ -274,14 +290,6 @@ class Camera(Device):
     @abstractmethod
     def start_stream(self) -> None:
         """Free run: frames go to ``emit('camera.frame', frame)`` from ``pump``."""
-
-    @abstractmethod
-    def stop_stream(self) -> None:
-        """Stop free run (no error if not streaming)."""
-
-    @abstractmethod
-    def status(self) -> dict[str, Any]:
-        """Camera status: streaming flag, applied settings, warnings, counters."""
 
 
 # --------------------------------------------------------------------------- robot

@@ -61,9 +61,9 @@ class _Counter(Callback):
 class GenICamCamera(Camera):
     """A GenICam camera through harvesters; see the module docstring for the URL."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: CameraSettings | None = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+        super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - set(OPTIONS))
         if unknown:
             raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
@@ -87,13 +87,9 @@ class GenICamCamera(Camera):
         self._ia: ImageAcquirer | None = None
         self._incomplete = _Counter()
         self._facts: dict[str, Any] = {}
-        self._warnings: list[str] = []
         self._logged: set[str] = set()
-        self._applied: dict[str, Any] = {}
         self._software = False
         self._acquiring = False
-        self._streaming = False
-        self._want_stream = False
         self._access = 0
         self._next_status_poll = 0.0
         self._last_frame = 0.0

@@ -39,9 +39,9 @@ class SerialRobot(Robot):
     #: options this adapter reads itself (removed before pyserial sees the URL)
     OWN_OPTIONS: frozenset[str] = frozenset({"baudrate", "timeout", "retries", "state_hz"})
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+        super().__init__(url, emit=emit, settings=settings)
         self.baudrate: int = url.option("baudrate", 115200, int)
         self.reply_timeout: float = url.option("timeout", 0.5, float)
         self.retries: int = url.option("retries", 2, int)

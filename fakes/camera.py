@@ -45,12 +45,13 @@ import numpy as np
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
                           Emit, Frame, _no_emit)
 from fakes.render import Renderer
+from fakes import worlds
 from fakes.world import World
 
 log = logging.getLogger(__name__)
 
 OPTIONS = ("size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
-           "disconnect_after")
+           "disconnect_after", worlds.OPTION)
 #: exposure at which the renderer's black/white levels hold; other exposures scale linearly
 NOMINAL_EXPOSURE_US = 2000.0
 
@@ -95,10 +96,10 @@ def _count(url: DeviceURL, key: str) -> int:
 class SimCamera(Camera):
     """Renders the simulated world at the robot's pose; see the module docstring."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: World | None = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: CameraSettings | None = None) -> None:
-        super().__init__(url, emit=emit, world=world if world is not None else World(),
-                         settings=settings)
+        super().__init__(url, emit=emit, settings=settings)
+        self.world = worlds.world_for(url)
         unknown = sorted(set(url.query) - set(OPTIONS))
         if unknown:
             raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
@@ -122,13 +123,9 @@ class SimCamera(Camera):
         self._prerendered: list[np.ndarray] = []
         self._open = False
         self._lost = False
-        self._streaming = False
-        self._want_stream = False
         self._next_due = 0.0
         self._frame_id = 0
         self._frames_this_open = 0
-        self._applied: dict[str, Any] = {}
-        self._warnings: list[str] = []
         self.counters = {"opens": 0, "applies": 0, "frames": 0, "renders": 0, "dropped": 0,
                          "incomplete": 0, "disconnects": 0}
 

@@ -5,18 +5,20 @@ On a real robot these come from the plate's survey, the camera's intrinsic
 calibration and a rough look at where the nests stand; issue #14 will produce them
 with the product's own procedures. Until then the simulated world, which defines
 the plate and the camera, plays the installer: ``ritad --sim`` writes them at start
-so README's "Using it" runs as written. The product never reads them by itself: the
+so README's "Using it" runs as written: ritad calls :func:`start` by name (config-driven,
+``daemon/ritad/registry.py``) with its ``[sim]`` section and data dir. The product never reads them by itself: the
 operator passes them (``ritactl fetch sim`` then ``ritactl calibrate --plate ...``).
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from drivers.base import DeviceURL
 from fakes.camera import parse_size
+from fakes import worlds
 from fakes.world import World
 
 FOLDER = "sim"
@@ -51,4 +53,16 @@ def install(world: World, data_dir: Path, camera_url: str) -> list[Path]:
     return [atomic_write_json(data_dir / FOLDER / name, obj) for name, obj in files.items()]
 
 
-__all__ = ["FOLDER", "NEST_ERROR_MM", "camera_size", "install", "installed_files"]
+def start(sim: Mapping[str, Any], data_dir: str, camera_url: str) -> tuple[str, World]:
+    """ritad's sim factory: a fresh world from ``[sim]``, installer files in ``data_dir``.
+
+    The world is registered under the resolved data dir, which one ritad at a time owns
+    (its instance lock), so two ritads in one process (tests) never share a world.
+    """
+    world = World(worlds.params_from(sim))
+    data = Path(data_dir)
+    install(world, data, camera_url)
+    return worlds.register(world, str(data.resolve())), world
+
+
+__all__ = ["FOLDER", "NEST_ERROR_MM", "camera_size", "install", "installed_files", "start"]

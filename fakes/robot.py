@@ -41,7 +41,8 @@ import numpy as np
 from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, _no_emit
 from drivers.robot import SerialRobot
-from fakes.robot_base import FakeBase
+from fakes.robot_base import FakeBase, unit_interval
+from fakes import worlds
 from fakes.world import World, WorldParams
 
 log = logging.getLogger(__name__)
@@ -55,12 +56,9 @@ class PtyServer:
 
     def __init__(self, base: FakeBase, *, garbage_rate: float = 0.0, corrupt_rate: float = 0.0,
                  rng: np.random.Generator | None = None) -> None:
-        for name, value in (("garbage_rate", garbage_rate), ("corrupt_rate", corrupt_rate)):
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name}={value!r} must be within 0..1")
         self.base = base
-        self.garbage_rate = garbage_rate
-        self.corrupt_rate = corrupt_rate
+        self.garbage_rate = unit_interval("garbage_rate", garbage_rate)
+        self.corrupt_rate = unit_interval("corrupt_rate", corrupt_rate)
         self.silent = False
         self.rng = rng or base.world.rng("robot.line")
         self.master, self._slave = os.openpty()
@@ -189,17 +187,16 @@ class SimRobot(SerialRobot):
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
-    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate"}
+    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
+                                             worlds.OPTION}
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
-                 settings: Any = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+        super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - self.OWN_OPTIONS)
         if unknown:
             raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
                              f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
-        if self.world is None:
-            self.world = World()
+        self.world = worlds.world_for(url)
         self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),
                              fault_rate=url.option("fault_rate", 0.0, float))
         self.garbage_rate: float = url.option("garbage_rate", 0.0, float)

@@ -54,6 +54,13 @@ class Motion:
     fault_at: float | None = None  # fraction at which a simulated stall strikes
 
 
+def unit_interval(name: str, value: float) -> float:
+    """A probability option (0..1), or ValueError naming it."""
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name}={value!r} must be within 0..1")
+    return value
+
+
 class FakeBase:
     """A simulated base controller driving ``world.robot``."""
 
@@ -61,11 +68,9 @@ class FakeBase:
                  clock: Callable[[], float] = time.monotonic) -> None:
         if not time_scale >= 0.0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
-        if not 0.0 <= fault_rate <= 1.0:
-            raise ValueError(f"fault_rate={fault_rate!r} must be within 0..1")
         self.world = world
         self.time_scale = time_scale
-        self.fault_rate = fault_rate
+        self.fault_rate = unit_interval("fault_rate", fault_rate)
         self.clock = clock
         self._lock = threading.RLock()
         self._drive_rng = world.rng("robot.drive")
@@ -187,20 +192,27 @@ class FakeBase:
             return False
         return True
 
+    def _accepted(self, seq: int, msg: rp.Message, amount: float, speed: float, limit: float,
+                  speeds: tuple[float, float], symbol: str) -> RobotPose | None:
+        """MOVE/TURN admission: range, then state; the start pose, or None once a NAK went out."""
+        if abs(amount) > limit or not speeds[0] <= speed <= speeds[1]:
+            self._nak(seq, "RANGE", f"{msg.kind} {amount} at {speed}: limits |{symbol}|<={limit} "
+                                    f"speed {speeds[0]}..{speeds[1]}")
+            return None
+        if not self._motion_precheck(seq, msg):
+            return None
+        with self.world.lock:
+            return self.world.robot
+
     def _move(self, seq: int, msg: rp.Message) -> None:
         dist, speed = msg.number(1, "distance_mm"), msg.number(2, "speed_mm_s")
-        if abs(dist) > rp.MAX_DISTANCE_MM or not rp.MIN_SPEED_MM_S <= speed <= rp.MAX_SPEED_MM_S:
-            self._nak(seq, "RANGE", f"MOVE {dist} at {speed}: limits |d|<={rp.MAX_DISTANCE_MM} "
-                                    f"speed {rp.MIN_SPEED_MM_S}..{rp.MAX_SPEED_MM_S}")
-            return
-        if not self._motion_precheck(seq, msg):
+        start = self._accepted(seq, msg, dist, speed, rp.MAX_DISTANCE_MM, (rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S), "d")
+        if start is None:
             return
         p = self.world.params
         z_heading, z_lateral = self._drive_rng.standard_normal(2)
         travelled = dist * (1.0 + p.drive_scale_error)
         lateral = z_lateral * p.drive_lateral_sigma_mm
-        with self.world.lock:
-            start = self.world.robot
         a = math.radians(start.heading_deg)
         end = replace(start, x_mm=float(start.x_mm + travelled * math.cos(a) - lateral * math.sin(a)),
                       y_mm=float(start.y_mm + travelled * math.sin(a) + lateral * math.cos(a)),
@@ -212,16 +224,12 @@ class FakeBase:
 
     def _turn(self, seq: int, msg: rp.Message) -> None:
         angle, speed = msg.number(1, "angle_deg"), msg.number(2, "speed_deg_s")
-        if abs(angle) > rp.MAX_ANGLE_DEG or not rp.MIN_TURN_SPEED_DEG_S <= speed <= rp.MAX_TURN_SPEED_DEG_S:
-            self._nak(seq, "RANGE", f"TURN {angle} at {speed}: limits |a|<={rp.MAX_ANGLE_DEG} "
-                                    f"speed {rp.MIN_TURN_SPEED_DEG_S}..{rp.MAX_TURN_SPEED_DEG_S}")
-            return
-        if not self._motion_precheck(seq, msg):
+        start = self._accepted(seq, msg, angle, speed, rp.MAX_ANGLE_DEG,
+                               (rp.MIN_TURN_SPEED_DEG_S, rp.MAX_TURN_SPEED_DEG_S), "a")
+        if start is None:
             return
         p = self.world.params
         z_heading = self._drive_rng.standard_normal()
-        with self.world.lock:
-            start = self.world.robot
         end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error)
                                                + z_heading * p.drive_heading_sigma_deg))
         ox, oy, oh = self.odometry

@@ -40,6 +40,7 @@ from drivers.base import DeviceURL, Emit, _no_emit
 from drivers.emscon.adapter import EmsconTracker, _flag
 from drivers.emscon.enums import ES_Command, ES_ResultStatus
 from fakes.tracker_server import Faults, FakeTrackerServer
+from fakes import worlds
 from fakes.world import World, WorldParams
 
 __all__ = ["Faults", "FakeTrackerServer", "FakeTrackerThread", "SimTracker", "main"]
@@ -136,10 +137,9 @@ class SimTracker(EmsconTracker):
     ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``search_radius_mm``.
     """
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
-                 settings: Any = None) -> None:
-        super().__init__(url, emit=emit, world=world if world is not None else World(),
-                         settings=settings)
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+        super().__init__(url, emit=emit, settings=settings)
+        self.world = worlds.world_for(url)
         o = url.option
         self.sim_options = {"sigma_mm": o("sigma_mm", None, float), "time_scale": o("time_scale", 0.05, float),
                             "packet_rate_hz": o("packet_rate_hz", 8.0, float),

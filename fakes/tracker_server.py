@@ -248,28 +248,29 @@ class FakeTrackerServer:
         xyz = np.array([v["val1"], v["val2"], v["val3"]], dtype=float) / self.model.state.length_unit()
         return xyz if np.all(np.isfinite(xyz)) and np.linalg.norm(xyz) > 1.0 else None
 
-    async def _c_GoPosition(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
+    async def _aim(self, v: dict) -> tuple[int, np.ndarray | None, str | None]:
+        """Turn the beam to the command's target: (status, target, lock before); nonzero = not moved."""
         if self._need_init():
-            return self._need_init(), {}, []
+            return self._need_init(), None, None
         target = self._target(v)
         if target is None:
-            return RS.WrongParameter, {}, []
+            return RS.WrongParameter, None, None
         before = self.model.state.locked
         await self._motion(self.model.point_to(target))
-        name = self.model.nearest_to_point(target)
+        return 0, target, before
+
+    async def _c_GoPosition(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
+        status, target, before = await self._aim(v)
+        if status or target is None:
+            return status, {}, []
+        name = self.model.nearest_to_point(target)  # GoPosition also locks onto a reflector there
         if name is not None:
             self.model.lock(name)
         return 0, {}, self._lock_changes(before)
 
     async def _c_PointLaser(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
-        if self._need_init():
-            return self._need_init(), {}, []
-        target = self._target(v)
-        if target is None:
-            return RS.WrongParameter, {}, []
-        before = self.model.state.locked
-        await self._motion(self.model.point_to(target))
-        return 0, {}, self._lock_changes(before)
+        status, _, before = await self._aim(v)
+        return (status, {}, []) if status else (0, {}, self._lock_changes(before))
 
     async def _c_GoBirdBath(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
         if self._need_init():

@@ -5,40 +5,22 @@ Tests play the worker themselves (``calib.report``) to put jobs in a known end s
 from __future__ import annotations
 
 import contextlib
-import time
 from pathlib import Path
 from typing import Callable, Iterator
 
-from daemon.ritad import config
 from daemon.bus.client import Client
+from daemon.ritad import config
 from daemon.ritad.main import Daemon
+from tests.ritad_up import ritad_in_process
 
 
 @contextlib.contextmanager
 def sim_daemon(rt: Path, configure: Callable[[config.Config], None] | None = None) -> Iterator[Daemon]:
     """``configure`` edits the config before the daemon starts (e.g. tcp endpoints with CURVE)."""
-    cfg = config.sim_config(rt)
-    cfg.daemon.start_worker = False
-    cfg.devices.camera = "sim:?size=64x48&noise=0"
-    cfg.devices.tracker = "sim:?time_scale=0.002"
-    cfg.devices.robot = "sim:?time_scale=1"  # real-time motions: a test can interrupt one
-    if configure is not None:
-        configure(cfg)
-    d = Daemon(cfg)
-    d.start()
-    try:
-        with Client(d.server.endpoints[0], timeout=10) as c:
-            end = time.monotonic() + 60
-            while not all(v["state"] == "READY" for v in c.call("status")["devices"].values()):
-                assert time.monotonic() < end, "sim devices not READY within 60 s"
-                time.sleep(0.05)
+    # real-time robot motions: a test can interrupt one
+    with ritad_in_process(rt, configure=configure, tracker="sim:?time_scale=0.002",
+                          robot="sim:?time_scale=1") as (d, _):
         yield d
-    finally:
-        d.stop_event.set()
-        d.stop()
-        for r in d.runners.values():
-            if hasattr(r.device, "shutdown"):
-                r.device.shutdown()
 
 
 def post_job(c: Client, procedure: str = "referencing", job: str | None = None) -> str:

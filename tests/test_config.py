@@ -7,6 +7,8 @@ from daemon.ritad import config
 from drivers.base import DeviceURL
 
 ROOT = Path(__file__).resolve().parents[1]
+#: every device URL is required; the tests of other keys use the simulated ones
+SIM_DEVICES = "[devices]\ncamera = 'sim:'\ntracker = 'sim:'\nrobot = 'sim:'\n"
 
 
 def test_example_config_loads():
@@ -29,8 +31,8 @@ def test_sim_config(tmp_path):
     ("[daemon]\nhealth_interval_s = 0\n", "daemon.health_interval_s must be > 0"),
     ("[camera]\nexposure_us = true\n", "camera.exposure_us"),
     ("[camera]\ntrigger = 'sometimes'\n", "camera.trigger 'sometimes'"),
-    ("[devices]\ncamera = 'no-scheme'\n", "devices.camera"),
-    ("[devices]\ntracker = 'emscon://h:notaport'\n", "bad port"),
+    (SIM_DEVICES.replace("camera = 'sim:'", "camera = 'no-scheme'"), "devices.camera"),
+    (SIM_DEVICES.replace("tracker = 'sim:'", "tracker = 'emscon://h:notaport'"), "bad port"),
     ("[daemon]\ncommand_endpoints = ['http://x']\n", "daemon.command_endpoints"),
     ("[tracker]\nabs_H_trk = [[1.0]]\n", "tracker.abs_H_trk"),
     ("[daemon]\nheartbeat_timeout_s = 0.3\n", "daemon.heartbeat_timeout_s must be >= 1.0"),
@@ -40,7 +42,7 @@ def test_sim_config(tmp_path):
 ])
 def test_bad_config_names_key_and_file(tmp_path, text, needle):
     f = tmp_path / "bad.toml"
-    f.write_text(text)
+    f.write_text(text if "[devices]" in text or "[daemon\n" in text else SIM_DEVICES + text)
     with pytest.raises(config.ConfigError) as err:
         config.load(f)
     assert needle in str(err.value)
@@ -91,7 +93,7 @@ def test_example_config_documents_every_key():
                                        ("robot", "genicam:///x.cti")])
 def test_unknown_device_scheme_is_a_config_error(tmp_path, kind, url):
     f = tmp_path / "c.toml"
-    f.write_text(f"[devices]\n{kind} = '{url}'\n")
+    f.write_text(SIM_DEVICES.replace(f"{kind} = 'sim:'", f"{kind} = '{url}'"))
     with pytest.raises(config.ConfigError) as err:
         config.load(f)
     scheme = url.split(":")[0]
@@ -100,7 +102,7 @@ def test_unknown_device_scheme_is_a_config_error(tmp_path, kind, url):
 
 def test_tcp_without_curve_is_refused_unless_insecure_tcp(tmp_path):
     f = tmp_path / "c.toml"
-    tcp = "[daemon]\ncommand_endpoints = ['ipc:///tmp/x/cmd', 'tcp://127.0.0.1:5555']\n"
+    tcp = SIM_DEVICES + "[daemon]\ncommand_endpoints = ['ipc:///tmp/x/cmd', 'tcp://127.0.0.1:5555']\n"
     f.write_text(tcp)
     with pytest.raises(config.ConfigError, match=r"daemon.command_endpoints: 'tcp://127.0.0.1:5555' is a tcp "
                                                  r"endpoint without CURVE.*insecure_tcp = true"):
@@ -113,7 +115,7 @@ def test_tcp_without_curve_is_refused_unless_insecure_tcp(tmp_path):
 
 def test_unused_server_secret_key_is_refused(tmp_path):
     f = tmp_path / "c.toml"
-    f.write_text("[security]\nserver_secret_key = '/etc/ritad/keys/server.key_secret'\n")
+    f.write_text(SIM_DEVICES + "[security]\nserver_secret_key = '/etc/ritad/keys/server.key_secret'\n")
     with pytest.raises(config.ConfigError, match="security.server_secret_key is no longer supported.*"
                                                  "CREDENTIALS_DIRECTORY"):
         config.load(f)
@@ -121,6 +123,44 @@ def test_unused_server_secret_key_is_refused(tmp_path):
 
 def test_reconnect_backoff_must_be_ordered(tmp_path):
     f = tmp_path / "c.toml"
-    f.write_text("[daemon]\nreconnect_min_s = 5.0\nreconnect_max_s = 1.0\n")
+    f.write_text(SIM_DEVICES + "[daemon]\nreconnect_min_s = 5.0\nreconnect_max_s = 1.0\n")
     with pytest.raises(config.ConfigError, match="daemon.reconnect_max_s"):
         config.load(f)
+
+
+@pytest.mark.parametrize("kind", ["camera", "tracker", "robot"])
+def test_a_missing_device_url_is_an_error_naming_the_key(tmp_path, kind):
+    """A robot config that forgets a device must not silently simulate it."""
+    f = tmp_path / "c.toml"
+    f.write_text("\n".join(line for line in SIM_DEVICES.splitlines() if not line.startswith(kind)))
+    with pytest.raises(config.ConfigError) as err:
+        config.load(f)
+    assert f"devices.{kind} is missing" in str(err.value) and str(f) in str(err.value)
+    f.write_text("[daemon]\nlog_level = 'INFO'\n")  # no [devices] at all: the first device is named
+    with pytest.raises(config.ConfigError, match="devices.camera is missing"):
+        config.load(f)
+
+
+def test_empty_device_url_is_refused(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text(SIM_DEVICES.replace("robot = 'sim:'", "robot = ''"))
+    with pytest.raises(config.ConfigError, match="devices.robot is missing"):
+        config.load(f)
+
+
+def test_sim_section_reaches_the_world_through_config(tmp_path):
+    """ritad builds the world by name from [sim]; every sim: URL then names that one world."""
+    from daemon.ritad.registry import in_world, start_sim_world
+    from fakes import worlds
+
+    cfg = config.sim_config(tmp_path / "rt", tmp_path / "data", seed=7)
+    name, world = start_sim_world({"seed": 7, "tracker_sigma_mm": 0.02}, cfg.daemon.data_dir, "sim:?size=64x48")
+    assert world.params.seed == 7 and world.params.tracker_sigma_mm == 0.02
+    assert sorted(p.name for p in (tmp_path / "data" / "sim").iterdir()) == \
+        ["camera_model.json", "nests.json", "plate.json"]
+    url = DeviceURL.parse(in_world("sim:?size=64x48", name))
+    assert worlds.world_for(url) is world and url.option("size", "") == "64x48"
+    assert in_world("emscon://127.0.0.1:700", name) == "emscon://127.0.0.1:700"
+    assert worlds.world_for(DeviceURL.parse("sim:")) is not world  # no world= : a private one
+    with pytest.raises(ValueError, match="no simulated world named 'nope'"):
+        worlds.world_for(DeviceURL.parse("sim:?world=nope"))

@@ -23,6 +23,7 @@ from drivers.emscon.enums import ES_SystemStatusChange as SSC
 from drivers.emscon.framer import Framer
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread, SimTracker
 from fakes.world import NEST_NAMES, World
+from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(60)
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,8 +59,8 @@ def make(world: World):
     def _make(opts: str = "", sink: Sink | None = None) -> SimTracker:
         merged = dict(parse_qsl(FAST))
         merged.update(parse_qsl(opts))  # the test's options override the fast defaults
-        url = DeviceURL.parse("sim:?" + "&".join(f"{k}={v}" for k, v in merged.items()))
-        t = SimTracker(url, emit=sink or Sink(), world=world)
+        url = sim_url(world, "&".join(f"{k}={v}" for k, v in merged.items()))
+        t = SimTracker(url, emit=sink or Sink())
         made.append(t)
         return t
 
@@ -89,7 +90,7 @@ def assert_within_5_sigma(p, truth: np.ndarray) -> None:
 
 
 def test_registry_builds_sim_tracker(world: World) -> None:
-    t = open_device("tracker", f"sim:?{FAST}", emit=Sink(), world=world)
+    t = open_device("tracker", sim_url(world, FAST).raw, emit=Sink())
     assert isinstance(t, SimTracker) and t.world is world
 
 

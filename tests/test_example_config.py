@@ -58,13 +58,7 @@ def example(tmp_path_factory):
     assert line.startswith("ritad ready"), (line, (tmp / "ritad.log").read_text()[-3000:])
     tcp = next(e for e in line.split(": ", 1)[1].split() if e.startswith("tcp://"))
     c = Client(f"ipc://{tmp}/rt/cmd", timeout=10)
-    end = time.monotonic() + 120
-    while True:  # devices READY and the worker (started by the example config) polling
-        h = c.call("status")
-        if all(d["state"] == "READY" for d in h["devices"].values()) and h["worker"]["seen_s_ago"] is not None:
-            break
-        assert time.monotonic() < end, f"not ready: {h['devices']} worker {h['worker']}"
-        time.sleep(0.3)
+    c.wait_ready(timeout=120, worker=True)  # the example config starts the worker
     alice_pub, alice_sec = load_keypair(tmp / "clients" / "alice.key_secret")
     alice = {"public": alice_pub, "secret": alice_sec, "server": load_public(data / "keys" / "server.key")}
     yield {"c": c, "tmp": tmp, "tcp": tcp, "alice": alice}

@@ -8,21 +8,22 @@ flight gets a clear error, that the runner reconnects on its own (visible in
 """
 from __future__ import annotations
 
+import contextlib
+import itertools
 import threading
 import time
 from typing import Any, Callable, Iterator
 
 import pytest
 
-from daemon.ritad import config
 from daemon.bus.client import Client, Subscriber
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
 from daemon.bus.protocol import CommandError
 from drivers.emscon.enums import ES_Command
+from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
-SMALL_CAMERA = "sim:?size=64x48&noise=0"
 
 
 def wait_for(pred: Callable[[], Any], timeout: float, what: str) -> Any:
@@ -35,37 +36,15 @@ def wait_for(pred: Callable[[], Any], timeout: float, what: str) -> Any:
         time.sleep(0.02)
 
 
-def all_ready(c: Client) -> dict[str, Any] | None:
-    h = c.call("status")
-    return h if all(v["state"] == "READY" for v in h["devices"].values()) else None
-
-
 @pytest.fixture
 def make_daemon(tmp_path) -> Iterator[Callable[..., tuple[Daemon, Client]]]:
     """Start a sim daemon with some device URLs replaced; stopped (and fakes shut down) after the test."""
-    made: list[tuple[Daemon, Client]] = []
+    count = itertools.count()
+    with contextlib.ExitStack() as stack:
+        def make(**devices: str) -> tuple[Daemon, Client]:
+            return stack.enter_context(ritad_in_process(tmp_path / f"rt{next(count)}", timeout=30, **devices))
 
-    def make(**devices: str) -> tuple[Daemon, Client]:
-        cfg = config.sim_config(tmp_path / f"rt{len(made)}")
-        cfg.daemon.start_worker = False
-        cfg.devices.camera = SMALL_CAMERA
-        for kind, url in devices.items():
-            setattr(cfg.devices, kind, url)
-        d = Daemon(cfg)
-        d.start()
-        c = Client(d.server.endpoints[0], timeout=10)
-        made.append((d, c))
-        wait_for(lambda: all_ready(c), 30, "devices READY")
-        return d, c
-
-    yield make
-    for d, c in made:
-        c.close()
-        d.stop_event.set()
-        d.stop()
-        for r in d.runners.values():
-            if hasattr(r.device, "shutdown"):
-                r.device.shutdown()
+        yield make
 
 
 def live_subscriber(c: Client, device: str) -> Subscriber:

@@ -13,9 +13,6 @@ import json
 import os
 import random
 import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -26,8 +23,8 @@ import cv2
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.bus.protocol import CommandError
+from fakes.launch import RitadProcess, spawn_ritad
 
-ROOT = Path(__file__).resolve().parents[1]
 CAMERA_SIZE = (160, 120)
 
 
@@ -55,59 +52,10 @@ seed = 5
     return path, f"ipc://{rt}/cmd"
 
 
-class Ritad:
-    """A ritad child process with a fake systemd notify socket."""
-
-    def __init__(self, tmp: Path, config: Path, watchdog_usec: int | None = None) -> None:
-        self.notify_path = tmp / f"notify-{time.monotonic_ns()}.sock"
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(str(self.notify_path))
-        self.sock.settimeout(0.1)
-        env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path), "PYTHONPATH": str(ROOT)}
-        env.pop("WATCHDOG_PID", None)
-        env.pop("WATCHDOG_USEC", None)
-        if watchdog_usec:
-            env["WATCHDOG_USEC"] = str(watchdog_usec)
-        self.log = open(tmp / "ritad.log", "ab")
-        self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(config)], cwd=ROOT,
-                                     env=env, stdout=self.log, stderr=subprocess.STDOUT)
-        self.messages: list[str] = []
-
-    def recv(self, duration: float) -> list[str]:
-        """Notify datagrams received within ``duration`` s."""
-        got: list[str] = []
-        end = time.monotonic() + duration
-        while time.monotonic() < end:
-            try:
-                got.append(self.sock.recv(4096).decode())
-            except socket.timeout:
-                continue
-        self.messages += got
-        return got
-
-    def wait_ready(self, timeout: float = 60) -> None:
-        end = time.monotonic() + timeout
-        while not any("READY=1" in m for m in self.messages):
-            assert self.proc.poll() is None, f"ritad exited with {self.proc.returncode}"
-            assert time.monotonic() < end, f"no READY=1 within {timeout} s"
-            self.recv(0.1)
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
-        self.sock.close()
-        self.log.close()
-
-
-def wait_devices_ready(c: Client, timeout: float = 60) -> None:
-    end = time.monotonic() + timeout
-    while True:
-        h = c.call("status")
-        if all(d["state"] == "READY" for d in h["devices"].values()):
-            return
-        assert time.monotonic() < end, f"devices not READY: {h['devices']}"
-        time.sleep(0.1)
+def Ritad(tmp: Path, config: Path, watchdog_usec: int | None = None) -> RitadProcess:  # noqa: N802
+    """ritad --config CONFIG with a private NOTIFY_SOCKET (fakes/launch.py); not yet waited for."""
+    return spawn_ritad(["--config", str(config)], tmp=tmp,
+                       env={"WATCHDOG_USEC": str(watchdog_usec)} if watchdog_usec else None)
 
 
 def hammer(endpoint: str, tag: str, acked: list[str], stop: threading.Event) -> None:
@@ -167,9 +115,9 @@ def test_sigkill_while_capturing(tmp_path: Path) -> None:
     for rnd, how in enumerate(["random", "mid-write", "random", "mid-write"]):
         ritad = Ritad(tmp_path, config)
         try:
-            ritad.wait_ready()
+            ritad.wait_notify_ready()
             with Client(endpoint, timeout=10) as c:
-                wait_devices_ready(c)
+                c.wait_ready()
                 lock_on_robot(c)
             n_before = len(acked)
             stop = threading.Event()
@@ -186,7 +134,7 @@ def test_sigkill_while_capturing(tmp_path: Path) -> None:
             t.join(10)
             assert len(acked) > n_before or how == "mid-write", "no capture was acknowledged before the kill"
         finally:
-            ritad.close()
+            ritad.kill()
     figures = check_data_dir(data)
     missing = [p for p in acked if Path(p) not in figures["listed_paths"]]
     assert not missing, f"acknowledged captures not in a manifest: {missing}"

@@ -21,7 +21,7 @@ from daemon.ritad import config
 from daemon.bus.client import Client
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
-from tests.test_faults import SMALL_CAMERA, all_ready, wait_for
+from tests.test_faults import SMALL_CAMERA, wait_for
 from tests.test_faults_process import Ritad, write_config
 
 
@@ -40,14 +40,14 @@ def test_watchdog_pings_from_a_ritad_process(tmp_path: Path) -> None:
     cfg, endpoint = write_config(tmp_path, tmp_path / "data")
     ritad = Ritad(tmp_path, cfg, watchdog_usec=1_000_000)
     try:
-        ritad.wait_ready()
+        ritad.wait_notify_ready()
         pings = count_pings(ritad.sock, 2.6)
         assert 3 <= pings <= 7  # every 0.5 s: about 5 in 2.6 s
         ritad.proc.send_signal(signal.SIGTERM)
         assert ritad.proc.wait(10) == 0
         assert any("STOPPING=1" in m for m in ritad.recv(0.3))
     finally:
-        ritad.close()
+        ritad.kill()
 
 
 def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -70,7 +70,7 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
     release = threading.Event()
     try:
         with Client(d.server.endpoints[0], timeout=10) as c:
-            wait_for(lambda: all_ready(c), 30, "devices READY")
+            c.wait_ready(timeout=30)
             assert count_pings(sock, 1.6) >= 2
             # the job may take 0.5 s; the runner counts as alive until 5 s past that
             hang = d.job("camera", lambda cam: release.wait(60), timeout=0.5)

@@ -29,13 +29,13 @@ import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.ritad import config
 from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
 from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
+from tests.ritad_up import ritad_in_process
 
 BATCH = 40
 EXAMPLES = 340  # × BATCH messages: about 13,600 (over 10,000 of them distinct)
@@ -209,35 +209,10 @@ def check_reply(frames: list[bytes]) -> dict[str, Any]:
 # ---------------------------------------------------------------------------- daemon
 
 
-def wait_ready(c: Client, timeout: float = 30.0) -> dict[str, Any]:
-    end = time.monotonic() + timeout
-    while True:
-        h = c.call("status")
-        if all(v["state"] == "READY" for v in h["devices"].values()):
-            return h
-        assert time.monotonic() < end, f"devices not READY: {h['devices']}"
-        time.sleep(0.05)
-
-
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory: pytest.TempPathFactory):
-    rt = tmp_path_factory.mktemp("fuzzbus")
-    cfg = config.sim_config(rt)
-    cfg.daemon.start_worker = False
-    cfg.devices.camera = "sim:?size=64x48&noise=0"
-    cfg.devices.tracker = "sim:?time_scale=0.002"
-    d = Daemon(cfg)
-    d.start()
-    try:
-        with Client(d.server.endpoints[0], timeout=10) as c:
-            wait_ready(c)
+    with ritad_in_process(tmp_path_factory.mktemp("fuzzbus"), timeout=30, tracker="sim:?time_scale=0.002") as (d, _):
         yield d
-    finally:
-        d.stop_event.set()
-        d.stop()
-        for r in d.runners.values():
-            if hasattr(r.device, "shutdown"):
-                r.device.shutdown()
 
 
 @contextlib.contextmanager
@@ -322,7 +297,7 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
           f"replies by code: {dict(codes.most_common())}")
     assert len(distinct) >= 10_000
     with Client(daemon.server.endpoints[0], timeout=10) as c:
-        h = wait_ready(c)
+        h = c.wait_ready(timeout=30)
     assert h["alive"] is True
     assert h["commands"]["requests"] >= sent[0]
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
@@ -347,7 +322,7 @@ def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
     """Random labels and dataset names on captures that succeed: files land under datasets/ only."""
     data = Path(daemon.config.daemon.data_dir)
     with Client(daemon.server.endpoints[0], timeout=30) as c:
-        wait_ready(c)
+        c.wait_ready(timeout=30)
         lock_on_robot(c)
         saved: list[Path] = []
 

@@ -32,6 +32,7 @@ from drivers.emscon.codec import (COMMANDS, MAX_PACKET, MEAS_VALUE, MEAS_VALUE2,
                                   encode_result, encode_status_change)
 from fakes.robot import SimRobot
 from fakes.world import World
+from fakes.worlds import sim_url
 
 FUZZ = dict(derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 int32 = st.integers(-(1 << 31), (1 << 31) - 1)
@@ -250,7 +251,8 @@ def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int],
 
 def test_robot_lines_into_the_driver() -> None:
     events: list[dict[str, Any]] = []
-    robot = SimRobot(DeviceURL.parse("sim:?state_hz=0&timeout=0.3"), world=World(),
+    world = World()  # registered weakly: held here for as long as the robot lives
+    robot = SimRobot(sim_url(world, "state_hz=0&timeout=0.3"),
                      emit=lambda t, p: events.append(p) if t == "robot.event" else None)
     robot.open()
     n = [0]

@@ -80,9 +80,7 @@ def load_tree() -> dict[str, tuple[str, bool]]:
 
 # Back-arrows still being removed, each named with the work that removes it. An entry that no
 # longer occurs fails the test, so this list can only shrink.
-PENDING: set[tuple[str, str]] = {
-    ("daemon.ritad.main", "fakes"),  # the sim world is built by ritad: moves behind config (issue #13 item 3)
-}
+PENDING: set[tuple[str, str]] = set()
 
 
 def pending(v: str) -> tuple[str, str] | None:

@@ -15,7 +15,6 @@ from typing import Iterator
 import numpy as np
 import pytest
 
-from daemon.ritad import config
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.ritad.main import Daemon
@@ -24,7 +23,7 @@ from drivers.base import DeviceLost, DeviceURL
 from drivers.emscon.adapter import EmsconTracker
 from drivers.emscon.client import EmsconClient
 from drivers.emscon.enums import ES_Command
-from tests.test_faults import all_ready, wait_for
+from tests.ritad_up import ritad_in_process
 
 
 class ForeignServer(threading.Thread):
@@ -77,18 +76,8 @@ def test_a_port_that_does_not_speak_emscon_is_named(server: dict, sent: str) -> 
 
 @pytest.fixture
 def sim(tmp_path: Path) -> Iterator[tuple[Daemon, Client]]:
-    cfg = config.sim_config(tmp_path / "rt", tmp_path / "data")
-    cfg.daemon.start_worker = False
-    cfg.devices.camera = "sim:?size=64x48&noise=0"
-    d = Daemon(cfg)
-    d.start()
-    c = Client(d.server.endpoints[0], timeout=20)
-    try:
-        wait_for(lambda: all_ready(c), 30, "devices READY")
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30, client_timeout=20) as (d, c):
         yield d, c
-    finally:
-        c.close()
-        d.stop()
 
 
 def test_measure_and_capture_before_lock_say_aim_and_find_first(sim, capsys) -> None:

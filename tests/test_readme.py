@@ -14,13 +14,11 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from daemon.bus.client import Client
-from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[1]
 README_RUNTIME = "/tmp/rita"
@@ -47,20 +45,6 @@ def localise(line: str, runtime: Path) -> str:
     return line.replace(".venv/bin/", f"{bin_dir}/").replace(README_RUNTIME, str(runtime))
 
 
-def wait_all_ready(endpoint: str, proc: subprocess.Popen, timeout: float = 120.0) -> None:
-    end = time.monotonic() + timeout
-    with Client(endpoint, timeout=2) as c:
-        while time.monotonic() < end:
-            assert proc.poll() is None, f"ritad exited with {proc.returncode}"
-            try:
-                if all(d["state"] == "READY" for d in c.call("status")["devices"].values()):
-                    return
-            except CommandError:
-                pass
-            time.sleep(0.3)
-    raise AssertionError(f"devices not READY after {timeout} s")
-
-
 def test_readme_block_parses() -> None:
     lines = using_it_block((ROOT / "README.md").read_text())
     assert lines[0].startswith(".venv/bin/ritad --sim") and any("calibrate" in ln for ln in lines)
@@ -80,7 +64,8 @@ def test_readme_using_it_runs_verbatim(tmp_path: Path) -> None:
     proc = subprocess.Popen(["bash", "-c", f"exec {daemon_line}"], cwd=work, stdout=log, stderr=subprocess.STDOUT,
                             env=env)
     try:
-        wait_all_ready(f"ipc://{runtime}/cmd", proc)
+        with Client(f"ipc://{runtime}/cmd", timeout=2) as c:
+            c.wait_ready(timeout=120, alive=lambda: proc.poll() is None)
         exports: list[str] = []
         for line in rest:
             if line.startswith("export "):

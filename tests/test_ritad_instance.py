@@ -16,7 +16,8 @@ from pathlib import Path
 
 from daemon.bus.client import Client, Subscriber
 from daemon.ritad.main import RitadExit
-from tests.test_faults_process import Ritad, wait_devices_ready, write_config
+from fakes.launch import RitadProcess
+from tests.test_faults_process import Ritad, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,7 @@ def sockets_in(rt: Path) -> dict[str, int]:
     return {p.name: p.stat().st_ino for p in rt.iterdir() if p.is_socket()}
 
 
-def stop(r: Ritad) -> None:
+def stop(r: RitadProcess) -> None:
     r.proc.send_signal(signal.SIGTERM)
     assert r.proc.wait(15) == 0
 
@@ -53,7 +54,7 @@ def test_second_ritad_leaves_the_first_ones_telemetry_working(tmp_path: Path) ->
     rt = tmp_path / "rt"
     first = Ritad(tmp_path, cfg)
     try:
-        first.wait_ready()
+        first.wait_notify_ready()
         telemetry = f"ipc://{rt}/telemetry"
         assert health_messages(telemetry, 2, 10) == 2
         before = sockets_in(rt)
@@ -71,13 +72,13 @@ def test_second_ritad_leaves_the_first_ones_telemetry_working(tmp_path: Path) ->
         # the lock went with the process: the next ritad starts on the same directories
         third = Ritad(tmp_path, cfg)
         try:
-            third.wait_ready()
+            third.wait_notify_ready()
             assert health_messages(telemetry, 1, 10) == 1
             stop(third)
         finally:
-            third.close()
+            third.kill()
     finally:
-        first.close()
+        first.kill()
 
 
 def test_check_config_binds_nothing_and_names_bad_keys(tmp_path: Path) -> None:
@@ -102,16 +103,12 @@ def test_clean_sigterm_stop_logs_no_warning(tmp_path: Path) -> None:
     cfg.write_text(cfg.read_text().replace("start_worker = false", "start_worker = true"))  # stop it too
     r = Ritad(tmp_path, cfg)
     try:
-        r.wait_ready()
+        r.wait_notify_ready()
         with Client(endpoint, timeout=10) as c:
-            wait_devices_ready(c)
-            end = time.monotonic() + 60
-            while c.call("status")["worker"]["seen_s_ago"] is None:
-                assert time.monotonic() < end, "worker never polled"
-                time.sleep(0.2)
+            c.wait_ready(worker=True)  # devices READY and the worker polling
         stop(r)
     finally:
-        r.close()
+        r.kill()
     log = (tmp_path / "ritad.log").read_text()
     assert "INFO ritad: stopped" in log
     bad = [line for line in log.splitlines() if any(f" {lvl} " in line for lvl in ("WARNING", "ERROR", "CRITICAL"))
@@ -127,9 +124,9 @@ def test_insecure_tcp_warns_at_every_start(tmp_path: Path) -> None:
     for _ in range(2):
         r = Ritad(tmp_path, cfg)  # appends to the same ritad.log
         try:
-            r.wait_ready()
+            r.wait_notify_ready()
             stop(r)
         finally:
-            r.close()
+            r.kill()
     log = (tmp_path / "ritad.log").read_text()
     assert log.count("WARNING ritad: insecure_tcp = true: tcp://127.0.0.1:0 accept any client without CURVE") == 2

@@ -1,10 +1,7 @@
 """ritad --sim as a real process: READY through a fake NOTIFY_SOCKET, status, capture, SIGTERM."""
 import json
-import os
 import signal
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -12,66 +9,24 @@ import pytest
 
 from daemon.bus.client import Client
 from daemon.demo import lock_on_robot
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def wait_ready(sock: socket.socket, proc: subprocess.Popen, timeout: float) -> list[str]:
-    got: list[str] = []
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if proc.poll() is not None:
-            raise AssertionError(f"ritad exited early with {proc.returncode}")
-        try:
-            got.append(sock.recv(4096).decode())
-        except socket.timeout:
-            continue
-        if any("READY=1" in g for g in got):
-            return got
-    raise AssertionError(f"no READY=1 within {timeout} s; got {got}")
+from fakes.launch import start_ritad
 
 
 @pytest.fixture
 def ritad(tmp_path):
-    notify_path = tmp_path / "notify.sock"
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    sock.bind(str(notify_path))
-    sock.settimeout(0.2)
-    env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "2000000",
-           "PYTHONPATH": str(ROOT)}
-    env.pop("WATCHDOG_PID", None)
-    rt = tmp_path / "rt"
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(rt),
-                             "--data-dir", str(tmp_path / "data")],
-                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    """ritad --sim with a fake NOTIFY_SOCKET and a 2 s watchdog (fakes/launch.py)."""
+    r = start_ritad(tmp=tmp_path, env={"WATCHDOG_USEC": "2000000"}, timeout=30, keep_notify=True)
+    r.sock.settimeout(0.2)
     try:
-        messages = wait_ready(sock, proc, 30)
-        yield proc, f"ipc://{rt}/cmd", sock, messages, tmp_path
+        yield r.proc, r.endpoint, r.sock, r.messages, tmp_path
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)  # lets ritad stop its worker too
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
-        sock.close()
-
-
-def wait_devices_ready(c: Client, timeout: float = 60) -> dict:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        h = c.call("status")
-        if all(d["state"] == "READY" for d in h["devices"].values()):
-            return h
-        time.sleep(0.2)
-    raise AssertionError(f"devices not READY: {json.dumps(h['devices'], indent=1)}")
+        r.stop()
 
 
 def test_ready_status_capture_and_clean_sigterm(ritad):
     proc, endpoint, sock, messages, tmp_path = ritad
     with Client(endpoint, timeout=10) as c:
-        h = wait_devices_ready(c)
+        h = c.wait_ready()
         assert h["alive"] is True
         lock_on_robot(c)  # like an operator: point the tracker at the robot's reflector first
         r = c.call("capture", timeout=60, label="it")
@@ -129,7 +84,7 @@ def test_one_world_for_all_fakes(ritad):
 
     proc, endpoint, *_ = ritad
     with Client(endpoint, timeout=10) as c:
-        wait_devices_ready(c)
+        c.wait_ready()
         p0 = lock_on_robot(c)
         shot0, extra0 = c.call_raw("camera.capture", {"pixels": True}, timeout=60)
         before = np.array(c.call("sim.truth")["abs_H_rob"])

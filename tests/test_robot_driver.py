@@ -23,6 +23,7 @@ from drivers.robot import SerialRobot
 from fakes.robot import PtyServer, SimRobot
 from fakes.robot_base import FakeBase
 from fakes.world import World, WorldParams
+from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(30)
 REPO = Path(__file__).resolve().parents[1]
@@ -48,7 +49,7 @@ def make_robot() -> Iterator[Any]:
     def make(query: str = "time_scale=0", **params: Any) -> tuple[SimRobot, Sink]:
         sink = Sink()
         world = World(WorldParams(start_pose=(3000.0, 3000.0, 30.0)).with_(**params))
-        robot = SimRobot(DeviceURL.parse(f"sim:?{query}"), emit=sink, world=world)
+        robot = SimRobot(sim_url(world, query), emit=sink)
         made.append(robot)
         robot.open()
         return robot, sink

@@ -14,6 +14,7 @@ from drivers.base import DeviceURL
 from fakes.robot import SimRobot, _param
 from fakes.robot_base import FakeBase
 from fakes.world import RobotPose, World, WorldParams
+from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(60)
 START = (3000.0, 3000.0, 30.0)  # well off the plate: the support height stays 0
@@ -25,7 +26,7 @@ def sim() -> Iterator[Any]:
 
     def make(query: str = "time_scale=0", **params: Any) -> SimRobot:
         world = World(WorldParams(start_pose=START).with_(**params))
-        robot = SimRobot(DeviceURL.parse(f"sim:?{query}&state_hz=0"), world=world)
+        robot = SimRobot(sim_url(world, f"{query}&state_hz=0"))
         made.append(robot)
         robot.open()
         return robot
@@ -105,7 +106,7 @@ def test_drive_errors_are_seeded() -> None:
     def end_pose(seed: int) -> tuple[float, float, float]:
         world = World(WorldParams(seed=seed, start_pose=START, drive_lateral_sigma_mm=1.0,
                                   drive_heading_sigma_deg=0.5))
-        robot = SimRobot(DeviceURL.parse("sim:?time_scale=0&state_hz=0"), world=world)
+        robot = SimRobot(sim_url(world, "time_scale=0&state_hz=0"))
         try:
             robot.open()
             for _ in range(3):

@@ -190,11 +190,14 @@ def test_server_fuzz_random_commands_by_role(servers):
     assert min(counts.values()) > 20, counts  # every outcome was exercised
 
 
+SIM = {"devices": {"camera": "sim:", "tracker": "sim:", "robot": "sim:"}}  # every device URL is required
+
+
 def test_ipc_role_is_configurable_and_checked():
-    cfg = config.from_dict({"security": {"ipc_role": "viewer"}})
+    cfg = config.from_dict({**SIM, "security": {"ipc_role": "viewer"}})
     assert cfg.security.ipc_role == "viewer"
-    assert config.from_dict({}).security.ipc_role == "operator"
+    assert config.from_dict(SIM).security.ipc_role == "operator"
     with pytest.raises(config.ConfigError, match="security.ipc_role 'root' is not one of viewer, operator, admin"):
-        config.from_dict({"security": {"ipc_role": "root"}})
+        config.from_dict({**SIM, "security": {"ipc_role": "root"}})
     with pytest.raises(config.ConfigError, match="worker connects over ipc and needs operator"):
-        config.from_dict({"security": {"ipc_role": "viewer"}, "daemon": {"start_worker": True}})
+        config.from_dict({**SIM, "security": {"ipc_role": "viewer"}, "daemon": {"start_worker": True}})

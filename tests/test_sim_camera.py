@@ -15,6 +15,7 @@ from daemon.ritad.registry import adapter_class, open_device
 from drivers.base import CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
 from fakes.camera import SimCamera, renderer_for
 from fakes.world import RobotPose, World, WorldParams
+from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -28,7 +29,8 @@ def make(query: str, world: World | None = None, settings: CameraSettings | None
         if sink is not None:
             sink.append(payload)
 
-    return SimCamera(DeviceURL.parse(f"sim:?{query}"), emit=emit, world=world, settings=settings)
+    url = sim_url(world, query) if world is not None else DeviceURL.parse(f"sim:?{query}")
+    return SimCamera(url, emit=emit, settings=settings)
 
 
 @pytest.fixture(scope="module")

@@ -13,13 +13,12 @@ from typing import Iterator
 
 import pytest
 
-from daemon.ritad import config
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.ctl.watch import NO_FRAMES, LiveStatus, Screen
 from daemon.demo import lock_on_robot
 from daemon.ritad.main import Daemon
-from tests.test_faults import all_ready, wait_for
+from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
 
 def health(uptime: float, frames: int, state: str = "READY") -> dict:
@@ -86,18 +85,8 @@ def test_screen_redraws_in_place_on_a_tty_and_prints_changes_otherwise(monkeypat
 
 @pytest.fixture
 def live(tmp_path: Path) -> Iterator[tuple[Daemon, Client, str]]:
-    cfg = config.sim_config(tmp_path / "rt", tmp_path / "data")
-    cfg.daemon.start_worker = False
-    cfg.devices.camera = "sim:?size=64x48&noise=0&fps=20"
-    d = Daemon(cfg)
-    d.start()
-    c = Client(d.server.endpoints[0], timeout=10)
-    try:
-        wait_for(lambda: all_ready(c), 30, "devices READY")
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30, camera=SMALL_CAMERA + "&fps=20") as (d, c):
         yield d, c, d.server.endpoints[0]
-    finally:
-        c.close()
-        d.stop()
 
 
 def test_watch_is_a_few_status_lines_while_the_tracker_streams(live, capsys) -> None:

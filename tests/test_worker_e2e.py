@@ -17,9 +17,10 @@ import pytest
 
 from calibration.referencing import rob_H_cam_error
 from daemon.worker.recompute import recompute
-from daemon.bus.client import Client
+from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.datasets import validate_folder
 from daemon.demo import lock_on_robot, operator_files
+from fakes.launch import start_ritad
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
@@ -28,30 +29,13 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("e2e")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--sim", "--runtime-dir", str(tmp / "rt"),
-                             "--data-dir", str(tmp / "data"), "--seed", "3"], cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)},
-                            stdout=subprocess.DEVNULL, stderr=open(tmp / "ritad.log", "w"))
-    c = Client(f"ipc://{tmp}/rt/cmd", timeout=10)
-    end = time.monotonic() + 90
-    while time.monotonic() < end:
+    with start_ritad(tmp=tmp, args=["--seed", "3"], timeout=90) as r:
         try:
-            h = c.call("status", timeout=2)
-            if all(d["state"] == "READY" for d in h["devices"].values()) and h["worker"]["seen_s_ago"] is not None:
-                break
-        except Exception:
-            pass
-        time.sleep(0.3)
-    else:
-        proc.kill()
-        raise AssertionError(f"daemon not ready: {(tmp / 'ritad.log').read_text()[-3000:]}")
-    yield c, tmp
-    c.close()
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+            r.wait_ready(timeout=90, worker=True)
+        except ClientTimeout as exc:
+            raise AssertionError(f"daemon not ready: {exc}\n{r.log_tail()}") from None
+        with r.client() as c:
+            yield c, tmp
 
 
 def run_job(c: Client, procedure: str, params: dict, timeout: float = 400, answers: dict | None = None,

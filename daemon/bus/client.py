@@ -18,7 +18,7 @@ import itertools
 import os
 import time
 import uuid
-from typing import Any, Iterator
+from typing import Any, Callable, Iterable, Iterator
 from urllib.parse import urlsplit
 
 import zmq
@@ -180,6 +180,38 @@ class Client:
 
     def call(self, cmd: str, timeout: float | None = None, **args: Any) -> Any:
         return self.call_raw(cmd, args, timeout)[0]
+
+    def wait_ready(self, devices: Iterable[str] | None = None, timeout: float = 60.0, *, worker: bool = False,
+                   alive: Callable[[], bool] | None = None, poll: float = 0.1) -> dict[str, Any]:
+        """Poll ``status`` until the named devices (default: all) are READY; return that status.
+
+        The one definition of "ritad is up, devices READY" that tests, benchmarks and the
+        demo share. ``worker`` also waits until the calibration worker has been seen;
+        ``alive`` (e.g. "the ritad process still runs") ends the wait early. No answer yet
+        counts as not ready (ritad may still be binding); a refused key does not.
+        Raises :class:`ClientTimeout` naming the device states last seen.
+        """
+        end = time.monotonic() + timeout
+        last: dict[str, Any] = {}
+        while True:
+            if alive is not None and not alive():
+                raise ClientTimeout(f"ritad at {self.endpoint} went away while waiting for READY")
+            try:
+                last = self.call("status", timeout=max(0.1, min(2.0, end - time.monotonic())))
+            except ClientRefused:
+                raise
+            except ClientTimeout:
+                last = {}
+            devs = last.get("devices", {})
+            want = list(devs) if devices is None else list(devices)
+            ready = bool(devs) and all(devs.get(k, {}).get("state") == "READY" for k in want)
+            if ready and (not worker or last.get("worker", {}).get("seen_s_ago") is not None):
+                return last
+            if time.monotonic() >= end:
+                states = {k: v.get("state") for k, v in devs.items()} or "no answer"
+                extra = f", worker {last.get('worker')}" if worker else ""
+                raise ClientTimeout(f"devices not READY within {timeout:g} s at {self.endpoint}: {states}{extra}")
+            time.sleep(poll)
 
     def hello(self) -> dict[str, Any]:
         if self._hello is None:

@@ -1,8 +1,8 @@
 """ritad configuration: one TOML file loaded into typed dataclasses.
 
 Unknown keys and bad values are errors that name the key and the file. Each device
-is chosen by a URL (see :mod:`daemon.ritad.registry`); ``sim:`` selects the fake that
-lives in the shared simulated world. ``sim_config()`` is the built-in simulation
+is chosen by a URL (see :mod:`daemon.ritad.registry`) and every one is required;
+``sim:`` selects the fake, and the ``[sim]`` section builds the one world the fakes share. ``sim_config()`` is the built-in simulation
 configuration used by ``ritad --sim``.
 """
 from __future__ import annotations
@@ -33,6 +33,11 @@ REMOVED_KEYS = {
 }
 
 
+#: shown in the error for a missing device URL
+EXAMPLE_URLS = {"camera": "genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=...",
+                "tracker": "emscon://192.168.0.10:700", "robot": "serial:///dev/ttyUSB0"}
+
+
 @dataclass
 class DaemonSection:
     command_endpoints: list[str] = field(default_factory=lambda: ["ipc:///run/ritad/cmd"])
@@ -58,9 +63,11 @@ class DaemonSection:
 
 @dataclass
 class DevicesSection:
-    camera: str = "sim:"
-    tracker: str = "sim:"
-    robot: str = "sim:"
+    """Every device URL is required: a forgotten line must not silently become a simulation."""
+
+    camera: str = ""
+    tracker: str = ""
+    robot: str = ""
 
 
 @dataclass
@@ -109,7 +116,9 @@ class Config:
 
     @property
     def uses_sim(self) -> bool:
-        return any(getattr(self.devices, k).startswith("sim:") for k in ("camera", "tracker", "robot"))
+        """Any device simulated (``sim:``, any case): then ritad builds the shared world."""
+        return any(getattr(self.devices, k) and DeviceURL.parse(getattr(self.devices, k)).scheme == "sim"
+                   for k in ("camera", "tracker", "robot"))
 
 
 # --------------------------------------------------------------------------- loading
@@ -182,6 +191,9 @@ def _validate(cfg: Config) -> None:
     src = cfg.source
     for kind in ("camera", "tracker", "robot"):
         url = getattr(cfg.devices, kind)
+        if not url:
+            raise ConfigError(f"{src}: devices.{kind} is missing: every device needs a URL in [devices] "
+                              f"(e.g. {kind} = \"{EXAMPLE_URLS[kind]}\"; \"sim:\" for the simulated one)")
         try:
             parsed = DeviceURL.parse(url)
         except ValueError as exc:

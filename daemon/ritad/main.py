@@ -10,6 +10,7 @@ every second, pings the systemd watchdog only while every owner thread is respon
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import enum
 import logging
 import os
@@ -40,7 +41,7 @@ from daemon.ritad.logs import setup_logging  # noqa: E402
 from daemon.ritad.notify import Notifier  # noqa: E402
 from daemon.bus.protocol import SCHEMA_VERSION  # noqa: E402
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
-from daemon.ritad.registry import open_device  # noqa: E402
+from daemon.ritad.registry import in_world, is_sim, open_device, start_sim_world  # noqa: E402
 from daemon.ritad.motion import MotionWaiters  # noqa: E402
 from daemon.ritad.runner import DeviceRunner  # noqa: E402
 from daemon.ritad.server import CommandServer  # noqa: E402
@@ -67,14 +68,8 @@ class Daemon:
     def __init__(self, cfg: config_mod.Config) -> None:
         self.config = cfg
         self.started = time.monotonic()
-        self.world = None
-        if cfg.uses_sim:
-            from fakes.world import World, WorldParams
-
-            self.world = World(WorldParams(seed=cfg.sim.seed, tracker_sigma_mm=cfg.sim.tracker_sigma_mm))
-            if cfg.devices.tracker.startswith("sim:"):
-                # the simulated tracker stands somewhere in the world: its frame → ACS is known
-                cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()
+        self.world: Any = None  # opaque: only the sim.* commands look into it
+        self.device_urls = {k: getattr(cfg.devices, k) for k in KINDS}
         self.ctx = zmq.Context()
         self.telemetry: TelemetryPublisher
         self.frames: FramePublisher
@@ -102,18 +97,24 @@ class Daemon:
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:
-        url = getattr(self.config.devices, kind)
+        url = self.device_urls[kind]
         settings = self.config.camera if kind == "camera" else None
-        return lambda: open_device(kind, url, emit=self.emit, world=self.world, settings=settings)
+        return lambda: open_device(kind, url, emit=self.emit, settings=settings)
+
+    def _start_sim(self, data: Path) -> None:
+        """Config-driven simulation: the fakes' factory builds the world and plays the installer."""
+        cfg = self.config
+        name, self.world = start_sim_world(dataclasses.asdict(cfg.sim), str(data), cfg.devices.camera)
+        self.device_urls = {k: in_world(url, name) for k, url in self.device_urls.items()}
+        if is_sim(cfg.devices.tracker):  # the simulated tracker stands somewhere in the world
+            cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()
 
     def start(self) -> None:
         cfg = self.config.daemon
         data = Path(cfg.data_dir)
         data.mkdir(parents=True, exist_ok=True)
-        if self.world is not None:  # the simulated world plays the installer (fakes/installer.py)
-            from fakes.installer import install
-
-            install(self.world, data, self.config.devices.camera)
+        if self.config.uses_sim:
+            self._start_sim(data)
         if self.config.security.curve:
             from daemon.bus.auth import Security
 

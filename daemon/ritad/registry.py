@@ -5,12 +5,17 @@ imported only when it is used, so a robot without a camera SDK still starts and 
 operator's laptop never imports OpenCV or harvesters. Third parties can add schemes
 through the ``rita.adapters`` entry-point group (name ``kind.scheme``, value
 ``module:Class``).
+
+Simulation enters the same way, by name only: ``sim:`` resolves to the fakes'
+adapters, and :func:`start_sim_world` calls the fakes' world factory, so nothing in
+ritad imports ``fakes`` (tests/test_layers.py).
 """
 from __future__ import annotations
 
 import importlib
 from importlib.metadata import entry_points
 from typing import Any
+from urllib.parse import quote
 
 from drivers.base import Device, DeviceURL, Emit
 
@@ -32,6 +37,10 @@ ADAPTERS: dict[str, dict[str, str]] = {
         "sim": "fakes.robot:SimRobot",
     },
 }
+
+#: builds the shared simulated world from the config's [sim] section and plays the installer (fakes/installer.py, fakes/worlds.py)
+SIM_WORLD_FACTORY = "fakes.installer:start"
+SIM_SCHEME = "sim"
 
 #: top-level module -> what to install when it is missing
 INSTALL_HINTS = {
@@ -61,6 +70,21 @@ def schemes(kind: str) -> dict[str, str]:
     return table
 
 
+def _load(target: str, what: str) -> Any:
+    """Import ``module:name`` lazily; a missing third-party package says what to install."""
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        top = (exc.name or "").split(".")[0]
+        hint = INSTALL_HINTS.get(top)
+        if hint is None:
+            raise
+        raise AdapterError(f"{what} needs the Python package {top!r}, which is not installed: "
+                           f"{hint}") from exc
+    return getattr(module, attr)
+
+
 def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
     """Resolve ``url`` to an adapter class for device ``kind``."""
     table = schemes(kind)
@@ -70,24 +94,35 @@ def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
     if target is None:
         raise AdapterError(
             f"{kind} URL {url.raw!r}: unknown scheme {url.scheme!r} (known: {', '.join(sorted(table))})")
-    module_name, _, class_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        top = (exc.name or "").split(".")[0]
-        hint = INSTALL_HINTS.get(top)
-        if hint is None:
-            raise
-        raise AdapterError(
-            f"{kind} URL {url.raw!r} needs the Python package {top!r}, which is not installed: {hint}"
-        ) from exc
-    cls = getattr(module, class_name)
+    cls = _load(target, f"{kind} URL {url.raw!r}")
     if not (isinstance(cls, type) and issubclass(cls, Device)):
         raise AdapterError(f"{target} is not a Device adapter")
     return cls
 
 
-def open_device(kind: str, url: str, *, emit: Emit, world: Any = None, settings: Any = None) -> Device:
+def open_device(kind: str, url: str, *, emit: Emit, settings: Any = None) -> Device:
     """Construct (not open) the adapter for ``url``."""
     parsed = DeviceURL.parse(url)
-    return adapter_class(kind, parsed)(parsed, emit=emit, world=world, settings=settings)
+    return adapter_class(kind, parsed)(parsed, emit=emit, settings=settings)
+
+
+def is_sim(url: str) -> bool:
+    return DeviceURL.parse(url).scheme == SIM_SCHEME
+
+
+def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tuple[str, Any]:
+    """Build the simulated world the ``sim:`` devices share; returns (name, world).
+
+    The world is opaque to ritad: it is handed to the sim-only commands (``sim.truth``)
+    and named in each ``sim:`` URL (:func:`in_world`).
+    """
+    return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir, camera_url)
+
+
+def in_world(url: str, world: str) -> str:
+    """``url`` with ``world=<name>`` added when it is a ``sim:`` URL (others unchanged)."""
+    parsed = DeviceURL.parse(url)
+    if parsed.scheme != SIM_SCHEME or "world" in parsed.query:
+        return url
+    sep = "&" if "?" in url else "?"
+    return f"{url}{sep}world={quote(world, safe='')}"

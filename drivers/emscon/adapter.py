@@ -64,9 +64,9 @@ _flag.__name__ = "flag (0/1)"
 class EmsconTracker(Tracker):
     """A Leica laser tracker reached through the emScon TPI."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, world: Any = None,
+    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
-        super().__init__(url, emit=emit, world=world, settings=settings)
+        super().__init__(url, emit=emit, settings=settings)
         o = url.option
         self.timeout: float = o("timeout", 30.0, float)
         self.init_timeout: float = o("init_timeout", 90.0, float)

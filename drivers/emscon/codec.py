@@ -313,38 +313,11 @@ def decode(buf: bytes, direction: str) -> Packet:
     if size > MAX_PACKET:
         raise _bad(f"lPacketSize {size} exceeds the {MAX_PACKET}-byte limit")
     if direction == TO_SERVER:
-        if dtype != ES_DataType.Command:
-            raise _bad(f"request with data type {enum_name(ES_DataType, dtype)} (only Command is valid)")
-        if n < 12:
-            raise _bad(f"request of {n} bytes is shorter than BasicCommandCT (12)")
-        (cmd,) = struct.unpack_from("<i", buf, 8)
-        if cmd not in COMMANDS:
-            if n != 12:
-                raise _bad(f"request for unknown command {cmd} with lPacketSize {n} (expected 12)")
-            return Packet("request", dtype, command=cmd)
-        s = _CT[cmd]
-        if n != s.size:
-            raise _bad(f"{ES_Command(cmd).name} request: lPacketSize {n}, expected {s.size}")
-        return Packet("request", dtype, command=ES_Command(cmd), values=_unpack(s, COMMANDS[cmd][0], buf, 3))
+        return _decode_request(buf, dtype)
     if direction != TO_CLIENT:
         raise ValueError(f"direction must be {TO_SERVER!r} or {TO_CLIENT!r}, not {direction!r}")
     if dtype == ES_DataType.Command:
-        if n < 16:
-            raise _bad(f"answer of {n} bytes is shorter than BasicCommandRT (16)")
-        _, _, cmd, status = _PREFIX4.unpack_from(buf)
-        status = as_enum(ES_ResultStatus, status)
-        if cmd not in COMMANDS:
-            if n != 16:
-                raise _bad(f"answer to unknown command {cmd} with lPacketSize {n} (expected 16)")
-            return Packet("answer", dtype, command=cmd, status=status)
-        s = _RT[cmd]
-        cmd = ES_Command(cmd)
-        if n == s.size:
-            return Packet("answer", dtype, command=cmd, status=status,
-                          values=_unpack(s, COMMANDS[cmd][1], buf, 4))
-        if n == 16 and status != 0:  # a failed answer may be just the prefix (CPP-H reads only that)
-            return Packet("answer", dtype, command=cmd, status=status)
-        raise _bad(f"{cmd.name} answer (status {int(status)}): lPacketSize {n}, expected {s.size}")
+        return _decode_answer(buf, dtype)
     if dtype == ES_DataType.Error:
         if n != 16:
             raise _bad(f"ErrorResponse: lPacketSize {n}, expected 16")
@@ -365,6 +338,44 @@ def decode(buf: bytes, direction: str) -> Packet:
         status = as_enum(ES_ResultStatus, struct.unpack_from("<i", buf, 8)[0])
         return Packet(_KINDS[ES_DataType(dtype)], dtype, status=status, values=values)
     raise _bad(f"unsupported data type {enum_name(ES_DataType, dtype)} (lPacketSize {n})")
+
+
+def _decode_request(buf: bytes, dtype: int) -> Packet:
+    """A CT packet (client → server): only data type Command is valid."""
+    n = len(buf)
+    if dtype != ES_DataType.Command:
+        raise _bad(f"request with data type {enum_name(ES_DataType, dtype)} (only Command is valid)")
+    if n < 12:
+        raise _bad(f"request of {n} bytes is shorter than BasicCommandCT (12)")
+    (cmd,) = struct.unpack_from("<i", buf, 8)
+    if cmd not in COMMANDS:
+        if n != 12:
+            raise _bad(f"request for unknown command {cmd} with lPacketSize {n} (expected 12)")
+        return Packet("request", dtype, command=cmd)
+    s = _CT[cmd]
+    if n != s.size:
+        raise _bad(f"{ES_Command(cmd).name} request: lPacketSize {n}, expected {s.size}")
+    return Packet("request", dtype, command=ES_Command(cmd), values=_unpack(s, COMMANDS[cmd][0], buf, 3))
+
+
+def _decode_answer(buf: bytes, dtype: int) -> Packet:
+    """An RT packet (server → client) of data type Command: the answer to a request."""
+    n = len(buf)
+    if n < 16:
+        raise _bad(f"answer of {n} bytes is shorter than BasicCommandRT (16)")
+    _, _, cmd, status = _PREFIX4.unpack_from(buf)
+    status = as_enum(ES_ResultStatus, status)
+    if cmd not in COMMANDS:
+        if n != 16:
+            raise _bad(f"answer to unknown command {cmd} with lPacketSize {n} (expected 16)")
+        return Packet("answer", dtype, command=cmd, status=status)
+    s = _RT[cmd]
+    cmd = ES_Command(cmd)
+    if n == s.size:
+        return Packet("answer", dtype, command=cmd, status=status, values=_unpack(s, COMMANDS[cmd][1], buf, 4))
+    if n == 16 and status != 0:  # a failed answer may be just the prefix (CPP-H reads only that)
+        return Packet("answer", dtype, command=cmd, status=status)
+    raise _bad(f"{cmd.name} answer (status {int(status)}): lPacketSize {n}, expected {s.size}")
 
 
 def _decode_multi(buf: bytes, dtype: ES_DataType) -> Packet:
