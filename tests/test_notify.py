@@ -42,3 +42,14 @@ def test_watchdog_interval(monkeypatch):
     assert Notifier("x").watchdog_interval == 10.0
     monkeypatch.setenv("WATCHDOG_PID", "1")
     assert Notifier("x").watchdog_interval is None
+
+
+def test_a_socket_nobody_reads_never_blocks(tmp_path):
+    """Once the unread queue is full, send drops the message and returns False at once."""
+    path = str(tmp_path / "full.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    srv.bind(path)
+    n = Notifier(path)
+    results = [n.watchdog() for _ in range(5000)]  # far past any datagram queue length
+    assert results[0] is True and results[-1] is False
+    n.close(); srv.close()

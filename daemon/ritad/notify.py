@@ -39,7 +39,9 @@ class Notifier:
         try:
             if self._sock is None:
                 self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-            self._sock.sendto(payload, addr)
+            # never block: a notify socket nobody reads (a test harness, a stuck manager) must not
+            # hold up the supervisor; a full queue drops this message (BlockingIOError is an OSError)
+            self._sock.sendto(payload, socket.MSG_DONTWAIT, addr)
             return True
         except OSError as exc:
             log.debug("sd_notify to %s failed: %s", self.address, exc)
