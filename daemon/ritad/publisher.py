@@ -63,22 +63,48 @@ def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
     return bound
 
 
-class TelemetryPublisher(threading.Thread):
+class _Publisher(threading.Thread):
+    """One PUB socket per endpoint, fed from a bounded queue by this owner thread only."""
+
+    def __init__(self, name: str, ctx: zmq.Context, endpoints: list[str], hwm: int, queue_size: int,
+                 security: Any) -> None:
+        super().__init__(name=name, daemon=True)
+        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
+                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
+        self._q: queue.Queue[Any] = queue.Queue(queue_size)
+        self._stop_evt = threading.Event()
+        self.seq = 0
+        self.sent = 0
+        self.heartbeat = time.monotonic()
+
+    def _send(self, item: Any) -> None:
+        raise NotImplementedError
+
+    def run(self) -> None:
+        while not self._stop_evt.is_set():
+            self.heartbeat = time.monotonic()
+            try:
+                item = self._q.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self._send(item)
+        for sock in self.socks:
+            sock.close(linger=0)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop_evt.set()
+        self.join(timeout)
+
+
+class TelemetryPublisher(_Publisher):
     """Owner of the telemetry PUB socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 10000, queue_size: int = 20000,
                  security: Any = None) -> None:
-        super().__init__(name="pub-telemetry", daemon=True)
-        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
-                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
-        self._q: queue.Queue[tuple[str, Any, int]] = queue.Queue(queue_size)
-        self._stop_evt = threading.Event()
+        super().__init__("pub-telemetry", ctx, endpoints, hwm, queue_size, security)
         self._lock = threading.Lock()
-        self.seq = 0
         self.latest: dict[str, dict[str, Any]] = {}
-        self.sent = 0
         self.dropped: collections.Counter[str] = collections.Counter()
-        self.heartbeat = time.monotonic()
 
     def publish(self, topic: str, data: Any) -> None:
         try:
@@ -94,52 +120,34 @@ class TelemetryPublisher(threading.Thread):
     def counters(self) -> dict[str, Any]:
         return {"sent": self.sent, "queued": self._q.qsize(), "dropped": dict(self.dropped)}
 
-    def run(self) -> None:
-        while not self._stop_evt.is_set():
-            self.heartbeat = time.monotonic()
-            try:
-                topic, data, t_ns = self._q.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            with self._lock:
-                self.seq += 1
-                seq = self.seq
-                self.latest[topic] = {"seq": seq, "t_ns": t_ns, "data": data}
-            try:
-                msg = [topic.encode(), telemetry(seq, t_ns, data)]
-            except (TypeError, ValueError) as exc:  # a payload msgpack cannot encode: a bug, not a crash
-                log.error("cannot publish %s: %s", topic, exc)
-                self.dropped[topic] += 1
-                continue
-            for sock in self.socks:
-                try:
-                    sock.send_multipart(msg, flags=zmq.NOBLOCK)
-                except zmq.Again:
-                    self.dropped[topic] += 1
-            self.sent += 1
+    def _send(self, item: tuple[str, Any, int]) -> None:
+        topic, data, t_ns = item
+        with self._lock:
+            self.seq += 1
+            seq = self.seq
+            self.latest[topic] = {"seq": seq, "t_ns": t_ns, "data": data}
+        try:
+            msg = [topic.encode(), telemetry(seq, t_ns, data)]
+        except (TypeError, ValueError) as exc:  # a payload msgpack cannot encode: a bug, not a crash
+            log.error("cannot publish %s: %s", topic, exc)
+            self.dropped[topic] += 1
+            return
         for sock in self.socks:
-            sock.close(linger=0)
+            try:
+                sock.send_multipart(msg, flags=zmq.NOBLOCK)
+            except zmq.Again:
+                self.dropped[topic] += 1
+        self.sent += 1
 
-    def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        self.join(timeout)
 
-
-class FramePublisher(threading.Thread):
+class FramePublisher(_Publisher):
     """Owner of the frame PUB socket: ``[topic, header, pixels]`` zero-copy, small HWM."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4,
                  security: Any = None) -> None:
-        super().__init__(name="pub-frames", daemon=True)
-        self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
-                                                  lambda s: s.setsockopt(zmq.SNDHWM, hwm))
-        self._q: queue.Queue[Frame] = queue.Queue(queue_size)
-        self._stop_evt = threading.Event()
-        self.seq = 0
-        self.sent = 0
+        super().__init__("pub-frames", ctx, endpoints, hwm, queue_size, security)
         self.dropped = 0  # frames dropped before the socket (publisher could not keep up)
         self.last_header: dict[str, Any] | None = None
-        self.heartbeat = time.monotonic()
 
     def publish(self, frame: Frame) -> None:
         try:
@@ -150,29 +158,17 @@ class FramePublisher(threading.Thread):
     def counters(self) -> dict[str, Any]:
         return {"sent": self.sent, "dropped": self.dropped, "queued": self._q.qsize(), "seq": self.seq}
 
-    def run(self) -> None:
-        while not self._stop_evt.is_set():
-            self.heartbeat = time.monotonic()
-            try:
-                frame = self._q.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            self.seq += 1
-            header = {"v": SCHEMA_VERSION, "seq": self.seq, "dropped": self.dropped,
-                      "publish_monotonic_ns": time.monotonic_ns(), **frame.header()}
-            pixels = frame.pixels if frame.pixels.flags.c_contiguous else frame.pixels.copy()
-            packed = pack(header)
-            for sock in self.socks:
-                try:
-                    # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
-                    sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
-                except zmq.Again:
-                    self.dropped += 1
-            self.sent += 1
-            self.last_header = header
+    def _send(self, frame: Frame) -> None:
+        self.seq += 1
+        header = {"v": SCHEMA_VERSION, "seq": self.seq, "dropped": self.dropped,
+                  "publish_monotonic_ns": time.monotonic_ns(), **frame.header()}
+        pixels = frame.pixels if frame.pixels.flags.c_contiguous else frame.pixels.copy()
+        packed = pack(header)
         for sock in self.socks:
-            sock.close(linger=0)
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        self.join(timeout)
+            try:
+                # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
+                sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
+            except zmq.Again:
+                self.dropped += 1
+        self.sent += 1
+        self.last_header = header
