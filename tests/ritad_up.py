@@ -2,7 +2,7 @@
 
 Tests that need ritad as a real process (signals, systemd notify, the README) use
 ``fakes.launch.start_ritad`` instead; both wait with ``Client.wait_ready``, the bus
-library's one definition of READY. fakes/ may not import ritad (tests/test_layers.py),
+library's one definition of READY. fakes/ may not import ritad (tests/system/test_layers.py),
 so the in-process variant lives here.
 """
 from __future__ import annotations

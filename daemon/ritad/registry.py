@@ -8,7 +8,7 @@ through the ``rita.adapters`` entry-point group (name ``kind.scheme``, value
 
 Simulation enters the same way, by name only: ``sim:`` resolves to the fakes'
 adapters, and :func:`start_sim_world` calls the fakes' world factory, so nothing in
-ritad imports ``fakes`` (tests/test_layers.py).
+ritad imports ``fakes`` (tests/system/test_layers.py).
 """
 from __future__ import annotations
 

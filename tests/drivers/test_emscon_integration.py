@@ -26,7 +26,7 @@ from fakes.world import NEST_NAMES, World
 from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(60)
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SIGMA = 0.010
 FAST = "time_scale=0.01&timeout=5&init_timeout=10&connect_timeout=2"
 

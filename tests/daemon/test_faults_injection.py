@@ -30,7 +30,7 @@ from daemon.ritad.main import Daemon
 from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
-from tests.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
+from tests.daemon.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
 
 
 # ---------------------------------------------------------------------------- live: proxy + daemon

@@ -26,7 +26,7 @@ from fakes.world import World, WorldParams
 from fakes.worlds import sim_url
 
 pytestmark = pytest.mark.timeout(30)
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 class Sink:

@@ -21,9 +21,9 @@ import pytest
 
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientTimeout
-from tests.test_worker_e2e import referencing_params, run_job
+from tests.system.test_worker_e2e import referencing_params, run_job
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "systemd" / "ritad.toml"
 pytestmark = pytest.mark.slow
 

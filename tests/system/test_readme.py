@@ -20,7 +20,7 @@ import pytest
 
 from daemon.bus.client import Client
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README_RUNTIME = "/tmp/rita"
 
 

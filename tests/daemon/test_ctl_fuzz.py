@@ -26,7 +26,7 @@ from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
-from tests.test_ctl_table import walk
+from tests.daemon.test_ctl_table import walk
 
 N_CASES = 1200
 CASE_S = 30.0  # no case may take longer (a hang is a finding, not a stuck test run)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-UNIT = Path(__file__).resolve().parents[1] / "systemd" / "ritad.service"
+UNIT = Path(__file__).resolve().parents[2] / "systemd" / "ritad.service"
 ANALYZE = shutil.which("systemd-analyze")
 
 
@@ -46,7 +46,7 @@ def test_security_exposure_at_most_3(unit_copy):
     assert float(m.group(1)) <= 3.0, m.group(0)
 
 
-OPS = UNIT.parents[1] / "docs" / "operations.md"
+OPS = UNIT.parents[2] / "docs" / "operations.md"
 
 
 def unit_value(key: str) -> str:
@@ -59,7 +59,7 @@ def test_documentation_path_is_installed_by_the_documented_steps():
     doc = unit_value("Documentation")
     assert doc.startswith("file://")
     target = Path(doc[len("file://"):])
-    assert (UNIT.parents[1] / "docs" / target.name).exists()
+    assert (UNIT.parents[2] / "docs" / target.name).exists()
     install = OPS.read_text().split("## Install", 1)[1].split("\n## ", 1)[0]
     assert re.search(rf"install -D -m 644 -t {re.escape(str(target.parent))} docs/\*\.md", install), install
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("calibration", "drivers", "daemon", "fakes")
 
 # layer -> the layers it may import (its own always allowed); the longest prefix names a module's layer

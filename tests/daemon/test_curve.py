@@ -14,7 +14,7 @@ import pytest
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientRefused, ClientTimeout
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 CONFIG = """
 [daemon]

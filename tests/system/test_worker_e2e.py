@@ -22,7 +22,7 @@ from daemon.bus.datasets import validate_folder
 from daemon.demo import lock_on_robot, operator_files
 from fakes.launch import start_ritad
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
 
 

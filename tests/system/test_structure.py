@@ -11,7 +11,7 @@ import io
 import tokenize
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PRODUCT = ("calibration", "daemon", "drivers", "fakes")
 MAX_MODULE, MAX_FUNCTION, MIN_BLOCK = 400, 60, 6
 
