@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-UNIT = Path(__file__).resolve().parents[2] / "systemd" / "ritad.service"
+ROOT = Path(__file__).resolve().parents[2]
+UNIT = ROOT / "systemd" / "ritad.service"
 ANALYZE = shutil.which("systemd-analyze")
 
 
@@ -46,7 +47,7 @@ def test_security_exposure_at_most_3(unit_copy):
     assert float(m.group(1)) <= 3.0, m.group(0)
 
 
-OPS = UNIT.parents[2] / "docs" / "operations.md"
+OPS = ROOT / "docs" / "operations.md"
 
 
 def unit_value(key: str) -> str:
@@ -59,7 +60,7 @@ def test_documentation_path_is_installed_by_the_documented_steps():
     doc = unit_value("Documentation")
     assert doc.startswith("file://")
     target = Path(doc[len("file://"):])
-    assert (UNIT.parents[2] / "docs" / target.name).exists()
+    assert (ROOT / "docs" / target.name).exists()
     install = OPS.read_text().split("## Install", 1)[1].split("\n## ", 1)[0]
     assert re.search(rf"install -D -m 644 -t {re.escape(str(target.parent))} docs/\*\.md", install), install
 
