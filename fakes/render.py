@@ -301,7 +301,8 @@ class Renderer:
             tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
             okf, X, Y = to_floor(x[floor], y[floor])
             alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
-        return alb
+        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
+        return alb if held is None else held.overlay(x, y, alb)
 
     def _width_mm(self, height_mm: float) -> float:
         """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""

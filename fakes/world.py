@@ -141,6 +141,7 @@ class World:
         self.abs_H_ref = make_H(R, t, "abs_H_ref")
         self.abs_H_trk = make_H(rot_z(math.radians(p.tracker_yaw_deg)), p.tracker_xyz_mm, "abs_H_trk")
         self.rob_H_cam = self._true_rob_H_cam()
+        self.held_board: Any = None  # a fakes.board.HeldBoard while the operator holds one (sim.hold_board)
         if p.start_pose is None:
             self.robot = self.pose_with_target_in_view(heading_deg=yaw + 60.0)
         else:
@@ -237,6 +238,12 @@ class World:
     def set_robot(self, pose: RobotPose) -> None:
         with self.lock:
             self.robot = pose
+
+    def hold_board(self, **pose: Any) -> dict[str, Any]:
+        """The operator holds the calibration board at a pose relative to the camera (fakes/board.py)."""
+        from fakes.board import hold
+
+        return hold(self, **pose)
 
     def reflectors_abs(self) -> dict[str, np.ndarray]:
         """Every reflector the tracker could lock onto (ACS)."""
