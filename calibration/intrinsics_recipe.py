@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 
@@ -93,4 +94,72 @@ def same_as(ids: np.ndarray, uv: np.ndarray, previous: list[tuple[np.ndarray, np
     return None
 
 
-__all__ = ["RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "same_as"]
+#: a view counts as tilted from this angle between the board normal and the optical axis
+MIN_TILT_DEG = 15.0
+#: tilted views needed (Zhang: 3 views fix the 5 linear intrinsics; one spare)
+MIN_TILTED_VIEWS = 4
+#: smallest/largest eigenvalue of the tilt-axis scatter below which the tilts are about one axis
+MIN_AXIS_SPREAD = 0.1
+#: image corner regions (fraction of width and height from each corner) that need corners
+CORNER_REGION = 0.2
+
+
+def view_geometry(rvec: np.ndarray) -> tuple[float, np.ndarray]:
+    """A view's tilt (degrees between the board normal and the optical axis) and its tilt
+    axis in the image (a unit 2-vector, sign-free; zero when the board is square-on)."""
+    n = cv2.Rodrigues(np.asarray(rvec, float).reshape(3))[0][:, 2]
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(n[2])))))
+    axis = np.array([-n[1], n[0]])  # optical axis x board normal: the line the board turned about
+    norm = float(np.linalg.norm(axis))
+    return tilt, axis / norm if norm > 1e-9 else np.zeros(2)
+
+
+def _axis_name(axis: np.ndarray) -> str:
+    return "x" if abs(axis[0]) >= abs(axis[1]) else "y"
+
+
+def tilt_findings(rvecs: list[np.ndarray]) -> list[str]:
+    """What makes the views' orientations degenerate, each finding saying which view to add.
+
+    They make the set degenerate for the focal length: no or too few tilted views
+    (f trades off against the distance), or tilts about one image axis only (the
+    focal length along the other axis is then not separated from the distance).
+    """
+    geo = [view_geometry(r) for r in rvecs]
+    tilted = [(t, a) for t, a in geo if t >= MIN_TILT_DEG]
+    largest = max((t for t, _ in geo), default=0.0)
+    add_both = "add views tilted ~35° about the image x axis and about the image y axis (recipe views " \
+               "tilt-x+35, tilt-y+35)"
+    if not tilted:
+        return [f"all views are near square-on (largest tilt {largest:.0f}° < {MIN_TILT_DEG:.0f}°): the focal "
+                f"length cannot be told from the distance; {add_both}"]
+    if len(tilted) < MIN_TILTED_VIEWS:
+        return [f"only {len(tilted)} view(s) tilted by {MIN_TILT_DEG:.0f}° or more (need {MIN_TILTED_VIEWS}): "
+                f"{add_both}"]
+    S = sum(np.sin(np.radians(t)) ** 2 * np.outer(a, a) for t, a in tilted)
+    lam, vec = np.linalg.eigh(S)
+    if lam[0] < MIN_AXIS_SPREAD * lam[1]:
+        about = _axis_name(vec[:, 1])
+        other = "y" if about == "x" else "x"
+        return [f"every tilted view is tilted about the image {about} axis: add views tilted ~35° about the "
+                f"image {other} axis (recipe views tilt-{other}+35, tilt-{other}-35)"]
+    return []
+
+
+def coverage_findings(uv_all: np.ndarray, size: tuple[int, int]) -> list[str]:
+    """Warnings for image corners without board corners (the distortion is extrapolated there)."""
+    w, h = size
+    out = []
+    for name, (fx, fy) in (("top-left", (0, 0)), ("top-right", (1, 0)), ("bottom-left", (0, 1)),
+                           ("bottom-right", (1, 1))):
+        dx = np.abs(uv_all[:, 0] - fx * (w - 1)) <= CORNER_REGION * w
+        dy = np.abs(uv_all[:, 1] - fy * (h - 1)) <= CORNER_REGION * h
+        if not np.any(dx & dy):
+            out.append(f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: the "
+                       f"distortion there is extrapolated; add a view with the board in the {name} corner "
+                       f"(recipe view {name})")
+    return out
+
+
+__all__ = ["RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "coverage_findings", "same_as", "tilt_findings",
+           "view_geometry"]

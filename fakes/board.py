@@ -24,7 +24,7 @@ import re
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import cv2
 import numpy as np
@@ -144,11 +144,12 @@ def operator_pose(spec: ViewSpec, rng: np.random.Generator) -> dict[str, float]:
             "rot_deg": spec.rot_deg + rng.normal(0, s["rot_deg"])}
 
 
-def answer_intrinsics_prompt(client: Any, question: str, rng: np.random.Generator, install: str = "install") -> str:
+def answer_intrinsics_prompt(client: Any, question: str, rng: np.random.Generator) -> str:
     """Act on one prompt of the ``intrinsics`` procedure and return the answer to send.
 
     A view prompt (it names ``[view KEY]``): hold the board as the recipe says, answer
-    ``ok``. The install question of a ``warn`` model: ``install``. Anything else
+    ``ok``. The install question of a ``warn`` model: ``skip`` (a warn model is not
+    installed without a person's yes). Anything else
     (the set-up prompt): take the board away and answer ``ok``.
     """
     m = _VIEW_TAG.search(question)
@@ -156,19 +157,29 @@ def answer_intrinsics_prompt(client: Any, question: str, rng: np.random.Generato
         client.call("sim.hold_board", **operator_pose(SPECS[m.group(1)], rng))
         return "ok"
     if "Install" in question:
-        return install
+        return "skip"
     client.call("sim.hold_board")
     return "ok"
 
 
+Answer = Callable[[Any, str, np.random.Generator], "str | None"]
+
+
 def run_intrinsics(client: Any, params: dict[str, Any], seed: int = 1, timeout: float = 600.0,
-                   install: str = "install") -> dict[str, Any]:
-    """Post an ``intrinsics`` job and play the operator until its result; returns the result message."""
+                   answer: Answer = answer_intrinsics_prompt, job: str | None = None) -> dict[str, Any]:
+    """Post an ``intrinsics`` job (or resume ``job``) and play the operator until its result message.
+
+    ``answer(client, question, rng)`` acts on each prompt and returns the answer (None: send
+    none); the questions seen are returned under ``_prompts``.
+    """
     rng = np.random.default_rng(seed)
     sub = client.subscriber(["calib.result", "calib.prompt"])
     try:
         time.sleep(0.2)  # the subscription reaches the daemon before the first prompt can
-        job = client.call("calib.start", procedure="intrinsics", params=params)["job"]
+        if job is None:
+            job = client.call("calib.start", procedure="intrinsics", params=params)["job"]
+        else:
+            client.call("calib.resume", job=job)
         prompts: list[str] = []
         end = time.monotonic() + timeout
         while time.monotonic() < end:
@@ -179,8 +190,9 @@ def run_intrinsics(client: Any, params: dict[str, Any], seed: int = 1, timeout: 
             if msg[0] == "calib.result":
                 return {**data, "job": job, "_prompts": prompts}
             prompts.append(data["question"])
-            answer = answer_intrinsics_prompt(client, data["question"], rng, install)
-            client.call("calib.answer", job=job, answer=answer)
+            reply = answer(client, data["question"], rng)
+            if reply is not None:
+                client.call("calib.answer", job=job, answer=reply)
         raise TimeoutError(f"intrinsics job {job} did not finish within {timeout:.0f} s")
     finally:
         sub.close()

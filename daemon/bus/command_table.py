@@ -166,6 +166,19 @@ TABLE: tuple[Command, ...] = (
             "operator", result="{x_mm, y_mm, heading_deg}", args=(
                 Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
                     default_text="plate yaw + 60"),)),
+    Command("sim.hold_board", "simulated world only: the operator holds the calibration board under the camera "
+            "(pose in the camera frame), or takes it away", "operator",
+            result="{held, board_id, cam_H_board}", args=(
+                Arg("z_mm", "float", "board centre's depth along the optical axis", unit="mm", lo=0, lo_open=True,
+                    default_text="the board is taken away"),
+                Arg("x_mm", "float", "board centre, camera x (image right)", unit="mm", default=0.0),
+                Arg("y_mm", "float", "board centre, camera y (image down)", unit="mm", default=0.0),
+                Arg("tilt_x_deg", "float", "tilt about the image x axis (+: top edge towards the camera)", unit="°",
+                    default=0.0, lo=-80, hi=80),
+                Arg("tilt_y_deg", "float", "tilt about the image y axis (+: right edge towards the camera)",
+                    unit="°", default=0.0, lo=-80, hi=80),
+                Arg("rot_deg", "float", "turn in the image plane (+: clockwise in the image)", unit="°",
+                    default=0.0, lo=-360, hi=360))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "

@@ -23,7 +23,7 @@ from typing import Any, Iterator
 
 from daemon.bus.png_check import png_info
 
-SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result")
+SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result", "board")
 SCHEMA_BASE = "https://rita.invalid/schemas/"
 #: |abs_xyz − abs_H_trk·xyz| above this is a mismatch (mm); stored values round-trip far below it
 XYZ_TOLERANCE_MM = 1e-4
@@ -294,6 +294,7 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     if not isinstance(obs, dict):
         return
     problems += _plate_problems(obs.get("plate"), "state.json", ("obs", "plate"))
+    problems += _plate_problems(obs.get("board"), "state.json", ("obs", "board"))  # the same rule for a board
     for key in ("camera_model", "initial_model"):
         problems += _model_problems(obs.get(key), "state.json", ("obs", key))
     calib = obs.get("calibration")

@@ -178,7 +178,14 @@ def _sim(s: Services) -> dict[str, Handler]:
         w.set_robot(pose)
         return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
 
-    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate}
+    def hold_board(req: Request) -> Any:
+        """The operator holds the intrinsics board under the camera (an operator's hands on the real robot)."""
+        try:
+            return world(req).hold_board(**req.args)
+        except ValueError as exc:
+            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: {exc}") from None
+
+    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board}
 
 
 GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim)

@@ -140,26 +140,10 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
 
 
 def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """Camera model from several views of the plate target."""
-    from calibration.intrinsics import calibrate_intrinsics
+    """Camera model from the views of the hand-held board (daemon/worker/guided_intrinsics.py)."""
+    from daemon.worker.guided_intrinsics import compute
 
-    plate = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
-    load = _eight_bit(load)
-    images = [load(v["image"]) for v in obs["views"]]
-    size = (images[0].shape[1], images[0].shape[0])
-    initial = (CameraModel.from_dict(obs["initial_model"], source="state.json: obs.initial_model")
-               if obs.get("initial_model") else None)
-    model, report = calibrate_intrinsics(images, plate, size, initial=initial)
-    report = report if isinstance(report, dict) else {"report": report}
-    messages, verdict = [], "ok"
-    f_std = (report.get("std") or {}).get("fx")
-    if f_std is not None and f_std > 0.002 * model.K[0, 0]:
-        # near-nadir views of a flat target hardly separate focal length from distance
-        verdict = "warn"
-        messages.append(f"focal length only known to ±{f_std:.1f} px ({100 * f_std / model.K[0, 0]:.2f} %): "
-                        f"the views are all near nadir; tilt the target or the camera for a better model")
-    return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version,
-            "camera_model": model.to_dict(), "report": report, "verdict": verdict, "messages": messages}
+    return compute(obs, _eight_bit(load))
 
 
 COMPUTE = {"referencing": compute_referencing, "measure-mark": compute_measure_mark,

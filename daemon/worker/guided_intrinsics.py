@@ -1,0 +1,142 @@
+"""The guided ``intrinsics`` procedure: the operator presents a hand-held board, view by view.
+
+Each view of :data:`calibration.intrinsics_recipe.RECIPE` is one prompt saying how to
+hold the board (it names the view as ``[view KEY]``); the frame is captured and checked
+at once: enough board corners, and not a repeat of an earlier view. A bad view is asked
+for again with the reason; ``skip`` leaves a view out (the calculation then says whether
+the set still separates the focal length from the distance, and which view to add).
+Every accepted view is a completed step, so a resumed job asks only for the missing ones.
+The result is computed from the stored images by :func:`compute` (``ritactl recompute``).
+"""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from calibration import __version__ as calib_version
+from calibration.board import Board
+from calibration.camera_model import CameraModel
+from calibration.intrinsics_recipe import RECIPE, ViewSpec, same_as
+from calibration.target import detect_corners
+from daemon.worker.compute import RESULT_SCHEMA, to_8bit
+from daemon.worker.job import JobContext, StepFailed
+
+#: board corners a view needs (of 88 on the default board): fewer cannot pin its pose and tilt
+MIN_VIEW_CORNERS = 20
+#: presentations of one view before the step fails (a resume asks again)
+MAX_TRIES = 5
+#: the focal length's 1σ above which the model is only a warn (the issue's 0.1 % goal)
+MAX_F_STD_FRACTION = 0.001
+SETUP = ("put the robot on its calibration stand (camera free, nothing within 100 mm below the lens) and have "
+         "the calibration board ready; answer 'ok'")
+
+
+def _board(ctx: JobContext) -> Board:
+    """The board definition: the job's ``board`` parameter, else the robot's installed board.json."""
+    if "board" not in ctx.obs:
+        d = ctx.params.get("board")
+        if d is None:
+            path = ctx.data_dir / "calibration" / "board.json"
+            if not path.exists():
+                raise ValueError(f"{path} does not exist: pass the board you hold with --board FILE "
+                                 f"(docs/operations.md, Intrinsic calibration) or install it there")
+            d = json.loads(path.read_text())
+        Board.from_dict(d, source="board file")  # refuse a bad file before the operator starts
+        ctx.obs["board"] = d
+        ctx.checkpoint()
+    return Board.from_dict(ctx.obs["board"], source="state.json: obs.board")
+
+
+def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: str,
+             previous: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, Any] | None:
+    """Ask for one view until it is good (or skipped); the stored entry, None when skipped."""
+    reason = ""
+    while True:
+        tries = int(ctx.state.get(f"{name}.tries", 0))
+        if tries >= MAX_TRIES:
+            ctx.checkpoint()
+            raise StepFailed(f"no usable image after {MAX_TRIES} tries ({reason}); `ritactl resume` asks again")
+        answer = ctx.ask(f"{label} [view {spec.key}]: {reason}{spec.instruction()}. Answer 'ok' when the board "
+                         f"is steady, or 'skip' to leave this view out", ["ok", "skip"])
+        if answer == "skip":
+            return None
+        ctx.state[f"{name}.tries"] = tries + 1
+        file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
+        ids, uv = detect_corners(to_8bit(pixels), board)
+        again = same_as(ids, uv, previous, pixels.shape[1]) if len(ids) >= MIN_VIEW_CORNERS else None
+        if len(ids) < MIN_VIEW_CORNERS:
+            reason = (f"{file} shows only {len(ids)} board corners (need {MIN_VIEW_CORNERS}): bring the whole "
+                      f"board into view and try again. ")
+        elif again is not None:
+            reason = (f"{file} repeats accepted view {again + 1} (it adds nothing): change the tilt as "
+                      f"described and try again. ")
+        else:
+            return {"image": file, "header": header, "key": spec.key, "n_corners": int(len(ids)),
+                    "ids": ids.tolist(), "uv": np.round(uv, 3).tolist()}
+        ctx.checkpoint()
+
+
+def intrinsics(ctx: JobContext) -> None:
+    """Set-up prompt, then one prompt + capture + check per recipe view."""
+    board = _board(ctx)
+    if not ctx.done("setup"):
+        ctx.progress("set-up", 2, "the operator")
+        ctx.ask(SETUP, ["ok"])
+        ctx.mark_done("setup")
+    views = ctx.obs.setdefault("views", [])
+    skipped = ctx.obs.setdefault("skipped", [])
+    n = len(RECIPE)
+    for j, spec in enumerate(RECIPE):
+        name = f"view-{j:02d}"
+        if ctx.done(name):
+            continue
+        ctx.progress(f"view {j + 1}/{n} ({spec.key})", 5 + 85 * j / n, "the operator presents the board")
+        previous = [(np.asarray(v["ids"]), np.asarray(v["uv"])) for v in views]
+        entry = _present(ctx, name, spec, board, f"view {j + 1}/{n}", previous)
+        if entry is None:
+            skipped.append(spec.key)
+        else:
+            views.append(entry)
+        ctx.mark_done(name)
+    ctx.progress("calibrate the camera", 92, "")
+
+
+def _verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str, list[str]]:
+    if report["degenerate"]:
+        return "fail", [f"the views do not determine the camera model: {m}" for m in report["findings"]]
+    messages = list(report["warnings"])
+    f_std = max(report["std"]["fx"], report["std"]["fy"])
+    if f_std > MAX_F_STD_FRACTION * model.f:
+        messages.append(f"focal length only known to ±{f_std:.2f} px ({100 * f_std / model.f:.3f} % > "
+                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views (recipe views tilt-x+35, tilt-y+35)")
+    return ("warn" if messages else "ok"), messages
+
+
+def compute(obs: dict[str, Any], load: Any) -> dict[str, Any]:
+    """Camera model + uncertainty from the stored views (``load`` gives 8-bit images)."""
+    from calibration.intrinsics import calibrate_intrinsics
+    from calibration.plate import Plate
+
+    if "board" in obs:
+        board: Any = Board.from_dict(obs["board"], source="state.json: obs.board")
+    else:  # a dataset of the earlier procedure: views of the plate target
+        board = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
+    images = [load(v["image"]) for v in obs["views"]]
+    if not images:
+        raise ValueError("no views were taken (every view skipped): run the procedure again")
+    size = (images[0].shape[1], images[0].shape[0])
+    model, report = calibrate_intrinsics(images, board, size)
+    verdict, messages = _verdict(model, report)
+    for v, stored in zip(report["views"], obs["views"]):
+        v["key"] = stored.get("key")
+    camera_model = {**model.to_dict(), "std": report["std"],
+                    "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
+                                    "k3_fitted": report["k3"]["fitted"],
+                                    "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
+    return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version, "camera_model": camera_model,
+            "report": report, "verdict": verdict, "messages": messages}
+
+
+__all__ = ["MIN_VIEW_CORNERS", "SETUP", "compute", "intrinsics"]
