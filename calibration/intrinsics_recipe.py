@@ -69,10 +69,10 @@ RECIPE: tuple[ViewSpec, ...] = (
     ViewSpec("tilt-y-35", tilt_y_deg=-35),
     ViewSpec("tilt-xy+25-rot45", tilt_x_deg=25, tilt_y_deg=25, rot_deg=45),
     ViewSpec("tilt-xy-25-rot30", tilt_x_deg=-25, tilt_y_deg=-25, rot_deg=-30),
-    ViewSpec("top-left", tilt_x_deg=-15, tilt_y_deg=15, aim_x_deg=-26, aim_y_deg=-20),
-    ViewSpec("top-right", tilt_x_deg=-15, tilt_y_deg=-15, aim_x_deg=26, aim_y_deg=-20),
-    ViewSpec("bottom-left", tilt_x_deg=15, tilt_y_deg=15, aim_x_deg=-26, aim_y_deg=20),
-    ViewSpec("bottom-right", tilt_x_deg=15, tilt_y_deg=-15, aim_x_deg=26, aim_y_deg=20),
+    ViewSpec("top-left", tilt_x_deg=15, tilt_y_deg=-15, aim_x_deg=-27, aim_y_deg=-21),
+    ViewSpec("top-right", tilt_x_deg=15, tilt_y_deg=15, aim_x_deg=27, aim_y_deg=-21),
+    ViewSpec("bottom-left", tilt_x_deg=-15, tilt_y_deg=-15, aim_x_deg=-27, aim_y_deg=21),
+    ViewSpec("bottom-right", tilt_x_deg=-15, tilt_y_deg=15, aim_x_deg=27, aim_y_deg=21),
     ViewSpec("near-rot90", tilt_x_deg=20, rot_deg=90, distance_mm=30),
 )
 SPECS = {s.key: s for s in RECIPE}
@@ -146,20 +146,25 @@ def tilt_findings(rvecs: list[np.ndarray]) -> list[str]:
     return []
 
 
+CORNERS = {"top-left": (0, 0), "top-right": (1, 0), "bottom-left": (0, 1), "bottom-right": (1, 1)}
+
+
+def reaches_corner(uv: np.ndarray, size: tuple[int, int], corner: str) -> bool:
+    """Does any board corner in ``uv`` lie within CORNER_REGION of the image's ``corner``?"""
+    w, h = size
+    fx, fy = CORNERS[corner]
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    dx = np.abs(uv[:, 0] - fx * (w - 1)) <= CORNER_REGION * w
+    dy = np.abs(uv[:, 1] - fy * (h - 1)) <= CORNER_REGION * h
+    return bool(np.any(dx & dy))
+
+
 def coverage_findings(uv_all: np.ndarray, size: tuple[int, int]) -> list[str]:
     """Warnings for image corners without board corners (the distortion is extrapolated there)."""
-    w, h = size
-    out = []
-    for name, (fx, fy) in (("top-left", (0, 0)), ("top-right", (1, 0)), ("bottom-left", (0, 1)),
-                           ("bottom-right", (1, 1))):
-        dx = np.abs(uv_all[:, 0] - fx * (w - 1)) <= CORNER_REGION * w
-        dy = np.abs(uv_all[:, 1] - fy * (h - 1)) <= CORNER_REGION * h
-        if not np.any(dx & dy):
-            out.append(f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: the "
-                       f"distortion there is extrapolated; add a view with the board in the {name} corner "
-                       f"(recipe view {name})")
-    return out
+    return [f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: the distortion "
+            f"there is extrapolated; add a view with the board in the {name} corner (recipe view {name})"
+            for name in CORNERS if not reaches_corner(uv_all, size, name)]
 
 
-__all__ = ["RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "coverage_findings", "same_as", "tilt_findings",
-           "view_geometry"]
+__all__ = ["CORNERS", "RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "coverage_findings", "reaches_corner",
+           "same_as", "tilt_findings", "view_geometry"]

@@ -357,7 +357,7 @@ def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     if _depth(doc) > MAX_DEPTH:
         return [Problem(file, "$", f"nested more than {MAX_DEPTH} levels deep")]
     out = check_schema(doc, name, file) + check_values(doc, file)
-    if name == "plate":
+    if name in ("plate", "board"):
         out += _plate_problems(doc, file, ())
     return out + (_model_problems(doc, file, ()) if name == "camera_model" else [])
 

@@ -18,7 +18,7 @@ import numpy as np
 from calibration import __version__ as calib_version
 from calibration.board import Board
 from calibration.camera_model import CameraModel
-from calibration.intrinsics_recipe import RECIPE, ViewSpec, same_as
+from calibration.intrinsics_recipe import CORNERS, RECIPE, ViewSpec, reaches_corner, same_as
 from calibration.target import detect_corners
 from daemon.worker.compute import RESULT_SCHEMA, to_8bit
 from daemon.worker.job import JobContext, StepFailed
@@ -72,6 +72,9 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
         elif again is not None:
             reason = (f"{file} repeats accepted view {again + 1} (it adds nothing): change the tilt as "
                       f"described and try again. ")
+        elif spec.key in CORNERS and not reaches_corner(uv, (pixels.shape[1], pixels.shape[0]), spec.key):
+            reason = (f"in {file} the board does not reach the image's {spec.key} corner (the lens distortion "
+                      f"is largest there): move it further into that corner and try again. ")
         else:
             return {"image": file, "header": header, "key": spec.key, "n_corners": int(len(ids)),
                     "ids": ids.tolist(), "uv": np.round(uv, 3).tolist()}
