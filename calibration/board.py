@@ -15,7 +15,8 @@ from typing import Any
 
 BOARD_SCHEMA = 1
 
-#: the board the recipe is written for: 12 x 9 squares of 4 mm (48 x 36 mm), 4x4-bit markers (not the plate's 5x5 dictionary, so plate markers behind it are never taken for board markers).
+#: the board the recipe is written for: 12 x 9 squares of 4 mm (48 x 36 mm), 4x4-bit markers
+#: (not the plate's 5x5 dictionary, so plate markers behind it are never taken for board markers).
 #: It fills about half of the nadir camera's field at 35 mm (the field is ~75 x 55 mm there:
 #: f = 470 px at 1000 px width, calibration.md §1) and is small enough to hold and tilt
 #: by 45° between the camera (30 mm above the support) and a raised stand.
@@ -47,7 +48,7 @@ class Board:
                              f"{self.square_mm})")
         if not self.aruco_dict.startswith("DICT_"):
             raise ValueError(f"board {self.board_id!r}: aruco_dict={self.aruco_dict!r} is not an OpenCV "
-                             f"dictionary name (e.g. 'DICT_5X5_100')")
+                             f"dictionary name (e.g. 'DICT_4X4_100')")
 
     def board_size_mm(self) -> tuple[float, float]:
         return self.board_cols * self.square_mm, self.board_rows * self.square_mm

@@ -4,7 +4,8 @@ The operator holds a small ChArUco board (``calibration.board.DEFAULT_BOARD``) u
 camera; its pose is given relative to the camera (CCS, mm), set through the sim-only bus
 command ``sim.hold_board`` (:meth:`fakes.world.World.hold_board`). The renderer
 (:mod:`fakes.render`) draws it over the scene: each sub-sample's viewing ray is
-intersected with the board plane exactly like the plate's top face.
+intersected with the board plane (as the plate's top face is), and the print's texture
+looked up there.
 
 Simplifications (stated, not tuned): the board is drawn in front of whatever else is in
 view (on the robot the recipe starts by raising the robot on its stand, so only the
@@ -24,18 +25,15 @@ import re
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import cv2
 import numpy as np
 
 from calibration.board import DEFAULT_BOARD, Board
-from calibration.frames import inv_H, make_H, rot_x, rot_y, rot_z
+from calibration.frames import make_H, rot_x, rot_y, rot_z
 from calibration.intrinsics_recipe import SPECS, ViewSpec
 from calibration.target import make_board
-
-if TYPE_CHECKING:
-    from fakes.world import World
 
 #: texels per mm of the board print (squares must span whole texels)
 PPMM = 100.0
@@ -62,14 +60,16 @@ class HeldBoard:
 
     def overlay(self, x: np.ndarray, y: np.ndarray, alb: np.ndarray) -> np.ndarray:
         """``alb`` with the board drawn where the rays (x, y, 1) (normalised CCS) meet it."""
-        from fakes.render import Renderer
-
-        H = Renderer._plane_homography(inv_H(self.cam_H_board))
-        den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-        ok = den > 1e-12
-        den = np.where(ok, den, 1.0)
-        qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den / self.print_scale[0]
-        qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den / self.print_scale[1]
+        # ray d = (x, y, 1) meets the board plane n·(P − t) = 0 at s·d, s = n·t / n·d (in front: s > 0)
+        R, t = self.cam_H_board[:3, :3], self.cam_H_board[:3, 3]
+        n = R[:, 2]
+        nd = n[0] * x + n[1] * y + n[2]
+        s = np.divide(float(n @ t), nd, out=np.full_like(nd, -1.0), where=np.abs(nd) > 1e-12)
+        ok = s > 0
+        # board coordinates of the hit point: Rᵀ(s·d − t)
+        px, py, pz = s * x - t[0], s * y - t[1], s - t[2]
+        qx = (R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz) / self.print_scale[0]
+        qy = (R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz) / self.print_scale[1]
         bw, bh = self.board.board_size_mm()
         on = ok & (qx >= -MARGIN_MM) & (qx <= bw + MARGIN_MM) & (qy >= -MARGIN_MM) & (qy <= bh + MARGIN_MM)
         if not on.any():
@@ -117,10 +117,11 @@ def board_pose(board: Board, x_mm: float, y_mm: float, z_mm: float, tilt_x_deg: 
     return make_H(R, centre - R @ np.array([bw / 2, bh / 2, 0.0]), "cam_H_board")
 
 
-def hold(world: "World", z_mm: float | None = None, x_mm: float = 0.0, y_mm: float = 0.0,
+def hold(world: Any, z_mm: float | None = None, x_mm: float = 0.0, y_mm: float = 0.0,
          tilt_x_deg: float = 0.0, tilt_y_deg: float = 0.0, rot_deg: float = 0.0,
          board: Board | None = None) -> dict[str, Any]:
-    """Hold the board at that pose (``z_mm`` None: take it away); returns what is held."""
+    """Hold the board at that pose in ``world`` (a fakes.world.World, which calls this; ``z_mm`` None:
+    take it away); returns what is held."""
     if z_mm is None:
         world.held_board = None
         return {"held": False}

@@ -139,11 +139,45 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "verdict": "ok", "messages": []}
 
 
-def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """Camera model from the views of the hand-held board (daemon/worker/guided_intrinsics.py)."""
-    from daemon.worker.guided_intrinsics import compute
+#: the focal length's 1σ above which an intrinsics model is only a warn (issue #14's 0.1 % goal)
+MAX_F_STD_FRACTION = 0.001
 
-    return compute(obs, _eight_bit(load))
+
+def _intrinsics_verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str, list[str]]:
+    if report["degenerate"]:
+        return "fail", [f"the views do not determine the camera model: {m}" for m in report["findings"]]
+    messages = list(report["warnings"])
+    f_std = max(report["std"]["fx"], report["std"]["fy"])
+    if f_std > MAX_F_STD_FRACTION * model.f:
+        messages.append(f"focal length only known to ±{f_std:.2f} px ({100 * f_std / model.f:.3f} % > "
+                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views (recipe views tilt-x+35, tilt-y+35)")
+    return ("warn" if messages else "ok"), messages
+
+
+def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
+    """Camera model + uncertainty from the stored board views (daemon/worker/guided_intrinsics.py)."""
+    from calibration.board import Board
+    from calibration.intrinsics import calibrate_intrinsics
+
+    load = _eight_bit(load)
+    if "board" in obs:
+        board: Any = Board.from_dict(obs["board"], source="state.json: obs.board")
+    else:  # a dataset of the earlier procedure: views of the plate target
+        board = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
+    images = [load(v["image"]) for v in obs["views"]]
+    if not images:
+        raise ValueError("no views were taken (every view skipped): run the procedure again")
+    size = (images[0].shape[1], images[0].shape[0])
+    model, report = calibrate_intrinsics(images, board, size)
+    verdict, messages = _intrinsics_verdict(model, report)
+    for v, stored in zip(report["views"], obs["views"]):
+        v["key"] = stored.get("key")
+    camera_model = {**model.to_dict(), "std": report["std"],
+                    "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
+                                    "k3_fitted": report["k3"]["fitted"],
+                                    "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
+    return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version,
+            "camera_model": camera_model, "report": report, "verdict": verdict, "messages": messages}
 
 
 COMPUTE = {"referencing": compute_referencing, "measure-mark": compute_measure_mark,

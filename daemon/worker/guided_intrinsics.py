@@ -6,7 +6,8 @@ at once: enough board corners, and not a repeat of an earlier view. A bad view i
 for again with the reason; ``skip`` leaves a view out (the calculation then says whether
 the set still separates the focal length from the distance, and which view to add).
 Every accepted view is a completed step, so a resumed job asks only for the missing ones.
-The result is computed from the stored images by :func:`compute` (``ritactl recompute``).
+The result is computed from the stored images by ``daemon.worker.compute.compute_intrinsics``
+(as ``ritactl recompute`` does).
 """
 from __future__ import annotations
 
@@ -15,20 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from calibration import __version__ as calib_version
 from calibration.board import Board
-from calibration.camera_model import CameraModel
 from calibration.intrinsics_recipe import CORNERS, RECIPE, ViewSpec, reaches_corner, same_as
 from calibration.target import detect_corners
-from daemon.worker.compute import RESULT_SCHEMA, to_8bit
+from daemon.worker.compute import to_8bit
 from daemon.worker.job import JobContext, StepFailed
 
 #: board corners a view needs (of 88 on the default board): fewer cannot pin its pose and tilt
 MIN_VIEW_CORNERS = 20
 #: presentations of one view before the step fails (a resume asks again)
 MAX_TRIES = 5
-#: the focal length's 1σ above which the model is only a warn (the issue's 0.1 % goal)
-MAX_F_STD_FRACTION = 0.001
 SETUP = ("put the robot on its calibration stand (camera free, nothing within 100 mm below the lens) and have "
          "the calibration board ready; answer 'ok'")
 
@@ -106,40 +103,4 @@ def intrinsics(ctx: JobContext) -> None:
     ctx.progress("calibrate the camera", 92, "")
 
 
-def _verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str, list[str]]:
-    if report["degenerate"]:
-        return "fail", [f"the views do not determine the camera model: {m}" for m in report["findings"]]
-    messages = list(report["warnings"])
-    f_std = max(report["std"]["fx"], report["std"]["fy"])
-    if f_std > MAX_F_STD_FRACTION * model.f:
-        messages.append(f"focal length only known to ±{f_std:.2f} px ({100 * f_std / model.f:.3f} % > "
-                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views (recipe views tilt-x+35, tilt-y+35)")
-    return ("warn" if messages else "ok"), messages
-
-
-def compute(obs: dict[str, Any], load: Any) -> dict[str, Any]:
-    """Camera model + uncertainty from the stored views (``load`` gives 8-bit images)."""
-    from calibration.intrinsics import calibrate_intrinsics
-    from calibration.plate import Plate
-
-    if "board" in obs:
-        board: Any = Board.from_dict(obs["board"], source="state.json: obs.board")
-    else:  # a dataset of the earlier procedure: views of the plate target
-        board = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
-    images = [load(v["image"]) for v in obs["views"]]
-    if not images:
-        raise ValueError("no views were taken (every view skipped): run the procedure again")
-    size = (images[0].shape[1], images[0].shape[0])
-    model, report = calibrate_intrinsics(images, board, size)
-    verdict, messages = _verdict(model, report)
-    for v, stored in zip(report["views"], obs["views"]):
-        v["key"] = stored.get("key")
-    camera_model = {**model.to_dict(), "std": report["std"],
-                    "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
-                                    "k3_fitted": report["k3"]["fitted"],
-                                    "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
-    return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version, "camera_model": camera_model,
-            "report": report, "verdict": verdict, "messages": messages}
-
-
-__all__ = ["MIN_VIEW_CORNERS", "SETUP", "compute", "intrinsics"]
+__all__ = ["MIN_VIEW_CORNERS", "SETUP", "intrinsics"]

@@ -46,7 +46,8 @@ class Operator:
                 c.call("sim.hold_board")
                 return "ok"
             if self.views == 5:  # three views accepted: the operator cancels (a resume goes on from there)
-                job = next(j["job"] for j in c.call("calib.jobs")["jobs"] if j["procedure"] == "intrinsics" and j["state"] not in ("done", "failed", "cancelled"))
+                job = next(j["job"] for j in c.call("calib.jobs")["jobs"]
+                           if j["procedure"] == "intrinsics" and j["state"] not in ("done", "failed", "cancelled"))
                 c.call("calib.cancel", job=job)
                 return None
         return answer_intrinsics_prompt(c, question, rng)
