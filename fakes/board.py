@@ -32,8 +32,8 @@ import numpy as np
 
 from calibration.board import DEFAULT_BOARD, Board
 from calibration.frames import make_H, rot_x, rot_y, rot_z
-from calibration.intrinsics_recipe import SPECS, ViewSpec
-from calibration.target import make_board
+from calibration.intrinsics_recipe import CORNERS, RECIPE, SPECS, ViewSpec, reaches_corner
+from calibration.target import detect_corners, make_board
 
 #: texels per mm of the board print (squares must span whole texels)
 PPMM = 100.0
@@ -163,6 +163,23 @@ def answer_intrinsics_prompt(client: Any, question: str, rng: np.random.Generato
     return "ok"
 
 
+def recipe_images(world: Any, renderer: Any, rng: np.random.Generator, noise: np.random.Generator,
+                  tries: int = 5) -> list[np.ndarray]:
+    """The recipe's views rendered without ritad (benchmarks, calibration tests), checked as the
+    procedure checks them: a corner view that misses its image corner is presented again."""
+    board = Board.from_dict(DEFAULT_BOARD)
+    images = []
+    for spec in RECIPE:
+        for _ in range(tries):
+            world.hold_board(**operator_pose(spec, rng))
+            image = renderer.render(rng=noise)
+            if spec.key not in CORNERS or reaches_corner(detect_corners(image, board)[1], renderer.size, spec.key):
+                break
+        images.append(image)
+    world.hold_board()
+    return images
+
+
 Answer = Callable[[Any, str, np.random.Generator], "str | None"]
 
 
@@ -200,4 +217,5 @@ def run_intrinsics(client: Any, params: dict[str, Any], seed: int = 1, timeout: 
         client.call("sim.hold_board")  # the operator puts the board away
 
 
-__all__ = ["HeldBoard", "answer_intrinsics_prompt", "board_pose", "hold", "operator_pose", "run_intrinsics"]
+__all__ = ["HeldBoard", "answer_intrinsics_prompt", "board_pose", "hold", "operator_pose", "recipe_images",
+           "run_intrinsics"]

@@ -7,9 +7,8 @@ import pytest
 from calibration.board import DEFAULT_BOARD, Board
 from calibration.errors import CalibrationError
 from calibration.intrinsics import calibrate_intrinsics
-from calibration.intrinsics_recipe import CORNERS, RECIPE, coverage_findings, reaches_corner, same_as, tilt_findings
-from calibration.target import detect_corners
-from fakes.board import operator_pose
+from calibration.intrinsics_recipe import RECIPE, coverage_findings, same_as, tilt_findings
+from fakes.board import recipe_images
 from fakes.render import Renderer, world_camera_model
 from fakes.world import World, WorldParams
 
@@ -23,17 +22,7 @@ K3 = -0.01
 def k3_views():
     p = WorldParams()
     world = World(p.with_(distortion=p.distortion[:4] + (K3,)))
-    r = Renderer(world, SIZE)
-    rng, noise = np.random.default_rng(7), np.random.default_rng(8)
-    images = []
-    board = Board.from_dict(DEFAULT_BOARD)
-    for spec in RECIPE:
-        for _ in range(5):  # as the procedure does: a corner view that misses its corner is presented again
-            world.hold_board(**operator_pose(spec, rng))
-            image = r.render(rng=noise)
-            if spec.key not in CORNERS or reaches_corner(detect_corners(image, board)[1], SIZE, spec.key):
-                break
-        images.append(image)
+    images = recipe_images(world, Renderer(world, SIZE), np.random.default_rng(7), np.random.default_rng(8))
     return world, images
 
 
