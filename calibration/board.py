@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import numpy as np
+
 BOARD_SCHEMA = 1
 
 #: the board the recipe is written for: 12 x 9 squares of 4 mm (48 x 36 mm), 4x4-bit markers
@@ -83,4 +85,17 @@ class Board:
             raise ValueError(f"{source}: {exc}") from None
 
 
-__all__ = ["BOARD_SCHEMA", "Board", "DEFAULT_BOARD"]
+def detect_board_corners(image: np.ndarray, board: Any) -> tuple[np.ndarray, np.ndarray]:
+    """ChArUco corners of ``board`` in ``image``: ``(ids (N,), uv (N, 2))``.
+
+    Uses OpenCV's own marker detection (``fast=False``): for a board's small dictionary it
+    is as quick as the plate-tuned fast path, and it finds the small 4x4 markers that path
+    misses (measured on rendered recipe views at 640x480: all 88 corners of a square-on
+    view against 51).
+    """
+    from calibration.target import detect_corners
+
+    return detect_corners(image, board, fast=False)
+
+
+__all__ = ["BOARD_SCHEMA", "Board", "DEFAULT_BOARD", "detect_board_corners"]

@@ -26,7 +26,8 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.intrinsics_recipe import coverage_findings, tilt_findings, view_geometry
-from calibration.target import detect_corners, make_board
+from calibration.board import detect_board_corners
+from calibration.target import make_board
 
 CALIB_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 #: F(1, m − p) at the 1 % level for the large m (thousands of residuals) of a calibration:
@@ -46,7 +47,7 @@ def _collect_views(images: Sequence[np.ndarray], board: Any, size: tuple[int, in
     for k, image in enumerate(images):
         if image.shape[:2] != (h, w):
             raise ValueError(f"image {k} is {image.shape[1]}x{image.shape[0]}, expected {w}x{h}")
-        ids, uv = detect_corners(image, board)
+        ids, uv = detect_board_corners(image, board)
         entry: dict[str, Any] = {"index": k, "n_corners": int(len(ids)), "used": len(ids) >= min_corners}
         if entry["used"]:
             obj_pts.append(all_obj[ids].reshape(-1, 1, 3))

@@ -7,10 +7,11 @@ command ``sim.hold_board`` (:meth:`fakes.world.World.hold_board`). The renderer
 intersected with the board plane (as the plate's top face is), and the print's texture
 looked up there.
 
-Simplifications (stated, not tuned): the board is drawn in front of whatever else is in
-view (on the robot the recipe starts by raising the robot on its stand, so only the
-board is near the lens), it is perfectly flat and evenly lit, and no depth of field is
-modelled. ``print_scale`` is the hook for a print that differs from its nominal
+Simplifications (stated, not tuned): the recipe starts by putting the robot on its
+calibration stand, so while the board is held the camera sees it against the stand's
+bench, drawn as a plain mid-grey surface (the floor and plate under the robot's simulated
+pose are not drawn then); the board is perfectly flat and evenly lit, and no depth of
+field is modelled. ``print_scale`` is the hook for a print that differs from its nominal
 definition (true size / nominal size, per axis); it is 1 unless a caller sets it.
 
 :func:`answer_intrinsics_prompt` plays the operator for the ``intrinsics`` procedure: it
@@ -30,10 +31,10 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from calibration.board import DEFAULT_BOARD, Board
+from calibration.board import DEFAULT_BOARD, Board, detect_board_corners
 from calibration.frames import make_H, rot_x, rot_y, rot_z
 from calibration.intrinsics_recipe import CORNERS, RECIPE, SPECS, ViewSpec, reaches_corner
-from calibration.target import detect_corners, make_board
+from calibration.target import make_board
 
 #: texels per mm of the board print (squares must span whole texels)
 PPMM = 100.0
@@ -41,6 +42,8 @@ PPMM = 100.0
 MARGIN_MM = 3.0
 #: albedo of the print (as the plate target's, fakes/render.py)
 DARK, WHITE = 0.05, 0.92
+#: albedo of the bench under the calibration stand (a plain mid-grey surface, as the floor's mean)
+BENCH = 0.45
 #: the simulated operator's 1σ scatter around the recipe's pose (assumed, see the docstring)
 OPERATOR_SIGMA = {"tilt_deg": 4.0, "rot_deg": 4.0, "aim_deg": 2.0, "distance_mm": 4.0}
 _VIEW_TAG = re.compile(r"\[view ([\w+\-]+)\]")
@@ -59,7 +62,8 @@ class HeldBoard:
         self.texture = _texture(self.board)
 
     def overlay(self, x: np.ndarray, y: np.ndarray, alb: np.ndarray) -> np.ndarray:
-        """``alb`` with the board drawn where the rays (x, y, 1) (normalised CCS) meet it."""
+        """The albedo seen along the rays (x, y, 1) (normalised CCS): the board where they meet it,
+        else the bench (``alb``, the scene under the robot's pose, is not in view on the stand)."""
         # ray d = (x, y, 1) meets the board plane n·(P − t) = 0 at s·d, s = n·t / n·d (in front: s > 0)
         R, t = self.cam_H_board[:3, :3], self.cam_H_board[:3, 3]
         n = R[:, 2]
@@ -72,14 +76,14 @@ class HeldBoard:
         qy = (R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz) / self.print_scale[1]
         bw, bh = self.board.board_size_mm()
         on = ok & (qx >= -MARGIN_MM) & (qx <= bw + MARGIN_MM) & (qy >= -MARGIN_MM) & (qy <= bh + MARGIN_MM)
+        out = np.full_like(alb, np.float32(BENCH))  # the robot is on its stand: the bench is behind the board
         if not on.any():
-            return alb
+            return out
         th, tw = self.texture.shape
         # texel k's centre sits at (k + 0.5)/PPMM − MARGIN_MM: square edges fall on texel boundaries
         mx = np.clip((qx + MARGIN_MM) * PPMM - 0.5, -4, tw + 4).astype(np.float32)
         my = np.clip((qy + MARGIN_MM) * PPMM - 0.5, -4, th + 4).astype(np.float32)
         val = cv2.remap(self.texture, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=255)
-        out = alb.copy()
         out[on] = np.float32(DARK) + np.float32((WHITE - DARK) / 255.0) * val[on].astype(np.float32)
         return out
 
@@ -173,7 +177,8 @@ def recipe_images(world: Any, renderer: Any, rng: np.random.Generator, noise: np
         for _ in range(tries):
             world.hold_board(**operator_pose(spec, rng))
             image = renderer.render(rng=noise)
-            if spec.key not in CORNERS or reaches_corner(detect_corners(image, board)[1], renderer.size, spec.key):
+            if spec.key not in CORNERS or reaches_corner(detect_board_corners(image, board)[1], renderer.size,
+                                                         spec.key):
                 break
         images.append(image)
     world.hold_board()

@@ -16,9 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.board import Board
+from calibration.board import Board, detect_board_corners
 from calibration.intrinsics_recipe import CORNERS, RECIPE, ViewSpec, reaches_corner, same_as
-from calibration.target import detect_corners
 from daemon.worker.compute import to_8bit
 from daemon.worker.job import JobContext, StepFailed
 
@@ -47,7 +46,7 @@ def _board(ctx: JobContext) -> Board:
 
 
 def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: str,
-             previous: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, Any] | None:
+             previous: list[tuple[np.ndarray, np.ndarray, str]]) -> dict[str, Any] | None:
     """Ask for one view until it is good (or skipped); the stored entry, None when skipped."""
     reason = ""
     while True:
@@ -61,14 +60,15 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
             return None
         ctx.state[f"{name}.tries"] = tries + 1
         file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
-        ids, uv = detect_corners(to_8bit(pixels), board)
-        again = same_as(ids, uv, previous, pixels.shape[1]) if len(ids) >= MIN_VIEW_CORNERS else None
+        ids, uv = detect_board_corners(to_8bit(pixels), board)
+        again = (same_as(ids, uv, [p[:2] for p in previous], pixels.shape[1]) if len(ids) >= MIN_VIEW_CORNERS
+                 else None)
         if len(ids) < MIN_VIEW_CORNERS:
             reason = (f"{file} shows only {len(ids)} board corners (need {MIN_VIEW_CORNERS}): bring the whole "
                       f"board into view and try again. ")
         elif again is not None:
-            reason = (f"{file} repeats accepted view {again + 1} (it adds nothing): change the tilt as "
-                      f"described and try again. ")
+            reason = (f"{file} repeats the view accepted as {previous[again][2]} (it adds nothing): change the "
+                      f"tilt as described and try again. ")
         elif spec.key in CORNERS and not reaches_corner(uv, (pixels.shape[1], pixels.shape[0]), spec.key):
             reason = (f"in {file} the board does not reach the image's {spec.key} corner (the lens distortion "
                       f"is largest there): move it further into that corner and try again. ")
@@ -93,7 +93,7 @@ def intrinsics(ctx: JobContext) -> None:
         if ctx.done(name):
             continue
         ctx.progress(f"view {j + 1}/{n} ({spec.key})", 5 + 85 * j / n, "the operator presents the board")
-        previous = [(np.asarray(v["ids"]), np.asarray(v["uv"])) for v in views]
+        previous = [(np.asarray(v["ids"]), np.asarray(v["uv"]), v["key"]) for v in views]
         entry = _present(ctx, name, spec, board, f"view {j + 1}/{n}", previous)
         if entry is None:
             skipped.append(spec.key)
