@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calibration.camera_model import CameraModel
 from daemon.bus.client import ClientTimeout
-from daemon.bus.datasets import validate_folder
+from daemon.bus.datasets import check_file, validate_folder
 from daemon.worker.recompute import recompute
 from fakes.board import answer_intrinsics_prompt, run_intrinsics
 from fakes.launch import start_ritad
@@ -78,6 +79,8 @@ def test_guided_intrinsics_meets_the_acceptance_line(daemon):
     model = stored["camera_model"]
     installed = json.loads((data / "calibration" / "camera_model.json").read_text())
     assert installed == model  # what the referencing reads, with its uncertainty
+    assert check_file(installed, "camera_model", "camera_model.json") == []
+    CameraModel.from_dict(installed, source="installed camera_model.json")  # as the referencing loads it
     truth = c.call("sim.truth")["camera_model"]  # scoring only
     K, Kt = np.array(model["K"]), np.array(truth["K"])
     std = model["std"]
