@@ -23,7 +23,7 @@ from daemon.worker.job import JobContext, StepFailed
 
 #: board corners a view needs (of 88 on the default board): fewer cannot pin its pose and tilt
 MIN_VIEW_CORNERS = 20
-#: presentations of one view before the step fails (a resume asks again)
+#: presentations of one view before the step fails (a resume asks MAX_TRIES more times)
 MAX_TRIES = 5
 SETUP = ("put the robot on its calibration stand (camera free, nothing within 100 mm below the lens) and have "
          "the calibration board ready; answer 'ok'")
@@ -49,11 +49,8 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
              previous: list[tuple[np.ndarray, np.ndarray, str]]) -> dict[str, Any] | None:
     """Ask for one view until it is good (or skipped); the stored entry, None when skipped."""
     reason = ""
-    while True:
-        tries = int(ctx.state.get(f"{name}.tries", 0))
-        if tries >= MAX_TRIES:
-            ctx.checkpoint()
-            raise StepFailed(f"no usable image after {MAX_TRIES} tries ({reason}); `ritactl resume` asks again")
+    for _ in range(MAX_TRIES):
+        tries = int(ctx.state.get(f"{name}.tries", 0))  # over every run of the job: names never repeat
         answer = ctx.ask(f"{label} [view {spec.key}]: {reason}{spec.instruction()}. Answer 'ok' when the board "
                          f"is steady, or 'skip' to leave this view out", ["ok", "skip"])
         if answer == "skip":
@@ -76,6 +73,7 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
             return {"image": file, "header": header, "key": spec.key, "n_corners": int(len(ids)),
                     "ids": ids.tolist(), "uv": np.round(uv, 3).tolist()}
         ctx.checkpoint()
+    raise StepFailed(f"no usable image in {MAX_TRIES} tries (last: {reason.strip()}); `ritactl resume` asks again")
 
 
 def intrinsics(ctx: JobContext) -> None:

@@ -12,6 +12,7 @@ from calibration.board import DEFAULT_BOARD, Board
 from calibration.intrinsics_recipe import RECIPE
 from calibration.target import make_board
 from daemon.worker.guided_intrinsics import SETUP, intrinsics
+from daemon.worker.job import StepFailed
 
 SIZE = (640, 480)
 
@@ -82,3 +83,13 @@ def test_a_bad_board_file_is_refused_before_the_operator_starts(tmp_path) -> Non
     with pytest.raises(ValueError, match="board.json does not exist: pass the board you hold with --board FILE"):
         intrinsics(ctx)
     assert ctx.questions == []
+
+
+def test_a_view_that_stays_bad_fails_its_step_and_a_resume_asks_again(tmp_path) -> None:
+    blank = np.full((SIZE[1], SIZE[0]), 128, np.uint8)
+    ctx = Ctx(tmp_path, ["ok"] * 6, [blank] * 5)
+    with pytest.raises(StepFailed, match="no usable image in 5 tries .last: view-00-try5.png shows only 0"):
+        intrinsics(ctx)
+    ctx.answers, ctx.images = ["ok"], [board_image()]
+    intrinsics(ctx)  # resumed: the same view, under a new name
+    assert ctx.obs["views"][0]["image"] == "view-00-try6.png"
