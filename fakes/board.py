@@ -11,8 +11,9 @@ Simplifications (stated, not tuned): the recipe starts by putting the robot on i
 calibration stand, so while the board is held the camera sees it against the stand's
 bench, drawn as a plain mid-grey surface (the floor and plate under the robot's simulated
 pose are not drawn then); the board is perfectly flat and evenly lit, and no depth of
-field is modelled. ``print_scale`` is the hook for a print that differs from its nominal
-definition (true size / nominal size, per axis); it is 1 unless a caller sets it.
+field is modelled. The print is exactly its nominal definition unless the world carries
+``board_print_scale`` (true size / nominal size per board axis; the hook for a print that
+differs from its file, e.g. a printer's scale error: no source sets it yet).
 
 :func:`answer_intrinsics_prompt` plays the operator for the ``intrinsics`` procedure: it
 reads the view key in the prompt, holds the board in the recipe's nominal pose plus the
@@ -46,6 +47,8 @@ DARK, WHITE = 0.05, 0.92
 BENCH = 0.45
 #: the simulated operator's 1σ scatter around the recipe's pose (assumed, see the docstring)
 OPERATOR_SIGMA = {"tilt_deg": 4.0, "rot_deg": 4.0, "aim_deg": 2.0, "distance_mm": 4.0}
+#: a World attribute (x, y): the true print's size / nominal size (see the module docstring)
+PRINT_SCALE_ATTR = "board_print_scale"
 _VIEW_TAG = re.compile(r"\[view ([\w+\-]+)\]")
 
 
@@ -131,9 +134,7 @@ def hold(world: Any, z_mm: float | None = None, x_mm: float = 0.0, y_mm: float =
         return {"held": False}
     b = board or Board.from_dict(DEFAULT_BOARD)
     H = board_pose(b, x_mm, y_mm, z_mm, tilt_x_deg, tilt_y_deg, rot_deg)
-    prev = world.held_board
-    scale = prev.print_scale if prev is not None else (1.0, 1.0)
-    world.held_board = HeldBoard(b, H, scale)
+    world.held_board = HeldBoard(b, H, tuple(getattr(world, PRINT_SCALE_ATTR, (1.0, 1.0))))
     return {"held": True, "board_id": b.board_id, "cam_H_board": H.tolist()}
 
 
