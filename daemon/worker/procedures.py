@@ -23,7 +23,7 @@ from daemon.bus.protocol import CommandError
 
 #: default parameters (mm, degrees)
 DEFAULTS = {"distance_mm": 200.0, "sigma_t_mm": 0.010, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
-            "offset_mm": 3.0, "seed": 1, "kind": "dot", "views": 6}
+            "offset_mm": 3.0, "seed": 1, "kind": "dot"}
 
 
 def param(ctx: JobContext, key: str) -> Any:
