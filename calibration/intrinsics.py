@@ -6,8 +6,9 @@ with too few corners are left out and listed with the reason; fewer than
 ``min_views`` usable views is a CalibrationError.
 
 The report gives the reprojection RMS overall and per view, each view's tilt, and a
-1σ uncertainty per parameter: OpenCV's ``stdDeviationsIntrinsics``, the diagonal of
-(JᵀJ)⁻¹ scaled by the residual variance Σr²/(m − p). Whether k3 is fitted is decided
+1σ uncertainty per parameter: the larger of OpenCV's ``stdDeviationsIntrinsics`` (the
+diagonal of (JᵀJ)⁻¹ scaled by the residual variance Σr²/(m − p)) and a leave-one-view-out
+jackknife, which also sees errors shared by the corners of one view. Whether k3 is fitted is decided
 by the data: the fit with k3 free replaces the one with k3 = 0 only when the drop in
 the residual sum of squares is significant (F test, 1 extra parameter, 1 % level),
 so a lens with k3 ≠ 0 gets it and one without does not trade k3 off against k1, k2.
@@ -94,12 +95,35 @@ def _k3_decision(fixed: dict[str, Any], free: dict[str, Any]) -> dict[str, Any]:
                       f"({'>' if fitted else '<='} {F_CRIT_1PCT} at 1 %); k3 free = {k3:.3g} ± {s:.2g}"}
 
 
-def _uncertainty(fit: dict[str, Any]) -> dict[str, float | None]:
-    """1σ per parameter (None for k3 when it is held at 0)."""
-    out: dict[str, float | None] = {n: float(v) for n, v in zip(PARAM_NAMES, fit["std"])}
+def _params(fit: dict[str, Any]) -> np.ndarray:
+    K = fit["K"]
+    return np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], fit["dist"]]
+
+
+def _jackknife(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple[int, int],
+               fit: dict[str, Any]) -> np.ndarray:
+    """Leave-one-view-out jackknife 1σ of the 9 parameters (Efron & Stein, Ann. Stat. 9(3), 1981).
+
+    The covariance assumes independent corner errors; the errors of one view's corners are
+    correlated (one pose, one lighting, one print region), which the jackknife over whole
+    views accounts for. A set that leans on a single view shows it as a large σ.
+    """
+    n = len(obj_pts)
+    thetas = [_params(_fit(obj_pts[:i] + obj_pts[i + 1:], img_pts[:i] + img_pts[i + 1:], size, fit["k3"], fit))
+              for i in range(n)]
+    t = np.array(thetas)
+    return np.sqrt((n - 1) / n * ((t - t.mean(axis=0)) ** 2).sum(axis=0))
+
+
+def _uncertainty(fit: dict[str, Any], jack: np.ndarray) -> dict[str, Any]:
+    """1σ per parameter: the larger of the residual-scaled covariance and the jackknife (None for k3
+    held at 0); both sources are kept under ``covariance`` and ``jackknife``."""
+    cov = {n: float(v) for n, v in zip(PARAM_NAMES, fit["std"])}
+    jk = {n: float(v) for n, v in zip(PARAM_NAMES, jack)}
+    out: dict[str, Any] = {n: max(cov[n], jk[n]) for n in PARAM_NAMES}
     if not fit["k3"]:
-        out["k3"] = None
-    return out
+        out["k3"] = cov["k3"] = jk["k3"] = None
+    return {**out, "covariance": cov, "jackknife": jk}
 
 
 def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple[int, int],
@@ -141,6 +165,7 @@ def calibrate_intrinsics(images: Sequence[np.ndarray], board: Any, size: tuple[i
                                f"need at least {min_views} views at different tilts (docs/operations.md, "
                                f"Intrinsic calibration)")
     fit, decision, keep, n_rejected = _calibrate(obj_pts, img_pts, (w, h), reject_factor)
+    jack = _jackknife([o[k] for o, k in zip(obj_pts, keep)], [i[k] for i, k in zip(img_pts, keep)], (w, h), fit)
     used = [v for v in views if v["used"]]
     for v, e, rv, k in zip(used, fit["per_view"], fit["rvecs"], keep):
         tilt, axis = view_geometry(rv)
@@ -155,7 +180,7 @@ def calibrate_intrinsics(images: Sequence[np.ndarray], board: Any, size: tuple[i
         "n_corners": int(sum(v["n_corners"] for v in used)),
         "n_rejected": n_rejected,
         "views": views,
-        "std": _uncertainty(fit),
+        "std": _uncertainty(fit, jack),
         "k3": decision,
         "findings": findings,
         "degenerate": bool(findings),

@@ -157,7 +157,7 @@ def _intrinsics_verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str
 def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """Camera model + uncertainty from the stored board views (daemon/worker/guided_intrinsics.py)."""
     from calibration.board import Board
-    from calibration.intrinsics import calibrate_intrinsics
+    from calibration.intrinsics import PARAM_NAMES, calibrate_intrinsics
 
     load = _eight_bit(load)
     if "board" in obs:
@@ -172,7 +172,7 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     verdict, messages = _intrinsics_verdict(model, report)
     for v, stored in zip(report["views"], obs["views"]):
         v["key"] = stored.get("key")
-    camera_model = {**model.to_dict(), "std": report["std"],
+    camera_model = {**model.to_dict(), "std": {n: report["std"][n] for n in PARAM_NAMES},
                     "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
                                     "k3_fitted": report["k3"]["fitted"],
                                     "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
