@@ -66,7 +66,7 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     runs = []
     for i, run in enumerate(obs["runs"]):
         res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
-                        sigma_t_mm=sigma_t, seed=i)
+                        sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
     scs0 = make_scs(model, first.cam_H_ref)
