@@ -18,9 +18,9 @@ What can be checked:
   radius, its F ratio against the tangential residuals (same noise, no radial
   signal) and its peak size on the plate; catches distortion errors that an f
   change does not explain.
-* **calibration report** — the model's own focal-length σ (and verdict) when the
-  camera_model.json carries its intrinsics report; the only check that sees a
-  self-consistent wrong f, because only the calibration views could.
+* **calibration uncertainty** — the model's own focal-length σ when the
+  camera_model.json carries it (``std``, written by the intrinsics procedure); the only
+  check that sees a self-consistent wrong f, because only the calibration views could.
 
 Every finding names the camera model and says what to do.
 """
@@ -35,7 +35,8 @@ import numpy as np
 from calibration.camera_model import CameraModel
 
 #: what to do about a bad camera model, appended to every finding
-ADVICE = "re-run `ritactl intrinsics` with tilted views of the board (tilts >= 20°) and install the new model"
+ADVICE = ("re-run `ritactl intrinsics` with the tilted board views of its recipe (docs/operations.md) and "
+          "install the new model")
 
 
 @dataclass
@@ -47,7 +48,7 @@ class ModelCheckGates:
     fail_height_mm: float = 0.045  # the §7.3 nominal t_z limit
     radial_min_f_ratio: float = 10.0  # F(3, N) above 10: chance ~1e-6 under corner noise alone
     radial_warn_plate_mm: float = 0.005  # peak radial pattern on the plate: the §7.3 noise-free footprint limit
-    report_k_sigma: float = 3.0  # the model report's 3σ focal error, as a height error, against the limits
+    model_k_sigma: float = 3.0  # the model's own 3σ focal error, as a height error, against the t_z limit
 
 
 @dataclass
@@ -83,13 +84,13 @@ class ModelCheck:
 
     focal: FocalRefit | None = None
     radial: RadialPattern | None = None
-    report_sigma_f: float | None = None  # relative σ of f from the model's calibration report
+    model_sigma_f: float | None = None  # relative 1σ of f from the camera_model.json's std
     verdict: str = "ok"
     messages: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"verdict": self.verdict, "messages": list(self.messages),
-                               "report_sigma_f_rel": self.report_sigma_f}
+                               "model_sigma_f_rel": self.model_sigma_f}
         if self.focal is not None:
             f = self.focal
             out["focal_refit"] = {"scale": f.scale, "sigma": f.sigma, "significance": f.significance,
@@ -171,28 +172,26 @@ def radial_pattern(model: CameraModel, uv: np.ndarray, residuals: np.ndarray, he
     return RadialPattern(f_ratio, peak, peak * height_mm / model.f, float(np.sqrt(s2)))
 
 
-def report_sigma_f(model_dict: dict[str, Any] | None) -> tuple[float | None, str | None]:
-    """Relative focal-length σ and verdict of the intrinsics report a camera_model.json may carry.
+def model_sigma_f(model_dict: dict[str, Any] | None) -> float | None:
+    """Relative 1σ of the focal length from the ``std`` a camera_model.json may carry.
 
-    Read from ``report.std.fx`` / ``report.std.fy`` (pixels; the intrinsics result's
-    ``report``) and ``report.verdict``; a file without a report (older files, or a
-    model typed in by hand) gives ``(None, None)``.
+    ``std.fx`` / ``std.fy`` are in pixels, as the intrinsics procedure writes them
+    (docs/datasets.md, "Camera model"); the larger relative one is returned. A file
+    without them (older files, a model typed in by hand) gives None: no finding.
     """
-    rep = (model_dict or {}).get("report")
-    if not isinstance(rep, dict):
-        return None, None
-    verdict = rep.get("verdict") if isinstance(rep.get("verdict"), str) else None
-    std = rep.get("std") if isinstance(rep.get("std"), dict) else {}
+    std = (model_dict or {}).get("std")
+    if not isinstance(std, dict):
+        return None
     K = np.asarray(model_dict.get("K", np.eye(3)), float)
     rel = []
     for key, f in (("fx", K[0, 0]), ("fy", K[1, 1])):
         v = std.get(key)
-        if isinstance(v, (int, float)) and np.isfinite(v) and v >= 0 and f > 0:
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0 and f > 0:
             rel.append(float(v) / float(f))
-    return (max(rel) if rel else None), verdict
+    return max(rel) if rel else None
 
 
-def _findings(check: ModelCheck, gates: ModelCheckGates, report_verdict: str | None) -> None:
+def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     """Apply the gates to the measured statistics; set the verdict and the messages."""
     fails: list[str] = []
     warns: list[str] = []
@@ -210,14 +209,12 @@ def _findings(check: ModelCheck, gates: ModelCheckGates, report_verdict: str | N
         warns.append(f"camera model: radial pattern in the corner residuals, up to {r.peak_px:.3f} px "
                      f"({1000 * r.peak_plate_mm:.1f} µm on the plate, F = {r.f_ratio:.0f}): the distortion does "
                      f"not fit this camera; {ADVICE}")
-    if check.report_sigma_f is not None and f is not None:
-        dz = gates.report_k_sigma * check.report_sigma_f * f.height_mm
+    if check.model_sigma_f is not None and f is not None:
+        dz = gates.model_k_sigma * check.model_sigma_f * f.height_mm
         if dz >= gates.fail_height_mm:
-            warns.append(f"camera model: its calibration report gives the focal length to ±"
-                         f"{100 * check.report_sigma_f:.2f} % (1σ), i.e. camera height ±{1000 * dz:.0f} µm at "
-                         f"{gates.report_k_sigma:g}σ (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
-    if report_verdict in ("warn", "fail"):
-        warns.append(f"camera model: its intrinsics calibration ended with verdict {report_verdict!r}; {ADVICE}")
+            warns.append(f"camera model: its calibration gives the focal length to ±"
+                         f"{100 * check.model_sigma_f:.2f} % (1σ), i.e. camera height ±{1000 * dz:.0f} µm at "
+                         f"{gates.model_k_sigma:g}σ (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
     notes: list[str] = []
     if f is not None and f.resolvable_height_mm >= gates.fail_height_mm:
         # too few or too noisy corners to vouch for the model: say so, but it is no finding against it
@@ -235,7 +232,7 @@ def check_camera_model(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_
 
     ``obj`` are the corners' PCS points (N, 3), ``uv`` their detected pixels (N, 2),
     ``cam_H_ref`` the PnP pose with ``model``; ``model_dict`` the camera_model.json
-    content (for its calibration report, optional).
+    content (for its ``std``, optional).
     """
     gates = gates or ModelCheckGates()
     obj = np.asarray(obj, float).reshape(-1, 3)
@@ -248,6 +245,6 @@ def check_camera_model(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_
     check.focal = focal_refit(model, obj, uv, cam_H_ref)
     check.focal.resolvable_height_mm = gates.min_significance * check.focal.sigma * check.focal.height_mm
     check.radial = radial_pattern(model, uv, proj.reshape(-1, 2) - uv, check.focal.height_mm)
-    check.report_sigma_f, report_verdict = report_sigma_f(model_dict)
-    _findings(check, gates, report_verdict)
+    check.model_sigma_f = model_sigma_f(model_dict)
+    _findings(check, gates)
     return check

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from calibration.camera_model import CameraModel
-from calibration.model_check import ModelCheckGates, check_camera_model, report_sigma_f
+from calibration.model_check import ModelCheckGates, check_camera_model, model_sigma_f
 from calibration.referencing import board_corners_ref, reference, rob_H_cam_error
 from calibration.target import detect_corners, pose_from_corners
 from fakes.simulate import SimConfig, Simulation
@@ -89,7 +89,7 @@ def test_focal_error_with_kept_distortion_is_caught_naming_the_camera_model(visi
 def test_self_consistent_wrong_focal_is_invisible_in_one_planar_view(visits):
     """The z/f degeneracy the docs describe: same residuals, distance scaled by s, verdict ok.
 
-    Only the model's calibration report can flag such a model (next test).
+    Only the model's own calibration uncertainty can flag such a model (next test).
     """
     sim, runs = visits
     obs, ids, uv = runs[0]
@@ -105,24 +105,23 @@ def test_self_consistent_wrong_focal_is_invisible_in_one_planar_view(visits):
         assert mc.verdict == "ok"
 
 
-def test_calibration_report_flags_an_uncertain_focal_length(visits):
+def test_model_std_flags_an_uncertain_focal_length(visits):
     sim, runs = visits
     obs, ids, uv = runs[0]
     model = sim.model
     base = model.to_dict()
     f = model.K[0, 0]
     # a near-nadir intrinsics run reports f to ±0.5 %: 3σ is ~450 µm of camera height
-    loose = {**base, "report": {"std": {"fx": 0.005 * f, "fy": 0.005 * f}, "verdict": "ok"}}
+    loose = {**base, "std": {"fx": 0.005 * f, "fy": 0.004 * f, "cx": 1.0}}
     res = referencing(sim, obs, ids, uv, model, model_dict=loose)
-    assert res.verdict == "warn" and any(m.startswith("camera model: its calibration report") for m in res.messages)
-    tight = {**base, "report": {"std": {"fx": 0.0002 * f, "fy": 0.0002 * f}, "verdict": "ok"}}
+    assert res.verdict == "warn" and any(m.startswith("camera model: its calibration gives the focal length")
+                                         and "ritactl intrinsics" in m for m in res.messages), res.messages
+    assert res.model_check.model_sigma_f == pytest.approx(0.005)
+    tight = {**base, "std": {"fx": 0.0002 * f, "fy": 0.0002 * f}}  # 3σ: ~18 µm
     assert referencing(sim, obs, ids, uv, model, model_dict=tight).verdict == "ok"
-    warned = {**base, "report": {"std": {"fx": 0.0002 * f}, "verdict": "warn"}}
-    res = referencing(sim, obs, ids, uv, model, model_dict=warned)
-    assert res.verdict == "warn" and any("verdict 'warn'" in m for m in res.messages)
-    # an old file without a report, or one whose report has no usable σ: no finding
-    assert report_sigma_f(base) == (None, None)
-    assert report_sigma_f({**base, "report": {"std": {"fx": "n/a"}}}) == (None, None)
+    # an old file without std, or with no usable σ in it: no finding
+    assert model_sigma_f(base) is None
+    assert model_sigma_f({**base, "std": {"fx": "n/a", "fy": None}}) is None
     assert referencing(sim, obs, ids, uv, model, model_dict=base).verdict == "ok"
 
 
