@@ -89,18 +89,26 @@ class ModelCheck:
     messages: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able form; non-finite figures are null."""
         out: dict[str, Any] = {"verdict": self.verdict, "messages": list(self.messages),
-                               "model_sigma_f_rel": self.model_sigma_f}
+                               "model_sigma_f_rel": _num(self.model_sigma_f)}
         if self.focal is not None:
             f = self.focal
-            out["focal_refit"] = {"scale": f.scale, "sigma": f.sigma, "significance": f.significance,
-                                  "height_mm": f.height_mm, "height_change_mm": f.height_change_mm,
-                                  "rms_px": f.rms_px, "resolvable_height_mm": f.resolvable_height_mm}
+            out["focal_refit"] = {k: _num(v) for k, v in (
+                ("scale", f.scale), ("sigma", f.sigma), ("significance", f.significance), ("height_mm", f.height_mm),
+                ("height_change_mm", f.height_change_mm), ("rms_px", f.rms_px),
+                ("resolvable_height_mm", f.resolvable_height_mm))}
         if self.radial is not None:
             r = self.radial
-            out["radial_pattern"] = {"f_ratio": r.f_ratio, "peak_px": r.peak_px, "peak_plate_mm": r.peak_plate_mm,
-                                     "sigma_px": r.sigma_px}
+            out["radial_pattern"] = {k: _num(v) for k, v in (("f_ratio", r.f_ratio), ("peak_px", r.peak_px),
+                                                               ("peak_plate_mm", r.peak_plate_mm),
+                                                               ("sigma_px", r.sigma_px))}
         return out
+
+
+def _num(x: float | None) -> float | None:
+    """A JSON-safe number: non-finite values (a refit that could not run) become null."""
+    return float(x) if x is not None and np.isfinite(x) else None
 
 
 def _plane_distance(cam_H_ref: np.ndarray) -> float:
@@ -122,15 +130,21 @@ def focal_refit(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_H_ref: 
     """Gauss–Newton refit of the pose and a common focal scale, distortion and centre fixed.
 
     σ of the scale comes from the residual RMS and the normal matrix (Gaussian,
-    independent corners); started at the PnP pose and scale 1.
+    independent corners); started at the PnP pose and scale 1. A refit that runs off
+    (non-finite, or a focal scale beyond e^±0.5) returns scale 1 with σ = inf: the
+    check then only notes that it could not vouch for the model.
     """
     obj = np.asarray(obj, float).reshape(-1, 3)
     target = np.asarray(uv, float).reshape(-1)
     rvec, _ = cv2.Rodrigues(cam_H_ref[:3, :3])
     x = np.concatenate([rvec.reshape(3), cam_H_ref[:3, 3], [0.0]])
+    h0 = _plane_distance(cam_H_ref)
     for _ in range(iterations):
         proj, J = _project(obj, x, model)
         step = np.linalg.lstsq(J, target - proj, rcond=None)[0]
+        if not np.all(np.isfinite(step)) or abs(x[6] + step[6]) > 0.5:
+            # no focal within a factor 1.6 explains the corners: no verdict from this check
+            return FocalRefit(1.0, float("inf"), h0, 0.0, float("nan"))
         x = x + step
         if np.abs(step).max() < 1e-12:
             break
@@ -138,11 +152,10 @@ def focal_refit(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_H_ref: 
     r = target - proj
     dof = max(len(r) - 7, 1)
     s2 = float(r @ r) / dof
-    cov = s2 * np.linalg.inv(J.T @ J)
+    cov = s2 * np.linalg.pinv(J.T @ J)
     R, _ = cv2.Rodrigues(x[:3])
     H = np.eye(4)
     H[:3, :3], H[:3, 3] = R, x[3:6]
-    h0 = _plane_distance(cam_H_ref)
     return FocalRefit(float(np.exp(x[6])), float(np.exp(x[6]) * np.sqrt(cov[6, 6])), h0,
                       _plane_distance(H) - h0, float(np.sqrt(2 * s2)))
 
@@ -216,7 +229,10 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
                          f"{100 * check.model_sigma_f:.2f} % (1σ), i.e. camera height ±{1000 * dz:.0f} µm at "
                          f"{gates.model_k_sigma:g}σ (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
     notes: list[str] = []
-    if f is not None and f.resolvable_height_mm >= gates.fail_height_mm:
+    if f is not None and not np.isfinite(f.sigma):
+        notes.append("camera model (note): no focal length near the model's fits the target corners, so this "
+                     "image cannot vouch for the model")
+    elif f is not None and f.resolvable_height_mm >= gates.fail_height_mm:
         # too few or too noisy corners to vouch for the model: say so, but it is no finding against it
         notes.append(f"camera model (note): this image checks the focal length only to ±"
                      f"{100 * gates.min_significance * f.sigma:.2f} % ({gates.min_significance:g}σ), i.e. a camera "

@@ -8,6 +8,8 @@ used to score.
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -129,3 +131,19 @@ def test_check_rejects_mismatched_inputs():
     model = CameraModel(np.array([[470.0, 0, 500], [0, 470.0, 375], [0, 0, 1]]), np.zeros(5), (1000, 750))
     with pytest.raises(ValueError, match="need >= 8 matching corners"):
         check_camera_model(model, np.zeros((5, 3)), np.zeros((4, 2)), np.eye(4))
+
+
+def test_runaway_refit_only_notes_that_it_cannot_vouch():
+    """Corners no focal length explains (a random scatter) give no finding against the model, only a note."""
+    model = CameraModel(np.array([[470.0, 0, 500], [0, 470.0, 375], [0, 0, 1]]), np.zeros(5), (1000, 750))
+    rng = np.random.default_rng(3)
+    obj = np.column_stack([rng.uniform(0, 30, 40), rng.uniform(0, 20, 40), np.zeros(40)])
+    H = np.eye(4)
+    H[:3, 3] = [-15.0, -10.0, 30.0]
+    mc = check_camera_model(model, obj, rng.uniform(0, 1000, (40, 2)), H)
+    assert mc.focal.significance == 0 and not np.isfinite(mc.focal.sigma)
+    assert not any("focal length is" in m for m in mc.messages)
+    assert any(m.startswith("camera model (note): no focal length") for m in mc.messages), mc.messages
+    d = mc.to_dict()  # JSON-safe: the refit's infinite σ is null, not Infinity
+    assert d["focal_refit"]["sigma"] is None and d["focal_refit"]["scale"] == 1.0
+    json.dumps(d, allow_nan=False)
