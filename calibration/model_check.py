@@ -229,6 +229,10 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
                          f"{100 * check.model_sigma_f:.2f} % (1σ), i.e. camera height ±{1000 * dz:.0f} µm at "
                          f"{gates.model_k_sigma:g}σ (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
     notes: list[str] = []
+    if check.model_sigma_f is None:
+        notes.append("camera model (note): camera_model.json carries no focal-length σ (std.fx, std.fy), so a "
+                     "focal length wrong together with its distortion cannot be ruled out (one planar view "
+                     "cannot see it)")
     if f is not None and not np.isfinite(f.sigma):
         notes.append("camera model (note): no focal length near the model's fits the target corners, so this "
                      "image cannot vouch for the model")

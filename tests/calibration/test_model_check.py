@@ -124,7 +124,9 @@ def test_model_std_flags_an_uncertain_focal_length(visits):
     # an old file without std, or with no usable σ in it: no finding
     assert model_sigma_f(base) is None
     assert model_sigma_f({**base, "std": {"fx": "n/a", "fy": None}}) is None
-    assert referencing(sim, obs, ids, uv, model, model_dict=base).verdict == "ok"
+    res = referencing(sim, obs, ids, uv, model, model_dict=base)
+    assert res.verdict == "ok" and any(m.startswith("camera model (note): camera_model.json carries no")
+                                       for m in res.messages), res.messages
 
 
 def test_check_rejects_mismatched_inputs():
