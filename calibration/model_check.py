@@ -5,7 +5,8 @@ focal length is wrong but *self-consistent* (distortion fitted for the wrong f, 
 near-nadir intrinsic calibration produces) gives the same pixels, a PnP distance
 scaled by the same factor and an unchanged reprojection RMS. No check on one such
 image, nor the 0°/180° height comparison, nor a ground-sample-distance check against
-the tracker-measured drive, can see it (docs/architecture.md, "Camera-model check").
+the tracker-measured drive, can see it (docs/architecture.md, "Referencing verdict: the
+camera-model check").
 What can be checked:
 
 * **focal refit** — the pose and a common scale of fx, fy refitted to the corners,
@@ -210,9 +211,9 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     warns: list[str] = []
     f = check.focal
     if f is not None and f.significance >= gates.min_significance:
-        text = (f"camera model: the target corners say the focal length is {100 * (f.scale - 1):+.2f} % "
-                f"± {100 * f.sigma:.2f} % off the model's for its distortion, which moves the camera height by "
-                f"{1000 * f.height_change_mm:+.0f} µm")
+        text = (f"camera model: with its distortion, the target corners fit a focal length "
+                f"{100 * (f.scale - 1):+.2f} % ± {100 * f.sigma:.2f} % from the model's, which moves the camera "
+                f"height by {1000 * f.height_change_mm:+.0f} µm")
         if abs(f.height_change_mm) >= gates.fail_height_mm:
             fails.append(f"{text} (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
         elif abs(f.height_change_mm) >= gates.warn_height_mm:

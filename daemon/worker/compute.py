@@ -78,7 +78,8 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     if len(runs) >= 2:
         rev = combine(runs)
         out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
-        messages = [m for r in runs for m in r.messages] + rev.messages
+        # dict.fromkeys: a note both runs give (same text) is listed once
+        messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
         verdicts = [r.verdict for r in runs]
         if rev.cov_rob_H_scn is not None and out["uncertainty"]:
             # the combined estimate: its covariance replaces the single run's for marks
