@@ -66,7 +66,7 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     runs = []
     for i, run in enumerate(obs["runs"]):
         res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
-                        sigma_t_mm=sigma_t, seed=i)
+                        sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
     scs0 = make_scs(model, first.cam_H_ref)
@@ -78,7 +78,8 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     if len(runs) >= 2:
         rev = combine(runs)
         out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
-        messages = [m for r in runs for m in r.messages] + rev.messages
+        # dict.fromkeys: a note both runs give (same text) is listed once
+        messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
         verdicts = [r.verdict for r in runs]
         if rev.cov_rob_H_scn is not None and out["uncertainty"]:
             # the combined estimate: its covariance replaces the single run's for marks
