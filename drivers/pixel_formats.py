@@ -134,12 +134,13 @@ def decode(raw: bytes | bytearray | memoryview | np.ndarray, pixel_format: str, 
     rows = np.lib.stride_tricks.as_strided(buf[offset:], shape=(height, nbytes), strides=(stride, 1),
                                            writeable=False)
     if fmt.layout in ("12p", "12Packed"):
-        return _unpack12(rows, width, fmt.layout)
-    if fmt.layout == "16":
+        img = _unpack12(rows, width, fmt.layout)
+    elif fmt.layout == "16":
         img = np.ascontiguousarray(rows).view("<u2").astype(np.uint16)
     else:
-        img = rows.copy()
-    return img.reshape((height, width, fmt.channels) if fmt.channels > 1 else (height, width))
+        img = rows
+    img = img.reshape((height, width, fmt.channels) if fmt.channels > 1 else (height, width))
+    return img if img.flags.owndata else img.copy()  # never a view of the producer's memory
 
 
 def _pack12(img: np.ndarray, layout: str) -> np.ndarray:

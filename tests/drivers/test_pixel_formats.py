@@ -101,7 +101,7 @@ def test_round_trip_against_reference(name: str, w: int, pad: int) -> None:
     img = random_image(fmt, w, h, seed=len(CASES) * w + pad)
     raw = ref_pack(img, fmt, pad)
     out = pf.decode(raw, name, w, h, padding_x=pad)
-    assert out.dtype == fmt.dtype and out.shape == img.shape
+    assert out.dtype == fmt.dtype and out.shape == img.shape and out.flags.owndata
     assert np.array_equal(out, img)
     mine = pf.encode(img, name, padding_x=pad)
     assert len(mine) == len(raw)
