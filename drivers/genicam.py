@@ -8,7 +8,8 @@ offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
 4) and ``timeout`` (seconds without a frame while streaming before the camera is
 declared lost, default 3; at least three frame periods are always allowed).
 
-Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`.
+Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are
+decoded from the raw GenTL buffer by :mod:`drivers.pixel_formats` and carry its name.
 ``trigger()`` fires TriggerSoftware (after TriggerArmed where the device has it);
 on a device without software triggers it takes the next free-run frame instead
 and says so in ``status()["warnings"]``. ``start_stream()`` switches to free run
