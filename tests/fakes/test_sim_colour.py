@@ -93,3 +93,10 @@ def test_bad_colour_settings_are_named(settings: CameraSettings, needle: str) ->
 def test_info_lists_the_offered_formats() -> None:
     cam = SimCamera(DeviceURL.parse("sim:?size=200x151"))
     assert cam.info()["pixel_formats"] == list(PIXEL_FORMATS)
+
+
+def test_every_nest_has_a_ring_colour() -> None:
+    from fakes.render import NEST_GREY
+
+    assert set(RING_RGB) == set(NEST_GREY)
+    assert all(max(rgb) == rgb[i] for i, rgb in zip((0, 1, 2), (RING_RGB[n] for n in ("red", "green", "blue"))))
