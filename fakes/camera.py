@@ -23,7 +23,7 @@ How it differs from the real PHX122S: images come from :class:`fakes.render.Rend
 (planar world, Gaussian noise); exposure and gain only scale the rendered
 intensity (no motion blur, saturation physics or noise change); there is no
 GigE bandwidth limit, so the rate is only limited by rendering (about 1 s per
-reduced-size frame unless ``prerender`` is used; a colour frame takes about 1.5×)
+reduced-size frame unless ``prerender`` is used; a colour frame about 3 s)
 and one render may overrun ``pump``'s timeout; one camera offers both sensor
 profiles of the family, :data:`PIXEL_FORMATS` (the configured PixelFormat picks the
 mono or the RGGB Bayer colour sensor, :mod:`fakes.colour`; frames are packed into the
