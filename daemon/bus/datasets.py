@@ -261,7 +261,6 @@ class _Images:
             self.problems.append(Problem(where, path, f"image {file} is {w}x{h} px but the camera model size is "
                                                       f"{size_wh}"))
 
-
     def _check_format(self, file: str, where: str, path: str, header: Any, got: tuple[int, int],
                       procedure: bool) -> None:
         """The PNG is stored as its header's pixel format says (none recorded: read as Mono8/16, RGB8)."""
@@ -270,8 +269,8 @@ class _Images:
             return
         want = STORED_AS.get(fmt)
         if want is None and procedure:
-            self.problems.append(Problem(where, path, f"image {file}: pixel format {fmt!r} cannot be computed "
-                                                      f"with (known: {', '.join(STORED_AS)})"))
+            self.problems.append(Problem(where, path, f"image {file}: pixel format {fmt!r} is not one the "
+                                                      f"computation reads ({', '.join(STORED_AS)})"))
         elif want is not None and want != got:
             self.problems.append(Problem(where, path, f"image {file} has {got[0]} channel(s) at {got[1]} bit but "
                                                       f"pixel format {fmt} is stored with {want[0]} at {want[1]}"))
