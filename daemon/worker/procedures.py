@@ -202,12 +202,13 @@ def _intrinsics_view(ctx: JobContext, name: str, plate: Any) -> dict[str, Any]:
     undone, and a resume re-takes just that view, under a new file name (nothing is
     overwritten).
     """
+    from calibration.image import to_grey
     from calibration.target import detect_corners
 
     tries = int(ctx.state.get(f"{name}.tries", 0))
     ctx.state[f"{name}.tries"] = tries + 1
     file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
-    ids, _ = detect_corners(pixels, plate)
+    ids, _ = detect_corners(to_grey(pixels, header.get("pixel_format")), plate)
     if len(ids) < MIN_VIEW_CORNERS:
         ctx.checkpoint()
         raise StepFailed(f"the target is not in view in {file} ({len(ids)} corners < {MIN_VIEW_CORNERS}): put the "
