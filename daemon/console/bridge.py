@@ -1,0 +1,169 @@
+"""The console's side of the bus: latest telemetry per topic, the latest frame, and commands.
+
+Two reader threads (telemetry, frames) keep only the newest value: telemetry as the
+last message per topic (plus the few event topics a page must not miss, kept in a
+short ring), frames as one slot the web side reads when a page has asked for the next
+picture. Nothing here ever waits on a browser, so a slow page cannot slow the bus
+readers, and the frame SUB socket's small receive queue (RCVHWM 2) means a slow
+console loses frames at the daemon's PUB socket, which drops instead of buffering
+(docs/protocol.md, Frames). Commands run in a thread pool with one bus Client per
+thread (a DEALER socket is not thread-safe), so ``robot.stop`` never queues behind a
+long ``robot.move``.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
+
+import zmq
+
+from daemon.bus.client import Client, ClientTimeout, Subscriber
+from daemon.bus.protocol import CommandError, unpack
+
+#: topics whose every message matters to the page (prompts, results, motion ends), not just the last
+EVENT_TOPICS = ("calib.prompt", "calib.result", "robot.event", "tracker.event", "log")
+EVENT_RING = 200
+
+
+class Bridge:
+    """Bus connection for the web server: ``latest``, ``events``, ``frame``, ``call()``."""
+
+    def __init__(self, make_client: Callable[[], Client], workers: int = 6) -> None:
+        self._make_client = make_client
+        self._local = threading.local()
+        self.pool = ThreadPoolExecutor(workers, thread_name_prefix="console-call")
+        self._lock = threading.Lock()
+        self.latest: dict[str, dict[str, Any]] = {}   # topic -> {seq, t_ns, data}
+        self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENT_RING)
+        self.event_no = 0
+        self.frame: tuple[dict[str, Any], bytes] | None = None
+        self.frame_no = 0
+        self.frames_seen = 0
+        self.link = {"bus": "connecting", "error": ""}
+        self.role = "unknown"
+        self.hello: dict[str, Any] = {}
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    # ------------------------------------------------------------------ commands
+    def _client(self) -> Client:
+        c = getattr(self._local, "client", None)
+        if c is None:
+            c = self._local.client = self._make_client()
+        return c
+
+    def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float | None = None) -> Any:
+        """One bus command from a pool thread (raises CommandError / ClientTimeout like Client)."""
+        return self._client().call_raw(cmd, args or {}, timeout)[0]
+
+    def call_raw(self, cmd: str, args: dict[str, Any], timeout: float | None = None) -> tuple[Any, list[bytes]]:
+        result, frames = self._client().call_raw(cmd, args, timeout)
+        return result, [f.bytes for f in frames]
+
+    def probe_role(self) -> str:
+        """viewer or operator+: ``calib.answer`` without arguments is refused before validation for a
+        viewer (``forbidden``) and fails validation (``bad_args``) for anyone allowed, so nothing happens."""
+        try:
+            self.call("calib.answer", {})
+        except CommandError as exc:
+            if exc.code == "forbidden":
+                return "viewer"
+            if exc.code == "bad_args":
+                return "operator"
+            raise
+        return "operator"
+
+    # ------------------------------------------------------------------ readers
+    def start(self, ready_timeout: float = 10.0) -> None:
+        """Ask ``hello`` and the role (raising when the daemon does not answer), then start the readers."""
+        c = self._make_client()
+        try:
+            self.hello = c.call("hello", timeout=ready_timeout)
+            tel = c.subscriber()
+            frames = c.subscriber(["camera.frame"], frames=True, hwm=2)
+        finally:
+            c.close()
+        self.role = self.probe_role()
+        self._snapshot()
+        self.link = {"bus": "up", "error": ""}
+        for name, fn, sub in (("console-telemetry", self._telemetry_loop, tel),
+                              ("console-frames", self._frame_loop, frames)):
+            t = threading.Thread(target=fn, args=(sub,), name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    def _snapshot(self) -> None:
+        """Clone pattern: the daemon's last value per topic, for a console started late."""
+        snap = self.call("state", timeout=5.0)
+        with self._lock:
+            for topic, entry in (snap.get("latest") or {}).items():
+                if topic not in EVENT_TOPICS and topic not in self.latest:
+                    self.latest[topic] = entry
+
+    def _telemetry_loop(self, sub: Subscriber) -> None:
+        last_msg = time.monotonic()
+        while not self._stop.is_set():
+            msg = sub.recv(0.5)
+            now = time.monotonic()
+            if msg is None:
+                # daemon.health comes every health_interval_s (default 1 s): 5 s of silence is a lost link
+                if now - last_msg > 5.0 and self.link["bus"] == "up":
+                    self.link = {"bus": "silent", "error": "no telemetry for 5 s"}
+                continue
+            last_msg = now
+            if self.link["bus"] != "up":
+                self.link = {"bus": "up", "error": ""}
+            topic, body, _ = msg
+            entry = {"seq": body.get("seq"), "t_ns": body.get("t_ns"), "data": body.get("data")}
+            with self._lock:
+                self.latest[topic] = entry
+                if topic in EVENT_TOPICS or topic.startswith("calib."):
+                    self.event_no += 1
+                    self.events.append({"no": self.event_no, "topic": topic, **entry})
+        sub.close()
+
+    def _frame_loop(self, sub: Subscriber) -> None:
+        while not self._stop.is_set():
+            if not sub.sock.poll(500, zmq.POLLIN):
+                continue
+            try:
+                parts = sub.sock.recv_multipart(copy=False)
+                while sub.sock.poll(0, zmq.POLLIN):  # keep only the newest: the live view shows now
+                    parts = sub.sock.recv_multipart(copy=False)
+                header = unpack(parts[1].buffer)
+                pixels = parts[2].buffer
+            except (zmq.ZMQError, IndexError, ValueError):
+                continue
+            header["console_rx_ns"] = time.time_ns()
+            with self._lock:
+                self.frame = (header, pixels)
+                self.frame_no += 1
+                self.frames_seen += 1
+        sub.close()
+
+    # ------------------------------------------------------------------ reads for the web side
+    def state_since(self, seen: dict[str, int]) -> dict[str, Any]:
+        """Topics whose seq changed since ``seen`` (updated in place): coalesced, never a backlog."""
+        out = {}
+        with self._lock:
+            for topic, entry in self.latest.items():
+                if seen.get(topic) != entry["seq"]:
+                    seen[topic] = entry["seq"]
+                    out[topic] = entry
+        return out
+
+    def events_since(self, no: int) -> list[dict[str, Any]]:
+        with self._lock:
+            return [e for e in self.events if e["no"] > no]
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(2.0)
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+__all__ = ["Bridge", "ClientTimeout", "EVENT_TOPICS"]
