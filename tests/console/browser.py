@@ -75,6 +75,7 @@ class ConsoleProcess:
     """``ritactl ... console --port 0`` as a process; ``url`` from its first line."""
 
     def __init__(self, args: list[str], tmp: Path, timeout: float = 30.0) -> None:
+        tmp.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(ROOT), "RITA_CONFIG": str(tmp / "none.toml")}
         (tmp / "none.toml").write_text("")
         self.log = tmp / "console.log"
