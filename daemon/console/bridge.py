@@ -77,11 +77,12 @@ class Bridge:
         return "operator"
 
     # ------------------------------------------------------------------ readers
-    def start(self, ready_timeout: float = 10.0) -> None:
-        """Ask ``hello`` and the role (raising when the daemon does not answer), then start the readers."""
+    def start(self) -> None:
+        """Ask ``hello`` and the role (raising when the daemon does not answer in the client's timeout),
+        then start the readers."""
         c = self._make_client()
         try:
-            self.hello = c.call("hello", timeout=ready_timeout)
+            self.hello = c.call("hello")
             tel = c.subscriber()
             frames = c.subscriber(["camera.frame"], frames=True, hwm=2)
         finally:

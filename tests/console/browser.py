@@ -72,15 +72,15 @@ def start_robot(tmp: Path, camera: str = "sim:") -> tuple[RitadProcess, Path]:
 
 
 class ConsoleProcess:
-    """``ritactl ... console --port 0`` as a process; ``url`` from its first line."""
+    """``ritactl ARGS console --port PORT`` as a process; ``url`` from its first line."""
 
-    def __init__(self, args: list[str], tmp: Path, timeout: float = 30.0) -> None:
+    def __init__(self, args: list[str], tmp: Path, timeout: float = 30.0, port: int = 0) -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(ROOT), "RITA_CONFIG": str(tmp / "none.toml")}
         (tmp / "none.toml").write_text("")
         self.log = tmp / "console.log"
         with open(self.log, "ab") as log:
-            self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", *args, "console", "--port", "0",
+            self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", *args, "console", "--port", str(port),
                                           "--captures", str(tmp / "captures")], cwd=ROOT, env=env,
                                          stdout=subprocess.PIPE, stderr=log, text=True)
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)

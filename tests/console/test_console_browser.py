@@ -34,9 +34,14 @@ def robot(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def page(robot):
+def session(robot):
     with console_session(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "operator") as (con, drv):
-        yield drv
+        yield con, drv
+
+
+@pytest.fixture(scope="module")
+def page(session):
+    return session[1]
 
 
 def js(drv, script: str):
@@ -142,6 +147,76 @@ def test_stop_during_a_move_stops_the_robot(page, robot):
     driven = float(np.hypot(b["x_mm"] - start["x_mm"], b["y_mm"] - start["y_mm"]))
     assert driven < 200, f"STOP came too late: the robot drove {driven:.0f} of 300 mm"
     assert stopped_after < 2.0
+
+
+def test_a_page_that_never_asks_gets_one_frame_but_all_telemetry(session, robot):
+    """A slow browser loses frames, never state: the console pushes state to a tab that stopped pulling."""
+    import asyncio
+
+    import aiohttp
+
+    async def stalled_tab() -> tuple[int, int, set[str]]:
+        frames, states, topics = 0, 0, set()
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(session[0].url + "ws") as ws:
+                await ws.send_json({"op": "view", "width": 64, "fps": 30})
+                end = time.monotonic() + 3.0
+                while time.monotonic() < end:
+                    try:
+                        msg = await ws.receive(timeout=1.0)
+                    except asyncio.TimeoutError:
+                        continue
+                    if msg.type == aiohttp.WSMsgType.BINARY:
+                        frames += 1  # and never "next": a tab that cannot keep up
+                    elif msg.type == aiohttp.WSMsgType.TEXT and (m := msg.json())["type"] == "state":
+                        states += 1
+                        topics |= set(m["topics"])
+        return frames, states, topics
+
+    robot["client"].call("camera.stream.start")
+    try:
+        frames, states, topics = asyncio.run(stalled_tab())
+        drawn0 = js(session[1], "return window.rita.framesDrawn")
+        wait_for("the other tab still gets frames", lambda: js(session[1], "return window.rita.framesDrawn") > drawn0, 5)
+    finally:
+        robot["client"].call("camera.stream.stop")
+    assert frames == 1, frames
+    assert states >= 10 and {"robot.state", "daemon.health"} <= topics, (states, topics)
+
+
+def test_another_site_may_not_open_the_websocket(session):
+    import urllib.error
+    import urllib.request
+
+    req = urllib.request.Request(session[0].url + "ws", headers={
+        "Origin": "http://evil.example", "Connection": "Upgrade", "Upgrade": "websocket",
+        "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="})
+    with pytest.raises(urllib.error.HTTPError) as exc:
+        urllib.request.urlopen(req, timeout=10)
+    assert exc.value.code == 403
+
+
+def test_second_tab_works_and_a_page_reconnects_after_the_console_restarts(robot, page):
+    from tests.console.browser import ConsoleProcess
+
+    first = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart")
+    port = first.url.rsplit(":", 1)[1].strip("/")
+    original = page.current_window_handle
+    page.switch_to.new_window("tab")
+    try:
+        page.get(first.url)
+        wait_for("the second tab connected", lambda: js(page, "return window.rita.connects") == 1, 20)
+        first.stop()  # the link drops
+        wait_for("the page saw it", lambda: "lost" in text(page, "link"), 10)
+        second = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart2", port=int(port))
+        try:
+            wait_for("the page reconnected by itself", lambda: js(page, "return window.rita.connects") == 2, 20)
+            wait_for("state flows again", lambda: text(page, "link") == "robot link up", 10)
+        finally:
+            second.stop()
+    finally:
+        page.close()
+        page.switch_to.window(original)
 
 
 def test_viewer_key_page_has_no_enabled_control(page, robot):
