@@ -11,8 +11,9 @@ from daemon.bus.client import Client
 
 
 def run(make_client: Callable[[], Client], port: int, captures: Path, open_browser: bool = False,
-        say: Callable[[str], Any] = print) -> int:
-    """Serve the console until Ctrl-C; raises ClientTimeout/CommandError when the daemon cannot be used."""
+        say: Callable[[str], Any] = print, duration: float | None = None) -> int:
+    """Serve the console until Ctrl-C (or ``duration`` s); raises ClientTimeout/CommandError when the
+    daemon cannot be used."""
     from daemon.console.bridge import Bridge
     from daemon.console.server import serve
 
@@ -26,7 +27,7 @@ def run(make_client: Callable[[], Client], port: int, captures: Path, open_brows
             webbrowser.open(url)
 
     try:
-        asyncio.run(serve(bridge, port, captures, ready))
+        asyncio.run(serve(bridge, port, captures, ready, duration))
     finally:
         bridge.stop()
     return 0

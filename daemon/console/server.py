@@ -247,8 +247,9 @@ def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None) -> None:
-    """Serve until cancelled; ``on_ready(url)`` once the port is bound (port 0: a free one)."""
+async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None,
+                duration: float | None = None) -> None:
+    """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one)."""
     console = Console(bridge, captures)
     runner = web.AppRunner(console.app(), access_log=None)
     await runner.setup()
@@ -258,7 +259,10 @@ async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None)
     if on_ready is not None:
         on_ready(f"http://127.0.0.1:{bound}/")
     try:
-        await asyncio.Event().wait()
+        if duration is None:
+            await asyncio.Event().wait()
+        else:
+            await asyncio.sleep(duration)
     finally:
         await runner.cleanup()
 

@@ -30,7 +30,7 @@ def cmd_console(c: Client, a: argparse.Namespace) -> int:
         return Client(c.endpoint, timeout=c.timeout, curve=c.curve, key_id=c.key_id)
 
     try:
-        return run(make_client, a.port, Path(a.captures).expanduser(), a.open)
+        return run(make_client, a.port, Path(a.captures).expanduser(), a.open, duration=a.duration)
     except OSError as exc:
         if exc.errno in (98, 10048):  # EADDRINUSE (Linux, Windows)
             raise CtlError(Exit.USAGE, "usage", f"port {a.port} on 127.0.0.1 is in use: choose another "
@@ -49,6 +49,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--captures", default="rita-captures", metavar="DIR",
                    help="folder for frames captured from the page (default ./rita-captures)")
     p.add_argument("--open", action="store_true", help="open the page in the default browser")
+    from daemon.ctl.main import _seconds  # one rule for seconds on the command line
+
+    p.add_argument("--duration", type=_seconds, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
     p.set_defaults(fn=cmd_console)
 
 
