@@ -46,7 +46,7 @@ function showJob(j) {
   $("job-id").textContent = j.job;
   $("job-state").textContent = `${j.procedure || ""} ${j.state}${j.error ? ": " + j.error : ""}`;
   const p = j.progress || {};
-  $("job-progress").value = p.percent || (j.state === "done" ? 100 : 0);
+  $("job-progress").value = j.state === "done" ? 100 : (p.percent || 0);
   $("job-step").textContent = p.step ? `${p.step}${p.waiting_for ? " (" + p.waiting_for + ")" : ""}` : "";
   showPrompt(j);
   if (j.state === "done" && j.result && S.shownResult !== j.job) { S.shownResult = j.job; showResult(j.result); }
@@ -91,13 +91,13 @@ function showResult(r) {
 }
 
 // ------------------------------------------------------------------ plots (plain canvas)
-function axes(ctx, w, h, xs, ys, label) {
+function axes(ctx, w, h, xs, ys, label, xfmt = fmt) {
   const pad = 40, x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
   const sx = (w - 2 * pad) / ((x1 - x0) || 1), sy = (h - 2 * pad) / ((y1 - y0) || 1);
   ctx.clearRect(0, 0, w, h); ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
   ctx.strokeStyle = "#999"; ctx.strokeRect(pad, pad, w - 2 * pad, h - 2 * pad);
   ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(label, pad, pad - 8);
-  ctx.fillText(`${fmt(x0)} … ${fmt(x1)}`, pad, h - pad + 16); ctx.fillText(`${fmt(y0)} … ${fmt(y1)}`, 2, h / 2);
+  ctx.fillText(`${xfmt(x0)} … ${xfmt(x1)}`, pad, h - pad + 16); ctx.fillText(`${fmt(y0)} … ${fmt(y1)}`, 2, h / 2);
   return (x, y) => [pad + (x - x0) * sx, h - pad - (y - y0) * sy];
 }
 async function plotResult(r) {
@@ -149,7 +149,8 @@ function drawDrift(series) {   // rob_H_cam translation over time: drift between
   const t = series.map((s) => Date.parse(s.created) / 1000);
   const d = ["#c62828", "#2e7d32", "#1565c0"].map((c, i) => ({ c, v: series.map((s) => (s.rob_H_cam[i][3] - series[0].rob_H_cam[i][3]) * 1000) }));
   const to = axes(ctx, cv.width, cv.height, t.length > 1 ? t : [t[0] - 1, t[0] + 1], d.flatMap((x) => x.v).concat([0]),
-                  "rob_H_cam translation − first (µm): x red, y green, z blue");
+                  "rob_H_cam translation − first (µm): x red, y green, z blue",
+                  (v) => new Date(v * 1000).toISOString().slice(0, 16).replace("T", " "));
   for (const { c, v } of d) {
     ctx.strokeStyle = c; ctx.beginPath();
     v.forEach((y, i) => { const [X, Y] = to(t[i], y); i ? ctx.lineTo(X, Y) : ctx.moveTo(X, Y); ctx.fillStyle = c; ctx.fillRect(X - 2, Y - 2, 4, 4); });
