@@ -30,7 +30,7 @@ command_endpoints = ["ipc://@TMP@/rt/cmd", "tcp://127.0.0.1:0"]
 telemetry_endpoints = ["ipc://@TMP@/rt/telemetry", "tcp://127.0.0.1:0"]
 frame_endpoints = ["ipc://@TMP@/rt/frames", "tcp://127.0.0.1:0"]
 data_dir = "@TMP@/data"
-start_worker = true
+start_worker = {worker}
 [devices]
 tracker = "sim:"
 camera = "{camera}"
@@ -55,16 +55,19 @@ def browser_available() -> str | None:
     return None
 
 
-def start_robot(tmp: Path, camera: str = "sim:") -> tuple[RitadProcess, Path]:
-    """ritad on the fakes with CURVE on tcp; keys for viewer ``vic`` in ``tmp/laptop``."""
+def start_robot(tmp: Path, camera: str = "sim:", worker: bool = True,
+                keys: dict[str, str] | None = None) -> tuple[RitadProcess, Path]:
+    """ritad on the fakes with CURVE on tcp; client keys (default: viewer ``vic``) in ``tmp/laptop``."""
     data, laptop = tmp / "data", tmp / "laptop"
     create_keypair(data / "keys", "server")
-    public, _ = create_keypair(laptop, "vic")
-    roles.write_entry(data / "authorized_keys", "vic", load_public(public), "viewer")
+    for name, role in (keys or {"vic": "viewer"}).items():
+        public, _ = create_keypair(laptop, name)
+        roles.write_entry(data / "authorized_keys", name, load_public(public), role)
     (laptop / "server.key").write_bytes((data / "keys" / "server.key").read_bytes())
-    r = start_ritad(CONFIG.replace("{camera}", camera), tmp=tmp, timeout=90)
+    config = CONFIG.replace("{camera}", camera).replace("{worker}", "true" if worker else "false")
+    r = start_ritad(config, tmp=tmp, timeout=90)
     try:
-        r.wait_ready(timeout=90, worker=True)
+        r.wait_ready(timeout=90, worker=worker)
     except BaseException:
         r.stop()
         raise
