@@ -1,14 +1,12 @@
-"""The console's side of the bus: latest telemetry per topic, the latest frame, and commands.
+"""The console's side of the bus: latest telemetry per topic, and commands.
 
-Two reader threads (telemetry, frames) keep only the newest value: telemetry as the
-last message per topic (plus the few event topics a page must not miss, kept in a
-short ring), frames as one slot the web side reads when a page has asked for the next
-picture. Nothing here ever waits on a browser, so a slow page cannot slow the bus
-readers, and the frame SUB socket's small receive queue (RCVHWM 2) means a slow
-console loses frames at the daemon's PUB socket, which drops instead of buffering
-(docs/protocol.md, Frames). Commands run in a thread pool with one bus Client per
-thread (a DEALER socket is not thread-safe), so ``robot.stop`` never queues behind a
-long ``robot.move``.
+One reader thread keeps the newest telemetry message per topic (plus, in a short
+ring, the event topics a page must not miss). Nothing here ever waits on a browser,
+so a slow page cannot slow the reader or the daemon. Pictures are not subscribed to:
+full frames (12 MB) would not fit a robot's Wi-Fi, so each tab pulls small JPEGs with
+``camera.preview`` (daemon/ritad/preview.py). Commands run in a thread pool with one
+bus Client per thread (a DEALER socket is not thread-safe), so ``robot.stop`` never
+queues behind a long ``robot.move``.
 """
 from __future__ import annotations
 
@@ -18,10 +16,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
-import zmq
-
 from daemon.bus.client import Client, ClientTimeout, Subscriber
-from daemon.bus.protocol import CommandError, unpack
+from daemon.bus.protocol import CommandError
 
 #: topics whose every message matters to the page (prompts, results, motion ends), not just the last
 EVENT_TOPICS = ("calib.prompt", "calib.result", "robot.event", "tracker.event", "log")
@@ -39,9 +35,6 @@ class Bridge:
         self.latest: dict[str, dict[str, Any]] = {}   # topic -> {seq, t_ns, data}
         self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENT_RING)
         self.event_no = 0
-        self.frame: tuple[dict[str, Any], bytes] | None = None
-        self.frame_no = 0
-        self.frames_seen = 0
         self.link = {"bus": "connecting", "error": ""}
         self.role = "unknown"
         self.hello: dict[str, Any] = {}
@@ -84,17 +77,14 @@ class Bridge:
         try:
             self.hello = c.call("hello")
             tel = c.subscriber()
-            frames = c.subscriber(["camera.frame"], frames=True, hwm=2)
         finally:
             c.close()
         self.role = self.probe_role()
         self._snapshot()
         self.link = {"bus": "up", "error": ""}
-        for name, fn, sub in (("console-telemetry", self._telemetry_loop, tel),
-                              ("console-frames", self._frame_loop, frames)):
-            t = threading.Thread(target=fn, args=(sub,), name=name, daemon=True)
-            t.start()
-            self._threads.append(t)
+        t = threading.Thread(target=self._telemetry_loop, args=(tel,), name="console-telemetry", daemon=True)
+        t.start()
+        self._threads.append(t)
 
     def _snapshot(self) -> None:
         """Clone pattern: the daemon's last value per topic, for a console started late."""
@@ -124,25 +114,6 @@ class Bridge:
                 if topic in EVENT_TOPICS or topic.startswith("calib."):
                     self.event_no += 1
                     self.events.append({"no": self.event_no, "topic": topic, **entry})
-        sub.close()
-
-    def _frame_loop(self, sub: Subscriber) -> None:
-        while not self._stop.is_set():
-            if not sub.sock.poll(500, zmq.POLLIN):
-                continue
-            try:
-                parts = sub.sock.recv_multipart(copy=False)
-                while sub.sock.poll(0, zmq.POLLIN):  # keep only the newest: the live view shows now
-                    parts = sub.sock.recv_multipart(copy=False)
-                header = unpack(parts[1].buffer)
-                pixels = parts[2].buffer
-            except (zmq.ZMQError, IndexError, ValueError):
-                continue
-            header["console_rx_ns"] = time.time_ns()
-            with self._lock:
-                self.frame = (header, pixels)
-                self.frame_no += 1
-                self.frames_seen += 1
         sub.close()
 
     # ------------------------------------------------------------------ reads for the web side

@@ -1,8 +1,9 @@
 """``ritactl console``: the operator console, a local web page in front of the robot's bus.
 
 aiohttp serves the static page and one WebSocket per tab on 127.0.0.1 only. The
-page pulls camera pictures (it sends ``next`` after drawing one, so a slow tab just
-gets fewer pictures, each the newest) and receives telemetry as the latest value per
+page pulls camera pictures (it sends ``next`` after drawing one; the console then
+pulls a small JPEG of the newest frame with ``camera.preview``, so a slow tab just gets
+fewer pictures, each the newest, and costs the robot nothing while it lags) and receives telemetry as the latest value per
 topic every ``STATE_PERIOD_S`` (coalesced: a slow tab skips intermediate values but
 always ends on the current state) plus the calibration and motion events in order.
 Commands from the page go to the bus unchanged; the daemon checks the key's role,
@@ -53,8 +54,9 @@ class Tab:
         self.credit.set()
         self.seen: dict[str, int] = {}
         self.event_no = 0
-        self.frame_no = 0
+        self.frame_id = -1  # the newest frame this tab has (camera.preview's ``after``)
         self.sent_at = 0.0
+        self.preview_error = ""
 
 
 class Console:
@@ -63,7 +65,6 @@ class Console:
         self.captures = captures
         self.tabs: set[Tab] = set()
         self.frames_sent = 0
-        self._encoded: tuple[Any, bytes, dict[str, Any]] | None = None  # shared by tabs with the same view
 
     # ------------------------------------------------------------------ http
     def app(self) -> web.Application:
@@ -85,7 +86,7 @@ class Console:
         b = self.bridge
         return {"console": __version__, "role": b.role, "roles": list(ROLES), "procedures": list(PROCEDURES),
                 "commands": {n: COMMANDS[n].role for n in PAGE_COMMANDS}, "daemon": b.hello,
-                "frames_seen": b.frames_seen, "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
+                "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """A data-dir file of the robot (dataset, report, plot), copied chunk by chunk with files.read."""
@@ -154,7 +155,7 @@ class Console:
             tab.credit.set()
         elif op == "view":
             tab.view = _checked_view(req)
-            tab.frame_no = 0  # a new size or region: send the current picture again
+            tab.frame_id = -1  # a new size or region: send the current picture again
         elif op == "call":
             asyncio.create_task(self._call(tab, req))
         elif op == "capture":
@@ -199,39 +200,41 @@ class Console:
             if events:
                 tab.event_no = events[-1]["no"]
             msg = {"type": "state", "topics": topics, "events": events, "link": self.bridge.link,
-                   "console": {"frames_seen": self.bridge.frames_seen, "frames_sent": self.frames_sent,
-                               "tabs": len(self.tabs)}}
+                   "console": {"frames_sent": self.frames_sent, "tabs": len(self.tabs),
+                               "preview_error": tab.preview_error}}
             await tab.ws.send_str(json.dumps(msg, default=str))
             await asyncio.sleep(STATE_PERIOD_S)
 
     async def _push_frames(self, tab: Tab) -> None:
+        """Pull ``camera.preview`` for this tab when it has asked for a picture and its rate allows one."""
         loop = asyncio.get_running_loop()
         while not tab.ws.closed:
             await tab.credit.wait()
-            wait = tab.sent_at + 1.0 / tab.view["fps"] - time.monotonic()
+            wait = tab.sent_at + 0.9 / tab.view["fps"] - time.monotonic()  # 0.9: camera jitter never halves the rate
             if wait > 0:
                 await asyncio.sleep(wait)
-            frame, no = self.bridge.frame, self.bridge.frame_no
-            if frame is None or no == tab.frame_no:
-                await asyncio.sleep(0.02)
+            roi = tab.view["roi"]
+            args = {"width": tab.view["width"], "after": tab.frame_id,
+                    **(dict(zip(("roi_x", "roi_y", "roi_w", "roi_h"), roi)) if roi else {})}
+            try:
+                meta, parts = await loop.run_in_executor(self.bridge.pool, self.bridge.call_raw, "camera.preview",
+                                                         args, 10.0)
+            except (CommandError, ClientTimeout) as exc:  # no stream yet, camera gone, link down: ask again later
+                tab.preview_error = _error(exc)["message"]
+                await asyncio.sleep(0.5)
                 continue
-            png, meta = await loop.run_in_executor(None, self._encode, frame, tab.view)
+            if meta.get("unchanged"):
+                await asyncio.sleep(0.05)
+                continue
+            tab.preview_error = ""
+            header = meta.pop("header")
             tab.credit.clear()
-            tab.frame_no, tab.sent_at = no, time.monotonic()
-            head = {k: frame[0].get(k) for k in ("frame_id", "seq", "dropped", "exposure_us", "gain_db",
-                                                  "host_time_ns", "console_rx_ns", "pixel_format")}
+            tab.frame_id, tab.sent_at = header["frame_id"], time.monotonic()
+            head = {k: header.get(k) for k in ("frame_id", "dropped", "exposure_us", "gain_db", "host_time_ns",
+                                               "pixel_format")}
             await tab.ws.send_json({"type": "frame", **head, **meta, "console_tx_ns": time.time_ns()})
-            await tab.ws.send_bytes(png)
+            await tab.ws.send_bytes(parts[0])
             self.frames_sent += 1
-
-    def _encode(self, frame: tuple[dict[str, Any], Any], v: dict[str, Any]) -> tuple[bytes, dict[str, Any]]:
-        key = (id(frame), v["width"], tuple(v["roi"] or ()))
-        cached = self._encoded
-        if cached is not None and cached[0] == key:
-            return cached[1], cached[2]
-        png, meta = view(frame[0], frame[1], v["width"], v["roi"])
-        self._encoded = (key, png, meta)
-        return png, meta
 
 
 def _checked_view(req: dict[str, Any]) -> dict[str, Any]:

@@ -54,3 +54,34 @@ def test_console_without_a_daemon_exits_3_without_traceback(tmp_path, capsys, mo
 def test_console_bad_port_is_a_usage_error(capsys):
     assert ritactl(["console", "--port", "70000"]) == 64
     assert "70000" in capsys.readouterr().err
+
+
+def test_camera_preview_is_a_small_jpeg_of_the_newest_streamed_frame(tmp_path):
+    import time
+
+    from daemon.bus.protocol import CommandError
+    from tests.ritad_up import ritad_in_process
+
+    with ritad_in_process(tmp_path, camera="sim:?size=400x300&noise=0&fps=20") as (_, c):
+        with pytest.raises(CommandError, match="camera.stream.start first"):
+            c.call("camera.preview")
+        c.call("camera.stream.start")
+        try:
+            end = time.monotonic() + 10
+            while True:
+                try:
+                    meta, parts = c.call_raw("camera.preview", {"width": 100})
+                    break
+                except CommandError:
+                    assert time.monotonic() < end, "no preview within 10 s of stream start"
+                    time.sleep(0.05)
+            img = decode(parts[0].bytes)
+            assert (meta["step"], meta["out_w"], meta["out_h"]) == (4, 100, 75) and img.shape == (75, 100)
+            assert img.std() > 5  # a picture, not a blank
+            same = c.call("camera.preview", after=meta["header"]["frame_id"] + 10 ** 6)
+            assert same["unchanged"] is True
+            roi, parts = c.call_raw("camera.preview", {"roi_x": 350, "roi_y": 0, "roi_w": 100, "roi_h": 40})
+            assert (roi["x"], roi["w"], roi["h"], roi["step"]) == (350, 50, 40, 1)
+            assert decode(parts[0].bytes).shape == (40, 50)
+        finally:
+            c.call("camera.stream.stop")

@@ -84,8 +84,8 @@ function onState(m) {
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
   for (const e of m.events) onEvent(e);
   const c = m.console;
-  $("console-stats").textContent = `console: frames in ${c.frames_seen}, to pages ${c.frames_sent}, tabs ${c.tabs}; ` +
-    `this page drew ${S.framesDrawn}`;
+  $("console-stats").textContent = `console: pictures to pages ${c.frames_sent}, tabs ${c.tabs}; ` +
+    `this page drew ${S.framesDrawn}${c.preview_error ? "; camera: " + c.preview_error : ""}`;
 }
 function showHealth(h) {
   const rows = Object.entries(h.devices || {}).map(([k, s]) =>
