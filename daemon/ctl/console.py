@@ -26,6 +26,9 @@ def cmd_console(c: Client, a: argparse.Namespace) -> int:
         raise CtlError(Exit.BAD_INPUT, "bad_input", f"the console needs aiohttp ({exc.name} is missing): "
                                                     f"pip install 'rita[console]'") from None
 
+    if a.duration is not None and not 0 < a.duration < 1e7:
+        raise CtlError(Exit.USAGE, "usage", f"console: --duration {a.duration:g} must be between 0 and 1e7 seconds")
+
     def make_client() -> Client:
         return Client(c.endpoint, timeout=c.timeout, curve=c.curve, key_id=c.key_id)
 
@@ -49,9 +52,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--captures", default="rita-captures", metavar="DIR",
                    help="folder for frames captured from the page (default ./rita-captures)")
     p.add_argument("--open", action="store_true", help="open the page in the default browser")
-    from daemon.ctl.main import _seconds  # one rule for seconds on the command line
-
-    p.add_argument("--duration", type=_seconds, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
     p.set_defaults(fn=cmd_console)
 
 
