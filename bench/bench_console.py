@@ -10,8 +10,8 @@ CURVE on tcp, as a laptop connects. Three phases of ``--seconds`` each: (0) stre
 (A) stream on with no subscriber, (B) stream on with ``ritactl console`` (operator key over
 CURVE tcp) and a headless chromium page showing the live view at 5 fps, 1000 px wide.
 CPU is utime+stime from /proc over each phase (all threads). The rise attributed to the
-live view is B − A (the console's frame subscription: CURVE encryption and tcp sends of
-12 MB frames); B − 0 (stream plus console) is reported too. Page latency: acquisition
+live view is B − A (``camera.preview``: a strided slice and a JPEG per shown frame, the
+command traffic, CURVE on ~130 kB pictures); B − 0 (stream plus console) is reported too. Page latency: acquisition
 (the frame header's ``host_time_ns``) to drawn on the canvas (``Date.now()`` in the page),
 same host clock.
 
@@ -85,10 +85,10 @@ def main() -> None:
     print("| metric | value | goal | met |\n|---|---|---|---|")
     print(f"| daemon CPU: stream off / stream on (5 fps, 4024×3036) / plus console live view, {a.seconds:g} s each "
           f"| {m['idle'] * 100:.1f} / {m['stream'] * 100:.1f} / {m['live'] * 100:.1f} % of a core | – | – |")
-    print(f"| daemon CPU rise from the live view (console subscribed over CURVE tcp) | {rise:+.1f} % of a core "
+    print(f"| daemon CPU rise from the live view (console pulling camera.preview over CURVE tcp) | {rise:+.1f} % of a core "
           f"| ≤ 5 % | {'yes' if rise <= 5 else 'NO'} |")
     print(f"| daemon CPU rise, stream and live view together vs. stream off | {rise_idle:+.1f} % of a core | – | – |")
-    print(f"| console process CPU (5 fps, page {meta.get('out_w')}×{meta.get('out_h')} PNG, 1:{meta.get('step')}) "
+    print(f"| console process CPU (5 fps, page {meta.get('out_w')}×{meta.get('out_h')} JPEG, 1:{meta.get('step')}) "
           f"| {m['console'] * 100:.1f} % of a core | reported | – |")
     print(f"| frames drawn by the page | {m['page_fps']:.2f} /s (camera {m['camera_fps']:.2f} /s) | 5 | – |")
     print(f"| latency acquisition → drawn in the page | p50 {pct(lat, 50):.0f} ms, p99 {pct(lat, 99):.0f} ms, "
