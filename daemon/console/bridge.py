@@ -31,6 +31,8 @@ class Bridge:
         self._make_client = make_client
         self._local = threading.local()
         self.pool = ThreadPoolExecutor(workers, thread_name_prefix="console-call")
+        # STOP has a thread (and so a bus connection) of its own: never behind six slow calls
+        self.urgent = ThreadPoolExecutor(1, thread_name_prefix="console-stop")
         self._lock = threading.Lock()
         self.latest: dict[str, dict[str, Any]] = {}   # topic -> {seq, t_ns, data}
         self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENT_RING)
@@ -136,6 +138,7 @@ class Bridge:
         for t in self._threads:
             t.join(2.0)
         self.pool.shutdown(wait=False, cancel_futures=True)
+        self.urgent.shutdown(wait=False, cancel_futures=True)
 
 
 __all__ = ["Bridge", "ClientTimeout", "EVENT_TOPICS"]

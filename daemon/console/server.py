@@ -161,9 +161,9 @@ class Console:
         elif op == "capture":
             asyncio.create_task(self._capture(tab, req))
 
-    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any) -> None:
+    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any, pool: Any = None) -> None:
         try:
-            result = await asyncio.get_running_loop().run_in_executor(self.bridge.pool, fn, *args)
+            result = await asyncio.get_running_loop().run_in_executor(pool or self.bridge.pool, fn, *args)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
         except Exception as exc:  # noqa: BLE001 - every failure goes back to the page, the console keeps serving
             msg = {"type": "reply", "id": req.get("id"), "ok": False, "error": _error(exc)}
@@ -178,7 +178,8 @@ class Console:
             return
         timeout = req.get("timeout")
         timeout = float(timeout) if isinstance(timeout, (int, float)) and 0 < timeout <= 600 else 30.0
-        await self._reply(tab, req, self.bridge.call, cmd, args, timeout)
+        pool = self.bridge.urgent if cmd == "robot.stop" else None
+        await self._reply(tab, req, self.bridge.call, cmd, args, timeout, pool=pool)
 
     async def _capture(self, tab: Tab, req: dict[str, Any]) -> None:
         await self._reply(tab, req, self._capture_sync, str(req.get("label") or "frame"))
