@@ -231,7 +231,7 @@ class Console:
             header = meta.pop("header")
             tab.credit.clear()
             tab.frame_id, tab.sent_at = header["frame_id"], time.monotonic()
-            head = {k: header.get(k) for k in ("frame_id", "dropped", "exposure_us", "gain_db", "host_time_ns",
+            head = {k: header.get(k) for k in ("frame_id", "exposure_us", "gain_db", "host_time_ns",
                                                "pixel_format")}
             await tab.ws.send_json({"type": "frame", **head, **meta, "console_tx_ns": time.time_ns()})
             await tab.ws.send_bytes(parts[0])

@@ -155,8 +155,7 @@ async function drawFrame(meta, blob) {
     const cs = S.cameraStatus || {};
     const exp = meta.exposure_us ?? (cs.applied || {}).exposure_us, gain = meta.gain_db ?? (cs.applied || {}).gain_db;
     $("cam-info").textContent = `frame ${meta.frame_id} (${meta.full_w}×${meta.full_h}, shown 1:${meta.step}` +
-      `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB; ` +
-      `dropped before the socket ${meta.dropped}`;
+      `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB`;
   } finally {
     send({ op: "next" });  // pull: the console sends the next picture only now, so a slow page just gets fewer
   }
