@@ -13,6 +13,7 @@ docs/operations.md, "Operator console".
 from __future__ import annotations
 
 import asyncio
+import html
 import json
 import logging
 import mimetypes
@@ -20,6 +21,7 @@ import re
 import time
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from aiohttp import WSMsgType, web
 
@@ -73,6 +75,7 @@ class Console:
         app.router.add_get("/", self.index)
         app.router.add_get("/ws", self.websocket)
         app.router.add_get("/files/{path:.+}", self.download)
+        app.router.add_get("/list/{path:.*}", self.listing)
         app.router.add_get("/api/info", self.info)
         app.router.add_static("/static/", STATIC, show_index=False)
         return app
@@ -88,6 +91,22 @@ class Console:
         return {"console": __version__, "role": b.role, "roles": list(ROLES), "procedures": list(PROCEDURES),
                 "commands": {n: COMMANDS[n].role for n in PAGE_COMMANDS}, "daemon": b.hello,
                 "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
+
+    async def listing(self, request: web.Request) -> web.Response:
+        """A data-dir folder (a dataset) as a page of download links (files.list)."""
+        path = request.match_info["path"]
+        args = {"path": path} if path else {}
+        try:
+            r = await asyncio.get_running_loop().run_in_executor(self.bridge.pool, self.bridge.call, "files.list",
+                                                                 args, 30.0)
+        except (CommandError, ClientTimeout) as exc:
+            return web.Response(status=404, text=f"{path}: {_error(exc)['message']}")
+        rows = "".join(f'<li><a href="/files/{quote(f["path"])}?download=1">{html.escape(f["path"])}</a> '
+                       f'{f["size"]} B</li>' for f in r["files"])
+        more = "<p>(list truncated)</p>" if r.get("truncated") else ""
+        return web.Response(content_type="text/html", text=f"<!doctype html><meta charset=utf-8><title>{html.escape(path)}"
+                                                           f"</title><h1>{html.escape(path or 'data dir')}</h1>"
+                                                           f"<ul>{rows}</ul>{more}")
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """A data-dir file of the robot (dataset, report, plot), copied chunk by chunk with files.read."""

@@ -120,6 +120,21 @@ def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page
     assert drawn > 200
 
 
+def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):
+    import urllib.request
+
+    con, drv = session
+    click(drv, "capture")
+    saved = wait_for("the capture saved", lambda: "saved" in text(drv, "toast") and text(drv, "toast"), 30)
+    path = Path(saved.split("saved ", 1)[1].split(" (", 1)[0])
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None and img.shape == (750, 1000) and img.std() > 10  # full resolution, not blank
+    listing = urllib.request.urlopen(con.url + "list/procedures", timeout=30).read().decode()
+    link = next(part.split('"')[0] for part in listing.split('href="/files/')[1:] if "result.json" in part)
+    result = json.loads(urllib.request.urlopen(con.url + "files/" + link.split("?")[0], timeout=30).read())
+    assert result["procedure"] in ("referencing", "experiment")
+
+
 def test_stop_during_a_move_stops_the_robot(page, robot):
     c: Client = robot["client"]
     # 300 mm at 1 mm/s: 300 s of motion, 6 s of wall time at the fake base's time_scale 0.02

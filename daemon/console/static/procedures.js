@@ -84,7 +84,7 @@ function showResult(r) {
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
   $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
   $("result-table").textContent = r.table_markdown || "";
-  $("result-files").innerHTML = r.dataset ? `dataset ${fileLink(r.dataset, rel(r.dataset))}: ` +
+  $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
     ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
   plotResult(r);
   refreshResults();
@@ -135,7 +135,8 @@ async function refreshResults() {
                                   : "no active calibration";
   $("history").innerHTML = "<table>" + r.history.slice(0, 30).map((h) =>
     `<tr><td>${h.created || ""}</td><td>${h.job}</td><td>${h.procedure}</td><td>${h.verdict}</td>` +
-    `<td>${h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""}</td></tr>`).join("") + "</table>";
+    `<td>${h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""}</td>` +
+    `<td>${h.dataset ? `<a href="/list/${encodeURI(rel(h.dataset))}" target="_blank">dataset</a>` : ""}</td></tr>`).join("") + "</table>";
   const refs = r.history.filter((h) => h.procedure === "referencing" && h.job).slice(0, 40).reverse();
   const series = [];
   for (const h of refs) {
