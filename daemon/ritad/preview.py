@@ -33,7 +33,7 @@ class Previews:
         if frame is None:
             raise CommandError(ErrorCode.NOT_FOUND, "camera.preview: no streamed frame yet "
                                                     "(camera.stream.start first)")
-        if frame.frame_id <= req.args["after"]:
+        if frame.frame_id == req.args["after"]:  # equal, not ≤: a reconnected camera may count from 0 again
             return {"unchanged": True, "frame_id": frame.frame_id}
         return self._pool.submit(self._picture, frame, dict(req.args))
 
