@@ -17,7 +17,6 @@ import html
 import json
 import logging
 import mimetypes
-import re
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,7 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 STATE_PERIOD_S = 0.2          # telemetry push period: 5 updates/s is smooth for numbers and cheap
 MAX_FPS = 30.0                # the page may ask for fewer; never more than a browser can show usefully
-DEFAULT_VIEW = {"width": 640, "fps": 5.0, "roi": None, "markers": None}
+DEFAULT_VIEW = {"width": 640, "fps": 5.0, "roi": None}
 #: commands a page may send: everything an operator or viewer uses, never the worker's own
 PAGE_COMMANDS = sorted(n for n, c in COMMANDS.items() if not c.worker_only)
 
@@ -236,7 +235,6 @@ class Console:
                 await asyncio.sleep(wait)
             roi = tab.view["roi"]
             args = {"width": tab.view["width"], "after": tab.frame_id,
-                    **({"markers": tab.view["markers"]} if tab.view["markers"] else {}),
                     **(dict(zip(("roi_x", "roi_y", "roi_w", "roi_h"), roi)) if roi else {})}
             try:
                 meta, parts = await loop.run_in_executor(self.bridge.pool, self.bridge.call_raw, "camera.preview",
@@ -269,9 +267,6 @@ def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
         out["fps"] = float(min(fps, MAX_FPS))
     if isinstance(roi, list) and len(roi) == 4 and all(isinstance(v, (int, float)) for v in roi):
         out["roi"] = tuple(int(v) for v in roi)
-    markers = req.get("markers")
-    if isinstance(markers, str) and re.fullmatch(r"DICT_[A-Z0-9_]{1,40}", markers):
-        out["markers"] = markers  # the daemon names a dictionary OpenCV does not know
     return out
 
 

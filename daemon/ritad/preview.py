@@ -49,7 +49,7 @@ class Previews:
         x, y = min(max(a["roi_x"] or 0, 0), W - 1), min(max(a["roi_y"] or 0, 0), H - 1)
         w, h = min(a["roi_w"] or W, W - x), min(a["roi_h"] or H, H - y)
         step = max(1, math.ceil(w / a["width"]))
-        key = (frame.frame_id, x, y, w, h, step, a["quality"], a["markers"])
+        key = (frame.frame_id, x, y, w, h, step, a["quality"])
         with self._lock:
             if self._cache is not None and self._cache[0] == key:
                 return self._cache[1]
@@ -57,30 +57,15 @@ class Previews:
         ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, a["quality"]])
         if not ok:
             raise CommandError(ErrorCode.INTERNAL, "camera.preview: JPEG encoding failed")
-        result = {"header": frame.header(), "format": "jpeg", "x": x, "y": y, "w": w, "h": h, "step": step,
-                  "out_w": small.shape[1], "out_h": small.shape[0], "full_w": W, "full_h": H}
-        if a["markers"]:
-            result["markers"] = marker_centres(small, a["markers"])
-        reply = Reply(result, [jpeg.tobytes()])
+        reply = Reply({"header": frame.header(), "format": "jpeg", "x": x, "y": y, "w": w, "h": h, "step": step,
+                       "out_w": small.shape[1], "out_h": small.shape[0], "full_w": W, "full_h": H},
+                      [jpeg.tobytes()])
         with self._lock:
             self._cache = (key, reply)
         return reply
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
-
-
-def marker_centres(img: Any, dictionary: str) -> list[list[float]]:
-    """Centres of the ArUco markers OpenCV finds in ``img`` (a live-view aid: where is the target?)."""
-    import cv2
-
-    code = getattr(cv2.aruco, dictionary, None) if dictionary.startswith("DICT_") else None
-    if not isinstance(code, int):
-        raise CommandError(ErrorCode.BAD_ARGS, f"camera.preview: markers {dictionary!r} is not an OpenCV ArUco "
-                                               f"dictionary (e.g. DICT_5X5_1000)")
-    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(code))
-    corners, _, _ = detector.detectMarkers(img)
-    return [[round(float(c[0][:, 0].mean()), 1), round(float(c[0][:, 1].mean()), 1)] for c in corners]
 
 
 def preview_handlers(latest: Callable[[], Frame | None]) -> dict[str, Callable[[Request], Any]]:

@@ -88,16 +88,3 @@ def test_camera_preview_is_a_small_jpeg_of_the_newest_streamed_frame(tmp_path):
             assert "header" in c.call("camera.preview", after=newest + 1000)  # ids counting again: a picture
         finally:
             c.call("camera.stream.stop")
-
-
-def test_preview_marker_centres_and_an_unknown_dictionary():
-    from daemon.bus.protocol import CommandError
-    from daemon.ritad.preview import marker_centres
-
-    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_1000)
-    img = np.full((200, 300), 255, np.uint8)
-    img[40:100, 150:210] = cv2.aruco.generateImageMarker(dictionary, 7, 60)
-    (cx, cy), = marker_centres(img, "DICT_5X5_1000")
-    assert abs(cx - 179.5) < 1.5 and abs(cy - 69.5) < 1.5
-    with pytest.raises(CommandError, match="DICT_NOPE"):
-        marker_centres(img, "DICT_NOPE")

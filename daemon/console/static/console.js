@@ -132,7 +132,6 @@ async function slowPoll() {  // state that has no telemetry topic: polled, cheap
 function sendView() {
   S.view.width = Number($("view-width").value);
   S.view.fps = Number($("view-fps").value);
-  S.view.markers = $("markers").value || null;
   send({ op: "view", ...S.view });
   send({ op: "next" });
 }
@@ -149,10 +148,6 @@ async function drawFrame(meta, blob) {
       const cx = ((meta.full_w / 2 - meta.x) / meta.step), cy = ((meta.full_h / 2 - meta.y) / meta.step);
       ctx.moveTo(cx, 0); ctx.lineTo(cx, cv.height); ctx.moveTo(0, cy); ctx.lineTo(cv.width, cy); ctx.stroke();
     }
-    if (meta.markers) {   // ArUco marker centres found on the robot (camera.preview markers)
-      ctx.strokeStyle = "#00e676"; ctx.lineWidth = 2;
-      for (const [mx, my] of meta.markers) { ctx.beginPath(); ctx.arc(mx, my, 5, 0, 7); ctx.stroke(); }
-    }
     S.meta = meta;
     S.framesDrawn += 1;
     S.latencies.push(Date.now() - meta.host_time_ns / 1e6);   // acquisition → drawn, same host clock
@@ -160,8 +155,7 @@ async function drawFrame(meta, blob) {
     const cs = S.cameraStatus || {};
     const exp = meta.exposure_us ?? (cs.applied || {}).exposure_us, gain = meta.gain_db ?? (cs.applied || {}).gain_db;
     $("cam-info").textContent = `frame ${meta.frame_id} (${meta.full_w}×${meta.full_h}, shown 1:${meta.step}` +
-      `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB` +
-      (meta.markers ? `; ${meta.markers.length} markers` : "");
+      `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB`;
   } finally {
     send({ op: "next" });  // pull: the console sends the next picture only now, so a slow page just gets fewer
   }
@@ -201,7 +195,6 @@ function bind() {
   $("stream-stop").onclick = () => act("camera.stream.stop").catch(() => {});
   $("view-width").onchange = sendView;
   $("view-fps").onchange = sendView;
-  $("markers").onchange = sendView;
   $("cam").onclick = zoomAt;
   $("zoom-reset").onclick = () => { S.view.roi = null; $("zoom-reset").disabled = true; sendView(); };
   $("capture").onclick = () => {
