@@ -102,6 +102,8 @@ def make_safe(argv: list[str], path: tuple[str, ...], rng: random.Random, tmp: s
         argv += ["--duration", "0.3"]
     if verb == "keys":
         argv += ["--dir", f"{tmp}/keys"]
+    if verb == "console":  # never a browser; a short run on a free port
+        argv = [t for t in argv if t != "--open"] + ["--duration", "0.05", "--port", "0", "--captures", f"{tmp}/cap"]
     if verb == "resume":
         argv = [t for t in argv if t != "--procedure"]  # a re-posted job would be followed for ever
     if verb in JOB_VERBS and len(argv) > 1:
