@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from daemon.demo import lock_on_robot  # noqa: E402
+from fakes.operator import lock_on_robot  # noqa: E402
 from tests.console.browser import console_session, start_robot, wait_for  # noqa: E402
 
 

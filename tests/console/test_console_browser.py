@@ -95,7 +95,7 @@ def test_tracker_panel_shows_locked_after_aim_and_find(page, robot):
 
 
 def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page, robot):
-    from daemon.demo import lock_on_robot
+    from fakes.operator import lock_on_robot
 
     c: Client = robot["client"]
     c.call("sim.place_robot_on_plate")  # the installer's hands: the robot stands on the plate

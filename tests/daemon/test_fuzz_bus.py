@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
 from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
 from tests.ritad_up import ritad_in_process
