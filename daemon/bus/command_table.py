@@ -136,6 +136,18 @@ TABLE: tuple[Command, ...] = (
             result="{streaming: false}"),
     Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status"),
             result="applied settings, warnings, counters"),
+    Command("camera.preview", "the newest streamed frame, small (or a full-resolution region), as one JPEG "
+            "attachment: live views over a thin link", verb="console",
+            result="{header, format: jpeg, x, y, w, h, step, out_w, out_h, full_w, full_h}: the region shown "
+                   "(sensor px) and the stride; {unchanged: true, frame_id} while the newest frame's id is after; "
+                   "not_found before the first streamed frame", args=(
+                Arg("width", "int", "largest width of the picture", unit="px", default=640, lo=16, hi=4096),
+                Arg("roi_x", "int", "left edge of the region", unit="px", lo=0, default_text="0"),
+                Arg("roi_y", "int", "top edge of the region", unit="px", lo=0, default_text="0"),
+                Arg("roi_w", "int", "region width", unit="px", lo=1, default_text="the whole frame"),
+                Arg("roi_h", "int", "region height", unit="px", lo=1, default_text="the whole frame"),
+                Arg("quality", "int", "JPEG quality", default=80, lo=10, hi=95),
+                Arg("after", "int", "frame id the client already shows", default=-1, lo=-1))),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",

@@ -134,6 +134,7 @@ def _add_globals_everywhere(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from daemon.ctl.calib import add_parsers
     from daemon.ctl.completion import add_parser as add_completion_parser
+    from daemon.ctl.console import add_parser as add_console_parser
     from daemon.ctl.datasets import add_parsers as add_dataset_parsers
     from daemon.ctl.keys import add_parser as add_keys_parser
 
@@ -161,6 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_dataset_parsers(sub)
     add_keys_parser(sub)
     ctl_fetch.add_parser(sub)
+    add_console_parser(sub)
     call = sub.add_parser("call", help="send any bus command (JSON result)")
     call.add_argument("command", help="bus command name (`ritactl call help` lists them)")
     call.add_argument("args", nargs="?", help='JSON object of arguments, e.g. \'{"x": 1}\'')

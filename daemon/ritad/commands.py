@@ -188,7 +188,13 @@ def _sim(s: Services) -> dict[str, Handler]:
     return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board}
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim)
+def _preview(s: Services) -> dict[str, Handler]:
+    from daemon.ritad.preview import preview_handlers
+
+    return preview_handlers(s.latest_frame)
+
+
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview)
 
 
 def validated(cmd: str, handler: Handler) -> Handler:

@@ -15,6 +15,7 @@ import numpy as np
 from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.frames import apply_H
+from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
@@ -37,18 +38,12 @@ def _sigma_t(obs: dict[str, Any]) -> float:
 
 
 def to_8bit(image: np.ndarray) -> np.ndarray:
-    """An 8-bit view for the detectors: 16-bit images (Mono10/12/16 in 16-bit PNG) scaled by their peak.
+    """An 8-bit grey image for the detectors (:func:`calibration.image.to_grey` of a format-less image).
 
-    Only a gain: corner and mark positions do not depend on it, and an image whose
-    useful bits sit low in the 16-bit word (Mono12 = 0..4095) keeps its full contrast.
+    The loaders already give 8-bit grey (daemon.worker.images); this keeps a raw
+    mono array handed in directly working: 16-bit is scaled by its peak, a pure gain.
     """
-    img = np.asarray(image)
-    if img.dtype == np.uint8:
-        return img
-    if img.dtype != np.uint16:
-        raise ValueError(f"image: expected 8- or 16-bit pixels, got dtype {img.dtype}")
-    peak = max(int(img.max()), 1)
-    return np.round(img.astype(np.float32) * (255.0 / peak)).astype(np.uint8)
+    return to_grey(np.asarray(image))
 
 
 def _eight_bit(load: LoadImage) -> LoadImage:
@@ -66,7 +61,7 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     runs = []
     for i, run in enumerate(obs["runs"]):
         res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
-                        sigma_t_mm=sigma_t, seed=i)
+                        sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
     scs0 = make_scs(model, first.cam_H_ref)
@@ -78,7 +73,8 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     if len(runs) >= 2:
         rev = combine(runs)
         out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
-        messages = [m for r in runs for m in r.messages] + rev.messages
+        # dict.fromkeys: a note both runs give (same text) is listed once
+        messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
         verdicts = [r.verdict for r in runs]
         if rev.cov_rob_H_scn is not None and out["uncertainty"]:
             # the combined estimate: its covariance replaces the single run's for marks

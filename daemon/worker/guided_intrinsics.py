@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from calibration.board import Board, detect_board_corners
+from calibration.image import to_grey
 from calibration.intrinsics_recipe import CORNERS, RECIPE, ViewSpec, reaches_corner, same_as
-from daemon.worker.compute import to_8bit
 from daemon.worker.job import JobContext, StepFailed
 
 #: board corners a view needs (of 88 on the default board): fewer cannot pin its pose and tilt
@@ -57,7 +57,7 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
             return None
         ctx.state[f"{name}.tries"] = tries + 1
         file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
-        ids, uv = detect_board_corners(to_8bit(pixels), board)
+        ids, uv = detect_board_corners(to_grey(pixels, header.get("pixel_format")), board)  # Bayer: demosaiced
         again = (same_as(ids, uv, [p[:2] for p in previous], pixels.shape[1]) if len(ids) >= MIN_VIEW_CORNERS
                  else None)
         if len(ids) < MIN_VIEW_CORNERS:
