@@ -2,11 +2,9 @@
 
 Unknowns: fx fy cx cy k1 k2 p1 p2 [k3] (k3 only when ``fit_k3``), (rvec, tvec) per
 photograph, the three seats in PCS. Observations: patch corners (px) and the ring
-centre observations (px, perspective bias removed). Each group is weighted by its own
-variance, re-estimated from its residuals (σ² = Σr² / redundancy; variance component
-estimation, Förstner 1979), so neither group's σ is assumed. The covariance of the
-unknowns is (JᵀWJ)⁻¹ at the solution; Jacobians: ``cv2.projectPoints`` for poses and
-intrinsics, central differences for the seats.
+centre observations (px, perspective bias removed). Each group's σ comes from its own
+residuals (σ² = Σr² / redundancy), none is assumed. Jacobians: ``cv2.projectPoints`` for
+poses and intrinsics, central differences for the seats.
 """
 from __future__ import annotations
 
@@ -18,8 +16,8 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 
-ITERATIONS = 8
-STEP_TOL = 1e-10  # relative parameter change that counts as converged
+ITERATIONS = 10
+STEP_TOL = 1e-8  # relative parameter change that counts as converged
 
 
 @dataclass
@@ -91,41 +89,47 @@ def _unpack(x: np.ndarray, V: int) -> tuple[np.ndarray, list[np.ndarray], np.nda
 def adjust(model: CameraModel, poses: list[np.ndarray], seats: np.ndarray,
            corners: list[tuple[np.ndarray, np.ndarray]], rings: list[dict[int, np.ndarray]],
            fit_k3: bool) -> Bundle:
-    """Gauss–Newton over every unknown with variance components; CalibrationError if it is singular."""
+    """Camera (intrinsics, poses) from the corners, then the seats from the rings, with their covariance.
+
+    Two stages rather than one joint weighting: the rings carry almost no pose
+    information, and a joint variance-component estimate lets the poses absorb the
+    ring residuals (the rings' redundancy collapses, their σ runs to zero). The seats'
+    covariance is the measurement part σ_r²(AᵀA)⁻¹ plus the camera's covariance
+    propagated through the seats' dependence on it, G·Σ_cam·Gᵀ with G = (AᵀA)⁻¹AᵀB
+    (A, B: ring Jacobians by seats and by camera). σ_r from the ring residuals already
+    holds part of the pose error, so the sum errs on the safe side.
+    """
     V = len(poses)
     x = np.concatenate([_intr_vector(model)] + [np.asarray(p, float) for p in poses] + [seats.reshape(-1)])
     if not fit_k3:
         x[8] = 0.0
-    cols = np.array([j for j in range(len(x)) if fit_k3 or j != 8])
-    var = np.array([0.1 ** 2, 0.1 ** 2])  # starting variances (px²); re-estimated below
-    for _ in range(ITERATIONS):
-        r, J, g = _system(*_unpack(x, V), corners, rings, cols)
-        w = 1.0 / var[g.astype(int)]
-        N = J.T @ (J * w[:, None])
-        try:
-            dx = np.linalg.solve(N, -J.T @ (w * r))
-        except np.linalg.LinAlgError:
-            raise CalibrationError("the survey bundle is singular: too few or too similar photographs") from None
-        x[cols] += dx
-        var = _variance_components(r, g, J, w, N)
-        if np.max(np.abs(dx) / np.maximum(np.abs(x[cols]), 1.0)) < STEP_TOL:
-            break
-    r, J, g = _system(*_unpack(x, V), corners, rings, cols)
-    w = 1.0 / var[g.astype(int)]
-    cov = np.linalg.inv(J.T @ (J * w[:, None]))
-    return _result(x, cols, cov, var, r, g, corners, rings, model.size)
-
-
-def _variance_components(r: np.ndarray, g: np.ndarray, J: np.ndarray, w: np.ndarray, N: np.ndarray) -> np.ndarray:
-    """σ² per group = Σr² / redundancy, redundancy = n − trace of the group's share of the hat matrix."""
-    Ninv = np.linalg.inv(N)
-    h = np.einsum("ij,jk,ik->i", J, Ninv, J) * w  # leverages
-    out = np.empty(2)
-    for k in (0, 1):
-        m = g == k
-        red = max(float(m.sum() - h[m].sum()), 1.0)
-        out[k] = max(float(np.sum(r[m] ** 2)) / red, 1e-8)
-    return out
+    n_cam = 9 + 6 * V
+    allc = np.array([j for j in range(n_cam + 9) if fit_k3 or j != 8])
+    n_free_cam = len(allc) - 9
+    for group, sel in ((0, slice(0, n_free_cam)), (1, slice(n_free_cam, None))):
+        for _ in range(ITERATIONS):
+            r, J, g = _system(*_unpack(x, V), corners, rings, allc)
+            m = g == group
+            dx = np.linalg.lstsq(J[m][:, sel], -r[m], rcond=None)[0]
+            x[allc[sel]] += dx
+            if np.max(np.abs(dx) / np.maximum(np.abs(x[allc[sel]]), 1.0)) < STEP_TOL:
+                break
+    r, J, g = _system(*_unpack(x, V), corners, rings, allc)
+    c, k = g == 0, g == 1
+    Jc = J[c][:, :n_free_cam]
+    var_c = float(np.sum(r[c] ** 2)) / max(int(c.sum()) - n_free_cam, 1)
+    A, B = J[k][:, n_free_cam:], J[k][:, :n_free_cam]
+    var_r = float(np.sum(r[k] ** 2)) / max(int(k.sum()) - 9, 1)
+    try:
+        cov_cam = var_c * np.linalg.inv(Jc.T @ Jc)
+        AtA_inv = np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        raise CalibrationError("the survey bundle is singular: too few or too similar photographs") from None
+    G = AtA_inv @ A.T @ B
+    cov = np.zeros((len(allc), len(allc)))
+    cov[:n_free_cam, :n_free_cam] = cov_cam
+    cov[n_free_cam:, n_free_cam:] = var_r * AtA_inv + G @ cov_cam @ G.T
+    return _result(x, allc, cov, np.array([var_c, var_r]), r, g, corners, rings, model.size)
 
 
 def _result(x: np.ndarray, cols: np.ndarray, cov: np.ndarray, var: np.ndarray, r: np.ndarray, g: np.ndarray,

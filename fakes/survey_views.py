@@ -227,6 +227,8 @@ def install(world: World, data_dir: str | Path, n: int = 6, size: tuple[int, int
 
     images, _ = render_views(world, n, size)
     folder = Path(data_dir) / "sim" / FOLDER
+    for old in folder.glob("survey_*.png"):  # a previous, larger set must not mix in
+        old.unlink()
     out = []
     for k, img in enumerate(images):
         ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))

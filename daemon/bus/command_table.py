@@ -166,6 +166,13 @@ TABLE: tuple[Command, ...] = (
             "operator", result="{x_mm, y_mm, heading_deg}", args=(
                 Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
                     default_text="plate yaw + 60"),)),
+    Command("sim.survey_images", "simulated world only: photograph the whole plate with a survey camera "
+            "(PNG, RGB) into data_dir/sim/survey/, for `ritactl plate survey`", "operator",
+            result="{folder, files}: paths relative to the data dir; rendering takes ~2 s per view "
+            "(use --timeout)", args=(
+                Arg("views", "int", "number of photographs", default=6, lo=3, hi=12),
+                Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled)", unit="px",
+                    default=1800, lo=900, hi=6000))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "
