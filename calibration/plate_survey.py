@@ -71,7 +71,10 @@ def calibrate(views: list[View], size: tuple[int, int]) -> tuple[CameraModel, li
     obj = [v.ref_P.astype(np.float32) for v in views]
     img = [v.uv.astype(np.float32) for v in views]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, None, None, criteria=crit)
+    # k3 starts at 0: free from the start, it trades against k2 into values far outside any lens
+    # (k2 1.5, k3 −26 on 6 views); the bundle then keeps it only when the data support it
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, None, None, flags=cv2.CALIB_FIX_K3,
+                                                     criteria=crit)
     poses = [np.concatenate([r.reshape(3), t.reshape(3)]) for r, t in zip(rvecs, tvecs)]
     return CameraModel(K, dist.reshape(-1)[:5], size), poses, float(rms)
 
