@@ -56,11 +56,9 @@ class SurveyCamera:
     principal_offset_px: tuple[float, float] = (14.0, -9.0)
     dist: tuple[float, float, float, float, float] = (-0.06, 0.04, 1e-4, -1.5e-4, 0.0)
     psf_sigma_px: float = 0.8  # at the render size
-    read_noise_dn: float = 2.0
-    shot_gain: float = 0.05
-    black_dn: float = 20.0
-    white_dn: float = 225.0
-    vignetting: float = 0.15
+    levels_dn: tuple[float, float] = (20.0, 225.0)  # black, white
+    noise: tuple[float, float] = (2.0, 0.05)  # read noise DN, shot-noise gain (σ² = read² + gain·DN)
+    vignetting: float = 0.15  # relative fall-off at the image corner
 
     def model(self, size: tuple[int, int]) -> CameraModel:
         s = size[0] / self.full_size[0]
@@ -212,8 +210,9 @@ class SurveyRenderer:
         uu = (np.arange(w, dtype=np.float32) - K[0, 2]) ** 2
         vv = (np.arange(h, dtype=np.float32) - K[1, 2]) ** 2
         r2 = ((vv[:, None] + uu[None, :]) / np.float32((w * w + h * h) / 4))[..., None]
-        img = c.black_dn + (c.white_dn - c.black_dn) * alb * (1 - c.vignetting * r2)
-        sigma = np.sqrt(c.read_noise_dn ** 2 + c.shot_gain * np.maximum(img, 0))
+        black, white = c.levels_dn
+        img = black + (white - black) * alb * (1 - c.vignetting * r2)
+        sigma = np.sqrt(c.noise[0] ** 2 + c.noise[1] * np.maximum(img, 0))
         img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
