@@ -33,7 +33,8 @@ from calibration.survey_detect import RingEdges, check_rgb, detect_patch_corners
 
 MIN_CORNERS = 12  # per usable photograph
 MIN_VIEWS = 3
-N_INTR = 9  # fx fy cx cy k1 k2 p1 p2 k3
+#: a ring observation this far (px) from the bundle's solution is not the ring (σ_ring is ~0.02 px)
+RING_OUTLIER_PX = 0.5
 
 
 @dataclass
@@ -223,12 +224,30 @@ def run_survey(images: dict[str, np.ndarray], plate: Plate) -> SurveyResult:
     k3_kept = abs(b.model.dist[4]) >= 3 * b.intr_sigma[8]
     if not k3_kept:  # the data do not support k3: fix it at 0 (its 3σ interval contains 0)
         b, bias = _bundle(views, b.model, b.poses, dict(zip(NEST_NAMES, b.seats)), fit_k3=False)
+    if _drop_outliers(views, b):  # a blob of the ring's colour that is not the ring: survey without it
+        initial_seats(views, b.model, b.poses, {})  # still >= 2 views per ring, or a clear error
+        b, bias = _bundle(views, b.model, b.poses, dict(zip(NEST_NAMES, b.seats)), fit_k3=k3_kept)
     sig = {c: np.sqrt(np.diag(b.seat_cov[i])).tolist() for i, c in enumerate(NEST_NAMES)}
     report = _report(views, skipped, b, bias, k3_kept, rms0)
     seats_out = {c: b.seats[i].tolist() for i, c in enumerate(NEST_NAMES)}
     out = replace(plate, nests_ref_nst=seats_out, nests_sigma_mm=sig, survey=report,
                   notes=(plate.notes + "; " if plate.notes else "") + f"nests surveyed from {len(views)} photographs")
     return SurveyResult(out, report)
+
+
+def _drop_outliers(views: list[View], b: Bundle) -> bool:
+    """Move ring observations off by > :data:`RING_OUTLIER_PX` (and 5σ) to ``missing``; any dropped?"""
+    limit = max(RING_OUTLIER_PX, 5 * b.sigma_ring_px)
+    dropped = False
+    for v, rr in zip(views, b.ring_res):
+        for i, r in rr.items():
+            if np.linalg.norm(r) > limit:
+                colour = NEST_NAMES[i]
+                v.missing[colour] = f"{v.name}: {colour} ring dropped, {np.linalg.norm(r):.2f} px off the " \
+                                    f"other photographs' solution (limit {limit:.2f} px): another {colour} object?"
+                del v.rings[colour]
+                dropped = True
+    return dropped
 
 
 def _report(views: list[View], skipped: dict[str, str], b: Bundle, bias: list[dict[str, float]],

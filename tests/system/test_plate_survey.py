@@ -139,3 +139,17 @@ def test_no_rings_at_all_names_the_first_colour(fetched) -> None:
              for n, im in _photos(fetched, 3).items()}
     with pytest.raises(CalibrationError, match="red ring was found in 0 photograph"):
         run_survey(grey3, Plate.from_dict(json.loads((fetched[0] / "sim" / "plate.json").read_text())))
+
+
+def test_a_red_object_in_one_photograph_is_dropped(fetched) -> None:
+    """A larger red ring elsewhere in one photograph (someone's red cap) is detected as off and left out."""
+    photos = _photos(fetched, VIEWS)
+    name = sorted(photos)[2]
+    im = photos[name].copy()
+    cv2.circle(im, (150, 150), 60, (200, 30, 25), thickness=25)
+    photos[name] = im
+    res = run_survey(photos, Plate.from_dict(json.loads((fetched[0] / "sim" / "plate.json").read_text())))
+    view = next(v for v in res.report["views"] if v["image"] == name)
+    assert "red" in view["rings_missing"] and "dropped" in view["rings_missing"]["red"]
+    truth = _true_seats(fetched[1])
+    assert np.linalg.norm(np.array(res.plate.nests_ref_nst["red"]) - truth["red"]) <= 0.050
