@@ -170,7 +170,7 @@ TABLE: tuple[Command, ...] = (
             "(PNG, RGB) into data_dir/sim/survey/, for `ritactl plate survey`", "operator",
             result="{folder, files}: paths relative to the data dir; rendering takes ~2 s per view "
             "(use --timeout)", args=(
-                Arg("views", "int", "number of photographs", default=6, lo=3, hi=12),
+                Arg("views", "int", "number of photographs", default=8, lo=3, hi=12),
                 Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled)", unit="px",
                     default=1800, lo=900, hi=6000))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
