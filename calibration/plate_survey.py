@@ -7,14 +7,14 @@ Pipeline (docs/operations.md, "Plate survey"):
    planar target: ``cv2.calibrateCamera`` gives the intrinsics and the poses;
 2. nest rings: edge points undistorted to the normalised image plane, one ellipse per
    edge (outer, inner) fitted there (a circle's image under a pinhole is an exact
-   conic); their centres are not the image of the ring centre (perspective bias, about
-   f·ρ²·sin 2θ / 2Z², 0.3 px here): the bias is computed from the current pose and
-   nest estimate and removed; the mean of the two corrected centres is the ring's
-   observation;
-3. one least-squares bundle over intrinsics, every pose and the three seats, with the
-   corner and ring residuals weighted by their own variance (estimated from the
-   residuals: variance components); the seats' covariance is the bundle's
-   σ²(JᵀWJ)⁻¹ block, so it includes the uncertainty of the poses and the intrinsics.
+   conic); their centres are not the image of the ring centre (perspective bias,
+   0.04–0.2 px in the tests' geometry, a seat's z moved by up to 95 µm uncorrected): the
+   bias is computed from the current pose and seat estimate and removed; the mean of
+   the two corrected centres is the ring's observation;
+3. a Gauss–Newton bundle (:mod:`calibration.survey_bundle`): camera from the corners,
+   seats from the rings; each seat's covariance holds the ring residuals' σ and the
+   camera's covariance propagated to it. A ring observation far off the others'
+   solution (another object of that colour) is dropped, reported, and the bundle rerun.
 """
 from __future__ import annotations
 
