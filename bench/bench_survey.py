@@ -6,7 +6,7 @@ and score the seats against the fake's truth: 3-D error, the largest |error|/σ 
 the 9 coordinates, the 3-D 1σ. Goal (issue #14): every seat ≤ 50 µm from truth and
 within 3σ. Prints a Markdown table.
 
-Run: ``.venv/bin/python bench/bench_survey.py [--seeds 2,3,4,5] [--views 8] [--width 1800]``
+Run: ``.venv/bin/python bench/bench_survey.py [--seeds 2,3,4,5] [--views 8] [--width 2400]``
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="2,3,4,5")
     ap.add_argument("--views", type=int, default=8)
-    ap.add_argument("--width", type=int, default=1800)
+    ap.add_argument("--width", type=int, default=2400)
     a = ap.parse_args()
     print(f"plate survey, {a.views} photographs at {a.width}x{a.width * 2 // 3}; {machine()}\n")
     print("| seed | error µm (r, g, b) | max abs(err)/σ | 3-D 1σ µm (r, g, b) | render s CPU | survey s CPU |")

@@ -120,7 +120,7 @@ def _patch_outline(p: Patch) -> np.ndarray:
 class SurveyRenderer:
     """RGB uint8 images of ``world``'s plate seen by a :class:`SurveyCamera` at one render size."""
 
-    def __init__(self, world: World, size: tuple[int, int] = (1800, 1200), camera: SurveyCamera | None = None,
+    def __init__(self, world: World, size: tuple[int, int] = (2400, 1600), camera: SurveyCamera | None = None,
                  supersampling: int = 2) -> None:
         self.world, self.cam, self.ss = world, camera or SurveyCamera(), int(supersampling)
         self.model = self.cam.model((int(size[0]), int(size[1])))
@@ -218,7 +218,7 @@ class SurveyRenderer:
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
-def render_views(world: World, n: int = 6, size: tuple[int, int] = (1800, 1200),
+def render_views(world: World, n: int = 8, size: tuple[int, int] = (2400, 1600),
                  seed_name: str = "survey") -> tuple[list[np.ndarray], list[np.ndarray]]:
     """(RGB images, true ref_H_cam) of ``n`` whole-plate views; deterministic per world seed."""
     r = SurveyRenderer(world, size)
@@ -227,7 +227,7 @@ def render_views(world: World, n: int = 6, size: tuple[int, int] = (1800, 1200),
     return [r.render(H, rng) for H in poses], poses
 
 
-def install(world: World, data_dir: str | Path, n: int = 6, size: tuple[int, int] = (1800, 1200)) -> list[Path]:
+def install(world: World, data_dir: str | Path, n: int = 8, size: tuple[int, int] = (2400, 1600)) -> list[Path]:
     """Write ``n`` survey photographs as PNG into ``data_dir/sim/survey/`` (atomically); their paths."""
     from daemon.bus.storage import atomic_write_bytes
 
