@@ -45,6 +45,7 @@ SEAT_GREY, PLATE_GREY, FLOOR_GREY = 0.12, 0.50, 0.35
 DARK, WHITE = 0.05, 0.92  # printed black and white, as fakes/render.py
 PATCH_PPMM, MAIN_PPMM = 20.0, 4.0  # texture resolution of the patches and the (averaged) main target
 FOLDER = "survey"  # under data_dir/sim/
+BLOCK_SAMPLES = 2_000_000  # sub-samples per row block of a render (bounds the working memory)
 
 
 @dataclass(frozen=True)
@@ -127,48 +128,65 @@ class SurveyRenderer:
         plate = world.plate()
         self.patches = [Patch(**{**q, "origin_mm": tuple(q["origin_mm"])}) for q in plate.patches]
         self._tex = [self._texture(p.board(plate.aruco_dict), p.cols * p.square_mm, p.rows * p.square_mm,
-                                   PATCH_PPMM) for p in self.patches]
+                                   PATCH_PPMM, PATCH_PPMM) for p in self.patches]
         bw, bh = plate.board_size_mm()
-        self._main = self._texture(make_board(plate), bw, bh, 100.0)
-        self._main = cv2.resize(self._main, (round(bw * MAIN_PPMM), round(bh * MAIN_PPMM)),
-                                interpolation=cv2.INTER_AREA)
+        self._main = self._texture(make_board(plate), bw, bh, 100.0, MAIN_PPMM)
         self._main_mm = (bw, bh)
         self._seats = {n: P[:2] for n, P in world.nests_ref_true().items()}
         self._xy = self._rays()
 
     @staticmethod
-    def _texture(board: cv2.aruco.CharucoBoard, w_mm: float, h_mm: float, ppmm: float) -> np.ndarray:
+    def _texture(board: cv2.aruco.CharucoBoard, w_mm: float, h_mm: float, ppmm: float, out_ppmm: float
+                 ) -> np.ndarray:
+        """Albedo texture at ``out_ppmm`` texels/mm, area-averaged from a ``ppmm`` print (sharp edges)."""
         img = board.generateImage((round(w_mm * ppmm), round(h_mm * ppmm)), marginSize=0, borderBits=1)
+        if out_ppmm != ppmm:
+            # uint8 averaging rounds to 1/255: the main target is only scenery in these views
+            img = cv2.resize(img, (round(w_mm * out_ppmm), round(h_mm * out_ppmm)), interpolation=cv2.INTER_AREA)
         return (DARK + (WHITE - DARK) / 255.0 * img.astype(np.float32)).astype(np.float32)
 
     def _rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Normalised undistorted coordinates of every sub-sample (float32, computed once)."""
+        """Normalised undistorted coordinates of every sub-sample (float32, computed once, in row blocks)."""
         w, h = self.model.size
         ss = self.ss
         u = (np.arange(w * ss) + 0.5) / ss - 0.5
         v = (np.arange(h * ss) + 0.5) / ss - 0.5
-        uu, vv = np.meshgrid(u, v)
-        pts = np.column_stack([uu.ravel(), vv.ravel()]).reshape(-1, 1, 2)
-        xy = cv2.undistortPoints(pts, self.model.K, self.model.dist, criteria=UNDISTORT_CRITERIA)
-        xy = xy.reshape(h * ss, w * ss, 2)
-        return xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32)
+        x = np.empty((len(v), len(u)), np.float32)
+        y = np.empty_like(x)
+        step = max(1, BLOCK_SAMPLES // len(u))
+        for r0 in range(0, len(v), step):
+            uu, vv = np.meshgrid(u, v[r0:r0 + step])
+            pts = np.column_stack([uu.ravel(), vv.ravel()]).reshape(-1, 1, 2)
+            xy = cv2.undistortPoints(pts, self.model.K, self.model.dist, criteria=UNDISTORT_CRITERIA)
+            x[r0:r0 + step] = xy[:, 0, 0].reshape(uu.shape)
+            y[r0:r0 + step] = xy[:, 0, 1].reshape(uu.shape)
+        return x, y
 
     def albedo(self, ref_H_cam: np.ndarray) -> np.ndarray:
-        """Box-filtered RGB albedo (h, w, 3) seen from ``ref_H_cam``."""
+        """Box-filtered RGB albedo (h, w, 3) seen from ``ref_H_cam``, in row blocks (bounded memory)."""
         H = Renderer._plane_homography(check_H(ref_H_cam, "ref_H_cam"))
-        x, y = self._xy
+        w, h = self.model.size
+        out = np.empty((h, w, 3), np.float32)
+        rows = max(1, BLOCK_SAMPLES // (w * self.ss * self.ss))
+        for r0 in range(0, h, rows):
+            r1 = min(h, r0 + rows)
+            sl = slice(r0 * self.ss, r1 * self.ss)
+            out[r0:r1] = self._albedo_block(H, self._xy[0][sl], self._xy[1][sl])
+        return out
+
+    def _albedo_block(self, H: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
         ok = den > 1e-12
         den = np.where(ok, den, 1.0)
         qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
         qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
-        wd = float(np.median(np.hypot(np.diff(qx[::64, ::64], axis=1), np.diff(qy[::64, ::64], axis=1)))) / 64
-        grey = self._grey(qx, qy, ok)
-        rgb = np.repeat(grey[..., None], 3, axis=2)
+        # one sub-sample's width on the plate (mm), for the rings' edge coverage
+        wd = float(np.median(np.hypot(np.diff(qx[::8, ::64], axis=1), np.diff(qy[::8, ::64], axis=1)))) / 64
+        rgb = np.repeat(self._grey(qx, qy, ok)[..., None], 3, axis=2)
         for name, seat in self._seats.items():
             self._ring(rgb, qx, qy, seat, RING_RGB[name], max(wd, 1e-6))
-        w, h = self.model.size
-        return rgb.reshape(h, self.ss, w, self.ss, 3).mean(axis=(1, 3))
+        ss = self.ss
+        return rgb.reshape(x.shape[0] // ss, ss, x.shape[1] // ss, ss, 3).mean(axis=(1, 3))
 
     def _grey(self, qx: np.ndarray, qy: np.ndarray, ok: np.ndarray) -> np.ndarray:
         c = self.world.board_centre_ref()

@@ -172,7 +172,7 @@ TABLE: tuple[Command, ...] = (
             "(use --timeout)", args=(
                 Arg("views", "int", "number of photographs", default=8, lo=3, hi=12),
                 Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled; the "
-                    "renderer holds every sub-sample, ~1 GB at 2400)", unit="px", default=2400, lo=900, hi=3000))),
+                    "renderer peaks at ~0.7 GB at 2400)", unit="px", default=2400, lo=900, hi=3000))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "
