@@ -22,6 +22,8 @@ from calibration.plate_survey import run_survey
 from daemon.ctl.main import main as ritactl
 from tests.ritad_up import ritad_in_process
 
+pytestmark = pytest.mark.slow  # renders 8 photographs once (module fixture)
+
 SEED = 5
 VIEWS = 8
 
