@@ -191,6 +191,13 @@ TABLE: tuple[Command, ...] = (
                     unit="°", default=0.0, lo=-80, hi=80),
                 Arg("rot_deg", "float", "turn in the image plane (+: clockwise in the image)", unit="°",
                     default=0.0, lo=-360, hi=360))),
+    Command("sim.survey_images", "simulated world only: photograph the whole plate with a survey camera "
+            "(PNG, RGB) into data_dir/sim/survey/, for `ritactl plate survey`", "operator",
+            result="{folder, files}: paths relative to the data dir; rendering takes ~2 s per view "
+            "(use --timeout)", args=(
+                Arg("views", "int", "number of photographs", default=8, lo=3, hi=12),
+                Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled; the "
+                    "renderer peaks at ~0.7 GB at 2400)", unit="px", default=2400, lo=900, hi=3000))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "

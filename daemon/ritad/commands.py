@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.command_table import COMMANDS, TABLE, help_entry, validate
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
-from daemon.ritad import files
+from daemon.ritad import files, registry
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -185,7 +186,20 @@ def _sim(s: Services) -> dict[str, Handler]:
         except ValueError as exc:
             raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: {exc}") from None
 
-    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board}
+    def survey_images(req: Request) -> Any:
+        """Whole-plate photographs for the plate survey (an operator's camera on the real floor)."""
+        w, a = world(req), req.args
+        render = registry.sim_survey_renderer()
+        root = Path(s.data_dir)
+
+        def run() -> Any:
+            paths = render(w, root, a["views"], (a["width_px"], a["width_px"] * 2 // 3))
+            return {"folder": "sim/survey", "files": [p.relative_to(root).as_posix() for p in paths]}
+
+        return s.storage.submit(run)
+
+    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board,
+            "sim.survey_images": survey_images}
 
 
 def _preview(s: Services) -> dict[str, Handler]:

@@ -40,6 +40,7 @@ ADAPTERS: dict[str, dict[str, str]] = {
 
 #: builds the shared simulated world from the config's [sim] section and plays the installer (fakes/installer.py, fakes/worlds.py)
 SIM_WORLD_FACTORY = "fakes.installer:start"
+SIM_SURVEY_FACTORY = "fakes.survey_views:install"  # sim.survey_images: (world, data_dir, views, size) -> paths
 SIM_SCHEME = "sim"
 
 #: top-level module -> what to install when it is missing
@@ -117,6 +118,11 @@ def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tupl
     and named in each ``sim:`` URL (:func:`in_world`).
     """
     return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir, camera_url)
+
+
+def sim_survey_renderer() -> Any:
+    """The simulated survey camera's writer (``sim.survey_images``), imported by name like the world."""
+    return _load(SIM_SURVEY_FACTORY, "sim.survey_images")
 
 
 def in_world(url: str, world: str) -> str:

@@ -43,6 +43,7 @@ NAMES = (120, 60)  # capture-name examples: full run, make-test sample
 BATCH = 40
 EXAMPLES = cases(340, 120)  # × BATCH messages: 13,600 in the full run (over 10,000 of them distinct)
 MOTION = ("robot.move", "robot.turn")
+SLOW = ("sim.survey_images",)  # renders photographs: seconds per view
 CODE_RE = re.compile(r"^[a-z][a-z0-9_]*$|^(tracker|robot|camera)_\w+$")
 _MISSING = object()
 
@@ -106,6 +107,8 @@ def make_safe(cmd: str, args: Any) -> Any:
         return args
     if cmd in MOTION and args.get("confirm") is True:
         args["confirm"] = False
+    if cmd in SLOW:  # a valid request renders for tens of seconds: keep it fuzzed, always refused
+        args["views"] = 0
     if cmd in ("calib.next", "calib.inbox"):
         t = args.get("timeout_s", _MISSING)
         if t is _MISSING or (isinstance(t, (int, float)) and not isinstance(t, bool) and 0 <= t <= 60):
@@ -128,8 +131,8 @@ def envelope_map(draw: st.DrawFn) -> dict[str, Any]:
         msg["cmd"] = cmd
     args = draw(st.one_of(st.just(_MISSING), st.none(), st.dictionaries(st.text(max_size=6), values, max_size=3),
                           values))
-    if cmd == "calib.next" and args in (_MISSING, None):
-        args = {}  # the default long poll (10 s) would hold the batch
+    if (cmd == "calib.next" or cmd in SLOW) and args in (_MISSING, None):
+        args = {}  # the default long poll (10 s) or render would hold the batch
     if args is not _MISSING:
         msg["args"] = make_safe(cmd if isinstance(cmd, str) else "", args)
     msg["id"] = draw(ID_KINDS)
