@@ -77,6 +77,7 @@ class RadialPattern:
     peak_px: float
     peak_plate_mm: float
     sigma_px: float  # per-coordinate noise from the tangential residuals
+    model_peak_px: float = 0.0  # the peak the model's own stated 1σ can leave (model_spread)
 
 
 @dataclass
@@ -103,7 +104,7 @@ class ModelCheck:
             r = self.radial
             out["radial_pattern"] = {k: _num(v) for k, v in (("f_ratio", r.f_ratio), ("peak_px", r.peak_px),
                                                                ("peak_plate_mm", r.peak_plate_mm),
-                                                               ("sigma_px", r.sigma_px))}
+                                                               ("sigma_px", r.sigma_px), ("model_peak_px", r.model_peak_px))}
         return out
 
 
@@ -219,7 +220,8 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
         elif abs(f.height_change_mm) >= gates.warn_height_mm:
             warns.append(f"{text} (> {1000 * gates.warn_height_mm:.0f} µm); {ADVICE}")
     r = check.radial
-    if r is not None and r.f_ratio >= gates.radial_min_f_ratio and r.peak_plate_mm >= gates.radial_warn_plate_mm:
+    if (r is not None and r.f_ratio >= gates.radial_min_f_ratio and r.peak_plate_mm >= gates.radial_warn_plate_mm
+            and r.peak_px > gates.model_k_sigma * r.model_peak_px):  # beyond what the model's 3σ allows
         warns.append(f"camera model: radial pattern in the corner residuals, up to {r.peak_px:.3f} px "
                      f"({1000 * r.peak_plate_mm:.1f} µm on the plate, F = {r.f_ratio:.0f}): the distortion does "
                      f"not fit this camera; {ADVICE}")
@@ -246,6 +248,49 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     check.verdict = "fail" if fails else ("warn" if warns else "ok")
 
 
+#: where each uncertain parameter of camera_model.json's ``std`` sits: (row, col) of K, or a dist index
+_STD_SLOTS = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)), "k1": ("dist", 0), "k2": ("dist", 1), "p1": ("dist", 2),
+              "p2": ("dist", 3), "k3": ("dist", 4)}
+
+
+def _perturbed(model: CameraModel, name: str, delta: float) -> CameraModel:
+    K, dist = model.K.copy(), np.resize(model.dist, 5).astype(float)
+    where, idx = _STD_SLOTS[name]
+    if where == "K":
+        K[idx] += delta
+    else:
+        dist[idx] += delta
+    return CameraModel(K, dist, model.size)
+
+
+def model_spread(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_H_ref: np.ndarray,
+                 model_dict: dict[str, Any] | None) -> tuple[float, float]:
+    """What the model's own stated 1σ (centre, distortion) does to this view's checks.
+
+    A fitted model is uncertain: a distortion 1–2σ off makes the focal refit move and leaves a
+    radial pattern, although the model is as good as its calibration says. Each parameter with
+    a σ in ``std`` is moved by 1σ; the focal scale change and the radial pattern peak (px) it
+    causes are added in quadrature (correlations ignored: conservative for a jackknife σ).
+    Returns (σ of the focal scale, radial peak px); (0, 0) without ``std``.
+    """
+    std = (model_dict or {}).get("std")
+    if not isinstance(std, dict):
+        return 0.0, 0.0
+    base = focal_refit(model, obj, uv, cam_H_ref).scale
+    rvec, _ = cv2.Rodrigues(cam_H_ref[:3, :3])
+    proj0, _ = cv2.projectPoints(obj, rvec, cam_H_ref[:3, 3], model.K, model.dist)
+    ds2 = dr2 = 0.0
+    for name in _STD_SLOTS:
+        sigma = std.get(name)
+        if not isinstance(sigma, (int, float)) or not np.isfinite(sigma) or sigma <= 0:
+            continue
+        moved = _perturbed(model, name, float(sigma))
+        ds2 += (focal_refit(moved, obj, uv, cam_H_ref).scale - base) ** 2
+        proj, _ = cv2.projectPoints(obj, rvec, cam_H_ref[:3, 3], moved.K, moved.dist)
+        dr2 += radial_pattern(model, uv, (proj - proj0).reshape(-1, 2), 1.0).peak_px ** 2
+    return float(np.sqrt(ds2)), float(np.sqrt(dr2))
+
+
 def check_camera_model(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_H_ref: np.ndarray,
                        model_dict: dict[str, Any] | None = None, gates: ModelCheckGates | None = None
                        ) -> ModelCheck:
@@ -264,8 +309,11 @@ def check_camera_model(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_
     proj, _ = cv2.projectPoints(obj, rvec, np.asarray(cam_H_ref, float)[:3, 3], model.K, model.dist)
     check = ModelCheck()
     check.focal = focal_refit(model, obj, uv, cam_H_ref)
+    spread_f, spread_r = model_spread(model, obj, uv, np.asarray(cam_H_ref, float), model_dict)
+    check.focal.sigma = float(np.hypot(check.focal.sigma, spread_f))  # the image's and the model's own σ
     check.focal.resolvable_height_mm = gates.min_significance * check.focal.sigma * check.focal.height_mm
     check.radial = radial_pattern(model, uv, proj.reshape(-1, 2) - uv, check.focal.height_mm)
+    check.radial.model_peak_px = spread_r
     check.model_sigma_f = model_sigma_f(model_dict)
     _findings(check, gates)
     return check

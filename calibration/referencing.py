@@ -262,6 +262,8 @@ def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P
 
     if (image is None) == (cam_ref is None):
         raise ValueError("reference: give exactly one of image= or cam_ref=")
+    if plate.nests_sigma_mm:  # a surveyed plate states its seats' 1σ: the nest fit cannot beat it
+        sigma_plate_mm = max(sigma_plate_mm, float(np.sqrt(np.mean(np.square(list(plate.nests_sigma_mm.values()))))))
     if image is not None:
         cam_ref = estimate_cam_H_ref(image, model, plate)
     n_corners = rms_px = ambiguity = None

@@ -27,4 +27,15 @@ def lock_on_robot(c: Any) -> dict[str, Any]:
     return c.call("tracker.measure", timeout=60)
 
 
-__all__ = ["HAND_ERROR_MM", "lock_on_robot"]
+
+
+MARK_READING_ERROR_MM = (1.5, -1.0)  # the operator's reading of a mark's position off the floor drawing
+
+
+def rough_mark(c: Any, index: int = 0) -> tuple[str, list[float]]:
+    """A floor mark's name and the rough ACS x, y the operator gives the experiment (1.8 mm off)."""
+    mark = c.call("sim.truth")["marks"][index]  # the operator's eye on the floor drawing
+    return mark["name"], [mark["x_mm"] + MARK_READING_ERROR_MM[0], mark["y_mm"] + MARK_READING_ERROR_MM[1]]
+
+
+__all__ = ["HAND_ERROR_MM", "MARK_READING_ERROR_MM", "lock_on_robot", "rough_mark"]
