@@ -9,6 +9,11 @@ itself; nothing read here reaches a calculation of the product.
 """
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,4 +43,38 @@ def rough_mark(c: Any, index: int = 0) -> tuple[str, list[float]]:
     return mark["name"], [mark["x_mm"] + MARK_READING_ERROR_MM[0], mark["y_mm"] + MARK_READING_ERROR_MM[1]]
 
 
-__all__ = ["HAND_ERROR_MM", "MARK_READING_ERROR_MM", "lock_on_robot", "rough_mark"]
+def main(argv: list[str] | None = None) -> int:
+    """``python -m fakes.operator intrinsics``: run ``ritactl intrinsics``' job with the simulated
+    operator holding the board as each prompt asks (README's "Using it" on ``ritad --sim``)."""
+    from daemon.bus.client import Client
+    from fakes.board import run_intrinsics
+
+    ap = argparse.ArgumentParser(prog="python -m fakes.operator", description=main.__doc__)
+    ap.add_argument("task", choices=["intrinsics"])
+    ap.add_argument("--endpoint", default=os.environ.get("RITA_ENDPOINT"), help="default: $RITA_ENDPOINT")
+    ap.add_argument("--board", default="sim/board.json", help="the board file (ritactl fetch sim)")
+    ap.add_argument("--seed", type=int, default=1, help="how the operator's hands scatter")
+    a = ap.parse_args(argv)
+    if not a.endpoint:
+        ap.error("no endpoint: give --endpoint or set RITA_ENDPOINT")
+    try:
+        board = json.loads(Path(a.board).read_text())
+    except (OSError, ValueError) as exc:
+        print(f"fakes.operator: cannot read the board file {a.board}: {exc}", file=sys.stderr)
+        return 5
+    with Client(a.endpoint, timeout=10) as c:
+        r = run_intrinsics(c, {"board": board}, seed=a.seed, timeout=600)
+    if r.get("failed"):
+        print(f"intrinsics failed: {r.get('error')}", file=sys.stderr)
+        return 2
+    print(f"intrinsics verdict={r['verdict']} ({len(r['_prompts'])} prompts answered by the simulated operator)")
+    for m in r.get("messages", []):
+        print(f"  - {m}")
+    return {"ok": 0, "warn": 1}.get(r["verdict"], 2)
+
+
+__all__ = ["HAND_ERROR_MM", "MARK_READING_ERROR_MM", "lock_on_robot", "main", "rough_mark"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

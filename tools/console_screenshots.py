@@ -39,7 +39,7 @@ def run_procedure(drv, procedure: str, params: dict, answer=None, timeout: float
 
 
 def operator_views(drv, c, data: Path, out: Path) -> None:
-    sim = {n: json.loads((data / "sim" / f"{n}.json").read_text()) for n in ("plate", "camera_model", "nests")}
+    sim = {n: json.loads((data / "sim" / f"{n}.json").read_text()) for n in ("plate", "board", "nests")}
     drv.find_element("id", "stream-start").click()
     wait_for("frames", lambda: drv.execute_script("return window.rita.framesDrawn") >= 3, 20)
     x, y, z = sim["nests"]["red"]
@@ -54,8 +54,14 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
     drv.save_screenshot(str(out / "console-live.png"))
     c.call("camera.stream.stop")
 
+    from fakes.board import answer_intrinsics_prompt, run_intrinsics
+
+    def install(client, question, rng):  # the camera model from the product's own intrinsics, installed
+        return "install" if "Install" in question else answer_intrinsics_prompt(client, question, rng)
+
+    run_intrinsics(c, {"board": sim["board"]}, seed=1, timeout=300, answer=install)
     c.call("sim.place_robot_on_plate")
-    params = {"plate": sim["plate"], "camera_model": sim["camera_model"], "nests_approx_trk": sim["nests"]}
+    params = {"plate": sim["plate"], "nests_approx_trk": sim["nests"]}
 
     def answer() -> None:
         drv.find_element("id", "prompt").location_once_scrolled_into_view

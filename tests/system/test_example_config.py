@@ -8,6 +8,7 @@ tcp endpoint refuses a client without keys, so that client cannot move the robot
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -21,6 +22,8 @@ import pytest
 
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientTimeout
+from daemon.demo import operator_files
+from fakes.board import run_intrinsics
 from tests.system.test_worker_e2e import referencing_params, run_job
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -85,6 +88,8 @@ def test_keyless_tcp_client_cannot_move_the_robot(example):
 
 def test_example_config_completes_a_referencing_job(example):
     c, tmp = example["c"], example["tmp"]
+    board = json.loads(operator_files(c, tmp)["board"].read_text())
+    assert run_intrinsics(c, {"board": board}, seed=1, timeout=300)["verdict"] == "ok"  # installs the camera model
     result = run_job(c, "referencing", referencing_params(c, tmp), timeout=400)
     assert result["verdict"] in ("ok", "warn"), result
     assert c.call("calib.results")["active"]["job"] == result["job"]

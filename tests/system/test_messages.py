@@ -101,19 +101,19 @@ def test_measure_and_capture_before_lock_say_aim_and_find_first(sim, capsys) -> 
     assert hint in capsys.readouterr().err
 
 
-def test_sim_installs_plate_camera_model_and_rough_nests(sim) -> None:
+def test_sim_installs_plate_design_board_and_rough_nests(sim) -> None:
+    """The installer's files are what an operator has before measuring: no camera model (the
+    intrinsics make it), the plate's design (the survey measures it), rough nest positions."""
     d, c = sim
     folder = Path(d.config.daemon.data_dir) / "sim"
     files = {p.name: json.loads(p.read_text()) for p in folder.glob("*.json")}
-    assert sorted(files) == ["board.json", "camera_model.json", "nests.json", "plate.json"]
+    assert sorted(files) == ["board.json", "nests.json", "plate.json"]
     truth = c.call("sim.truth")  # scores the installer's files, never feeds the product
     assert files["plate.json"] == truth["plate"]
-    assert files["camera_model.json"]["size"] == [64, 48]
-    assert np.allclose(files["camera_model.json"]["K"], truth["camera_model"]["K"])
     trk_H_abs = np.linalg.inv(np.array(truth["abs_H_trk"]))
     for name, p_abs in truth["nests_abs"].items():
         p_trk = trk_H_abs[:3, :3] @ p_abs + trk_H_abs[:3, 3]
         off = np.linalg.norm(np.array(files["nests.json"][name]) - p_trk)
         assert 0.05 < off < 15.0, (name, off)  # rough (a few mm off), but well inside the search radius
     listed = {f["path"] for f in c.call("files.list", path="sim")["files"]}
-    assert listed == {"sim/board.json", "sim/camera_model.json", "sim/nests.json", "sim/plate.json"}
+    assert listed == {"sim/board.json", "sim/nests.json", "sim/plate.json"}
