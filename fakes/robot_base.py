@@ -76,6 +76,8 @@ class FakeBase:
         self._drive_rng = world.rng("robot.drive")
         self._tilt_rng = world.rng("robot.tilt")
         self._fault_rng = world.rng("robot.fault")
+        self._slip_rng = world.rng("robot.slip")
+        self._imu_rng = world.rng("robot.imu")
         self.odometry = (0.0, 0.0, 0.0)
         self.state = "IDLE"
         self.fault = ""
@@ -159,7 +161,8 @@ class FakeBase:
             pose = self.world.robot
         roll = pitch = None
         if self.world.params.base_has_inclinometer:
-            roll, pitch = math.degrees(pose.roll_rad), math.degrees(pose.pitch_rad)
+            r, p = self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, self._imu_rng)
+            roll, pitch = math.degrees(r), math.degrees(p)
         x, y, h = self.odometry
         battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
         self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
@@ -209,14 +212,17 @@ class FakeBase:
         start = self._accepted(seq, msg, dist, speed, rp.MAX_DISTANCE_MM, (rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S), "d")
         if start is None:
             return
-        p = self.world.params
+        p, fx = self.world.params, self.world.effects
         z_heading, z_lateral = self._drive_rng.standard_normal(2)
-        travelled = dist * (1.0 + p.drive_scale_error)
-        lateral = z_lateral * p.drive_lateral_sigma_mm
+        travelled = dist * (1.0 + p.drive_scale_error + fx.slip(self._slip_rng))
+        # the error model's path deviation adds in quadrature (hypot(x, 0) == x: ideal unchanged)
+        lat_sigma, head_sigma = (math.hypot(a, b) for a, b in zip(
+            (p.drive_lateral_sigma_mm, p.drive_heading_sigma_deg), fx.path_sigmas()))
+        lateral = z_lateral * lat_sigma
         a = math.radians(start.heading_deg)
         end = replace(start, x_mm=float(start.x_mm + travelled * math.cos(a) - lateral * math.sin(a)),
                       y_mm=float(start.y_mm + travelled * math.sin(a) + lateral * math.cos(a)),
-                      heading_deg=float(start.heading_deg + z_heading * p.drive_heading_sigma_deg))
+                      heading_deg=float(start.heading_deg + z_heading * head_sigma))
         ox, oy, oh = self.odometry
         ob = math.radians(oh)
         odo_end = (ox + dist * math.cos(ob), oy + dist * math.sin(ob), oh)
@@ -228,10 +234,12 @@ class FakeBase:
                                (rp.MIN_TURN_SPEED_DEG_S, rp.MAX_TURN_SPEED_DEG_S), "a")
         if start is None:
             return
-        p = self.world.params
+        p, fx = self.world.params, self.world.effects
         z_heading = self._drive_rng.standard_normal()
-        end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error)
-                                               + z_heading * p.drive_heading_sigma_deg))
+        head_sigma = math.hypot(p.drive_heading_sigma_deg, fx.path_sigmas()[1])
+        end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error
+                                                                            + fx.slip(self._slip_rng))
+                                               + z_heading * head_sigma))
         ox, oy, oh = self.odometry
         self._start_motion(seq, msg, start, end, (ox, oy, oh + angle), abs(angle) / speed, 0.0)
 
@@ -294,6 +302,8 @@ class FakeBase:
             pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
                            heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
             odo = tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))  # type: ignore[assignment]
+            if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
+                pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
         self.world.set_robot(pose)
         self.odometry = odo
         return pose, odo
@@ -305,8 +315,9 @@ class FakeBase:
         pose, (ox, oy, oh) = self._place(f)
         p = self.world.params
         roll, pitch = self._tilt_rng.standard_normal(2) * p.floor_tilt_sigma_mrad * 1e-3
-        self.world.set_robot(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
-                                     roll_rad=float(roll), pitch_rad=float(pitch)))
+        # settle adds the surface's tilt under the wheels to the random settling tilt
+        self.world.set_robot(self.world.settle(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
+                                                       roll_rad=float(roll), pitch_rad=float(pitch), z_mm=None)))
         self.odometry = (ox, oy, _wrap_deg(oh))
         self.travelled_mm += f * m.path
         self.motion = None
