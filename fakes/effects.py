@@ -22,8 +22,8 @@ from fakes.floor import HeightField, contact_tilt, plane_height, plate_on_floor
 if TYPE_CHECKING:
     from fakes.world import RobotPose, World
 
-#: basis of the tracker's systematic angular pattern over the beam direction
-_SYS_TERMS = 6
+#: terms of the tracker's systematic pattern over the beam direction (see tracker_measure)
+_SYS_TERMS = 7
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:
@@ -154,8 +154,9 @@ class Effects:
         e_hz = np.column_stack([-np.sin(hz), np.cos(hz), np.zeros_like(hz)])
         e_vt = np.column_stack([np.cos(vt) * np.cos(hz), np.cos(vt) * np.sin(hz), -np.sin(vt)])
         k, D_m = t.mpe_to_sigma, r / 1000.0
+        # squares of the terms sum to 4 in every direction: unit variance over stations everywhere
         basis = np.column_stack([np.ones_like(hz), np.cos(hz), np.sin(hz), np.cos(2 * hz), np.sin(2 * hz),
-                                 np.cos(vt)]) / math.sqrt(_SYS_TERMS)
+                                 np.cos(vt), np.sin(vt)]) / 2.0
         pattern = basis @ self.sys_coef.T  # (n, 3): range, hz, vt; unit variance over stations
         z = rng.standard_normal(flat.shape)
         d_r = k * t.range_a_mm * z[:, 0] + k * t.range_b_mm_per_m * D_m * pattern[:, 0]
@@ -184,10 +185,13 @@ class Effects:
         r = self.model.robot
         return float(rng.normal(0.0, r.slip_sigma)) if r is not None and r.slip_sigma > 0 else 0.0
 
-    def path_sigmas(self) -> tuple[float, float]:
-        """(lateral mm, heading deg) per move added by the robot group (0, 0 when off)."""
+    def bend(self, dist_mm: float, rng: np.random.Generator) -> tuple[float, float]:
+        """(lateral mm at the end, heading change in degrees) of a straight move that bends on an arc."""
         r = self.model.robot
-        return (0.0, 0.0) if r is None else (r.lateral_sigma_mm, r.heading_sigma_deg)
+        if r is None:
+            return 0.0, 0.0
+        kappa = rng.normal(0.0, 2.0 * r.lateral_sigma_mm / r.lateral_ref_mm ** 2)
+        return float(kappa * dist_mm ** 2 / 2.0), float(math.degrees(kappa * dist_mm))
 
     def board_true(self, P_ref: np.ndarray) -> np.ndarray:
         """Where the printed board's nominal points (PCS) really are (scale and shear of the print)."""

@@ -57,10 +57,16 @@ class ReflectorErrors:
 
 @dataclass(frozen=True)
 class RobotErrors:
-    """Drive: path deviation per move and wheel slip (added in quadrature to WorldParams.drive_*)."""
+    """Drive: each straight move bends on an arc (lateral and heading deviation together), wheel slip.
+
+    The arc's curvature κ is drawn per move so that the lateral offset at the end of a
+    move of ``lateral_ref_mm`` has σ = ``lateral_sigma_mm``: the end is κd²/2 to the side,
+    the heading turns by κd, and the chord P_prev→P_at is off the final heading by κd/2
+    (250 µrad for 50 µm over 0.2 m, calibration.md §4.4). These add to WorldParams.drive_*.
+    """
 
     lateral_sigma_mm: float = sourced(0.050, CAL_44)
-    heading_sigma_deg: float = sourced(0.0143, CAL_44 + ": 50 µm over 0.2 m = 250 µrad per move")
+    lateral_ref_mm: float = sourced(200.0, CAL_44 + " (the move length the 50 µm refers to)")
     slip_sigma: float = sourced(0.002, "relative distance error per move from wheel slip; non-systematic odometry "
                                        "errors of 0.1–1 % of travel on smooth floors (Borenstein & Feng 1996, "
                                        "UMBmark; order of magnitude, unverified); 0.2 % assumed")

@@ -135,23 +135,21 @@ class Simulation:
             return self.world.effects.tracker_measure_abs(np.asarray(P, dtype=float), rng)
         return np.asarray(P, dtype=float) + rng.normal(0.0, self.cfg.sigma_t_mm, size=np.shape(P))
 
-    def _path_sigma(self) -> float:
-        """Lateral path deviation: the config's and the world's error model's, in quadrature."""
-        return math.hypot(self.cfg.path_sigma_mm, self.world.effects.path_sigmas()[0])
-
     def _stop(self, pose: RobotPose, rng: np.random.Generator) -> tuple[RobotPose, np.ndarray, np.ndarray]:
         """With the world's error model: the robot settled on its wheels after a move of d to ``pose``.
 
-        Returns the settled pose (heading off by the per-move heading deviation) and the
-        true reflector centres at the previous and the current stop.
+        The move bends on an arc (fakes/errors.py RobotErrors) that ends at ``pose`` with
+        the heading turned by δ, so the chord from the previous stop runs at heading − δ/2;
+        the config's ``path_sigma_mm`` adds an independent sideways offset of the previous
+        stop. Returns the settled pose and the true reflector centres at both stops.
         """
-        w, fx = self.world, self.world.effects
-        a = math.radians(pose.heading_deg)
-        lateral = rng.normal(0.0, self._path_sigma())
-        prev = w.settle(RobotPose(pose.x_mm - self.cfg.move_mm * math.cos(a) - lateral * math.sin(a),
-                                  pose.y_mm - self.cfg.move_mm * math.sin(a) + lateral * math.cos(a),
-                                  pose.heading_deg))
-        head = pose.heading_deg + rng.normal(0.0, fx.path_sigmas()[1])
+        w, d = self.world, self.cfg.move_mm
+        _, turn = w.effects.bend(d, rng)
+        head = pose.heading_deg + turn
+        a = math.radians(head - turn / 2.0)
+        lateral = rng.normal(0.0, self.cfg.path_sigma_mm) if self.cfg.path_sigma_mm else 0.0
+        prev = w.settle(RobotPose(pose.x_mm - d * math.cos(a) - lateral * math.sin(a),
+                                  pose.y_mm - d * math.sin(a) + lateral * math.cos(a), head - turn))
         at = w.settle(RobotPose(pose.x_mm, pose.y_mm, head, pose.roll_rad, pose.pitch_rad))
         return at, w.robot_reflector_abs(w.abs_H_rob(prev)), w.robot_reflector_abs(w.abs_H_rob(at))
 
@@ -165,10 +163,12 @@ class Simulation:
             heading_deg = float(rng.uniform(-180.0, 180.0))
         pose0 = w.settle(w.pose_with_target_in_view(heading_deg))
         a = math.radians(heading_deg)
-        path_sigma = self._path_sigma()
-        lateral = rng.normal(0.0, path_sigma) if path_sigma else 0.0
+        lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
+        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"))  # (0, 0) without the error model
+        lateral += bend
         pose1 = w.settle(RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
-                                   pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a), heading_deg))
+                                   pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a),
+                                   heading_deg + turn))
         abs_H_rob0 = w.abs_H_rob(pose0)
         if not (w.on_plate(pose0.x_mm, pose0.y_mm) and w.on_plate(pose1.x_mm, pose1.y_mm)):
             raise ValueError(f"calibration at heading {heading_deg:.1f}°: the robot would leave the plate")
