@@ -11,16 +11,15 @@ drawn and every hook returns its input unchanged (the ``ideal`` world).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
 from calibration.frames import apply_H, inv_H
+from calibration.plate import NEST_NAMES
 from fakes.errors import ErrorModel
 from fakes.floor import HeightField, contact_tilt, plane_height, plate_on_floor
-
-if TYPE_CHECKING:
-    from fakes.world import RobotPose, World
 
 #: terms of the tracker's systematic pattern over the beam direction (see tracker_measure)
 _SYS_TERMS = 7
@@ -34,7 +33,8 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
 class Effects:
     """The per-world draws of the error model and the hooks the fakes call."""
 
-    def __init__(self, world: "World") -> None:
+    def __init__(self, world: Any) -> None:
+        """``world``: the fakes.world.World being built (its params and rng; typed loosely: world imports us)."""
         self.world = world
         e: ErrorModel = world.params.errors
         self.model = e
@@ -86,12 +86,10 @@ class Effects:
         h = plane_height(self.world.abs_H_ref, x, y)
         return h if self.plate_flatness is None else h + float(self.plate_flatness(x, y))
 
-    def settle(self, pose: "RobotPose") -> "RobotPose":
+    def settle(self, pose: Any) -> Any:
         """``pose`` standing on its wheels: the surface's roll, pitch and height added."""
         if not self.settles:
             return pose
-        from dataclasses import replace
-
         r = self.model.robot
         track, caster = (r.wheel_track_mm, r.caster_x_mm) if r is not None else (400.0, 350.0)
         w = self.world
@@ -113,8 +111,6 @@ class Effects:
 
     def reseat_nests(self) -> None:
         """New seatings of the SMRs in the three nests (centring direction and nest repeatability)."""
-        from fakes.world import NEST_NAMES
-
         ref = self.model.reflector
         if ref is None:
             return
