@@ -169,7 +169,7 @@ def finish(proc: subprocess.Popen, timeout: float = 60) -> dict[str, Any]:
 
 
 def lock_and_stream(c: Client, rate_hz: float = 1000.0) -> None:
-    from daemon.demo import lock_on_robot
+    from fakes.operator import lock_on_robot
 
     lock_on_robot(c)
     c.call("tracker.stream.start", timeout=30, rate_hz=rate_hz)

@@ -9,9 +9,12 @@ ref_P_smr): δ > 0 is the SMR centre's height above the seat, and z points down.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from calibration.patches import Patch
 
 NEST_NAMES = ("red", "green", "blue")
 PLATE_SCHEMA = 1
@@ -31,6 +34,11 @@ class Plate:
     smr_offset_mm: float  # delta_smr,nst
     notes: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: survey patches (calibration/patches.py); absent in plates made before the survey existed
+    patches: list[dict[str, Any]] = field(default_factory=list)
+    #: 1σ of each surveyed nest seat per PCS axis (mm), and the survey's report (ritactl plate survey)
+    nests_sigma_mm: dict[str, list[float]] = field(default_factory=dict)
+    survey: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -45,6 +53,13 @@ class Plate:
 
     def board_size_mm(self) -> tuple[float, float]:
         return self.board_cols * self.square_mm, self.board_rows * self.square_mm
+
+    def survey_patches(self) -> list["Patch"]:
+        """The survey patches as :class:`calibration.patches.Patch` (validated)."""
+        from calibration.patches import parse_patches
+
+        return parse_patches(self.patches, (self.board_cols * self.board_rows) // 2, self.aruco_dict,
+                             f"plate {self.plate_id!r}")
 
     # ------------------------------------------------------------------ checks
 
@@ -77,11 +92,23 @@ class Plate:
         if area2 / max(sides) < 0.1 * max(sides):
             raise ValueError(f"plate {self.plate_id!r}: nests are (nearly) collinear "
                              f"(triangle height {area2 / max(sides):.1f} mm over a {max(sides):.1f} mm side)")
+        if self.patches:
+            self.survey_patches()
+        for n, s in self.nests_sigma_mm.items():
+            ok = n in NEST_NAMES and isinstance(s, list) and len(s) == 3 and all(
+                _is_number(v) and np.isfinite(v) and v >= 0 for v in s)
+            if not ok:
+                raise ValueError(f"plate {self.plate_id!r}: nests_sigma_mm.{n} must be a nest name with "
+                                 f"3 finite numbers >= 0 (mm), got {s!r}")
 
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:
-        return {"schema": PLATE_SCHEMA, **asdict(self)}
+        d = asdict(self)
+        for key in ("patches", "nests_sigma_mm", "survey"):  # optional: files without them stay as before
+            if not d[key]:
+                del d[key]
+        return {"schema": PLATE_SCHEMA, **d}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "plate") -> "Plate":
@@ -113,7 +140,9 @@ class Plate:
 _REQUIRED: dict[str, type] = {"plate_id": str, "board_cols": int, "board_rows": int, "square_mm": float,
                               "marker_mm": float, "aruco_dict": str, "nests_ref_nst": dict,
                               "smr_offset_mm": float}
-_OPTIONAL: dict[str, type] = {"notes": str, "extra": dict}
+#: (``object``: checked by :meth:`Plate.validate`, which names the bad entry)
+_OPTIONAL: dict[str, type] = {"notes": str, "extra": dict, "patches": object, "nests_sigma_mm": dict,
+                              "survey": dict}
 
 
 def _typed(value: Any, kind: type, where: str) -> Any:

@@ -30,6 +30,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
+from calibration.model_check import ModelCheck, check_camera_model
 from calibration.plate import Plate
 from calibration.registration import as_points, fit_plate, kabsch, nest_array
 from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_carlo, pnp_covariance
@@ -129,6 +130,7 @@ class ReferencingResult:
     uncertainty: PoseUncertainty | None
     verdict: str = "ok"  # ok / warn / fail
     messages: list[str] = field(default_factory=list)
+    model_check: ModelCheck | None = None  # camera-model checks on the image's corners (image runs only)
 
     @property
     def footprint_rob(self) -> np.ndarray:
@@ -145,7 +147,8 @@ class ReferencingResult:
                    rms_px=self.rms_px, ambiguity_ratio=self.ambiguity_ratio,
                    footprint_rob_mm=self.footprint_rob.tolist(),
                    uncertainty=None if self.uncertainty is None else self.uncertainty.to_dict(),
-                   verdict=self.verdict, messages=list(self.messages))
+                   verdict=self.verdict, messages=list(self.messages),
+                   model_check=None if self.model_check is None else self.model_check.to_dict())
         return out
 
 
@@ -244,12 +247,15 @@ def board_corners_ref(plate: Plate, ids: Any) -> np.ndarray:
 def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P_rob1: Any, *,
               image: np.ndarray | None = None, cam_ref: Any = None, sigma_t_mm: float = 0.010,
               sigma_plate_mm: float = 0.005, sigma_px: float | None = None, gates: Gates | None = None,
-              mc_samples: int = 200, seed: int = 0) -> ReferencingResult:
+              mc_samples: int = 200, seed: int = 0, model_dict: dict[str, Any] | None = None) -> ReferencingResult:
     """Referencing from raw observations: an image (or a ``CamRefPose`` / 4x4 ``cam_H_ref``).
 
     The image is turned into ``cam_H_ref`` by :func:`calibration.target.estimate_cam_H_ref`
     and the SCS by :func:`calibration.scs.make_scs`. The PnP covariance for the
-    uncertainty uses ``sigma_px`` (default: the corner RMS of the fit).
+    uncertainty uses ``sigma_px`` (default: the corner RMS of the fit). With corners
+    (an image or a ``CamRefPose``) the camera model is checked against them
+    (:mod:`calibration.model_check`; ``model_dict``, the camera_model.json content, adds
+    its calibration report) and its findings join the verdict.
     """
     from calibration.scs import make_scs
     from calibration.target import estimate_cam_H_ref
@@ -269,8 +275,15 @@ def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P
         s_px = sigma_px if sigma_px is not None else max(rms_px, 0.02)
         cov = pnp_covariance(model.K, model.dist, cam_H_ref, board_corners_ref(plate, cam_ref.ids), s_px)
     scs = make_scs(model, cam_H_ref)
-    return reference_pose(cam_H_ref, scs.scn_H_cam, plate.ref_P_smr(), abs_P_nests, abs_P_rob0, abs_P_rob1,
-                          sigma_t_mm, sigma_plate_mm, cov, n_corners, rms_px, ambiguity, gates, mc_samples, seed)
+    res = reference_pose(cam_H_ref, scs.scn_H_cam, plate.ref_P_smr(), abs_P_nests, abs_P_rob0, abs_P_rob1,
+                         sigma_t_mm, sigma_plate_mm, cov, n_corners, rms_px, ambiguity, gates, mc_samples, seed)
+    if n_corners is not None:
+        mc = check_camera_model(model, board_corners_ref(plate, cam_ref.ids), cam_ref.uv, cam_H_ref, model_dict)
+        res.model_check = mc
+        res.messages.extend(mc.messages)
+        order = ("ok", "warn", "fail")
+        res.verdict = order[max(order.index(res.verdict), order.index(mc.verdict))]
+    return res
 
 
 def rob_H_cam_error(rob_H_cam: np.ndarray, rob_H_cam_true: np.ndarray) -> dict[str, float]:

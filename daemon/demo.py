@@ -20,25 +20,13 @@ from typing import Any
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
 from fakes.launch import start_ritad
+from fakes.operator import lock_on_robot
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def say(text: str) -> None:
     print(f"\n== {text}", flush=True)
-
-
-def lock_on_robot(c: Client) -> dict[str, Any]:
-    """Point the tracker at the robot's reflector (truth gives the approximate spot) and lock on."""
-    truth = c.call("sim.truth")
-    import numpy as np  # the demo runs beside the daemon, not on the thin laptop client
-
-    abs_H_trk = np.array(truth["abs_H_trk"])
-    p_abs = np.array(truth["abs_H_rob"])[:3, 3] + [3.0, -2.0, 1.0]  # "about here", a few mm off
-    p_trk = np.linalg.inv(abs_H_trk) @ [*p_abs, 1.0]
-    c.call("tracker.aim", timeout=60, x=float(p_trk[0]), y=float(p_trk[1]), z=float(p_trk[2]))
-    c.call("tracker.find", timeout=60)
-    return c.call("tracker.measure", timeout=60)
 
 
 def operator_files(c: Client, out: Path) -> dict[str, Path]:

@@ -8,7 +8,8 @@ offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
 4) and ``timeout`` (seconds without a frame while streaming before the camera is
 declared lost, default 3; at least three frame periods are always allowed).
 
-Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`.
+Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are
+decoded from the raw GenTL buffer by :mod:`drivers.pixel_formats` and carry its name.
 ``trigger()`` fires TriggerSoftware (after TriggerArmed where the device has it);
 on a device without software triggers it takes the next free-run frame instead
 and says so in ``status()["warnings"]``. ``start_stream()`` switches to free run
@@ -37,7 +38,7 @@ from harvesters.core import Callback, Harvester, ImageAcquirer
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
                           DeviceURL, Emit, Frame, _no_emit)
-from drivers.genicam_device import select_device, to_pixels
+from drivers.genicam_device import decode_buffer, select_device
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, set_trigger_mode
 
 log = logging.getLogger(__name__)
@@ -231,20 +232,21 @@ class GenICamCamera(Camera):
             try:
                 # try_fetch, not fetch: fetch restarts its timeout after every
                 # incomplete buffer, so it may never return on a lossy link.
-                buf = ia.try_fetch(timeout=max(remaining, 0.001))
+                buf = ia.try_fetch(timeout=max(remaining, 0.001), is_raw=True)
             except Exception as exc:
                 raise self._lost("fetch", exc) from exc
             if buf is not None:
                 break
         try:
-            with buf:  # pixels are copied before the buffer goes back to the producer
-                pixels = to_pixels(buf.payload.components[0])
-                frame_id = int(buf.module.frame_id)
-                fmt = str(buf.payload.components[0].data_format)
+            try:  # pixels are decoded into a copy before the buffer goes back to the producer
+                pixels, fmt = decode_buffer(buf)
+                frame_id = int(buf.frame_id)
                 try:
                     device_ns: int | None = int(buf.timestamp_ns)
                 except (gentl.GenericException, AttributeError):
                     device_ns = None  # viky and some producers have no timestamps
+            finally:
+                buf.parent.queue_buffer(buf)
         except DeviceError:
             raise
         except Exception as exc:

@@ -1,9 +1,9 @@
-"""Device selection and pixel copying for the GenICam adapter (no harvesters objects needed).
+"""Device selection and pixel decoding for the GenICam adapter (no harvesters objects needed).
 
 Kept apart from :mod:`drivers.genicam` so they can be tested on plain data: the
-producer's device list arrives as harvesters ``property_dict`` dictionaries and
-image components only need ``width``, ``height``, ``num_components_per_pixel``
-and a flat ``data`` array.
+producer's device list arrives as harvesters ``property_dict`` dictionaries; a raw
+GenTL buffer only needs ``pixel_format`` (PFNC code), ``width``, ``height``,
+``padding_x``, ``image_offset``, ``size_filled`` and ``raw_buffer`` (bytes).
 """
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers import pixel_formats
 from drivers.base import DeviceError, DeviceLost
 
 
@@ -47,15 +48,29 @@ def select_device(infos: list[dict[str, Any]], serial: str | None, name: str | N
     return hits[0]
 
 
-def to_pixels(component: Any) -> np.ndarray:
-    """Copy a 2-D image component out of its GenTL buffer as (h, w) or (h, w, c)."""
-    h, w = int(component.height), int(component.width)
-    c = max(1, int(round(component.num_components_per_pixel)))
-    data = component.data
-    row = w * c
-    if data is None or data.size < h * row:
-        raise DeviceError(f"camera buffer holds {0 if data is None else data.size} values, "
-                          f"expected {h}x{w}x{c}", code="bad_buffer")
-    # harvesters forgets to strip line padding, so cut rows ourselves when present
-    flat = data[: h * row] if data.size % h else data.reshape(h, -1)[:, :row]
-    return flat.reshape((h, w, c) if c > 1 else (h, w)).copy()
+def _info(buf: Any, name: str, default: int | None = None) -> int:
+    """An integer buffer info; producers that cannot report padding or offset mean 0."""
+    try:
+        return int(getattr(buf, name))
+    except Exception:  # genicam.gentl exceptions: NotAvailable, NotImplemented, ...
+        if default is None:
+            raise
+        return default
+
+
+def decode_buffer(buf: Any) -> tuple[np.ndarray, str]:
+    """(pixels, PFNC name) of a raw GenTL buffer, decoded by :mod:`drivers.pixel_formats` (a copy).
+
+    harvesters' own component decoding is bypassed: it keeps line padding (see
+    genicam.md) and unpacks 12-bit formats slowly. An unsupported format or a buffer
+    shorter than its image raises DeviceError code ``bad_buffer`` naming both.
+    """
+    try:
+        fmt = pixel_formats.by_code(_info(buf, "pixel_format"))
+        w, h = _info(buf, "width"), _info(buf, "height")
+        pad, offset = _info(buf, "padding_x", 0), _info(buf, "image_offset", 0)
+        raw = buf.raw_buffer
+        filled = _info(buf, "size_filled", len(raw))
+        return pixel_formats.decode(memoryview(raw)[:max(filled, 0)], fmt.name, w, h, pad, offset), fmt.name
+    except ValueError as exc:
+        raise DeviceError(f"camera buffer: {exc}", code="bad_buffer") from None

@@ -13,7 +13,10 @@ Rules (the daemon is master, the camera is told what to be):
   reported through ``warn`` and the rest is applied.
 * A value that does not change anything is not written (GigE writes cost a round
   trip, and some features reset internal state when written).
-* A bad pixel format or ROI raises :class:`~drivers.base.DeviceError` naming the
+* A pixel format :mod:`drivers.pixel_formats` cannot decode, or one the camera's
+  PixelFormat node does not offer, raises :class:`~drivers.base.DeviceError` naming the
+  supported or offered ones.
+* A bad ROI raises :class:`~drivers.base.DeviceError` naming the
   value and the allowed range; exposure, gain and frame rate are clamped into the
   device's range with a warning, because their limits move with other features.
 """
@@ -25,6 +28,7 @@ from typing import Any, Callable
 
 from genicam import genapi
 
+from drivers import pixel_formats
 from drivers.base import CameraSettings, DeviceError
 
 Warn = Callable[[str], None]
@@ -179,6 +183,9 @@ def apply_settings(w: SettingsWriter, s: CameraSettings) -> bool:
         raise DeviceError(f"camera trigger setting {s.trigger!r} is not 'software' or 'free'",
                           code="bad_setting")
     if s.pixel_format is not None:
+        if s.pixel_format not in pixel_formats.FORMATS:  # the camera might offer it; we cannot decode it
+            raise DeviceError(f"PixelFormat {s.pixel_format!r} cannot be decoded (supported: "
+                              f"{', '.join(pixel_formats.FORMATS)})", code="bad_setting")
         w.write("PixelFormat", s.pixel_format)
     # Zero the offsets first when they will be rewritten: a wider ROI may not fit
     # next to the old offset (Width.max = sensor width - OffsetX).

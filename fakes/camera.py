@@ -23,8 +23,12 @@ How it differs from the real PHX122S: images come from :class:`fakes.render.Rend
 (planar world, Gaussian noise); exposure and gain only scale the rendered
 intensity (no motion blur, saturation physics or noise change); there is no
 GigE bandwidth limit, so the rate is only limited by rendering (about 1 s per
-reduced-size frame unless ``prerender`` is used) and one render may overrun
-``pump``'s timeout; only Mono8 exists; no PTP, chunks or events; the frame is
+reduced-size frame unless ``prerender`` is used; a colour frame about 3 s)
+and one render may overrun ``pump``'s timeout; one camera offers both sensor
+profiles of the family, :data:`PIXEL_FORMATS` (the configured PixelFormat picks the
+mono or the RGGB Bayer colour sensor, :mod:`fakes.colour`; frames are packed into the
+format's wire layout and decoded by :mod:`drivers.pixel_formats`, like a GenICam
+camera's); Bayer ROIs need even offsets; no PTP, chunks or events; the frame is
 rendered at the pose the robot has when it is produced (no exposure time, no
 rolling shutter); device timestamps are the host's monotonic clock; frame ids
 run on across reconnects instead of restarting. Width/Height/OffsetX/OffsetY
@@ -44,6 +48,8 @@ import numpy as np
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
                           Emit, Frame, _no_emit)
+from drivers import pixel_formats
+from fakes.colour import ColourRenderer, sensor_image
 from fakes.render import Renderer
 from fakes import worlds
 from fakes.world import World
@@ -52,22 +58,25 @@ log = logging.getLogger(__name__)
 
 OPTIONS = ("size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
            "disconnect_after", worlds.OPTION)
+#: PixelFormat values the simulated camera offers (PHX122S mono and colour models)
+PIXEL_FORMATS = ("Mono8", "Mono12p", "Mono12Packed", "Mono16", "BayerRG8", "BayerRG12p", "RGB8")
 #: exposure at which the renderer's black/white levels hold; other exposures scale linearly
 NOMINAL_EXPOSURE_US = 2000.0
 
 # Rays cost seconds (reduced) to a minute (full size) to compute, so renderers are
 # shared per world and size, across reconnects and camera instances.
-_RENDERERS: "weakref.WeakKeyDictionary[World, dict[tuple[int, int], Renderer]]" = weakref.WeakKeyDictionary()
+_RENDERERS: "weakref.WeakKeyDictionary[World, dict[tuple, Renderer]]" = weakref.WeakKeyDictionary()
 _RENDERERS_LOCK = threading.Lock()
 
 
-def renderer_for(world: World, size: tuple[int, int]) -> Renderer:
-    """The cached renderer of ``world`` at ``size`` (created on first use)."""
+def renderer_for(world: World, size: tuple[int, int], colour: bool = False) -> Renderer:
+    """The cached (grey or Bayer colour) renderer of ``world`` at ``size`` (created on first use)."""
     with _RENDERERS_LOCK:
         per_world = _RENDERERS.setdefault(world, {})
-        r = per_world.get(size)
+        key = (size, True) if colour else size
+        r = per_world.get(key)
         if r is None:
-            r = per_world[size] = Renderer(world, size)
+            r = per_world[key] = (ColourRenderer if colour else Renderer)(world, size)
         return r
 
 
@@ -135,7 +144,6 @@ class SimCamera(Camera):
         """Connect: build (or reuse) the renderer, apply the settings, prerender if asked."""
         if self._open:
             return
-        self._renderer = renderer_for(self.world, self.size)
         self._apply()
         if self.prerender and not self._prerendered:
             self._prerendered = [self._render() for _ in range(self.prerender)]
@@ -153,12 +161,15 @@ class SimCamera(Camera):
         self.settings = settings
         if self._open:
             self._apply()
+            if self.prerender and not self._prerendered:  # the PixelFormat changed
+                self._prerendered = [self._render() for _ in range(self.prerender)]
 
     def _apply(self) -> None:
         s = self.settings or CameraSettings()
         warnings: list[str] = []
-        if s.pixel_format not in (None, "Mono8"):
-            raise DeviceError(f"camera has no PixelFormat {s.pixel_format!r} (it offers Mono8)",
+        fmt = s.pixel_format or "Mono8"
+        if fmt not in PIXEL_FORMATS:
+            raise DeviceError(f"camera has no PixelFormat {fmt!r} (it offers {', '.join(PIXEL_FORMATS)})",
                               code="bad_setting")
         if s.trigger not in ("software", "free"):
             raise DeviceError(f"camera trigger setting {s.trigger!r} is not 'software' or 'free'",
@@ -170,6 +181,8 @@ class SimCamera(Camera):
             if off < 0 or ext < 1 or off + ext > full:
                 raise DeviceError(f"ROI Offset{name}={off} with {'Width' if name == 'X' else 'Height'}"
                                   f"={ext} does not fit the {W}x{H} sensor", code="bad_setting")
+            if off % 2 and pixel_formats.lookup(fmt).colour:  # keeps the RGGB phase of the mosaic
+                raise DeviceError(f"ROI Offset{name}={off} must be even for {fmt}", code="bad_setting")
         exposure = NOMINAL_EXPOSURE_US if s.exposure_us is None else float(s.exposure_us)
         gain_db = 0.0 if s.gain_db is None else float(s.gain_db)
         if not exposure > 0:
@@ -179,7 +192,10 @@ class SimCamera(Camera):
             raise DeviceError(f"frame rate {rate!r} must be > 0", code="bad_setting")
         if s.ptp is not None:
             warnings.append(f"camera has no PtpEnable; PtpEnable={s.ptp!r} not applied")
-        self._applied = {"PixelFormat": "Mono8", "Width": w, "Height": h, "OffsetX": ox, "OffsetY": oy,
+        if fmt != self._applied.get("PixelFormat"):
+            self._prerendered = []  # rendered in the previous format
+        self._renderer = renderer_for(self.world, self.size, pixel_formats.lookup(fmt).colour)
+        self._applied = {"PixelFormat": fmt, "Width": w, "Height": h, "OffsetX": ox, "OffsetY": oy,
                          "ExposureTime": exposure, "Gain": gain_db, "AcquisitionFrameRate": rate,
                          "TriggerMode": "On" if s.trigger == "software" else "Off"}
         self._roi = (slice(oy, oy + h), slice(ox, ox + w))
@@ -201,7 +217,8 @@ class SimCamera(Camera):
     def _render(self) -> np.ndarray:
         assert self._renderer is not None
         self.counters["renders"] += 1
-        return self._renderer.render(self.world.abs_H_cam(), rng=self._rng, noise=self.noise)
+        return sensor_image(self._renderer, self._applied["PixelFormat"], self.world.abs_H_cam(),
+                            rng=self._rng, noise=self.noise)
 
     def _produce(self) -> Frame | None:
         """The next frame, or None when the drop knob eats it; raises DeviceLost on the disconnect knob."""
@@ -223,11 +240,7 @@ class SimCamera(Camera):
             img = self._prerendered[(n - 1) % len(self._prerendered)]
         else:
             img = self._render()
-        img = img[self._roi]
-        if self._factor != 1.0:
-            img = np.clip(img * np.float32(self._factor) + np.float32(0.5), 0, 255).astype(np.uint8)
-        else:
-            img = img.copy()  # prerendered images are shared; the daemon owns its copy
+        img = self._deliver(img[self._roi])
         extra: dict[str, Any] = {"sim": True, "sim_abs_H_cam": pose.tolist()}
         if self.incomplete_every and n % self.incomplete_every == 0:
             cut = int(self._cut_rng.integers(1, max(2, img.shape[0])))
@@ -235,10 +248,23 @@ class SimCamera(Camera):
             self.counters["incomplete"] += 1
             extra["incomplete"] = True
         self.counters["frames"] += 1
-        return Frame(pixels=img, frame_id=n, camera_serial=self.serial, pixel_format="Mono8",
+        return Frame(pixels=img, frame_id=n, camera_serial=self.serial, pixel_format=self._applied["PixelFormat"],
                      exposure_us=self._applied["ExposureTime"], device_time_ns=t_mono,
                      host_monotonic_ns=t_mono, incomplete_count=self.counters["incomplete"],
                      extra=extra)
+
+    def _deliver(self, img: np.ndarray) -> np.ndarray:
+        """Exposure and gain, then the PixelFormat's wire layout and back: a copy the daemon owns."""
+        fmt = self._applied["PixelFormat"]
+        if self._factor != 1.0:
+            peak = np.float32(2 ** pixel_formats.lookup(fmt).bits - 1)
+            img = np.clip(img * np.float32(self._factor) + np.float32(0.5), 0, peak).astype(img.dtype)
+        elif fmt == "Mono8":
+            img = img.copy()  # prerendered images are shared
+        if fmt == "Mono8":
+            return img
+        h, w = img.shape[:2]
+        return pixel_formats.decode(pixel_formats.encode(img, fmt), fmt, w, h)
 
     def trigger(self, timeout: float = 5.0) -> Frame:
         """Render one frame at the robot's current pose."""
@@ -283,7 +309,7 @@ class SimCamera(Camera):
 
     def info(self) -> dict[str, Any]:
         return {"url": self.url.raw, "model": "SimCamera", "serial_number": self.serial,
-                "size": list(self.size), "sim": True}
+                "size": list(self.size), "sim": True, "pixel_formats": list(PIXEL_FORMATS)}
 
     def status(self) -> dict[str, Any]:
         return {

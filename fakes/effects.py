@@ -58,6 +58,9 @@ class Effects:
             r = world.rng("errors.target.print")
             s, g = r.normal(0.0, e.target.scale_sigma), r.normal(0.0, e.target.shear_sigma_rad)
             self.print_A = np.array([[1.0 + s, g], [0.0, 1.0 + s]])  # nominal -> true, about the board centre
+            # the hand-held intrinsics board is another print of the same kind (fakes/board.py's hook)
+            b = world.rng("errors.board.print").normal(0.0, e.target.scale_sigma, 2)
+            world.board_print_scale = (1.0 + float(b[0]), 1.0 + float(b[1]))
         self.floor = self.plate_flatness = None
         if e.floor is not None:
             f = e.floor

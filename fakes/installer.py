@@ -1,5 +1,6 @@
 """What the installer of a simulated Rita leaves in its data dir: ``sim/plate.json``,
-``sim/camera_model.json`` and ``sim/nests.json``.
+``sim/camera_model.json``, ``sim/nests.json`` and ``sim/board.json`` (the hand-held
+intrinsics board, as its maker's file would come).
 
 On a real robot these come from the plate's survey, the camera's intrinsic
 calibration and a rough look at where the nests stand; issue #14 will produce them
@@ -39,7 +40,9 @@ def installed_files(world: World, size: tuple[int, int]) -> dict[str, Any]:
     for name, p_abs in world.nests_abs().items():
         rough = p_abs + rng.normal(0.0, NEST_ERROR_MM, 3)
         nests[name] = [round(float(v), 1) for v in trk_H_abs[:3, :3] @ rough + trk_H_abs[:3, 3]]
-    return {"plate.json": world.plate().to_dict(),
+    from calibration.board import DEFAULT_BOARD  # the board the simulated operator holds (fakes/board.py)
+
+    return {"plate.json": world.plate().to_dict(), "board.json": dict(DEFAULT_BOARD),
             "camera_model.json": {"K": world.camera_matrix(size).tolist(), "dist": world.dist_coeffs().tolist(),
                                   "size": list(size)},
             "nests.json": nests}

@@ -213,8 +213,11 @@ class Renderer:
         return x, y, rw, rh
 
     def render(self, abs_H_cam: np.ndarray | None = None, rng: np.random.Generator | None = None,
-               noise: bool = True, roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
+               noise: bool = True, roi: tuple[int, int, int, int] | None = None, bits: int = 8) -> np.ndarray:
         """Render one uint8 (h, w) image from camera pose ``abs_H_cam`` (default: the world's).
+
+        ``bits`` > 8 quantises the same signal finer (uint16, one 8-bit DN = 2^(bits−8) DN),
+        as a 12-bit ADC delivers it (Mono12p, BayerRG12p); noise is unchanged in 8-bit DN.
 
         ``rng`` drives the noise; without one a fixed generator of the world is used, so
         the result is deterministic either way. ``roi`` = (x, y, w, h) renders only that
@@ -242,6 +245,8 @@ class Renderer:
             rng = rng if rng is not None else self.world.rng("render-noise")
             sigma = np.sqrt(p.read_noise_dn ** 2 + p.shot_gain * np.maximum(img, 0))
             img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
+        if bits != 8:
+            return np.clip(np.rint(img * np.float32(2 ** (bits - 8))), 0, 2 ** bits - 1).astype(np.uint16)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
     def albedo(self, abs_H_cam: np.ndarray, roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
@@ -301,7 +306,8 @@ class Renderer:
             tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
             okf, X, Y = to_floor(x[floor], y[floor])
             alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
-        return alb
+        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
+        return alb if held is None else held.overlay(x, y, alb)
 
     def _width_mm(self, height_mm: float) -> float:
         """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""
@@ -330,8 +336,12 @@ class Renderer:
             r = np.hypot(qx[near] - seat[0], qy[near] - seat[1])
             ring = _coverage(r - NEST_RING_MM[1], wd)
             hole = _coverage(r - NEST_RING_MM[0], wd)
-            alb[near] = alb[near] * (1 - ring) + NEST_GREY[name] * (ring - hole) + NEST_HOLE_GREY * hole
+            alb[near] = alb[near] * (1 - ring) + self._ring_albedo(name) * (ring - hole) + NEST_HOLE_GREY * hole
         return alb
+
+    def _ring_albedo(self, name: str) -> float:
+        """Albedo of nest ``name``'s ring (a colour renderer returns one channel's)."""
+        return NEST_GREY[name]
 
     def _floor_texture(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Smooth seeded floor albedo at ACS xy."""

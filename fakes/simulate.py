@@ -50,6 +50,7 @@ class SimConfig:
     report_tilt: bool = False  # the base reports its roll/pitch (inclinometer)
     mark: str = "M1"
     seed: int = 0
+    pixel_format: str = "Mono8"  # rendered images: Mono8, or e.g. BayerRG8 (the colour sensor, fakes.colour)
 
     def __post_init__(self) -> None:
         for name in ("sigma_t_mm", "mark_sigma_px", "pnp_sigma_px", "path_sigma_mm", "tilt_sigma_mrad",
@@ -74,6 +75,7 @@ class CalibrationObs:
     image: np.ndarray | None
     abs_H_rob_true: np.ndarray
     cam_H_ref_true: np.ndarray
+    pixel_format: str = "Mono8"  # of ``image`` (a Bayer image is the raw mosaic)
 
 
 @dataclass
@@ -125,10 +127,19 @@ class Simulation:
     def renderer(self) -> Any:
         """The world's ray-cast renderer, built on first use (the ray cache is costly)."""
         if self._renderer is None:
+            from drivers.pixel_formats import lookup
+            from fakes.colour import ColourRenderer
             from fakes.render import Renderer
 
-            self._renderer = Renderer(self.world, self.cfg.size)
+            colour = lookup(self.cfg.pixel_format).colour
+            self._renderer = (ColourRenderer if colour else Renderer)(self.world, self.cfg.size)
         return self._renderer
+
+    def camera_image(self, abs_H_cam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The rendered image in the configured pixel format, as the camera delivers it."""
+        from fakes.colour import sensor_image
+
+        return sensor_image(self.renderer, self.cfg.pixel_format, abs_H_cam, rng)
 
     def _tracker(self, P: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if self.world.effects.model.tracker is not None:  # the world's AT901 model replaces sigma_t_mm
@@ -181,7 +192,7 @@ class Simulation:
         image = None
         cam_ref: Any = cam_H_ref_true
         if cfg.render:
-            image = self.renderer.render(abs_H_cam, rng=self.rng(stream + "-image"))
+            image = self.camera_image(abs_H_cam, self.rng(stream + "-image"))
             cam_ref = None
         elif cfg.pnp_sigma_px > 0:
             from calibration.target import pose_from_corners
@@ -190,7 +201,8 @@ class Simulation:
             ids, uv = true_corner_projections(w, cfg.size, abs_H_cam)
             uv = uv + self.rng(stream + "-corners").normal(0.0, cfg.pnp_sigma_px, size=uv.shape)
             cam_ref = pose_from_corners(ids, uv, self.model, self.plate)
-        return CalibrationObs(heading_deg, abs_P_nests, P0, P1, cam_ref, image, abs_H_rob0, cam_H_ref_true)
+        return CalibrationObs(heading_deg, abs_P_nests, P0, P1, cam_ref, image, abs_H_rob0, cam_H_ref_true,
+                              cfg.pixel_format)
 
     # ------------------------------------------------------------------ validation
 
@@ -239,9 +251,10 @@ class Simulation:
                 ) -> np.ndarray:
         if not self.cfg.render:
             return uv_true + rng.normal(0.0, self.cfg.mark_sigma_px, size=2)
+        from calibration.image import to_grey
         from calibration.marks import locate_mark
 
-        image = self.renderer.render(abs_H_cam, rng=self.rng(name))
+        image = to_grey(self.camera_image(abs_H_cam, self.rng(name)), self.cfg.pixel_format)
         # the mark's size in pixels is known from its size and the camera height, as on the robot
         size_px = self.mark.size_mm * self.model.f / self.world.params.cam_height_mm
         return np.asarray(locate_mark(image, kind=self.mark.kind, size_px=size_px).uv, dtype=float).reshape(2)

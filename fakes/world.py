@@ -69,6 +69,8 @@ class WorldParams:
     plate_yaw_deg: float | None = None  # None: drawn from the seed
     #: error of the plate *definition* (nominal nest PCS coords) vs truth, mm, per nest
     nest_definition_bias_mm: tuple[tuple[float, float, float], ...] = ((0, 0, 0),) * 3
+    #: survey patches near the nests (calibration/patches.py, docs/operations.md "Plate survey")
+    survey_patches: bool = True
 
     # --- robot and camera mount (truth) ---
     reflector_height_mm: float = 350.0
@@ -149,6 +151,7 @@ class World:
         self.abs_H_ref = self.effects.place_plate(make_H(R, t, "abs_H_ref"), R @ centre_ref + t)
         self.abs_H_trk = make_H(rot_z(math.radians(p.tracker_yaw_deg)), p.tracker_xyz_mm, "abs_H_trk")
         self.rob_H_cam = self._true_rob_H_cam()
+        self.held_board: Any = None  # a fakes.board.HeldBoard while the operator holds one (sim.hold_board)
         if p.start_pose is None:
             self.robot = self.pose_with_target_in_view(heading_deg=yaw + 60.0)
         else:
@@ -198,7 +201,17 @@ class World:
         p = self.params
         seats = {n: (P + [0, 0, p.smr_offset_mm]).tolist() for n, P in self.nests_ref_nominal().items()}
         return Plate(plate_id, p.board_cols, p.board_rows, p.square_mm, p.marker_mm, p.aruco_dict,
-                     seats, p.smr_offset_mm, notes="simulated plate")
+                     seats, p.smr_offset_mm, notes="simulated plate", patches=self.patch_layout())
+
+    def patch_layout(self) -> list[dict[str, Any]]:
+        """The survey patches as printed (a design value, exact in this world), or [] without them."""
+        from calibration.patches import default_patches
+
+        p = self.params
+        if not p.survey_patches:
+            return []
+        first = (p.board_cols * p.board_rows) // 2  # after the main board's marker ids
+        return [q.to_dict() for q in default_patches(self.nests_ref_true(), self.board_centre_ref(), first)]
 
     def nests_abs(self) -> dict[str, np.ndarray]:
         return {n: apply_H(self.abs_H_ref, P) for n, P in self.nests_ref_true().items()}
@@ -267,6 +280,12 @@ class World:
     def set_robot(self, pose: RobotPose) -> None:
         with self.lock:
             self.robot = pose
+
+    def hold_board(self, **pose: Any) -> dict[str, Any]:
+        """The operator holds the calibration board at a pose relative to the camera (fakes/board.py)."""
+        from fakes.board import hold
+
+        return hold(self, **pose)
 
     def reflectors_abs(self) -> dict[str, np.ndarray]:
         """Every reflector the tracker could lock onto (ACS)."""

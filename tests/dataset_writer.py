@@ -97,19 +97,52 @@ def point(abs_xyz: np.ndarray) -> dict[str, Any]:
             "abs_H_trk": ABS_H_TRK.tolist(), "std": [0.005, 0.005, 0.005]}
 
 
-def write_referencing(root: Path, *, move_mm: float = 200.0, bits: int = 8) -> np.ndarray:
-    """Write a referencing dataset folder; return the true rob_H_cam."""
+#: a warm light on the neutral board, so colour images are not trivially grey (R, G, B gains)
+LIGHT_RGB = (1.0, 0.9, 0.75)
+#: (row, column) of each colour in the 2x2 cell of a BayerRG mosaic (row 0 = R G, row 1 = G B)
+BAYER_RG = {"R": ((0, 0),), "G": ((0, 1), (1, 0)), "B": ((1, 1),)}
+
+
+def as_camera_image(grey: np.ndarray, pixel_format: str) -> np.ndarray:
+    """The rendered board as a camera of ``pixel_format`` gives it, stored as docs/datasets.md says.
+
+    Colour images are R, G, B in the returned array (and in the PNG file).
+    """
+    rgb = np.dstack([grey.astype(float) * g for g in LIGHT_RGB])
+    if pixel_format == "RGB8":
+        return np.round(rgb).astype(np.uint8)
+    mosaic = np.empty(grey.shape)
+    for c, cells in BAYER_RG.items():
+        for dy, dx in cells:
+            mosaic[dy::2, dx::2] = rgb[dy::2, dx::2, "RGB".index(c)]
+    if pixel_format == "BayerRG8":
+        return np.round(mosaic).astype(np.uint8)
+    if pixel_format == "BayerRG12p":  # 12-bit values, stored in a 16-bit PNG
+        return np.round(mosaic * 4095 / 255).astype(np.uint16)
+    raise ValueError(f"writer: no pixel format {pixel_format!r}")
+
+
+def write_referencing(root: Path, *, move_mm: float = 200.0, bits: int = 8,
+                      pixel_format: str | None = None) -> np.ndarray:
+    """Write a referencing dataset folder; return the true rob_H_cam.
+
+    ``pixel_format`` None writes no pixel format (an old dataset: 8- or 16-bit grey by ``bits``).
+    """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     sc = scene(move_mm)
     img = render(sc["cam_H_ref"])
     if bits == 16:
         img = img.astype(np.uint16) * 257
-    cv2.imwrite(str(root / "run0.png"), img)
+    if pixel_format is not None:
+        img = as_camera_image(img, pixel_format)
+    cv2.imwrite(str(root / "run0.png"), img[:, :, ::-1] if img.ndim == 3 else img)  # OpenCV writes BGR
     plate = {"schema": 1, "plate_id": "WRITER-1", "board_cols": BOARD["cols"], "board_rows": BOARD["rows"],
              "square_mm": BOARD["square"], "marker_mm": BOARD["marker"], "aruco_dict": BOARD["dict"],
              "nests_ref_nst": SEATS, "smr_offset_mm": DELTA}
-    header = {"shape": [SIZE[1], SIZE[0]], "dtype": "|u1" if bits == 8 else "<u2"}
+    header = {"shape": list(img.shape), "dtype": "|u1" if img.dtype == np.uint8 else "<u2"}
+    if pixel_format is not None:
+        header["pixel_format"] = pixel_format
     state = {"schema": 1, "procedure": "referencing",
              "obs": {"plate": plate, "camera_model": {"K": K.tolist(), "dist": [0.0] * 5, "size": list(SIZE)},
                      "sigma_t_mm": 0.010, "nests": {n: point(p) for n, p in sc["smr"].items()},

@@ -136,6 +136,18 @@ TABLE: tuple[Command, ...] = (
             result="{streaming: false}"),
     Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status"),
             result="applied settings, warnings, counters"),
+    Command("camera.preview", "the newest streamed frame, small (or a full-resolution region), as one JPEG "
+            "attachment: live views over a thin link", verb="console",
+            result="{header, format: jpeg, x, y, w, h, step, out_w, out_h, full_w, full_h}: the region shown "
+                   "(sensor px) and the stride; {unchanged: true, frame_id} while the newest frame's id is after; "
+                   "not_found before the first streamed frame", args=(
+                Arg("width", "int", "largest width of the picture", unit="px", default=640, lo=16, hi=4096),
+                Arg("roi_x", "int", "left edge of the region", unit="px", lo=0, default_text="0"),
+                Arg("roi_y", "int", "top edge of the region", unit="px", lo=0, default_text="0"),
+                Arg("roi_w", "int", "region width", unit="px", lo=1, default_text="the whole frame"),
+                Arg("roi_h", "int", "region height", unit="px", lo=1, default_text="the whole frame"),
+                Arg("quality", "int", "JPEG quality", default=80, lo=10, hi=95),
+                Arg("after", "int", "frame id the client already shows", default=-1, lo=-1))),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
@@ -166,6 +178,26 @@ TABLE: tuple[Command, ...] = (
             "operator", result="{x_mm, y_mm, heading_deg}", args=(
                 Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
                     default_text="plate yaw + 60"),)),
+    Command("sim.hold_board", "simulated world only: the operator holds the calibration board under the camera "
+            "(pose in the camera frame), or takes it away", "operator",
+            result="{held, board_id, cam_H_board}", args=(
+                Arg("z_mm", "float", "board centre's depth along the optical axis", unit="mm", lo=0, lo_open=True,
+                    default_text="the board is taken away"),
+                Arg("x_mm", "float", "board centre, camera x (image right)", unit="mm", default=0.0),
+                Arg("y_mm", "float", "board centre, camera y (image down)", unit="mm", default=0.0),
+                Arg("tilt_x_deg", "float", "tilt about the image x axis (+: top edge towards the camera)", unit="°",
+                    default=0.0, lo=-80, hi=80),
+                Arg("tilt_y_deg", "float", "tilt about the image y axis (+: right edge towards the camera)",
+                    unit="°", default=0.0, lo=-80, hi=80),
+                Arg("rot_deg", "float", "turn in the image plane (+: clockwise in the image)", unit="°",
+                    default=0.0, lo=-360, hi=360))),
+    Command("sim.survey_images", "simulated world only: photograph the whole plate with a survey camera "
+            "(PNG, RGB) into data_dir/sim/survey/, for `ritactl plate survey`", "operator",
+            result="{folder, files}: paths relative to the data dir; rendering takes ~2 s per view "
+            "(use --timeout)", args=(
+                Arg("views", "int", "number of photographs", default=8, lo=3, hi=12),
+                Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled; the "
+                    "renderer peaks at ~0.7 GB at 2400)", unit="px", default=2400, lo=900, hi=3000))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}"),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "

@@ -23,7 +23,7 @@ from typing import Any, Iterator
 
 from daemon.bus.png_check import png_info
 
-SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result")
+SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result", "board")
 SCHEMA_BASE = "https://rita.invalid/schemas/"
 #: |abs_xyz − abs_H_trk·xyz| above this is a mismatch (mm); stored values round-trip far below it
 XYZ_TOLERANCE_MM = 1e-4
@@ -189,6 +189,9 @@ def check_values(doc: Any, file: str, abs_H_trk: Any = None) -> list[Problem]:
 
 _IMAGE_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*\.png$")
 _DEPTH = {"|u1": 8, "<u2": 16, ">u2": 16}
+#: how each pixel format is stored (docs/datasets.md, "Images"): (PNG channels, bit depth)
+STORED_AS = {"Mono8": (1, 8), "Mono12p": (1, 16), "Mono12Packed": (1, 16), "Mono16": (1, 16),
+             "BayerRG8": (1, 8), "BayerRG12p": (1, 16), "RGB8": (3, 8), "RGBa8": (4, 8)}
 
 
 def _load_json(root: Path, name: str, problems: list[Problem], required: bool = True) -> Any:
@@ -243,9 +246,11 @@ class _Images:
             self.problems.append(Problem(where, path, f"image {file}: {info}"))
             return
         w, h, ch, depth = info
-        if grey and (ch != 1 or depth not in (8, 16)):
+        if grey and not (ch == 1 and depth in (8, 16) or (ch, depth) == (3, 8)):
             self.problems.append(Problem(where, path, f"image {file} has {ch} channel(s) at {depth} bit; "
-                                                      f"procedure images are 8- or 16-bit greyscale"))
+                                                      f"procedure images are 8- or 16-bit single-channel "
+                                                      f"(mono or Bayer) or 8-bit RGB"))
+        self._check_format(file, where, path, header, (ch, depth), grey)
         if isinstance(header, dict) and isinstance(header.get("shape"), list):
             shape, dtype = header["shape"], header.get("dtype")
             want = [h, w] if ch == 1 else [h, w, ch]
@@ -255,6 +260,20 @@ class _Images:
         if isinstance(size_wh, list) and len(size_wh) == 2 and size_wh != [w, h]:
             self.problems.append(Problem(where, path, f"image {file} is {w}x{h} px but the camera model size is "
                                                       f"{size_wh}"))
+
+    def _check_format(self, file: str, where: str, path: str, header: Any, got: tuple[int, int],
+                      procedure: bool) -> None:
+        """The PNG is stored as its header's pixel format says (none recorded: read as Mono8/16, RGB8)."""
+        fmt = header.get("pixel_format") if isinstance(header, dict) else None
+        if not isinstance(fmt, str):
+            return
+        want = STORED_AS.get(fmt)
+        if want is None and procedure:
+            self.problems.append(Problem(where, path, f"image {file}: pixel format {fmt!r} is not one the "
+                                                      f"computation reads ({', '.join(STORED_AS)})"))
+        elif want is not None and want != got:
+            self.problems.append(Problem(where, path, f"image {file} has {got[0]} channel(s) at {got[1]} bit but "
+                                                      f"pixel format {fmt} is stored with {want[0]} at {want[1]}"))
 
 
 def _obs_images(obs: dict[str, Any]) -> Iterator[tuple[tuple[Any, ...], Any, Any]]:
@@ -294,6 +313,7 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     if not isinstance(obs, dict):
         return
     problems += _plate_problems(obs.get("plate"), "state.json", ("obs", "plate"))
+    problems += _plate_problems(obs.get("board"), "state.json", ("obs", "board"))  # the same rule for a board
     for key in ("camera_model", "initial_model"):
         problems += _model_problems(obs.get(key), "state.json", ("obs", key))
     calib = obs.get("calibration")
@@ -356,7 +376,7 @@ def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     if _depth(doc) > MAX_DEPTH:
         return [Problem(file, "$", f"nested more than {MAX_DEPTH} levels deep")]
     out = check_schema(doc, name, file) + check_values(doc, file)
-    if name == "plate":
+    if name in ("plate", "board"):
         out += _plate_problems(doc, file, ())
     return out + (_model_problems(doc, file, ()) if name == "camera_model" else [])
 

@@ -83,9 +83,15 @@ def safe_name(text: str, limit: int = 100) -> str:
 
 
 def encode_image(pixels: Any, fmt: str = ".png") -> bytes:
-    """Lossless PNG/TIFF bytes for an 8/16-bit mono or colour image (OpenCV, imported lazily)."""
+    """Lossless PNG/TIFF bytes for an 8/16-bit mono or colour image (OpenCV, imported lazily).
+
+    Colour frames are R, G, B(, a) in memory (docs/datasets.md, "Images"); OpenCV writes
+    B, G, R, so they are swapped here and the file holds true RGB(A).
+    """
     import cv2  # noqa: PLC0415 - keeps ritactl free of OpenCV
 
+    if getattr(pixels, "ndim", 0) == 3 and pixels.shape[2] in (3, 4):
+        pixels = cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR if pixels.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
     ok, buf = cv2.imencode(fmt, pixels)
     if not ok:
         raise ValueError(f"could not encode a {getattr(pixels, 'shape', '?')} image as {fmt}")

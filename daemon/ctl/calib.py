@@ -22,7 +22,8 @@ from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import Exit, bad_input, for_verdict
 from daemon.bus.protocol import CommandError, ErrorCode
 
-MOTION_PROCEDURES = PROCEDURES  # every procedure moves the robot (intrinsics: one pose per view)
+#: the procedures that move the robot (intrinsics does not: the operator moves the board)
+MOTION_PROCEDURES = tuple(p for p in PROCEDURES if p != "intrinsics")
 POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
 
 
@@ -201,8 +202,7 @@ def cmd_calibrate(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_intrinsics(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "intrinsics", {"plate": _load_json(a.plate, "plate definition"), "views": a.views,
-                                       "camera_model": _load_json(a.camera_model, "camera model")})
+    return _start(c, a, "intrinsics", {"board": _load_json(a.board, "board definition")})
 
 
 def cmd_measure_mark(c: Client, a: argparse.Namespace) -> int:
@@ -276,10 +276,9 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
     p.add_argument("--reversal", action="store_true", help="second referencing turned 180° (instrument reversal)")
     p.add_argument("--distance", type=float, help="straight drive between P0 and P1, mm (default 200)")
     p.set_defaults(fn=cmd_calibrate)
-    p = sub.add_parser("intrinsics", parents=[common], help="camera model from several views of the target")
-    p.add_argument("--plate", help="plate definition JSON (default: the robot's installed one)")
-    p.add_argument("--camera-model", help="camera model JSON used as the initial guess")
-    p.add_argument("--views", type=int, default=6, help="number of views (default 6)")
+    p = sub.add_parser("intrinsics", parents=[common],
+                       help="camera model from a hand-held board, view by view as the prompts say")
+    p.add_argument("--board", help="board definition JSON, board.json (default: the robot's installed one)")
     p.set_defaults(fn=cmd_intrinsics)
     for name, fn in (("measure-mark", cmd_measure_mark), ("experiment", cmd_experiment)):
         p = sub.add_parser(name, parents=[common], help=f"{name} with the active calibration")

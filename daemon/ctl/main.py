@@ -12,6 +12,7 @@ Examples::
     ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
     ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
+    ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
 
@@ -134,8 +135,10 @@ def _add_globals_everywhere(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from daemon.ctl.calib import add_parsers
     from daemon.ctl.completion import add_parser as add_completion_parser
+    from daemon.ctl.console import add_parser as add_console_parser
     from daemon.ctl.datasets import add_parsers as add_dataset_parsers
     from daemon.ctl.keys import add_parser as add_keys_parser
+    from daemon.ctl.plate import add_parsers as add_plate_parsers
 
     ap = _Parser(prog="ritactl", description="Operator client for ritad",
                  epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ritactl.toml, else ipc:///run/ritad/cmd. "
@@ -159,8 +162,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_device_parsers(sub, [])
     add_parsers(sub)
     add_dataset_parsers(sub)
+    add_plate_parsers(sub)
     add_keys_parser(sub)
     ctl_fetch.add_parser(sub)
+    add_console_parser(sub)
     call = sub.add_parser("call", help="send any bus command (JSON result)")
     call.add_argument("command", help="bus command name (`ritactl call help` lists them)")
     call.add_argument("args", nargs="?", help='JSON object of arguments, e.g. \'{"x": 1}\'')

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.command_table import COMMANDS, TABLE, help_entry, validate
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
-from daemon.ritad import files
+from daemon.ritad import files, registry
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -178,10 +179,36 @@ def _sim(s: Services) -> dict[str, Handler]:
         w.set_robot(w.settle(pose))  # on its wheels: the tilt of the plate under them (error profiles)
         return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
 
-    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate}
+    def hold_board(req: Request) -> Any:
+        """The operator holds the intrinsics board under the camera (an operator's hands on the real robot)."""
+        try:
+            return world(req).hold_board(**req.args)
+        except ValueError as exc:
+            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: {exc}") from None
+
+    def survey_images(req: Request) -> Any:
+        """Whole-plate photographs for the plate survey (an operator's camera on the real floor)."""
+        w, a = world(req), req.args
+        render = registry.sim_survey_renderer()
+        root = Path(s.data_dir)
+
+        def run() -> Any:
+            paths = render(w, root, a["views"], (a["width_px"], a["width_px"] * 2 // 3))
+            return {"folder": "sim/survey", "files": [p.relative_to(root).as_posix() for p in paths]}
+
+        return s.storage.submit(run)
+
+    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board,
+            "sim.survey_images": survey_images}
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim)
+def _preview(s: Services) -> dict[str, Handler]:
+    from daemon.ritad.preview import preview_handlers
+
+    return preview_handlers(s.latest_frame)
+
+
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview)
 
 
 def validated(cmd: str, handler: Handler) -> Handler:

@@ -169,7 +169,7 @@ class Daemon:
                         abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
                         robot=cfg.robot, calib=self.calib, world=self.world,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
-                        state=self.state)
+                        state=self.state, latest_frame=lambda: self.frames.last_frame)
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""

@@ -148,6 +148,7 @@ class FramePublisher(_Publisher):
         super().__init__("pub-frames", ctx, endpoints, hwm, queue_size, security)
         self.dropped = 0  # frames dropped before the socket (publisher could not keep up)
         self.last_header: dict[str, Any] | None = None
+        self.last_frame: Frame | None = None  # camera.preview makes live-view pictures from it
 
     def publish(self, frame: Frame) -> None:
         try:
@@ -172,3 +173,4 @@ class FramePublisher(_Publisher):
                 self.dropped += 1
         self.sent += 1
         self.last_header = header
+        self.last_frame = frame

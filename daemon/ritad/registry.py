@@ -42,6 +42,7 @@ ADAPTERS: dict[str, dict[str, str]] = {
 SIM_WORLD_FACTORY = "fakes.installer:start"
 #: the simulated world's error profiles, name -> builder ([sim] profile; fakes/profiles.py)
 SIM_PROFILES = "fakes.profiles:PROFILES"
+SIM_SURVEY_FACTORY = "fakes.survey_views:install"  # sim.survey_images: (world, data_dir, views, size) -> paths
 SIM_SCHEME = "sim"
 
 #: top-level module -> what to install when it is missing
@@ -124,6 +125,11 @@ def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tupl
 def sim_profiles() -> list[str]:
     """Names of the simulated world's error profiles (loaded by name: ritad never imports fakes)."""
     return list(_load(SIM_PROFILES, "[sim] profile"))
+
+
+def sim_survey_renderer() -> Any:
+    """The simulated survey camera's writer (``sim.survey_images``), imported by name like the world."""
+    return _load(SIM_SURVEY_FACTORY, "sim.survey_images")
 
 
 def in_world(url: str, world: str) -> str:

@@ -40,3 +40,4 @@ class Services:
     hello: Callable[[], dict[str, Any]]
     health: Callable[[], dict[str, Any]]
     state: Callable[[], dict[str, Any]]
+    latest_frame: Callable[[], Any] = lambda: None  # the newest published Frame, for camera.preview

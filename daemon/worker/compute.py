@@ -15,6 +15,7 @@ import numpy as np
 from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.frames import apply_H
+from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
@@ -37,18 +38,12 @@ def _sigma_t(obs: dict[str, Any]) -> float:
 
 
 def to_8bit(image: np.ndarray) -> np.ndarray:
-    """An 8-bit view for the detectors: 16-bit images (Mono10/12/16 in 16-bit PNG) scaled by their peak.
+    """An 8-bit grey image for the detectors (:func:`calibration.image.to_grey` of a format-less image).
 
-    Only a gain: corner and mark positions do not depend on it, and an image whose
-    useful bits sit low in the 16-bit word (Mono12 = 0..4095) keeps its full contrast.
+    The loaders already give 8-bit grey (daemon.worker.images); this keeps a raw
+    mono array handed in directly working: 16-bit is scaled by its peak, a pure gain.
     """
-    img = np.asarray(image)
-    if img.dtype == np.uint8:
-        return img
-    if img.dtype != np.uint16:
-        raise ValueError(f"image: expected 8- or 16-bit pixels, got dtype {img.dtype}")
-    peak = max(int(img.max()), 1)
-    return np.round(img.astype(np.float32) * (255.0 / peak)).astype(np.uint8)
+    return to_grey(np.asarray(image))
 
 
 def _eight_bit(load: LoadImage) -> LoadImage:
@@ -66,7 +61,7 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     runs = []
     for i, run in enumerate(obs["runs"]):
         res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
-                        sigma_t_mm=sigma_t, seed=i)
+                        sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
     scs0 = make_scs(model, first.cam_H_ref)
@@ -78,7 +73,8 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     if len(runs) >= 2:
         rev = combine(runs)
         out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
-        messages = [m for r in runs for m in r.messages] + rev.messages
+        # dict.fromkeys: a note both runs give (same text) is listed once
+        messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
         verdicts = [r.verdict for r in runs]
         if rev.cov_rob_H_scn is not None and out["uncertainty"]:
             # the combined estimate: its covariance replaces the single run's for marks
@@ -139,27 +135,45 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "verdict": "ok", "messages": []}
 
 
-def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """Camera model from several views of the plate target."""
-    from calibration.intrinsics import calibrate_intrinsics
+#: the focal length's 1σ above which an intrinsics model is only a warn (issue #14's 0.1 % goal)
+MAX_F_STD_FRACTION = 0.001
 
-    plate = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
+
+def _intrinsics_verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str, list[str]]:
+    if report["degenerate"]:
+        return "fail", [f"the views do not determine the camera model: {m}" for m in report["findings"]]
+    messages = list(report["warnings"])
+    f_std = max(report["std"]["fx"], report["std"]["fy"])
+    if f_std > MAX_F_STD_FRACTION * model.f:
+        messages.append(f"focal length only known to ±{f_std:.2f} px ({100 * f_std / model.f:.3f} % > "
+                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views (recipe views tilt-x+35, tilt-y+35)")
+    return ("warn" if messages else "ok"), messages
+
+
+def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
+    """Camera model + uncertainty from the stored board views (daemon/worker/guided_intrinsics.py)."""
+    from calibration.board import Board
+    from calibration.intrinsics import PARAM_NAMES, calibrate_intrinsics
+
     load = _eight_bit(load)
+    if "board" in obs:
+        board: Any = Board.from_dict(obs["board"], source="state.json: obs.board")
+    else:  # a dataset of the earlier procedure: views of the plate target
+        board = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
     images = [load(v["image"]) for v in obs["views"]]
+    if not images:
+        raise ValueError("no views were taken (every view skipped): run the procedure again")
     size = (images[0].shape[1], images[0].shape[0])
-    initial = (CameraModel.from_dict(obs["initial_model"], source="state.json: obs.initial_model")
-               if obs.get("initial_model") else None)
-    model, report = calibrate_intrinsics(images, plate, size, initial=initial)
-    report = report if isinstance(report, dict) else {"report": report}
-    messages, verdict = [], "ok"
-    f_std = (report.get("std") or {}).get("fx")
-    if f_std is not None and f_std > 0.002 * model.K[0, 0]:
-        # near-nadir views of a flat target hardly separate focal length from distance
-        verdict = "warn"
-        messages.append(f"focal length only known to ±{f_std:.1f} px ({100 * f_std / model.K[0, 0]:.2f} %): "
-                        f"the views are all near nadir; tilt the target or the camera for a better model")
+    model, report = calibrate_intrinsics(images, board, size)
+    verdict, messages = _intrinsics_verdict(model, report)
+    for v, stored in zip(report["views"], obs["views"]):
+        v["key"] = stored.get("key")
+    camera_model = {**model.to_dict(), "std": {n: report["std"][n] for n in PARAM_NAMES},
+                    "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
+                                    "k3_fitted": report["k3"]["fitted"],
+                                    "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
     return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version,
-            "camera_model": model.to_dict(), "report": report, "verdict": verdict, "messages": messages}
+            "camera_model": camera_model, "report": report, "verdict": verdict, "messages": messages}
 
 
 COMPUTE = {"referencing": compute_referencing, "measure-mark": compute_measure_mark,

@@ -19,6 +19,7 @@ from calibration import __version__
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
 from daemon.bus.storage import Dataset, atomic_write_json
+from daemon.worker.images import grey_loader
 
 log = logging.getLogger("daemon.worker")
 
@@ -135,9 +136,5 @@ class JobContext:
         return f"{name}.png", h, pixels
 
     def load_image(self, file: str) -> np.ndarray:
-        import cv2
-
-        img = cv2.imread(str(self.root / file), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise FileNotFoundError(f"{self.root / file}: missing or unreadable image")
-        return img
+        """A stored image as 8-bit grey for detection (its pixel format from its sidecar)."""
+        return grey_loader(self.root)(file)

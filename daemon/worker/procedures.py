@@ -13,16 +13,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-from calibration.plate import NEST_NAMES, Plate
+from calibration.plate import NEST_NAMES
 from daemon.worker.compute import footprint_abs
-from daemon.worker.job import JobContext, StepFailed
+from daemon.worker.guided_intrinsics import intrinsics
+from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
 from daemon.bus.command_table import PROCEDURES
 from daemon.bus.protocol import CommandError
 
 #: default parameters (mm, degrees)
 DEFAULTS = {"distance_mm": 200.0, "sigma_t_mm": 0.010, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
-            "offset_mm": 3.0, "seed": 1, "kind": "dot", "views": 6}
+            "offset_mm": 3.0, "seed": 1, "kind": "dot"}
 
 
 def param(ctx: JobContext, key: str) -> Any:
@@ -188,63 +189,6 @@ def experiment(ctx: JobContext) -> None:
         stops.append({**stop, "k": k, "rep": r})
         ctx.mark_done(name)
     ctx.progress("compute the metrics", 92, "")
-
-
-#: corners a view needs to count for the intrinsics (calibrate_intrinsics' default)
-MIN_VIEW_CORNERS = 30
-
-
-def _intrinsics_view(ctx: JobContext, name: str, plate: Any) -> dict[str, Any]:
-    """Capture one view and check the target is in it, so a bad view fails its own step.
-
-    A view without the target would only fail the final calculation, and a resume would
-    then skip every (stored) view and fail the same way; failing here leaves the step
-    undone, and a resume re-takes just that view, under a new file name (nothing is
-    overwritten).
-    """
-    from calibration.target import detect_corners
-
-    tries = int(ctx.state.get(f"{name}.tries", 0))
-    ctx.state[f"{name}.tries"] = tries + 1
-    file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
-    ids, _ = detect_corners(pixels, plate)
-    if len(ids) < MIN_VIEW_CORNERS:
-        ctx.checkpoint()
-        raise StepFailed(f"the target is not in view in {file} ({len(ids)} corners < {MIN_VIEW_CORNERS}): put the "
-                         f"robot on the plate with the target under the camera")
-    return {"image": file, "header": header, "n_corners": int(len(ids))}
-
-
-def intrinsics(ctx: JobContext) -> None:
-    """Several views of the plate target from slightly different robot poses."""
-    if "plate" not in ctx.obs:
-        ctx.obs["plate"] = ctx.params.get("plate") or _installed(ctx, "plate.json")
-        ctx.obs["initial_model"] = ctx.params.get("camera_model")
-    plate = Plate.from_dict(ctx.obs["plate"], source="plate file")
-    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
-    views = ctx.obs.setdefault("views", [])
-    n = int(param(ctx, "views"))
-    # small moves and turns keep the target in view while varying where it falls in the image
-    moves = [(0.0, 0.0), (8.0, 4.0), (-16.0, -8.0), (8.0, 8.0), (6.0, -6.0), (-12.0, 3.0), (6.0, -5.0), (4.0, 6.0)]
-    for j in range(n):
-        name = f"view-{j:02d}"
-        if ctx.done(name):
-            continue
-        ctx.progress(f"view {j + 1}/{n}", 5 + 85 * j / n, "robot moving")
-        dist, ang = moves[j % len(moves)]
-        if j and not ctx.state.get(f"{name}.moved"):
-            ctx.state[f"{name}.moved"] = True  # a worker killed mid-move must not move twice
-            ctx.checkpoint()
-            try:
-                nav.turn(ang)
-                nav.move(dist)
-            except CommandError:
-                ctx.state.pop(f"{name}.moved")  # the base refused or stopped: a resume moves again
-                ctx.checkpoint()
-                raise
-        views.append(_intrinsics_view(ctx, name, plate))
-        ctx.mark_done(name)
-    ctx.progress("calibrate the camera", 92, "")
 
 
 _RUNNERS = {"referencing": referencing, "measure-mark": measure_mark, "experiment": experiment,

@@ -11,10 +11,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
 from daemon.worker.compute import COMPUTE
+from daemon.worker.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
 #: which stored inputs each override replaces, per procedure (obs key)
@@ -26,15 +25,7 @@ _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibrati
 
 
 def _load(root: Path):
-    import cv2
-
-    def load(file: str) -> np.ndarray:
-        img = cv2.imread(str(root / file), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise FileNotFoundError(f"{root / file}: missing or unreadable image")
-        return img
-
-    return load
+    return grey_loader(root)
 
 
 def _max_diff(a: Any, b: Any) -> float:

@@ -157,7 +157,7 @@ def test_sim_section_reaches_the_world_through_config(tmp_path):
     name, world = start_sim_world({"seed": 7, "tracker_sigma_mm": 0.02}, cfg.daemon.data_dir, "sim:?size=64x48")
     assert world.params.seed == 7 and world.params.tracker_sigma_mm == 0.02
     assert sorted(p.name for p in (tmp_path / "data" / "sim").iterdir()) == \
-        ["camera_model.json", "nests.json", "plate.json"]
+        ["board.json", "camera_model.json", "nests.json", "plate.json"]
     url = DeviceURL.parse(in_world("sim:?size=64x48", name))
     assert worlds.world_for(url) is world and url.option("size", "") == "64x48"
     assert in_world("emscon://127.0.0.1:700", name) == "emscon://127.0.0.1:700"

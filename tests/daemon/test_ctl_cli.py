@@ -76,7 +76,7 @@ def test_local_file_problems_are_exit_5(tmp_path, capsys):
     assert ctl.main(["--endpoint", ep, "calibrate", "--plate", str(tmp_path / "missing.json")]) == Exit.BAD_INPUT
     assert "missing.json" in capsys.readouterr().err
     (tmp_path / "bad.json").write_text("{not json")
-    assert ctl.main(["--json", "--endpoint", ep, "intrinsics", "--plate", str(tmp_path / "bad.json")]) == 5
+    assert ctl.main(["--json", "--endpoint", ep, "intrinsics", "--board", str(tmp_path / "bad.json")]) == 5
     assert json.loads(capsys.readouterr().out)["error"] == "bad_input"
 
 

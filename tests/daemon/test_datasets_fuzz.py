@@ -21,8 +21,9 @@ import pytest
 from daemon.ctl import main as ctl
 from daemon.bus.datasets import Problem, validate_folder
 from tests.dataset_writer import write_referencing
+from tests.fuzzscale import cases
 
-N_MUTATIONS = 1000
+N_MUTATIONS = cases(1000, 300)
 WRONG_VALUES = [None, "x", "", 0, -1, 1.5, True, [], {}, [1, 2], [[1, 2, 3]], float("nan"), float("inf"),
                 -1e308, "../../etc/passwd", "run0.tif", {"a": 1}, 2 ** 70]
 

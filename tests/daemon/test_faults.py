@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from daemon.bus.client import Client, Subscriber
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
 from daemon.bus.protocol import CommandError

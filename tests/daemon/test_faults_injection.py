@@ -31,6 +31,7 @@ from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
 from tests.daemon.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
+from tests.fuzzscale import cases
 
 
 # ---------------------------------------------------------------------------- live: proxy + daemon
@@ -151,7 +152,7 @@ def test_emscon_streams_through_a_live_daemon(emscon_daemon: tuple[Daemon, Injec
     t0 = time.monotonic()
     with Client(d.server.endpoints[0], timeout=10) as c:
 
-        @settings(max_examples=220, **FUZZ)
+        @settings(max_examples=cases(220, 80), **FUZZ)
         @given(s=emscon_stream())
         def run(s: dict[str, Any]) -> None:
             _wait(lambda: runner.state.value == "READY", 10, "tracker READY again")

@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 
 from daemon.bus.client import Client
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from daemon.bus.protocol import CommandError
 from fakes.launch import RitadProcess, spawn_ritad
 

@@ -148,7 +148,7 @@ def test_fetch_copies_everything_then_skips(served, capsys) -> None:
     import json
 
     r = json.loads(capsys.readouterr().out)
-    assert r["fetched"] == [] and len(r["skipped"]) == 7 + 3 and r["errors"] == {}  # + sim/*.json
+    assert r["fetched"] == [] and len(r["skipped"]) == 7 + 4 and r["errors"] == {}  # + sim/*.json
 
 
 def test_interrupted_fetch_resumes_where_it_stopped(served) -> None:

@@ -33,6 +33,10 @@ from drivers.emscon.codec import (COMMANDS, MAX_PACKET, MEAS_VALUE, MEAS_VALUE2,
 from fakes.robot import SimRobot
 from fakes.world import World
 from fakes.worlds import sim_url
+from tests.fuzzscale import cases, scaled
+
+STREAMS = (1100, 300)  # hypothesis examples: full run, make-test sample
+LINES = (560, 160)
 
 FUZZ = dict(derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 int32 = st.integers(-(1 << 31), (1 << 31) - 1)
@@ -148,7 +152,7 @@ def test_emscon_streams_into_the_adapter() -> None:
     how: dict[str, int] = {}
     t0 = time.monotonic()
 
-    @settings(max_examples=1100, **FUZZ)
+    @settings(max_examples=cases(*STREAMS), **FUZZ)
     @given(streams=st.lists(emscon_stream(), min_size=10, max_size=10, unique_by=stream_key))
     def run(streams: list[dict[str, Any]]) -> None:
         for s in streams:
@@ -172,8 +176,8 @@ def test_emscon_streams_into_the_adapter() -> None:
     dt = time.monotonic() - t0
     print(f"\nemScon adapter fuzz: {n[0]} streams ({len(distinct)} distinct) in {dt:.1f} s {how}; counters "
           f"{pb.tracker.status()['counters']}")
-    assert len(distinct) >= 9_800  # with the 220 live streams below: over 10,000
-    assert pb.tracker.status()["counters"]["protocol_errors"] > 1000
+    assert len(distinct) >= scaled(9_800, *STREAMS)  # with the 220 live streams below: over 10,000
+    assert pb.tracker.status()["counters"]["protocol_errors"] > scaled(1000, *STREAMS)
 
 
 # ---------------------------------------------------------------------------- robot lines
@@ -259,7 +263,7 @@ def test_robot_lines_into_the_driver() -> None:
     distinct: set[bytes] = set()
     t0 = time.monotonic()
     try:
-        @settings(max_examples=560, **FUZZ)
+        @settings(max_examples=cases(*LINES), **FUZZ)
         @given(lines=st.lists(robot_line(), min_size=24, max_size=24, unique_by=lambda x: x[0]))
         def run(lines: list[tuple[bytes, str | None]]) -> None:
             before, n_events = dict(robot.counters), len(events)
@@ -275,4 +279,4 @@ def test_robot_lines_into_the_driver() -> None:
         robot.shutdown()
     print(f"\nrobot line fuzz: {n[0]} lines ({len(distinct)} distinct) in {time.monotonic() - t0:.1f} s; "
           f"counters {robot.counters}")
-    assert len(distinct) >= 10_000
+    assert len(distinct) >= scaled(10_000, *LINES)

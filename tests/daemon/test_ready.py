@@ -46,7 +46,7 @@ def test_start_ritad_with_fakes_then_devices_ready(tmp_path: Path) -> None:
         h = r.wait_ready(timeout=90)
         assert all(v["state"] == "READY" for v in h["devices"].values())
         assert sorted(p.name for p in (tmp_path / "data" / "sim").iterdir()) == \
-            ["camera_model.json", "nests.json", "plate.json"]  # the world's factory played the installer
+            ["board.json", "camera_model.json", "nests.json", "plate.json"]  # the world's factory played the installer
         with r.client() as c:
             assert c.call("hello")["sim"] is True
     assert r.proc.returncode == 0  # SIGTERM: a clean stop

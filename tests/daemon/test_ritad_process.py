@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from daemon.bus.client import Client
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from fakes.launch import start_ritad
 
 

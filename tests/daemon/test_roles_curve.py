@@ -17,7 +17,7 @@ from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.protocol import CommandError
 from daemon.ctl.exitcodes import Exit
 from daemon.ctl.main import main as ritactl
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from tests.ctl_sim import sim_daemon
 
 MOVE = {"distance_mm": 1.0, "speed_mm_s": 100.0, "confirm": True}

@@ -16,7 +16,7 @@ import pytest
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.ctl.watch import NO_FRAMES, LiveStatus, Screen
-from daemon.demo import lock_on_robot
+from fakes.operator import lock_on_robot
 from daemon.ritad.main import Daemon
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 

@@ -211,6 +211,8 @@ def test_bad_settings_raise_clear_errors(cam: GenICamCamera) -> None:
         cam.configure(CameraSettings(width=5000))
     with pytest.raises(DeviceError, match=r"no PixelFormat 'Mono16' \(it offers RGBa8, Mono8\)"):
         cam.configure(CameraSettings(pixel_format="Mono16"))
+    with pytest.raises(DeviceError, match=r"PixelFormat 'BayerRG10' cannot be decoded \(supported: Mono8, "):
+        cam.configure(CameraSettings(pixel_format="BayerRG10"))
     with pytest.raises(DeviceError, match="trigger setting 'hardware'"):
         cam.configure(CameraSettings(trigger="hardware"))
     cam.configure(CameraSettings(frame_rate_hz=500.0))

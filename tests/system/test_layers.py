@@ -21,7 +21,9 @@ ALLOWED: dict[str, set[str]] = {
     "daemon": set(),  # the package root: __version__ only
     "daemon.bus": {"daemon"},
     "daemon.ritad": {"daemon", "daemon.bus", "drivers"},
-    "daemon.ctl": {"daemon", "daemon.bus", "daemon.worker"},  # ritactl recompute runs the worker's computation
+    "daemon.ctl": {"daemon", "daemon.bus", "daemon.worker",  # ritactl recompute runs the worker's computation
+                   "daemon.console"},  # ritactl console starts the console program
+    "daemon.console": {"daemon", "daemon.bus"},
     "daemon.worker": {"daemon", "daemon.bus", "calibration"},
     "daemon.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes"},
     "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},

@@ -105,7 +105,7 @@ def test_sim_installs_plate_camera_model_and_rough_nests(sim) -> None:
     d, c = sim
     folder = Path(d.config.daemon.data_dir) / "sim"
     files = {p.name: json.loads(p.read_text()) for p in folder.glob("*.json")}
-    assert sorted(files) == ["camera_model.json", "nests.json", "plate.json"]
+    assert sorted(files) == ["board.json", "camera_model.json", "nests.json", "plate.json"]
     truth = c.call("sim.truth")  # scores the installer's files, never feeds the product
     assert files["plate.json"] == truth["plate"]
     assert files["camera_model.json"]["size"] == [64, 48]
@@ -116,4 +116,4 @@ def test_sim_installs_plate_camera_model_and_rough_nests(sim) -> None:
         off = np.linalg.norm(np.array(files["nests.json"][name]) - p_trk)
         assert 0.05 < off < 15.0, (name, off)  # rough (a few mm off), but well inside the search radius
     listed = {f["path"] for f in c.call("files.list", path="sim")["files"]}
-    assert listed == {"sim/camera_model.json", "sim/nests.json", "sim/plate.json"}
+    assert listed == {"sim/board.json", "sim/camera_model.json", "sim/nests.json", "sim/plate.json"}

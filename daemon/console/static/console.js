@@ -1,0 +1,219 @@
+// Rita operator console: one WebSocket to `ritactl console`, plain DOM + canvas, no build step.
+// Protocol: docs/operations.md, "Operator console". `window.rita` exposes counters for tests and the benchmark.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const ROLES = ["viewer", "operator", "admin"];
+const S = {
+  ws: null, role: "unknown", commands: {}, calls: new Map(), nextId: 1, backoff: 500,
+  view: { width: 640, fps: 5, roi: null }, meta: null, pendingMeta: null,
+  framesDrawn: 0, latencies: [], job: null, jobs: [], dataDir: "", connects: 0, procedures: [],
+};
+window.rita = S;
+
+// ------------------------------------------------------------------ link
+function connect() {
+  const ws = new WebSocket(`ws://${location.host}/ws`);
+  ws.binaryType = "blob";
+  S.ws = ws;
+  ws.onopen = () => { S.backoff = 500; S.connects += 1; sendView(); slowPoll(); };
+  ws.onclose = () => {
+    setLink("page link lost: reconnecting", false);
+    for (const p of S.calls.values()) p.reject({ code: "link", message: "the link to the console dropped" });
+    S.calls.clear();
+    setTimeout(connect, S.backoff);          // reconnect by itself, backing off to 5 s
+    S.backoff = Math.min(S.backoff * 2, 5000);
+  };
+  ws.onmessage = (ev) => {
+    if (typeof ev.data !== "string") { drawFrame(S.pendingMeta, ev.data); return; }
+    const m = JSON.parse(ev.data);
+    if (m.type === "hello") onHello(m);
+    else if (m.type === "state") onState(m);
+    else if (m.type === "frame") S.pendingMeta = m;
+    else if (m.type === "reply") {
+      const p = S.calls.get(m.id);
+      if (p) { S.calls.delete(m.id); m.ok ? p.resolve(m.result) : p.reject(m.error); }
+    } else if (m.type === "error") toast(m.message);
+  };
+}
+function send(o) { if (S.ws && S.ws.readyState === 1) S.ws.send(JSON.stringify(o)); }
+function call(cmd, args = {}, timeout = 30) {
+  return new Promise((resolve, reject) => {
+    const id = S.nextId++;
+    S.calls.set(id, { resolve, reject });
+    send({ op: "call", id, cmd, args, timeout });
+    setTimeout(() => { if (S.calls.delete(id)) reject({ code: "timeout", message: `${cmd}: no answer in ${timeout + 5} s` }); },
+               (timeout + 5) * 1000);
+  });
+}
+function act(cmd, args = {}, timeout = 60) {  // a control's command: errors go to the toast, never silently
+  return call(cmd, args, timeout).catch((e) => { toast(`${cmd}: ${e.message} [${e.code}]`); throw e; });
+}
+function toast(text) { $("toast").textContent = text; clearTimeout(S.toastTimer); S.toastTimer = setTimeout(() => { $("toast").textContent = ""; }, 8000); }
+function setLink(text, ok) { $("link").textContent = text; $("link").className = "pill " + (ok ? "ok" : "bad"); }
+const fmt = (v, d = 3) => (v === null || v === undefined || Number.isNaN(v)) ? "–" : Number(v).toFixed(d);
+
+// ------------------------------------------------------------------ roles
+function allowed(cmd) {
+  const need = S.commands[cmd];
+  return need !== undefined && ROLES.indexOf(S.role) >= ROLES.indexOf(need);
+}
+function applyRole() {
+  $("role").textContent = S.role;
+  $("viewer-note").hidden = S.role !== "viewer";
+  // every control names its command in data-cmd; its inputs follow the panel's commands
+  for (const el of document.querySelectorAll("[data-cmd]")) el.disabled = !allowed(el.dataset.cmd) || el.dataset.busy === "1";
+  const canOperate = allowed("robot.move");
+  for (const el of document.querySelectorAll("input.ctl, select.ctl, textarea.ctl")) el.disabled = !canOperate;
+  $("proc-cancel").disabled = $("proc-cancel").disabled || !S.job || !["queued", "running", "waiting"].includes(S.job.state);
+  $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled"].includes(S.job.state);
+}
+function onHello(m) {
+  S.role = m.role; S.commands = m.commands; S.procedures = m.procedures;
+  const sel = $("proc");
+  if (!sel.options.length) for (const p of m.procedures) sel.add(new Option(p, p));
+  applyRole();
+}
+
+// ------------------------------------------------------------------ telemetry
+function onState(m) {
+  const up = m.link.bus === "up";
+  setLink(up ? "robot link up" : `robot link ${m.link.bus}: ${m.link.error}`, up);
+  const t = m.topics;
+  if (t["daemon.health"]) showHealth(t["daemon.health"].data);
+  if (t["robot.state"]) showRobot(t["robot.state"].data);
+  if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
+  for (const e of m.events) onEvent(e);
+  const c = m.console;
+  $("console-stats").textContent = `console: pictures to pages ${c.frames_sent}, tabs ${c.tabs}; ` +
+    `this page drew ${S.framesDrawn}${c.preview_error ? "; camera: " + c.preview_error : ""}`;
+}
+function showHealth(h) {
+  const rows = Object.entries(h.devices || {}).map(([k, s]) =>
+    `<tr><th>${k}</th><td>${s.state}</td><td>reconnects ${s.reconnects}</td><td>${s.reason || ""}</td></tr>`);
+  const drops = Object.values((h.telemetry || {}).dropped || {}).reduce((a, b) => a + b, 0);
+  $("daemon-health").innerHTML = `<div>up ${fmt(h.uptime_s, 0)} s, alive <b>${h.alive}</b></div><table>${rows.join("")}</table>` +
+    `<div>telemetry dropped ${drops}; frames sent ${(h.frames || {}).sent}, dropped ${(h.frames || {}).dropped}</div>`;
+}
+function showRobot(r) {
+  $("robot-state").textContent = r.state + (r.fault ? ` (${r.fault})` : "");
+  $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
+  $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
+  $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
+}
+function showPoint(p, tNs) {
+  const i = (p.n || 1) - 1;
+  if (p.x && p.x.length) $("tracker-point").textContent = `${fmt(p.x[i])}, ${fmt(p.y[i])}, ${fmt(p.z[i])} mm (stream)`;
+  const now = tNs / 1e9;
+  if (S.lastPointT) $("tracker-rate").textContent = `${fmt((p.n || 1) / Math.max(1e-3, now - S.lastPointT), 0)} points/s`;
+  S.lastPointT = now;
+}
+function onEvent(e) {
+  if (e.topic === "robot.event") toast(`robot: ${JSON.stringify(e.data).slice(0, 120)}`);
+  if (e.topic.startsWith("calib.")) refreshJobs();
+}
+async function slowPoll() {  // state that has no telemetry topic: polled, cheap, viewer-allowed commands
+  if (!S.ws || S.ws.readyState !== 1) return;
+  try {
+    const t = await call("tracker.status", {}, 5);
+    const locked = t.tracker_status === "Ready";
+    $("tracker-locked").textContent = locked ? "locked" : "not locked";
+    $("tracker-status").textContent = `(${t.tracker_status})`;
+    if (!t.streaming) $("tracker-rate").textContent = "not streaming";
+    const c = await call("camera.status", {}, 5);
+    S.cameraStatus = c;
+    if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
+    await refreshJobs();
+  } catch (e) { /* the link or the daemon is down: the link pill says so */ }
+  clearTimeout(S.pollTimer);
+  S.pollTimer = setTimeout(slowPoll, 1000);
+}
+
+// ------------------------------------------------------------------ camera
+function sendView() {
+  S.view.width = Number($("view-width").value);
+  S.view.fps = Number($("view-fps").value);
+  send({ op: "view", ...S.view });
+  send({ op: "next" });
+}
+async function drawFrame(meta, blob) {
+  S.pendingMeta = null;
+  if (!meta) return;
+  try {
+    const bmp = await createImageBitmap(blob);
+    const cv = $("cam"), ctx = cv.getContext("2d");
+    if (cv.width !== bmp.width || cv.height !== bmp.height) { cv.width = bmp.width; cv.height = bmp.height; }
+    ctx.drawImage(bmp, 0, 0);
+    if ($("crosshair").checked) {
+      ctx.strokeStyle = "#ff1744"; ctx.lineWidth = 1; ctx.beginPath();
+      const cx = ((meta.full_w / 2 - meta.x) / meta.step), cy = ((meta.full_h / 2 - meta.y) / meta.step);
+      ctx.moveTo(cx, 0); ctx.lineTo(cx, cv.height); ctx.moveTo(0, cy); ctx.lineTo(cv.width, cy); ctx.stroke();
+    }
+    S.meta = meta;
+    S.framesDrawn += 1;
+    S.latencies.push(Date.now() - meta.host_time_ns / 1e6);   // acquisition → drawn, same host clock
+    if (S.latencies.length > 5000) S.latencies.shift();
+    const cs = S.cameraStatus || {};
+    const exp = meta.exposure_us ?? (cs.applied || {}).exposure_us, gain = meta.gain_db ?? (cs.applied || {}).gain_db;
+    $("cam-info").textContent = `frame ${meta.frame_id} (${meta.full_w}×${meta.full_h}, shown 1:${meta.step}` +
+      `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB`;
+  } finally {
+    send({ op: "next" });  // pull: the console sends the next picture only now, so a slow page just gets fewer
+  }
+}
+function zoomAt(ev) {
+  const m = S.meta;
+  if (!m) return;
+  const cv = $("cam"), r = cv.getBoundingClientRect();
+  const fx = m.x + ((ev.clientX - r.left) * cv.width / r.width) * m.step;
+  const fy = m.y + ((ev.clientY - r.top) * cv.height / r.height) * m.step;
+  const w = S.view.width, h = Math.round(w * 3 / 4);   // one screen pixel per sensor pixel
+  S.view.roi = [Math.max(0, Math.round(fx - w / 2)), Math.max(0, Math.round(fy - h / 2)), w, h];
+  $("zoom-reset").disabled = false;
+  sendView();
+}
+
+// ------------------------------------------------------------------ controls
+function confirmMotion(text) {
+  return new Promise((resolve) => {
+    $("confirm-text").textContent = text;
+    $("confirm").hidden = false;
+    $("confirm-yes").onclick = () => { $("confirm").hidden = true; resolve(true); };
+    $("confirm-no").onclick = () => { $("confirm").hidden = true; resolve(false); };
+  });
+}
+async function move(kind) {
+  const mm = Number($("move-mm").value), deg = Number($("turn-deg").value), speed = Number($("move-speed").value);
+  const text = kind === "move" ? `Drive ${mm} mm at ${speed} mm/s?` : `Turn ${deg}° on the spot?`;
+  if (!(await confirmMotion(text))) return;
+  const args = kind === "move" ? { distance_mm: mm, speed_mm_s: speed, confirm: true, wait: false }
+                               : { angle_deg: deg, confirm: true, wait: false };
+  act(`robot.${kind}`, args).catch(() => {});
+}
+function bind() {
+  $("stop").onclick = () => act("robot.stop", {}, 10).then(() => toast("robot stopped")).catch(() => {});
+  $("stream-start").onclick = () => act("camera.stream.start").catch(() => {});
+  $("stream-stop").onclick = () => act("camera.stream.stop").catch(() => {});
+  $("view-width").onchange = sendView;
+  $("view-fps").onchange = sendView;
+  $("cam").onclick = zoomAt;
+  $("zoom-reset").onclick = () => { S.view.roi = null; $("zoom-reset").disabled = true; sendView(); };
+  $("capture").onclick = () => {
+    const id = S.nextId++;
+    S.calls.set(id, { resolve: (r) => toast(`saved ${r.saved} (robot: ${r.robot_path || "-"})`),
+                      reject: (e) => toast(`capture: ${e.message}`) });
+    send({ op: "capture", id, label: "console" });
+  };
+  $("tracker-aim").onclick = () => act("tracker.aim", { x: Number($("aim-x").value), y: Number($("aim-y").value),
+                                                        z: Number($("aim-z").value) }).then(() => toast("aimed")).catch(() => {});
+  $("tracker-find").onclick = () => act("tracker.find").then(() => { toast("found"); slowPoll(); }).catch(() => {});
+  $("tracker-measure").onclick = () => act("tracker.measure").then((p) => {
+    $("tracker-point").textContent = `${fmt(p.x)}, ${fmt(p.y)}, ${fmt(p.z)} mm (measure, σ ${fmt(p.std, 4)})`;
+    $("tracker-env").textContent = JSON.stringify(p.environment || {}).replace(/[{}"]/g, "").replace(/,/g, ", ");
+  }).catch(() => {});
+  $("robot-move").onclick = () => move("move");
+  $("robot-turn").onclick = () => move("turn");
+  $("proc-start").onclick = startJob;
+  $("proc-cancel").onclick = () => S.job && act("calib.cancel", { job: S.job.job }).then(refreshJobs).catch(() => {});
+  $("proc-resume").onclick = () => S.job && act("calib.resume", { job: S.job.job }).then(refreshJobs).catch(() => {});
+}
+document.addEventListener("DOMContentLoaded", () => { bind(); connect(); });

@@ -1,0 +1,161 @@
+// Procedures, results and history panels of the Rita console (uses call/act/S/$ from console.js).
+"use strict";
+
+function rel(path) {  // a robot path under its data dir, as files.read wants it
+  if (!path) return "";
+  return S.dataDir && path.startsWith(S.dataDir + "/") ? path.slice(S.dataDir.length + 1) : path;
+}
+function fileLink(path, text) {
+  const r = encodeURI(rel(path));
+  return `<a href="/files/${r}?download=1" download>${text || r}</a>`;
+}
+async function fetchJson(path) {
+  const resp = await fetch(`/files/${encodeURI(rel(path))}`);
+  if (!resp.ok) throw new Error(`${path}: HTTP ${resp.status}`);
+  return resp.json();
+}
+
+async function startJob() {
+  let params;
+  try { params = JSON.parse($("proc-params").value || "{}"); } catch (e) { toast(`parameters are not JSON: ${e.message}`); return; }
+  if (typeof params !== "object" || Array.isArray(params) || params === null) { toast("parameters must be a JSON object"); return; }
+  try {
+    const r = await act("calib.start", { procedure: $("proc").value, params });
+    S.job = { job: r.job, state: "queued" };
+    S.shownResult = null;
+    showJob(S.job);
+    refreshJobs();
+  } catch (e) { /* act showed it */ }
+}
+
+async function refreshJobs() {
+  let r;
+  try { r = await call("calib.jobs", {}, 5); } catch (e) { return; }
+  S.jobs = r.jobs || [];
+  if (!S.job && S.jobs.length) S.job = S.jobs[S.jobs.length - 1];   // a second tab follows the newest job
+  const mine = S.job && S.jobs.find((j) => j.job === S.job.job);
+  if (mine) { S.job = mine; showJob(mine); }
+  $("jobs").innerHTML = "jobs: " + S.jobs.slice(-8).map((j) =>
+    `<a href="#" data-job="${j.job}">${j.job}</a> ${j.procedure} ${j.state}`).join(" · ");
+  for (const a of $("jobs").querySelectorAll("a[data-job]")) {
+    a.onclick = (ev) => { ev.preventDefault(); S.job = S.jobs.find((j) => j.job === a.dataset.job); S.shownResult = null; showJob(S.job); };
+  }
+}
+
+function showJob(j) {
+  $("job-id").textContent = j.job;
+  $("job-state").textContent = `${j.procedure || ""} ${j.state}${j.error ? ": " + j.error : ""}`;
+  const p = j.progress || {};
+  $("job-progress").value = j.state === "done" ? 100 : (p.percent || 0);
+  $("job-step").textContent = p.step ? `${p.step}${p.waiting_for ? " (" + p.waiting_for + ")" : ""}` : "";
+  showPrompt(j);
+  if (j.state === "done" && j.result && S.shownResult !== j.job) { S.shownResult = j.job; showResult(j.result); }
+  if (j.state !== "done") $("result").hidden = true;
+  applyRole();
+}
+
+function showPrompt(j) {
+  const box = $("prompt");
+  if (j.state !== "waiting" || !j.prompt) { box.hidden = true; box.dataset.job = ""; return; }
+  if (box.dataset.job === j.job && box.dataset.q === j.prompt.question) return;
+  box.dataset.job = j.job; box.dataset.q = j.prompt.question;
+  $("prompt-question").textContent = j.prompt.question;
+  const choices = $("prompt-choices");
+  choices.innerHTML = "";
+  for (const c of j.prompt.choices || []) {
+    const b = document.createElement("button");
+    b.textContent = c; b.id = `prompt-choice-${c}`; b.dataset.cmd = "calib.answer";
+    b.onclick = () => act("calib.answer", { job: j.job, answer: c }).then(() => { box.hidden = true; refreshJobs(); }).catch(() => {});
+    choices.appendChild(b);
+  }
+  box.hidden = false;
+  applyRole();
+}
+
+function showResult(r) {
+  $("result").hidden = false;
+  $("result-verdict").textContent = r.verdict;
+  $("result-verdict").className = r.verdict === "ok" ? "pill ok" : "pill bad";
+  const u = r.uncertainty || {};
+  if (r.rob_H_cam) {
+    const m = r.rob_H_cam.map((row) => row.map((v) => fmt(v, 6).padStart(12)).join(" ")).join("\n");
+    $("result-rob-H-cam").textContent = `rob_H_cam =\n${m}\n1σ translation (mm): ${(u.std_t_mm || []).map((v) => fmt(v, 4)).join(", ")}` +
+      `\n1σ rotation (°): ${(u.std_rot_deg || []).map((v) => fmt(v, 4)).join(", ")}`;
+  } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
+  $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
+  $("result-table").textContent = r.table_markdown || "";
+  $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
+    ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
+  plotResult(r);
+  refreshResults();
+}
+
+// ------------------------------------------------------------------ plots (plain canvas)
+function axes(ctx, w, h, xs, ys, label, xfmt = fmt) {
+  const pad = 40, x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+  const sx = (w - 2 * pad) / ((x1 - x0) || 1), sy = (h - 2 * pad) / ((y1 - y0) || 1);
+  ctx.clearRect(0, 0, w, h); ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  ctx.strokeStyle = "#999"; ctx.strokeRect(pad, pad, w - 2 * pad, h - 2 * pad);
+  ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(label, pad, pad - 8);
+  ctx.fillText(`${xfmt(x0)} … ${xfmt(x1)}`, pad, h - pad + 16); ctx.fillText(`${fmt(y0)} … ${fmt(y1)}`, 2, h / 2);
+  return (x, y) => [pad + (x - x0) * sx, h - pad - (y - y0) * sy];
+}
+async function plotResult(r) {
+  const cv = $("result-plot"), ctx = cv.getContext("2d");
+  if (r.procedure === "experiment" && r.dataset) {   // the cluster plot: every mark, coloured by approach heading
+    let full;
+    try { full = await fetchJson(`${r.dataset}/result.json`); } catch (e) { toast(e.message); return; }
+    const pts = full.marks.map((m) => [m.abs_xyz[0], m.abs_xyz[1], m.heading_deg]);
+    const mx = pts.reduce((a, p) => a + p[0], 0) / pts.length, my = pts.reduce((a, p) => a + p[1], 0) / pts.length;
+    const xs = pts.map((p) => (p[0] - mx) * 1000), ys = pts.map((p) => (p[1] - my) * 1000);
+    const to = axes(ctx, cv.width, cv.height, xs, ys, "marks − mean (µm), colour: approach heading");
+    pts.forEach((p, i) => { const [X, Y] = to(xs[i], ys[i]); ctx.fillStyle = `hsl(${((p[2] % 360) + 360) % 360},80%,45%)`;
+      ctx.beginPath(); ctx.arc(X, Y, 4, 0, 7); ctx.fill(); });
+    return;
+  }
+  if (r.rob_H_cam) {   // referencing: the camera's position in the robot frame with its 1σ, x-y and z bars
+    const t = [r.rob_H_cam[0][3], r.rob_H_cam[1][3], r.rob_H_cam[2][3]];
+    const s = (r.uncertainty || {}).std_t_mm || [0, 0, 0];
+    const k = 3;   // axes of ±3σ around the estimate
+    const to = axes(ctx, cv.width, cv.height, [t[0] - k * s[0] - 1e-3, t[0] + k * s[0] + 1e-3],
+                    [t[1] - k * s[1] - 1e-3, t[1] + k * s[1] + 1e-3], "rob_H_cam translation x–y (mm) with the 1σ ellipse");
+    const [X, Y] = to(t[0], t[1]), [X1, Y1] = to(t[0] + s[0], t[1] + s[1]);
+    ctx.strokeStyle = "#1565c0"; ctx.lineWidth = 2; ctx.beginPath();
+    ctx.ellipse(X, Y, Math.abs(X1 - X) || 2, Math.abs(Y1 - Y) || 2, 0, 0, 7); ctx.stroke();
+    ctx.fillStyle = "#c62828"; ctx.beginPath(); ctx.arc(X, Y, 4, 0, 7); ctx.fill();
+    ctx.fillStyle = "#333"; ctx.fillText(`z ${fmt(t[2])} ± ${fmt(s[2], 4)} mm`, 50, cv.height - 8);
+  }
+}
+
+async function refreshResults() {
+  let r;
+  try { r = await call("calib.results", {}, 10); } catch (e) { return; }
+  const a = r.active;
+  $("calib-active").innerHTML = a ? `active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, ${fileLink(`${a.dataset}/result.yaml`, "result.yaml")}`
+                                  : "no active calibration";
+  $("history").innerHTML = "<table>" + r.history.slice(0, 30).map((h) =>
+    `<tr><td>${h.created || ""}</td><td>${h.job}</td><td>${h.procedure}</td><td>${h.verdict}</td>` +
+    `<td>${h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""}</td>` +
+    `<td>${h.dataset ? `<a href="/list/${encodeURI(rel(h.dataset))}" target="_blank">dataset</a>` : ""}</td></tr>`).join("") + "</table>";
+  const refs = r.history.filter((h) => h.procedure === "referencing" && h.job).slice(0, 40).reverse();
+  const series = [];
+  for (const h of refs) {
+    try { const full = await fetchJson(`calibration/history/${h.job}.json`); if (full.rob_H_cam) series.push(full); } catch (e) { /* skip */ }
+  }
+  drawDrift(series);
+}
+function drawDrift(series) {   // rob_H_cam translation over time: drift between referencings
+  const cv = $("drift-plot"), ctx = cv.getContext("2d");
+  if (!series.length) { ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, cv.width, cv.height); ctx.fillStyle = "#333"; ctx.fillText("no referencing yet", 20, 20); return; }
+  const t = series.map((s) => Date.parse(s.created) / 1000);
+  const d = ["#c62828", "#2e7d32", "#1565c0"].map((c, i) => ({ c, v: series.map((s) => (s.rob_H_cam[i][3] - series[0].rob_H_cam[i][3]) * 1000) }));
+  const to = axes(ctx, cv.width, cv.height, t.length > 1 ? t : [t[0] - 1, t[0] + 1], d.flatMap((x) => x.v).concat([0]),
+                  "rob_H_cam translation − first (µm): x red, y green, z blue",
+                  (v) => new Date(v * 1000).toISOString().slice(0, 16).replace("T", " "));
+  for (const { c, v } of d) {
+    ctx.strokeStyle = c; ctx.beginPath();
+    v.forEach((y, i) => { const [X, Y] = to(t[i], y); i ? ctx.lineTo(X, Y) : ctx.moveTo(X, Y); ctx.fillStyle = c; ctx.fillRect(X - 2, Y - 2, 4, 4); });
+    ctx.stroke();
+  }
+}
+document.addEventListener("DOMContentLoaded", () => setTimeout(refreshResults, 1500));

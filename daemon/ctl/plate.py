@@ -1,0 +1,86 @@
+"""``ritactl plate survey FOLDER``: survey the nest seats from photographs, on this computer (offline).
+
+Computes here (numpy + OpenCV needed), like ``ritactl recompute``: the photographs
+are on the laptop and the survey needs no robot (docs/operations.md, "Plate survey").
+Exit codes (daemon/ctl/exitcodes.py): 0 verdict ok, 1 warn (a nest's 1σ above 50 µm),
+2 the survey failed (no or too few usable photographs, a ring not found in enough of
+them: the message names the photograph and colour), 5 a bad input file or folder
+(none, unreadable, grey images, a plate definition without patches), 64 usage.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from daemon.ctl.exitcodes import Exit, for_verdict
+from daemon.ctl.io import fail
+
+
+def _read_plate(path: str) -> dict[str, Any]:
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"cannot read plate definition {path}: {type(exc).__name__}: {exc}") from None
+
+
+def _show(plate: dict[str, Any], out: str) -> None:
+    rep = plate["survey"]
+    print(f"{rep['verdict'].upper()}: {rep['message']}")
+    for c, n in rep["nests"].items():
+        x, y, z = n["ref_P_nst_mm"]
+        sx, sy, sz = (s * 1000 for s in n["sigma_mm"])
+        print(f"  {c:5s} seat ({x:9.3f}, {y:9.3f}, {z:7.3f}) mm  1σ ({sx:4.0f}, {sy:4.0f}, {sz:4.0f}) µm  "
+              f"from {n['views']} photographs")
+    print(f"  corners σ {rep['sigma_corner_px']:.3f} px, rings σ {rep['sigma_ring_px']:.3f} px; "
+          f"k3 {'fitted' if rep['k3_fitted'] else 'fixed at 0 (not supported by the data)'}")
+    for v in rep["views"]:
+        rings = ", ".join(f"{c} {r:.2f}" for c, r in v["ring_residual_px"].items())
+        missing = f"; missing: {', '.join(v['rings_missing'])}" if v["rings_missing"] else ""
+        print(f"  {v['image']}: {v['corners']} corners, RMS {v['corner_rms_px']:.3f} px; rings (px) {rings}{missing}")
+    for name, why in rep["skipped"].items():
+        print(f"  {name}: skipped, {why}")
+    print(f"wrote {out}")
+
+
+def cmd_survey(c: Any, a: argparse.Namespace) -> int:
+    try:
+        from daemon.bus.storage import atomic_write_json
+        from daemon.worker.survey import CalibrationError, survey_plate
+    except ImportError as exc:
+        return fail(Exit.FAIL, "unavailable", f"plate survey needs the full install (numpy, OpenCV): {exc}", a.json)
+    try:
+        plate = survey_plate(Path(a.folder), _read_plate(a.plate), a.plate)
+        atomic_write_json(Path(a.out), plate)
+    except KeyboardInterrupt:
+        return Exit.INTERRUPTED
+    except CalibrationError as exc:
+        return fail(Exit.FAIL, "survey_failed", f"plate survey of {a.folder} failed: {exc}", a.json)
+    except (OSError, ValueError) as exc:
+        return fail(Exit.BAD_INPUT, "bad_input", f"plate survey of {a.folder}: {exc}", a.json)
+    except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
+        return fail(Exit.FAIL, "failed", f"plate survey of {a.folder} failed: {type(exc).__name__}: {exc}", a.json)
+    if a.json:
+        print(json.dumps(plate, indent=2))
+    else:
+        _show(plate, a.out)
+    return for_verdict(plate["survey"]["verdict"])
+
+
+def add_parsers(sub: Any) -> None:
+    grp = sub.add_parser("plate", help="plate definition tools (offline)")
+    grp.set_defaults(fn=None, parser_=grp)
+    gsub = grp.add_subparsers(title="plate verbs", metavar="VERB")
+    p = gsub.add_parser("survey", help="nest seats from photographs of the whole plate (offline, on this computer)",
+                        description="Survey the three nest seats in PCS from colour photographs of the whole "
+                                    "plate taken with any camera (calibrated here from the plate's patches). "
+                                    "Writes plate.json with per-nest 1σ and the survey report.")
+    p.add_argument("folder", help="folder of photographs (.png .jpg .jpeg .tif .tiff), >= 3, whole plate in each")
+    p.add_argument("--plate", required=True, metavar="FILE",
+                   help="the plate's design plate.json (board, survey patches, smr_offset_mm)")
+    p.add_argument("--out", default="plate.json", metavar="FILE", help="surveyed plate definition (default plate.json)")
+    p.set_defaults(fn=cmd_survey, offline=True, parser_=p)
+
+
+__all__ = ["add_parsers", "cmd_survey"]

@@ -1,0 +1,246 @@
+"""The operator console in a real headless chromium against a simulated ritad (issue #16 acceptance).
+
+One ritad (worker, CURVE tcp for the viewer key), one ``ritactl console`` for the local
+operator and one browser serve the module; the viewer test points the same browser at
+a second console that uses the viewer key. Tests run in file order (the robot is on the
+plate after referencing, the STOP test drives it a little).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from daemon.bus.client import Client
+from tests.console.browser import browser_available, console_session, start_robot, wait_for
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
+                                                   reason=browser_available() or "")]
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("console")
+    r, laptop = start_robot(tmp)
+    try:
+        with r.client(timeout=30) as c:
+            yield {"ritad": r, "laptop": laptop, "tmp": tmp, "client": c}
+    finally:
+        r.stop()
+
+
+@pytest.fixture(scope="module")
+def session(robot):
+    with console_session(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "operator") as (con, drv):
+        yield con, drv
+
+
+@pytest.fixture(scope="module")
+def page(session):
+    return session[1]
+
+
+def js(drv, script: str):
+    return drv.execute_script(script)
+
+
+def text(drv, element_id: str) -> str:
+    return drv.find_element("id", element_id).text
+
+
+def click(drv, element_id: str) -> None:
+    el = wait_for(f"#{element_id} enabled", lambda: (e := drv.find_element("id", element_id)).is_enabled() and e, 10)
+    el.click()
+
+
+def non_blank(png: bytes) -> float:
+    """Standard deviation of the grey levels of a screenshot: 0 for a blank picture."""
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
+    return float(img.std())
+
+
+def operator_file(robot, name: str) -> dict:
+    """The files the simulated installer left for the operator (docs/operations.md: `ritactl fetch sim`)."""
+    return json.loads((robot["tmp"] / "data" / "sim" / name).read_text())
+
+
+def test_camera_panel_shows_a_frame_within_5_s(page, robot):
+    click(page, "stream-start")
+    t0 = time.monotonic()
+    try:
+        wait_for("a frame drawn", lambda: js(page, "return window.rita.framesDrawn") >= 1, 5.0)
+        took = time.monotonic() - t0
+        shot = page.find_element("id", "cam").screenshot_as_png
+    finally:
+        robot["client"].call("camera.stream.stop")
+    assert took < 5.0
+    assert non_blank(shot) > 10, "the camera canvas is blank"
+    assert "frame" in text(page, "cam-info") and "exposure" in text(page, "cam-info")
+
+
+def test_tracker_panel_shows_locked_after_aim_and_find(page, robot):
+    x, y, z = operator_file(robot, "nests.json")["red"]  # the operator's rough nest position
+    for axis, v in zip("xyz", (x, y, z)):
+        el = page.find_element("id", f"aim-{axis}")
+        el.clear()
+        el.send_keys(str(v))
+    click(page, "tracker-aim")
+    wait_for("aimed", lambda: "aimed" in text(page, "toast"), 30)
+    click(page, "tracker-find")
+    assert wait_for("tracker panel says locked", lambda: text(page, "tracker-locked") == "locked", 30)
+
+
+def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page, robot):
+    from fakes.operator import lock_on_robot
+
+    c: Client = robot["client"]
+    c.call("sim.place_robot_on_plate")  # the installer's hands: the robot stands on the plate
+    params = {"plate": operator_file(robot, "plate.json"), "camera_model": operator_file(robot, "camera_model.json"),
+              "nests_approx_trk": operator_file(robot, "nests.json")}  # no robot position: the worker asks
+    js(page, f"document.getElementById('proc').value = 'referencing';"
+             f"document.getElementById('proc-params').value = {json.dumps(json.dumps(params))};")
+    click(page, "proc-start")
+    wait_for("the prompt", lambda: page.find_element("id", "prompt").is_displayed(), 60)
+    assert "reflector" in text(page, "prompt-question")
+    assert int(page.find_element("id", "job-progress").get_attribute("value")) > 0
+    assert text(page, "job-step")
+    lock_on_robot(c)  # the operator's hands put the tracker on the robot's reflector, as the prompt asks
+    click(page, "prompt-choice-ok")
+    wait_for("the result", lambda: page.find_element("id", "result").is_displayed(), 120)
+    assert text(page, "result-verdict") in ("ok", "warn")
+    assert "rob_H_cam" in text(page, "result-rob-H-cam") and "1σ" in text(page, "result-rob-H-cam")
+    drawn = wait_for("the result plot", lambda: js(page, """
+        const c = document.getElementById('result-plot'), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] < 200 || d[i + 1] < 200 || d[i + 2] < 200) n++;
+        return n;"""), 10)
+    assert drawn > 200
+
+
+def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):
+    import urllib.request
+
+    con, drv = session
+    click(drv, "capture")
+    saved = wait_for("the capture saved", lambda: "saved" in text(drv, "toast") and text(drv, "toast"), 30)
+    path = Path(saved.split("saved ", 1)[1].split(" (", 1)[0])
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None and img.shape == (750, 1000) and img.std() > 10  # full resolution, not blank
+    listing = urllib.request.urlopen(con.url + "list/procedures", timeout=30).read().decode()
+    link = next(part.split('"')[0] for part in listing.split('href="/files/')[1:] if "result.json" in part)
+    result = json.loads(urllib.request.urlopen(con.url + "files/" + link.split("?")[0], timeout=30).read())
+    assert result["procedure"] in ("referencing", "experiment")
+
+
+def test_stop_during_a_move_stops_the_robot(page, robot):
+    c: Client = robot["client"]
+    # 300 mm at 1 mm/s: 300 s of motion, 6 s of wall time at the fake base's time_scale 0.02
+    for el, v in (("move-mm", "300"), ("move-speed", "1")):
+        page.find_element("id", el).clear()
+        page.find_element("id", el).send_keys(v)
+    click(page, "robot-move")
+    wait_for("the confirmation", lambda: page.find_element("id", "confirm").is_displayed(), 5)
+    click(page, "confirm-no")  # no confirmation, no motion
+    time.sleep(0.5)
+    assert c.call("robot.status")["state"] == "IDLE"
+    start = c.call("robot.status")
+    click(page, "robot-move")
+    click(page, "confirm-yes")
+    wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
+    time.sleep(0.5)
+    click(page, "stop")
+    t0 = time.monotonic()
+    wait_for("the robot stopped", lambda: c.call("robot.status")["state"] != "MOVING", 3)
+    stopped_after = time.monotonic() - t0
+    a = c.call("robot.status")
+    time.sleep(0.5)
+    b = c.call("robot.status")
+    assert (a["x_mm"], a["y_mm"]) == (b["x_mm"], b["y_mm"]), "the robot still moves after STOP"
+    driven = float(np.hypot(b["x_mm"] - start["x_mm"], b["y_mm"] - start["y_mm"]))
+    assert driven < 200, f"STOP came too late: the robot drove {driven:.0f} of 300 mm"
+    assert stopped_after < 2.0
+
+
+def test_a_page_that_never_asks_gets_one_frame_but_all_telemetry(session, robot):
+    """A slow browser loses frames, never state: the console pushes state to a tab that stopped pulling."""
+    import asyncio
+
+    import aiohttp
+
+    async def stalled_tab() -> tuple[int, int, set[str]]:
+        frames, states, topics = 0, 0, set()
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(session[0].url + "ws") as ws:
+                await ws.send_json({"op": "view", "width": 64, "fps": 30})
+                end = time.monotonic() + 3.0
+                while time.monotonic() < end:
+                    try:
+                        msg = await ws.receive(timeout=1.0)
+                    except asyncio.TimeoutError:
+                        continue
+                    if msg.type == aiohttp.WSMsgType.BINARY:
+                        frames += 1  # and never "next": a tab that cannot keep up
+                    elif msg.type == aiohttp.WSMsgType.TEXT and (m := msg.json())["type"] == "state":
+                        states += 1
+                        topics |= set(m["topics"])
+        return frames, states, topics
+
+    robot["client"].call("camera.stream.start")
+    try:
+        frames, states, topics = asyncio.run(stalled_tab())
+        drawn0 = js(session[1], "return window.rita.framesDrawn")
+        wait_for("the other tab still gets frames", lambda: js(session[1], "return window.rita.framesDrawn") > drawn0, 5)
+    finally:
+        robot["client"].call("camera.stream.stop")
+    assert frames == 1, frames
+    assert states >= 10 and {"robot.state", "daemon.health"} <= topics, (states, topics)
+
+
+def test_another_site_may_not_open_the_websocket(session):
+    import urllib.error
+    import urllib.request
+
+    req = urllib.request.Request(session[0].url + "ws", headers={
+        "Origin": "http://evil.example", "Connection": "Upgrade", "Upgrade": "websocket",
+        "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="})
+    with pytest.raises(urllib.error.HTTPError) as exc:
+        urllib.request.urlopen(req, timeout=10)
+    assert exc.value.code == 403
+
+
+def test_second_tab_works_and_a_page_reconnects_after_the_console_restarts(robot, page):
+    from tests.console.browser import ConsoleProcess
+
+    first = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart")
+    port = first.url.rsplit(":", 1)[1].strip("/")
+    original = page.current_window_handle
+    page.switch_to.new_window("tab")
+    try:
+        page.get(first.url)
+        wait_for("the second tab connected", lambda: js(page, "return window.rita.connects") == 1, 20)
+        first.stop()  # the link drops
+        wait_for("the page saw it", lambda: "lost" in text(page, "link"), 10)
+        second = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart2", port=int(port))
+        try:
+            wait_for("the page reconnected by itself", lambda: js(page, "return window.rita.connects") == 2, 20)
+            wait_for("state flows again", lambda: text(page, "link") == "robot link up", 10)
+        finally:
+            second.stop()
+    finally:
+        page.close()
+        page.switch_to.window(original)
+
+
+def test_viewer_key_page_has_no_enabled_control(page, robot):
+    args = ["--endpoint", robot["ritad"].endpoints[1], "--keys", str(robot["laptop"]), "--key", "vic"]
+    with console_session(args, robot["tmp"] / "viewer") as (_, drv):
+        assert js(drv, "return window.rita.role") == "viewer"
+        assert drv.find_element("id", "viewer-note").is_displayed()
+        enabled = js(drv, """return [...document.querySelectorAll('button, input, select, textarea')]
+            .filter(e => !e.classList.contains('view') && !e.disabled).map(e => e.id || e.outerHTML.slice(0, 60));""")
+        assert enabled == []
+        # it still sees everything: telemetry arrives
+        wait_for("robot state shown", lambda: text(drv, "robot-state") not in ("", "?"), 10)

@@ -1,0 +1,90 @@
+"""The console's pieces without a browser: frame pictures and `ritactl console` errors."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from daemon.console.imaging import view
+from daemon.ctl.main import main as ritactl
+
+
+def decode(png: bytes) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img is not None, "not a PNG OpenCV can read"
+    return img
+
+
+def frame(h: int = 300, w: int = 401, dtype: str = "|u1") -> tuple[dict, np.ndarray]:
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 255 if dtype == "|u1" else 65535, (h, w), endpoint=True).astype(np.dtype(dtype))
+    return {"shape": [h, w], "dtype": dtype}, img
+
+
+def test_downscaled_view_is_the_strided_frame():
+    header, img = frame()
+    png, meta = view(header, img.tobytes(), 100)
+    assert meta["step"] == 5 and (meta["out_w"], meta["out_h"]) == (81, 60)
+    np.testing.assert_array_equal(decode(png), img[::5, ::5])
+
+
+def test_region_of_interest_is_full_resolution_and_clamped_to_the_frame():
+    header, img = frame()
+    png, meta = view(header, img.tobytes(), 640, roi=(350, 250, 200, 200))
+    assert meta["step"] == 1 and (meta["x"], meta["y"], meta["w"], meta["h"]) == (350, 250, 51, 50)
+    np.testing.assert_array_equal(decode(png), img[250:300, 350:401])
+
+
+def test_mono16_shows_its_high_byte_and_other_types_are_refused():
+    header, img = frame(40, 50, "<u2")
+    png, _ = view(header, img.tobytes(), 50)
+    np.testing.assert_array_equal(decode(png), (img >> 8).astype(np.uint8))
+    with pytest.raises(ValueError, match="float32"):
+        view({"shape": [2, 2], "dtype": "float32"}, b"\0" * 16, 2)
+
+
+def test_console_without_a_daemon_exits_3_without_traceback(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("RITA_CONFIG", str(tmp_path / "none.toml"))
+    (tmp_path / "none.toml").write_text("")
+    code = ritactl(["--endpoint", f"ipc://{tmp_path}/nobody", "--timeout", "0.5", "console", "--port", "0"])
+    err = capsys.readouterr().err
+    assert code == 3 and "no answer" in err and "Traceback" not in err
+
+
+def test_console_bad_port_is_a_usage_error(capsys):
+    assert ritactl(["console", "--port", "70000"]) == 64
+    assert "70000" in capsys.readouterr().err
+
+
+def test_camera_preview_is_a_small_jpeg_of_the_newest_streamed_frame(tmp_path):
+    import time
+
+    from daemon.bus.protocol import CommandError
+    from tests.ritad_up import ritad_in_process
+
+    with ritad_in_process(tmp_path, camera="sim:?size=400x300&noise=0&fps=20") as (_, c):
+        with pytest.raises(CommandError, match="camera.stream.start first"):
+            c.call("camera.preview")
+        c.call("camera.stream.start")
+        try:
+            end = time.monotonic() + 10
+            while True:
+                try:
+                    meta, parts = c.call_raw("camera.preview", {"width": 100})
+                    break
+                except CommandError:
+                    assert time.monotonic() < end, "no preview within 10 s of stream start"
+                    time.sleep(0.05)
+            img = decode(parts[0].bytes)
+            assert (meta["step"], meta["out_w"], meta["out_h"]) == (4, 100, 75) and img.shape == (75, 100)
+            assert img.std() > 5  # a picture, not a blank
+            roi, parts = c.call_raw("camera.preview", {"roi_x": 350, "roi_y": 0, "roi_w": 100, "roi_h": 40})
+            assert (roi["x"], roi["w"], roi["h"], roi["step"]) == (350, 50, 40, 1)
+            assert decode(parts[0].bytes).shape == (40, 50)
+            c.call("camera.stream.stop")  # the last frame stays the newest
+            time.sleep(0.3)
+            newest = c.call("camera.preview")["header"]["frame_id"]
+            assert c.call("camera.preview", after=newest) == {"unchanged": True, "frame_id": newest}
+            assert "header" in c.call("camera.preview", after=newest + 1000)  # ids counting again: a picture
+        finally:
+            c.call("camera.stream.stop")

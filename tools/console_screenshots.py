@@ -1,0 +1,101 @@
+"""Regenerate the console screenshots under docs/img/ (referenced from README and docs/operations.md).
+
+Runs what the browser tests run: a simulated ritad, ``ritactl console`` and headless
+Debian chromium; then drives the page as an operator (live view, tracker aim + find,
+referencing with its prompt, the 8-direction experiment) and as a viewer key, and
+saves one picture per view. The operator's hands (placing the robot, locking the
+tracker on the robot when the prompt asks) are the simulation's, as in the demo.
+
+Run: ``.venv/bin/python tools/console_screenshots.py [--out docs/img]`` (about a minute).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fakes.operator import lock_on_robot  # noqa: E402
+from tests.console.browser import console_session, start_robot, wait_for  # noqa: E402
+
+
+def set_value(drv, element_id: str, value: str) -> None:
+    drv.execute_script("document.getElementById(arguments[0]).value = arguments[1];", element_id, value)
+
+
+def run_procedure(drv, procedure: str, params: dict, answer=None, timeout: float = 300) -> None:
+    set_value(drv, "proc", procedure)
+    set_value(drv, "proc-params", json.dumps(params))
+    drv.find_element("id", "proc-start").click()
+    if answer is not None:
+        wait_for("the prompt", lambda: drv.find_element("id", "prompt").is_displayed(), 60)
+        answer()
+    wait_for(f"{procedure} result", lambda: drv.find_element("id", "result").is_displayed(), timeout)
+    time.sleep(1.5)  # the plot and the history fetch their files
+
+
+def operator_views(drv, c, data: Path, out: Path) -> None:
+    sim = {n: json.loads((data / "sim" / f"{n}.json").read_text()) for n in ("plate", "camera_model", "nests")}
+    drv.find_element("id", "stream-start").click()
+    wait_for("frames", lambda: drv.execute_script("return window.rita.framesDrawn") >= 3, 20)
+    x, y, z = sim["nests"]["red"]
+    for axis, v in zip("xyz", (x, y, z)):
+        set_value(drv, f"aim-{axis}", str(v))
+    drv.find_element("id", "tracker-aim").click()
+    wait_for("aimed", lambda: "aimed" in drv.find_element("id", "toast").text, 30)
+    drv.find_element("id", "tracker-find").click()
+    wait_for("locked", lambda: drv.find_element("id", "tracker-locked").text == "locked", 30)
+    drv.find_element("id", "tracker-measure").click()
+    time.sleep(1.5)
+    drv.save_screenshot(str(out / "console-live.png"))
+    c.call("camera.stream.stop")
+
+    c.call("sim.place_robot_on_plate")
+    params = {"plate": sim["plate"], "camera_model": sim["camera_model"], "nests_approx_trk": sim["nests"]}
+
+    def answer() -> None:
+        drv.find_element("id", "prompt").location_once_scrolled_into_view
+        drv.save_screenshot(str(out / "console-prompt.png"))
+        lock_on_robot(c)
+        drv.find_element("id", "prompt-choice-ok").click()
+
+    run_procedure(drv, "referencing", params, answer)
+    drv.find_element("id", "proc-panel").location_once_scrolled_into_view
+    drv.save_screenshot(str(out / "console-referencing.png"))
+    mark = c.call("sim.truth")["marks"][0]  # where the simulated floor mark is: the operator can see it
+    run_procedure(drv, "experiment", {"mark_xy": [mark["x_mm"], mark["y_mm"]], "repetitions": 2})
+    drv.find_element("id", "proc-panel").location_once_scrolled_into_view
+    drv.save_screenshot(str(out / "console-experiment.png"))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs" / "img"))
+    a = ap.parse_args()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix="console-shots-"))
+    r, laptop = start_robot(tmp)
+    try:
+        with r.client(timeout=60) as c:
+            with console_session(["--endpoint", r.endpoint], tmp / "operator") as (_, drv):
+                drv.set_window_size(1400, 1250)
+                operator_views(drv, c, tmp / "data", out)
+            viewer = ["--endpoint", r.endpoints[1], "--keys", str(laptop), "--key", "vic"]
+            with console_session(viewer, tmp / "viewer") as (_, drv):
+                drv.set_window_size(1400, 900)
+                time.sleep(2)
+                drv.save_screenshot(str(out / "console-viewer.png"))
+    finally:
+        r.stop()
+    for p in sorted(out.glob("console-*.png")):
+        print(p, p.stat().st_size)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
