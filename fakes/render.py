@@ -71,7 +71,7 @@ def true_corner_projections(world: World, size: tuple[int, int],
         abs_H_cam = world.abs_H_cam()
     model = world_camera_model(world, size)
     board = make_board(world.plate())
-    ref_P = np.asarray(board.getChessboardCorners(), dtype=float)
+    ref_P = world.effects.board_true(np.asarray(board.getChessboardCorners(), dtype=float))  # as printed
     cam_P = apply_H(inv_H(check_H(abs_H_cam, "abs_H_cam")) @ world.abs_H_ref, ref_P)
     front = cam_P[:, 2] > 1e-6
     ids = np.flatnonzero(front)
@@ -289,7 +289,7 @@ class Renderer:
         alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
         floor = ~plate
         if floor.any():
-            Hf = self._plane_homography(abs_H_cam)
+            Hf = self._plane_homography(world.effects.floor_view_H(abs_H_cam))  # floor at its local height
 
             def to_floor(xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 """Ray (x, y) → (valid, X, Y) on the floor in ACS."""
@@ -317,10 +317,11 @@ class Renderer:
         """Board texture, white plate and nest rings at PCS xy (2-D arrays of one chunk)."""
         tex = self._board_texture
         th, tw = tex.shape
+        bx, by = self.world.effects.board_nominal(qx, qy)  # the print's own scale and shear
         # texel centre k sits at (k + 0.5)/ppmm, so square edges fall on texel boundaries;
         # clipping keeps far-off coordinates in remap's fixed-point range
-        mx = np.clip(qx * TEXTURE_PPMM - 0.5, -4, tw + 4).astype(np.float32)
-        my = np.clip(qy * TEXTURE_PPMM - 0.5, -4, th + 4).astype(np.float32)
+        mx = np.clip(bx * TEXTURE_PPMM - 0.5, -4, tw + 4).astype(np.float32)
+        my = np.clip(by * TEXTURE_PPMM - 0.5, -4, th + 4).astype(np.float32)
         val = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=255)
         alb = np.float32(DARK) + np.float32((WHITE - DARK) / 255.0) * val.astype(np.float32)
         lo_x, hi_x, lo_y, hi_y = qx.min(), qx.max(), qy.min(), qy.max()

@@ -52,6 +52,7 @@ class Motion:
     duration: float
     path: float  # commanded path length (mm, or deg for turns) for the battery model
     fault_at: float | None = None  # fraction at which a simulated stall strikes
+    bend_mm: float = 0.0  # sideways offset at the end from the arc the path bends on (error model)
 
 
 def unit_interval(name: str, value: float) -> float:
@@ -76,6 +77,9 @@ class FakeBase:
         self._drive_rng = world.rng("robot.drive")
         self._tilt_rng = world.rng("robot.tilt")
         self._fault_rng = world.rng("robot.fault")
+        self._slip_rng = world.rng("robot.slip")
+        self._bend_rng = world.rng("robot.bend")
+        self._imu_rng = world.rng("robot.imu")
         self.odometry = (0.0, 0.0, 0.0)
         self.state = "IDLE"
         self.fault = ""
@@ -159,7 +163,8 @@ class FakeBase:
             pose = self.world.robot
         roll = pitch = None
         if self.world.params.base_has_inclinometer:
-            roll, pitch = math.degrees(pose.roll_rad), math.degrees(pose.pitch_rad)
+            r, p = self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, self._imu_rng)
+            roll, pitch = math.degrees(r), math.degrees(p)
         x, y, h = self.odometry
         battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
         self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
@@ -209,18 +214,23 @@ class FakeBase:
         start = self._accepted(seq, msg, dist, speed, rp.MAX_DISTANCE_MM, (rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S), "d")
         if start is None:
             return
-        p = self.world.params
+        p, fx = self.world.params, self.world.effects
         z_heading, z_lateral = self._drive_rng.standard_normal(2)
-        travelled = dist * (1.0 + p.drive_scale_error)
+        travelled = dist * (1.0 + p.drive_scale_error + fx.slip(self._slip_rng))
         lateral = z_lateral * p.drive_lateral_sigma_mm
+        heading = start.heading_deg + z_heading * p.drive_heading_sigma_deg
+        bend = 0.0
+        if fx.model.robot is not None:  # the error model's arc adds to the independent drive errors
+            bend, turn = fx.bend(travelled, self._bend_rng)
+            lateral, heading = lateral + bend, heading + turn
         a = math.radians(start.heading_deg)
         end = replace(start, x_mm=float(start.x_mm + travelled * math.cos(a) - lateral * math.sin(a)),
                       y_mm=float(start.y_mm + travelled * math.sin(a) + lateral * math.cos(a)),
-                      heading_deg=float(start.heading_deg + z_heading * p.drive_heading_sigma_deg))
+                      heading_deg=float(heading))
         ox, oy, oh = self.odometry
         ob = math.radians(oh)
         odo_end = (ox + dist * math.cos(ob), oy + dist * math.sin(ob), oh)
-        self._start_motion(seq, msg, start, end, odo_end, abs(dist) / speed, abs(dist))
+        self._start_motion(seq, msg, start, end, odo_end, abs(dist) / speed, abs(dist), bend)
 
     def _turn(self, seq: int, msg: rp.Message) -> None:
         angle, speed = msg.number(1, "angle_deg"), msg.number(2, "speed_deg_s")
@@ -228,20 +238,22 @@ class FakeBase:
                                (rp.MIN_TURN_SPEED_DEG_S, rp.MAX_TURN_SPEED_DEG_S), "a")
         if start is None:
             return
-        p = self.world.params
+        p, fx = self.world.params, self.world.effects
         z_heading = self._drive_rng.standard_normal()
-        end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error)
+        end = replace(start, heading_deg=float(start.heading_deg + angle * (1.0 + p.drive_scale_error
+                                                                            + fx.slip(self._slip_rng))
                                                + z_heading * p.drive_heading_sigma_deg))
         ox, oy, oh = self.odometry
         self._start_motion(seq, msg, start, end, (ox, oy, oh + angle), abs(angle) / speed, 0.0)
 
     def _start_motion(self, seq: int, msg: rp.Message, start: RobotPose, end: RobotPose,
-                      odo_end: tuple[float, float, float], seconds: float, path_mm: float) -> None:
+                      odo_end: tuple[float, float, float], seconds: float, path_mm: float,
+                      bend_mm: float = 0.0) -> None:
         fault_at = None
         if self.fault_rate > 0 and self._fault_rng.random() < self.fault_rate:
             fault_at = float(self._fault_rng.uniform(0.2, 0.8))
         self.motion = Motion(seq, start, end, self.odometry, odo_end, self.clock(),
-                             seconds * self.time_scale, path_mm, fault_at)
+                             seconds * self.time_scale, path_mm, fault_at, bend_mm)
         self.state = "MOVING"
         ack = self._send("ACK", seq, msg.kind)
         self._last_motion_cmd = (msg.body(), ack)
@@ -293,7 +305,13 @@ class FakeBase:
             s, e = m.start, m.end
             pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
                            heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
+            if m.bend_mm:  # on the arc, not the chord: the sideways offset grows as f², not f
+                a = math.radians(s.heading_deg)
+                side = (f * f - f) * m.bend_mm
+                pose = replace(pose, x_mm=pose.x_mm - side * math.sin(a), y_mm=pose.y_mm + side * math.cos(a))
             odo = tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))  # type: ignore[assignment]
+            if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
+                pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
         self.world.set_robot(pose)
         self.odometry = odo
         return pose, odo
@@ -305,8 +323,9 @@ class FakeBase:
         pose, (ox, oy, oh) = self._place(f)
         p = self.world.params
         roll, pitch = self._tilt_rng.standard_normal(2) * p.floor_tilt_sigma_mrad * 1e-3
-        self.world.set_robot(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
-                                     roll_rad=float(roll), pitch_rad=float(pitch)))
+        # settle adds the surface's tilt under the wheels to the random settling tilt
+        self.world.set_robot(self.world.settle(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
+                                                       roll_rad=float(roll), pitch_rad=float(pitch), z_mm=None)))
         self.odometry = (ox, oy, _wrap_deg(oh))
         self.travelled_mm += f * m.path
         self.motion = None

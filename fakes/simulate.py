@@ -142,7 +142,27 @@ class Simulation:
         return sensor_image(self.renderer, self.cfg.pixel_format, abs_H_cam, rng)
 
     def _tracker(self, P: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        if self.world.effects.model.tracker is not None:  # the world's AT901 model replaces sigma_t_mm
+            return self.world.effects.tracker_measure_abs(np.asarray(P, dtype=float), rng)
         return np.asarray(P, dtype=float) + rng.normal(0.0, self.cfg.sigma_t_mm, size=np.shape(P))
+
+    def _stop(self, pose: RobotPose, rng: np.random.Generator) -> tuple[RobotPose, np.ndarray, np.ndarray]:
+        """With the world's error model: the robot settled on its wheels after a move of d to ``pose``.
+
+        The move bends on an arc (fakes/errors.py RobotErrors) that ends at ``pose`` with
+        the heading turned by δ, so the chord from the previous stop runs at heading − δ/2;
+        the config's ``path_sigma_mm`` adds an independent sideways offset of the previous
+        stop. Returns the settled pose and the true reflector centres at both stops.
+        """
+        w, d = self.world, self.cfg.move_mm
+        _, turn = w.effects.bend(d, rng)
+        head = pose.heading_deg + turn
+        a = math.radians(head - turn / 2.0)
+        lateral = rng.normal(0.0, self.cfg.path_sigma_mm) if self.cfg.path_sigma_mm else 0.0
+        prev = w.settle(RobotPose(pose.x_mm - d * math.cos(a) - lateral * math.sin(a),
+                                  pose.y_mm - d * math.sin(a) + lateral * math.cos(a), head - turn))
+        at = w.settle(RobotPose(pose.x_mm, pose.y_mm, head, pose.roll_rad, pose.pitch_rad))
+        return at, w.robot_reflector_abs(w.abs_H_rob(prev)), w.robot_reflector_abs(w.abs_H_rob(at))
 
     # ------------------------------------------------------------------ calibration
 
@@ -152,20 +172,23 @@ class Simulation:
         rng = self.rng(stream)
         if heading_deg is None:
             heading_deg = float(rng.uniform(-180.0, 180.0))
-        pose0 = w.pose_with_target_in_view(heading_deg)
+        pose0 = w.settle(w.pose_with_target_in_view(heading_deg))
         a = math.radians(heading_deg)
         lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
-        pose1 = RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
-                          pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a), heading_deg)
+        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"))  # (0, 0) without the error model
+        lateral += bend
+        pose1 = w.settle(RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
+                                   pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a),
+                                   heading_deg + turn))
         abs_H_rob0 = w.abs_H_rob(pose0)
         if not (w.on_plate(pose0.x_mm, pose0.y_mm) and w.on_plate(pose1.x_mm, pose1.y_mm)):
             raise ValueError(f"calibration at heading {heading_deg:.1f}°: the robot would leave the plate")
         abs_H_cam = abs_H_rob0 @ w.rob_H_cam
         cam_H_ref_true = inv_H(abs_H_cam) @ w.abs_H_ref
-        nests_true = np.array([w.nests_abs()[n] for n in NEST_NAMES])
+        nests_true = np.array([w.nests_seated_abs()[n] for n in NEST_NAMES])
         abs_P_nests = self._tracker(nests_true, rng)
-        P0 = self._tracker(abs_H_rob0[:3, 3], rng)
-        P1 = self._tracker(w.abs_H_rob(pose1)[:3, 3], rng)
+        P0 = self._tracker(w.robot_reflector_abs(abs_H_rob0), rng)
+        P1 = self._tracker(w.robot_reflector_abs(w.abs_H_rob(pose1)), rng)
         image = None
         cam_ref: Any = cam_H_ref_true
         if cfg.render:
@@ -187,7 +210,8 @@ class Simulation:
         """The N-direction × repetitions run over the configured mark."""
         w, cfg = self.world, self.cfg
         rng = self.rng(stream)
-        M = np.array([self.mark.x_mm, self.mark.y_mm, 0.0])
+        M = np.array([self.mark.x_mm, self.mark.y_mm, w.effects.floor_height(self.mark.x_mm, self.mark.y_mm)])
+        imu_rng = self.rng(stream + "-imu")
         out = ValidationSet(M)
         for k in range(cfg.directions):
             for r in range(cfg.repetitions):
@@ -199,12 +223,17 @@ class Simulation:
                 if w.on_plate(pose.x_mm, pose.y_mm):
                     raise ValueError(f"validation stop at ({pose.x_mm:.0f}, {pose.y_mm:.0f}) is on the plate; "
                                      "move the mark away from it")
-                abs_H_rob = w.abs_H_rob(pose)
-                a = math.radians(psi)
-                heading, left = np.array([math.cos(a), math.sin(a), 0.0]), np.array([-math.sin(a), math.cos(a), 0.0])
-                lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
-                P_at_true = abs_H_rob[:3, 3]
-                P_prev_true = P_at_true - cfg.move_mm * heading + lateral * left
+                if w.effects.active:
+                    pose, P_prev_true, P_at_true = self._stop(pose, rng)
+                    abs_H_rob = w.abs_H_rob(pose)
+                else:
+                    abs_H_rob = w.abs_H_rob(pose)
+                    a = math.radians(psi)
+                    heading, left = (np.array([math.cos(a), math.sin(a), 0.0]),
+                                     np.array([-math.sin(a), math.cos(a), 0.0]))
+                    lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
+                    P_at_true = abs_H_rob[:3, 3]
+                    P_prev_true = P_at_true - cfg.move_mm * heading + lateral * left
                 P_at = self._tracker(P_at_true, rng)
                 P_prev = self._tracker(P_prev_true, rng)
                 abs_H_cam = abs_H_rob @ w.rob_H_cam
@@ -212,8 +241,10 @@ class Simulation:
                 uv = self._locate(abs_H_cam, uv_true, rng, f"{stream}-{k}-{r}")
                 roll = pitch = None
                 if cfg.report_tilt:
-                    roll, pitch = math.degrees(pose.roll_rad), math.degrees(pose.pitch_rad)
-                out.observations.append(MarkObs(k, psi, uv, P_prev, P_at, roll, pitch, abs_H_rob, uv_true))
+                    r_rad, p_rad = w.effects.inclinometer(pose.roll_rad, pose.pitch_rad, imu_rng)
+                    roll, pitch = math.degrees(r_rad), math.degrees(p_rad)
+                out.observations.append(MarkObs(k, pose.heading_deg, uv, P_prev, P_at, roll, pitch, abs_H_rob,
+                                                uv_true))
         return out
 
     def _locate(self, abs_H_cam: np.ndarray, uv_true: np.ndarray, rng: np.random.Generator, name: str

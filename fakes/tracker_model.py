@@ -146,6 +146,8 @@ class TrackerModel:
         pos = self.locked_position()
         if pos is None:
             return None
+        if self.world.effects.model.tracker is not None:  # AT901 error model replaces the isotropic σ
+            return self.world.effects.tracker_measure(pos, self.rng)
         return pos + self.rng.normal(0.0, self.sigma_mm, 3)
 
     def measure_records(self, n: int, t0_s: float, dt_s: float) -> np.ndarray | None:
@@ -154,7 +156,11 @@ class TrackerModel:
         if pos is None:
             return None
         rec = np.zeros(n, MEAS_VALUE)
-        xyz = (pos + self.rng.normal(0.0, self.sigma_mm, (n, 3))) * self.state.length_unit()
+        if self.world.effects.model.tracker is not None:
+            xyz = self.world.effects.tracker_measure(np.repeat(pos[None, :], n, axis=0), self.rng)
+        else:
+            xyz = pos + self.rng.normal(0.0, self.sigma_mm, (n, 3))
+        xyz = xyz * self.state.length_unit()
         rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         t = t0_s + dt_s * np.arange(n)
         sec = np.floor(t)

@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_y, rot_z
+from fakes.effects import Effects
+from fakes.errors import ErrorModel
 
 if TYPE_CHECKING:
     from calibration.plate import Plate
@@ -106,6 +108,9 @@ class WorldParams:
     floor_tilt_sigma_mrad: float = 0.0  # random roll/pitch of the robot at each stop
     base_has_inclinometer: bool = False
 
+    #: error model (fakes/errors.py); the default, every effect off, is the ideal world
+    errors: ErrorModel = field(default_factory=ErrorModel)
+
     marks: tuple[FloorMark, ...] = field(
         default_factory=lambda: (FloorMark("M1", 2200.0, 1400.0, "dot", 0.4),
                                  FloorMark("M2", 2600.0, 1100.0, "cross", 0.6)))
@@ -123,6 +128,8 @@ class RobotPose:
     heading_deg: float
     roll_rad: float = 0.0
     pitch_rad: float = 0.0
+    #: support-plane height under the reflector; None: the flat support (plate or floor)
+    z_mm: float | None = None
 
 
 class World:
@@ -131,6 +138,7 @@ class World:
     def __init__(self, params: WorldParams | None = None) -> None:
         self.params = p = params or WorldParams()
         self.lock = threading.RLock()
+        self.effects = Effects(self)
         yaw = p.plate_yaw_deg
         if yaw is None:
             yaw = float(self.rng("plate").uniform(-180.0, 180.0))
@@ -140,7 +148,7 @@ class World:
         R = rot_z(math.radians(yaw)) @ rot_x(math.pi)
         centre_ref = np.array([p.board_cols * p.square_mm / 2, p.board_rows * p.square_mm / 2, 0.0])
         t = np.array([*p.plate_xy_mm, p.plate_thickness_mm]) - R @ centre_ref
-        self.abs_H_ref = make_H(R, t, "abs_H_ref")
+        self.abs_H_ref = self.effects.place_plate(make_H(R, t, "abs_H_ref"), R @ centre_ref + t)
         self.abs_H_trk = make_H(rot_z(math.radians(p.tracker_yaw_deg)), p.tracker_xyz_mm, "abs_H_trk")
         self.rob_H_cam = self._true_rob_H_cam()
         self.held_board: Any = None  # a fakes.board.HeldBoard while the operator holds one (sim.hold_board)
@@ -148,13 +156,19 @@ class World:
             self.robot = self.pose_with_target_in_view(heading_deg=yaw + 60.0)
         else:
             self.robot = RobotPose(*p.start_pose)
+        self.robot = self.settle(self.robot)
 
     # ------------------------------------------------------------------ randomness
 
     def rng(self, name: str) -> np.random.Generator:
         """A generator for one consumer, independent of every other consumer."""
+        return self.rng_for(self.params.seed, name)
+
+    @staticmethod
+    def rng_for(seed: int, name: str) -> np.random.Generator:
+        """:meth:`rng` before a world exists (profiles draw their parameters from the seed)."""
         key = int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little")
-        return np.random.default_rng(np.random.SeedSequence([self.params.seed, key]))
+        return np.random.default_rng(np.random.SeedSequence([seed, key]))
 
     # ------------------------------------------------------------------ plate
 
@@ -223,14 +237,30 @@ class World:
         return make_H(R, centre, "rob_H_cam")
 
     def support_height(self, x_mm: float, y_mm: float) -> float:
+        if self.effects.settles:
+            return self.effects.support_height(x_mm, y_mm, self.on_plate(x_mm, y_mm))
         return self.params.plate_thickness_mm if self.on_plate(x_mm, y_mm) else 0.0
+
+    def settle(self, pose: RobotPose) -> RobotPose:
+        """``pose`` on its wheels: roll, pitch and height from the surface (unchanged when flat)."""
+        return self.effects.settle(pose)
+
+    def robot_reflector_abs(self, abs_H_rob: np.ndarray) -> np.ndarray:
+        """Where the robot's SMR centre really is (the RCS origin plus its mount offset)."""
+        return self.effects.robot_reflector(abs_H_rob)
+
+    def nests_seated_abs(self) -> dict[str, np.ndarray]:
+        """Reflector centres as seated in the nests now (true seats plus seating offsets)."""
+        off = self.effects.nest_offsets
+        return {n: P + off[n] if n in off else P for n, P in self.nests_abs().items()}
 
     def abs_H_rob(self, pose: RobotPose | None = None) -> np.ndarray:
         """True robot pose: reflector origin, x = heading, z = support normal."""
         with self.lock:
             r = pose or self.robot
             R = rot_z(math.radians(r.heading_deg)) @ rot_y(r.pitch_rad) @ rot_x(r.roll_rad)
-            ground = np.array([r.x_mm, r.y_mm, self.support_height(r.x_mm, r.y_mm)])
+            z = self.support_height(r.x_mm, r.y_mm) if r.z_mm is None else r.z_mm
+            ground = np.array([r.x_mm, r.y_mm, z])
             return make_H(R, ground + R @ [0, 0, self.params.reflector_height_mm], "abs_H_rob")
 
     def abs_H_cam(self) -> np.ndarray:
@@ -260,8 +290,8 @@ class World:
     def reflectors_abs(self) -> dict[str, np.ndarray]:
         """Every reflector the tracker could lock onto (ACS)."""
         with self.lock:
-            out = {"robot": self.abs_H_rob()[:3, 3]}
-        out.update(self.nests_abs())
+            out = {"robot": self.robot_reflector_abs(self.abs_H_rob())}
+        out.update(self.nests_seated_abs())
         return out
 
     def reflectors_trk(self) -> dict[str, np.ndarray]:
@@ -285,7 +315,7 @@ class World:
     def truth(self) -> dict[str, Any]:
         """Ground truth for reports and tests (lists, JSON-able)."""
         with self.lock:
-            return {
+            out = {
                 "rob_H_cam": self.rob_H_cam.tolist(),
                 "abs_H_ref": self.abs_H_ref.tolist(),
                 "abs_H_trk": self.abs_H_trk.tolist(),
@@ -294,3 +324,10 @@ class World:
                 "marks": [{"name": m.name, "x_mm": m.x_mm, "y_mm": m.y_mm, "kind": m.kind}
                           for m in self.params.marks],
             }
+            if self.effects.active:  # the ideal world's truth stays as it was
+                out["errors"] = self.effects.truth()
+                out["robot_reflector_abs"] = self.robot_reflector_abs(self.abs_H_rob()).tolist()
+                out["nests_seated_abs"] = {k: v.tolist() for k, v in self.nests_seated_abs().items()}
+                for m in out["marks"]:
+                    m["z_mm"] = self.effects.floor_height(m["x_mm"], m["y_mm"])
+            return out

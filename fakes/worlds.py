@@ -55,12 +55,16 @@ def world_for(url: DeviceURL) -> World:
 
 
 def params_from(sim: Mapping[str, Any]) -> WorldParams:
-    """World parameters from a config's ``[sim]`` section (a dict of WorldParams fields)."""
+    """World parameters from a config's ``[sim]`` section (WorldParams fields plus ``profile``)."""
+    from fakes import profiles
+
+    sim = dict(sim)
+    profile = sim.pop("profile", profiles.DEFAULT)
     fields = set(WorldParams.__dataclass_fields__)
     unknown = sorted(set(sim) - fields)
     if unknown:
         raise ValueError(f"[sim]: unknown world parameter(s) {', '.join(unknown)}")
-    return WorldParams(**sim)
+    return profiles.apply(profile, WorldParams(**sim))
 
 
 __all__ = ["OPTION", "params_from", "register", "sim_url", "world_for"]

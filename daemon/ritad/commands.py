@@ -176,7 +176,7 @@ def _sim(s: Services) -> dict[str, Handler]:
         w = world(req)
         heading = req.args["heading_deg"]
         pose = w.pose_with_target_in_view(w.plate_yaw_deg + 60.0 if heading is None else heading)
-        w.set_robot(pose)
+        w.set_robot(w.settle(pose))  # on its wheels: the tilt of the plate under them (error profiles)
         return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
 
     def hold_board(req: Request) -> Any:

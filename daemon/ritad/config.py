@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.bus.command_table import ROLES
-from daemon.ritad.registry import schemes
+from daemon.ritad.registry import schemes, sim_profiles
 from drivers.base import CameraSettings, DeviceURL
 
 
@@ -89,6 +89,8 @@ class RobotSection:
 class SimSection:
     seed: int = 1
     tracker_sigma_mm: float = 0.010
+    #: error profile of the simulated world (fakes/profiles.py; docs/accuracy.md)
+    profile: str = "ideal"
 
 
 @dataclass
@@ -240,6 +242,9 @@ def _validate(cfg: Config) -> None:
         raise ConfigError(f"{src}: tracker.abs_H_trk must be a 4x4 matrix (list of 4 rows of 4)")
     if cfg.sim.tracker_sigma_mm < 0:
         raise ConfigError(f"{src}: sim.tracker_sigma_mm must be >= 0, got {cfg.sim.tracker_sigma_mm}")
+    if cfg.uses_sim and cfg.sim.profile not in (known := sim_profiles()):
+        raise ConfigError(f"{src}: sim.profile {cfg.sim.profile!r} is not a simulation profile "
+                          f"(profiles: {', '.join(known)})")
 
 
 def _validate_security(cfg: Config) -> None:
@@ -272,7 +277,7 @@ def load(path: str | os.PathLike[str]) -> Config:
 
 
 def sim_config(runtime_dir: str | os.PathLike[str], data_dir: str | os.PathLike[str] | None = None,
-               seed: int = 1) -> Config:
+               seed: int = 1, profile: str = "ideal") -> Config:
     """The built-in simulation config: every device ``sim:``, ipc endpoints in ``runtime_dir``."""
     rt = Path(runtime_dir)
     return from_dict({
@@ -281,5 +286,5 @@ def sim_config(runtime_dir: str | os.PathLike[str], data_dir: str | os.PathLike[
                    "frame_endpoints": [f"ipc://{rt}/frames"],
                    "data_dir": str(data_dir or rt / "data"), "start_worker": True},
         "devices": {"camera": "sim:", "tracker": "sim:", "robot": "sim:"},
-        "sim": {"seed": seed},
+        "sim": {"seed": seed, "profile": profile},
     }, source="<built-in sim config>")

@@ -247,16 +247,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
     ap.add_argument("--data-dir", help="override daemon.data_dir")
     ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
+    ap.add_argument("--profile", help="--sim: error profile of the simulated world (ideal, paper, paper+imu; "
+                                      "default ideal); with --config use [sim] profile")
     ap.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR"),
                     help="override daemon.log_level")
     ap.add_argument("--version", action="version", version=f"ritad {__version__}")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.profile is not None and not args.sim:
+        ap.error("--profile applies to --sim only; with --config set [sim] profile")  # exit 2
+    return args
 
 
 def load_config(args: argparse.Namespace) -> config_mod.Config:
     if args.sim:
         runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
-        return config_mod.sim_config(runtime, args.data_dir, seed=args.seed)
+        return config_mod.sim_config(runtime, args.data_dir, seed=args.seed, profile=args.profile or "ideal")
     cfg = config_mod.load(args.config or args.check_config)
     if args.data_dir:
         cfg.daemon.data_dir = args.data_dir

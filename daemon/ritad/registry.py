@@ -40,6 +40,8 @@ ADAPTERS: dict[str, dict[str, str]] = {
 
 #: builds the shared simulated world from the config's [sim] section and plays the installer (fakes/installer.py, fakes/worlds.py)
 SIM_WORLD_FACTORY = "fakes.installer:start"
+#: the simulated world's error profiles, name -> builder ([sim] profile; fakes/profiles.py)
+SIM_PROFILES = "fakes.profiles:PROFILES"
 SIM_SURVEY_FACTORY = "fakes.survey_views:install"  # sim.survey_images: (world, data_dir, views, size) -> paths
 SIM_SCHEME = "sim"
 
@@ -118,6 +120,11 @@ def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tupl
     and named in each ``sim:`` URL (:func:`in_world`).
     """
     return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir, camera_url)
+
+
+def sim_profiles() -> list[str]:
+    """Names of the simulated world's error profiles (loaded by name: ritad never imports fakes)."""
+    return list(_load(SIM_PROFILES, "[sim] profile"))
 
 
 def sim_survey_renderer() -> Any:

@@ -1,0 +1,64 @@
+"""Error profiles of the simulated world: ``ideal``, ``paper``, ``paper+imu``.
+
+Selected by ``ritad --sim --profile NAME`` or ``[sim] profile = "NAME"`` in the config
+(docs/operations.md); ritad checks the name against :data:`PROFILES` by name through
+its registry (``SIM_PROFILES``), so it never imports ``fakes``.
+
+* ``ideal``: today's world, every effect off (bit-identical to the world before
+  profiles existed; calibration.md §7.3 thresholds rely on it).
+* ``paper``: every effect of fakes/errors.py at its sourced magnitude, sized to the
+  paper's hardware (AT901, 19 mm glass plate, Rita's base without an IMU).
+* ``paper+imu``: the same world; the base also reports roll/pitch from an
+  inclinometer with noise and bias (capability ``INCL``, docs/robot-protocol.md).
+
+With an error model, the tracker's noise comes from ``errors.tracker`` and
+``WorldParams.tracker_sigma_mm`` (the ideal world's isotropic noise) is not used.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable
+
+from fakes.errors import ErrorModel, ImuErrors
+from fakes.world import World, WorldParams
+
+#: the nominal plate thickness the paper's glass plate is sold as (paper Fig. 2b: 19 mm)
+NOMINAL_PLATE_MM = 19.0
+
+
+def _ideal(p: WorldParams) -> WorldParams:
+    return p
+
+
+def _paper(p: WorldParams) -> WorldParams:
+    errors = ErrorModel.paper()
+    # the glass is 19 mm within its tolerance: drawn once per world (the product never assumes it)
+    tol = errors.plate.thickness_tol_mm if errors.plate is not None else 0.0
+    rng = World.rng_for(p.seed, "errors.plate.thickness")
+    return p.with_(errors=errors, plate_thickness_mm=NOMINAL_PLATE_MM + float(rng.uniform(-tol, tol)))
+
+
+def _paper_imu(p: WorldParams) -> WorldParams:
+    q = _paper(p)
+    return q.with_(errors=replace(q.errors, imu=ImuErrors()), base_has_inclinometer=True)
+
+
+#: profile name -> WorldParams -> WorldParams with that profile's effects
+PROFILES: dict[str, Callable[[WorldParams], WorldParams]] = {
+    "ideal": _ideal, "paper": _paper, "paper+imu": _paper_imu}
+DEFAULT = "ideal"
+
+
+def apply(name: str, params: WorldParams) -> WorldParams:
+    """``params`` with the profile ``name`` applied, or ValueError naming it and listing the profiles."""
+    if name not in PROFILES:
+        raise ValueError(f"unknown simulation profile {name!r} (profiles: {', '.join(PROFILES)})")
+    return PROFILES[name](params)
+
+
+def world(name: str, seed: int = 1, **params: object) -> World:
+    """A world of profile ``name`` (tests, benches)."""
+    return World(apply(name, WorldParams(seed=seed, **params)))  # type: ignore[arg-type]
+
+
+__all__ = ["DEFAULT", "PROFILES", "apply", "world"]
