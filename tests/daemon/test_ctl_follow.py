@@ -129,7 +129,8 @@ class Ritactl:
     def __init__(self, endpoint: str, *argv: str) -> None:
         self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, *argv],
                                      cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+                                     stderr=subprocess.PIPE, text=True,
+                                     env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONFAULTHANDLER": "1"})
         self.text = {"out": "", "err": ""}
         for name, stream in (("out", self.proc.stdout), ("err", self.proc.stderr)):
             threading.Thread(target=self._read, args=(name, stream), daemon=True).start()
@@ -141,7 +142,10 @@ class Ritactl:
     def wait_for(self, what: str, name: str, timeout: float = 20, poke=None) -> None:
         end = time.monotonic() + timeout
         while what not in self.text[name]:
-            assert time.monotonic() < end and self.proc.poll() is None, (what, self.text)
+            if time.monotonic() > end and self.proc.poll() is None:
+                self.proc.send_signal(signal.SIGABRT)  # faulthandler: where ritactl was, for the message
+                time.sleep(1.0)
+            assert time.monotonic() < end and self.proc.poll() is None, (what, self.proc.returncode, self.text)
             if poke:
                 poke()
             time.sleep(0.2)
@@ -198,7 +202,9 @@ def wait_robot(c: Client, state: str, timeout: float = 20) -> None:
 
 @pytest.mark.parametrize("keys", ["y\n", None, "\n"])
 def test_ctrl_c_during_robot_move_offers_to_stop_it(endpoint, c, keys):
-    f = Ritactl(endpoint, "robot", "move", "-300", "--yes", "--speed", "20")
+    # 300 mm at 2 mm/s: 150 s of motion, 3 s of wall time at the fake base's time_scale 0.02 (at 20 mm/s
+    # it was 0.3 s, and a loaded machine sent the Ctrl-C after the move had ended)
+    f = Ritactl(endpoint, "robot", "move", "-300", "--yes", "--speed", "2")
     try:
         wait_robot(c, "MOVING")
         f.proc.send_signal(signal.SIGINT)

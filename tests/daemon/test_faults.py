@@ -180,6 +180,8 @@ def test_serial_port_closed(make_daemon) -> None:
     assert not old_server.alive and runner.device.server is not old_server  # a new port was opened
     after = c.call("robot.status")
     assert after["state"] == "IDLE" and after["battery_v"] == pytest.approx(before["battery_v"])
-    h = c.call("status")["devices"]["robot"]
+    end = time.monotonic() + 5  # the runner's own status poll shows BUSY for a moment: READY between them
+    while (h := c.call("status")["devices"]["robot"])["state"] == "BUSY" and time.monotonic() < end:
+        time.sleep(0.05)
     assert (h["state"], h["reconnects"], h["opens"]) == ("READY", 1, 2)
     sub.close()
