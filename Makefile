@@ -18,7 +18,7 @@ demo: $(STAMP)
 	$(PY) -m daemon.demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
