@@ -88,3 +88,48 @@ def test_camera_preview_is_a_small_jpeg_of_the_newest_streamed_frame(tmp_path):
             assert "header" in c.call("camera.preview", after=newest + 1000)  # ids counting again: a picture
         finally:
             c.call("camera.stream.stop")
+
+
+def _detect_when_streaming(c, args: dict, timeout: float = 20.0) -> dict:
+    import time
+
+    from daemon.bus.protocol import CommandError
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            return c.call_raw("camera.detect", args, timeout)[0]
+        except CommandError as exc:  # not_found until the first streamed frame
+            assert exc.code == "not_found" and "stream" in str(exc) and time.monotonic() < end, exc
+            time.sleep(0.1)
+
+
+def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
+    """camera.detect on the robot standing on the plate: the product's detector, the installer's plate file."""
+    from daemon.bus.protocol import CommandError
+    from tests.ritad_up import ritad_in_process
+
+    with ritad_in_process(tmp_path, camera="sim:?size=1000x750&noise=0&fps=10") as (_, c):
+        c.call("sim.place_robot_on_plate")
+        c.call("camera.stream.start")
+        try:
+            with pytest.raises(CommandError, match="calibration/plate.json"):  # nothing installed: named
+                c.call("camera.detect")
+            with pytest.raises(CommandError, match="nope.json"):
+                c.call("camera.detect", plate_file="sim/nope.json")
+            with pytest.raises(CommandError, match="keys"):  # secrets stay private
+                c.call("camera.detect", plate_file="keys/server.key_secret")
+            full = _detect_when_streaming(c, {"plate_file": "sim/plate.json"})
+            half = c.call("camera.detect", plate_file="sim/plate.json", width=500)
+            dot = c.call("camera.detect", target="dot")
+        finally:
+            c.call("camera.stream.stop")
+    assert (full["full_w"], full["full_h"], full["searched_w"]) == (1000, 750, 1000) and half["searched_w"] == 500
+    assert full["found"] and full["n"] > 30 and len(full["uv"]) == len(full["ids"]) == full["n"]
+    uv = np.array(full["uv"])
+    assert (uv[:, 0] >= 0).all() and (uv[:, 0] < 1000).all() and (uv[:, 1] >= 0).all() and (uv[:, 1] < 750).all()
+    # corners seen at both sizes are the same points in sensor pixels (the half-size search is coarser)
+    common = {i: p for i, p in zip(half["ids"], half["uv"])}
+    d = [np.hypot(*(np.array(p) - common[i])) for i, p in zip(full["ids"], full["uv"]) if i in common]
+    assert len(d) > 10 and np.median(d) < 1.5, (len(d), np.median(d) if d else None)
+    assert "found" in dot and dot["target"] == "dot"  # no mark under the camera on the plate: found or not, no error
