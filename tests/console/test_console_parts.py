@@ -133,3 +133,37 @@ def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
     d = [np.hypot(*(np.array(p) - common[i])) for i, p in zip(full["ids"], full["uv"]) if i in common]
     assert len(d) > 10 and np.median(d) < 1.5, (len(d), np.median(d) if d else None)
     assert "found" in dot and dot["target"] == "dot"  # no mark under the camera on the plate: found or not, no error
+
+
+def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_path):
+    """Directly on the handler: a second request while one runs is busy; a downscaled search answers sensor px."""
+    from calibration.io import save_plate
+    from calibration.target import detect_corners, make_board
+    from daemon.bus.protocol import CommandError
+    from daemon.ritad.detect import Detections
+    from daemon.ritad.server import Request
+    from drivers.base import Frame
+    from fakes.world import World
+
+    plate = World().plate()  # the design the simulated installer hands over
+    save_plate(plate, tmp_path / "plate.json")
+    img = make_board(plate).generateImage((2000, 1500), marginSize=0)[300:750, 400:1000].copy()  # a camera-sized part
+    det = Detections(lambda: Frame(img, 7, "sim", "Mono8"), tmp_path)
+
+    def req(**a):
+        return Request(1, "camera.detect", {"target": "plate", "plate_file": "plate.json", "width": None,
+                                            "size_px": None, **a}, "test")
+    try:
+        first = det.handle(req())
+        with pytest.raises(CommandError, match="already running") as busy:
+            det.handle(req())
+        full = first.result(timeout=60)
+        half = det.handle(req(width=450)).result(timeout=60)
+    finally:
+        det.close()
+    assert busy.value.code == "busy" and half["searched_w"] == 450 and full["searched_w"] == 600
+    ids, uv = detect_corners(img, plate)
+    assert full["n"] == len(ids) > 30 and np.allclose(full["uv"], uv, atol=0.01)
+    ref = dict(zip(full["ids"], full["uv"]))
+    d = [np.hypot(*(np.array(p) - ref[i])) for i, p in zip(half["ids"], half["uv"]) if i in ref]
+    assert len(d) > 30 and np.median(d) < 1.0, (len(d), np.median(d) if d else None)
