@@ -2,7 +2,7 @@
 
 Runs what the browser tests run: a simulated ritad, ``ritactl console`` and headless
 Debian chromium; then drives the page as an operator (live view, tracker aim + find,
-referencing with its prompt, the 8-direction experiment) and as a viewer key, and
+referencing with its prompt, the detected plate corners, the 8-direction experiment) and as a viewer key, and
 saves one picture per view. The operator's hands (placing the robot, locking the
 tracker on the robot when the prompt asks) are the simulation's, as in the demo.
 
@@ -72,10 +72,24 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
     run_procedure(drv, "referencing", params, answer)
     drv.find_element("id", "proc-panel").location_once_scrolled_into_view
     drv.save_screenshot(str(out / "console-referencing.png"))
+    detect_view(drv, c, out)
     mark = c.call("sim.truth")["marks"][0]  # where the simulated floor mark is: the operator can see it
     run_procedure(drv, "experiment", {"mark_xy": [mark["x_mm"], mark["y_mm"]], "repetitions": 2})
     drv.find_element("id", "proc-panel").location_once_scrolled_into_view
     drv.save_screenshot(str(out / "console-experiment.png"))
+
+
+def detect_view(drv, c, out: Path) -> None:
+    """The robot still on the plate after referencing: the plate corners camera.detect finds, over the live view."""
+    set_value(drv, "detect-plate", "sim/plate.json")  # the installer's plate file
+    drv.find_element("id", "stream-start").click()
+    wait_for("frames", lambda: drv.execute_script("return window.rita.framesDrawn") >= 3, 20)
+    drv.find_element("id", "detect").click()
+    wait_for("a detection", lambda: drv.execute_script("return window.rita.detections") >= 1, 60)
+    time.sleep(1.0)
+    drv.find_element("id", "camera-panel").location_once_scrolled_into_view
+    drv.save_screenshot(str(out / "console-detect.png"))
+    c.call("camera.stream.stop")
 
 
 def main() -> int:

@@ -208,7 +208,13 @@ def _preview(s: Services) -> dict[str, Handler]:
     return preview_handlers(s.latest_frame)
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview)
+def _detect(s: Services) -> dict[str, Handler]:
+    from daemon.ritad.detect import detect_handlers
+
+    return detect_handlers(s.latest_frame, s.data_dir, s.private_dirs)
+
+
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview, _detect)
 
 
 def validated(cmd: str, handler: Handler) -> Handler:

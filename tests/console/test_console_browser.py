@@ -133,6 +133,35 @@ def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page
     assert drawn > 200
 
 
+def overlay_pixels(png: bytes) -> int:
+    """Pixels of the detection overlay's green (#00e676) in a screenshot: the camera image itself is grey."""
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)  # BGR
+    b, g, r = img[..., 0], img[..., 1], img[..., 2]
+    return int(((g > 180) & (r < 80) & (g - b > 60)).sum())
+
+
+def test_detect_draws_the_plate_corners_over_the_live_view(page, robot):
+    robot["client"].call("sim.place_robot_on_plate")  # the installer's hands: the target is under the camera
+    js(page, "document.getElementById('detect-plate').value = 'sim/plate.json';"  # the installer's plate file
+             "document.getElementById('detect-width').value = '1000';")
+    click(page, "stream-start")
+    try:
+        drawn = js(page, "return window.rita.framesDrawn")
+        wait_for("a frame", lambda: js(page, "return window.rita.framesDrawn") > drawn, 10)
+        before = overlay_pixels(page.find_element("id", "cam").screenshot_as_png)
+        click(page, "detect")
+        wait_for("a detection", lambda: js(page, "return window.rita.detections") >= 1, 60)
+        drawn = js(page, "return window.rita.framesDrawn")
+        wait_for("a frame after it", lambda: js(page, "return window.rita.framesDrawn") > drawn, 10)
+        shot = page.find_element("id", "cam").screenshot_as_png
+    finally:
+        robot["client"].call("camera.stream.stop")
+    d, info = js(page, "return window.rita.detection"), text(page, "detect-info")
+    assert d and d["target"] == "plate" and d["n"] > 30, info
+    assert info.startswith(f"{d['n']} corners"), info  # the count is shown
+    assert before == 0 and overlay_pixels(shot) > 30, (before, overlay_pixels(shot))  # the dots are drawn
+
+
 def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):
     import urllib.request
 

@@ -88,3 +88,82 @@ def test_camera_preview_is_a_small_jpeg_of_the_newest_streamed_frame(tmp_path):
             assert "header" in c.call("camera.preview", after=newest + 1000)  # ids counting again: a picture
         finally:
             c.call("camera.stream.stop")
+
+
+def _detect_when_streaming(c, args: dict, timeout: float = 20.0) -> dict:
+    import time
+
+    from daemon.bus.protocol import CommandError
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            return c.call_raw("camera.detect", args, timeout)[0]
+        except CommandError as exc:  # not_found until the first streamed frame
+            assert exc.code == "not_found" and "stream" in str(exc) and time.monotonic() < end, exc
+            time.sleep(0.1)
+
+
+def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
+    """camera.detect on the robot standing on the plate: the product's detector, the installer's plate file."""
+    from daemon.bus.protocol import CommandError
+    from tests.ritad_up import ritad_in_process
+
+    with ritad_in_process(tmp_path, camera="sim:?size=1000x750&noise=0&fps=10") as (_, c):
+        c.call("sim.place_robot_on_plate")
+        c.call("camera.stream.start")
+        try:
+            with pytest.raises(CommandError, match="calibration/plate.json"):  # nothing installed: named
+                c.call("camera.detect")
+            with pytest.raises(CommandError, match="nope.json"):
+                c.call("camera.detect", plate_file="sim/nope.json")
+            with pytest.raises(CommandError, match="keys"):  # secrets stay private
+                c.call("camera.detect", plate_file="keys/server.key_secret")
+            full = _detect_when_streaming(c, {"plate_file": "sim/plate.json"})
+            half = c.call("camera.detect", plate_file="sim/plate.json", width=500)
+            dot = c.call("camera.detect", target="dot")
+        finally:
+            c.call("camera.stream.stop")
+    assert (full["full_w"], full["full_h"], full["searched_w"]) == (1000, 750, 1000) and half["searched_w"] == 500
+    assert full["found"] and full["n"] > 30 and len(full["uv"]) == len(full["ids"]) == full["n"]
+    uv = np.array(full["uv"])
+    assert (uv[:, 0] >= 0).all() and (uv[:, 0] < 1000).all() and (uv[:, 1] >= 0).all() and (uv[:, 1] < 750).all()
+    # corners seen at both sizes are the same points in sensor pixels (the half-size search is coarser)
+    common = {i: p for i, p in zip(half["ids"], half["uv"])}
+    d = [np.hypot(*(np.array(p) - common[i])) for i, p in zip(full["ids"], full["uv"]) if i in common]
+    assert len(d) > 10 and np.median(d) < 1.5, (len(d), np.median(d) if d else None)
+    assert "found" in dot and dot["target"] == "dot"  # no mark under the camera on the plate: found or not, no error
+
+
+def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_path):
+    """Directly on the handler: a second request while one runs is busy; a downscaled search answers sensor px."""
+    from calibration.io import save_plate
+    from calibration.target import detect_corners, make_board
+    from daemon.bus.protocol import CommandError
+    from daemon.ritad.detect import Detections
+    from daemon.ritad.server import Request
+    from drivers.base import Frame
+    from fakes.world import World
+
+    plate = World().plate()  # the design the simulated installer hands over
+    save_plate(plate, tmp_path / "plate.json")
+    img = make_board(plate).generateImage((2000, 1500), marginSize=0)[300:750, 400:1000].copy()  # a camera-sized part
+    det = Detections(lambda: Frame(img, 7, "sim", "Mono8"), tmp_path)
+
+    def req(**a):
+        return Request(1, "camera.detect", {"target": "plate", "plate_file": "plate.json", "width": None,
+                                            "size_px": None, **a}, "test")
+    try:
+        first = det.handle(req())
+        with pytest.raises(CommandError, match="already running") as busy:
+            det.handle(req())
+        full = first.result(timeout=60)
+        half = det.handle(req(width=450)).result(timeout=60)
+    finally:
+        det.close()
+    assert busy.value.code == "busy" and half["searched_w"] == 450 and full["searched_w"] == 600
+    ids, uv = detect_corners(img, plate)
+    assert full["n"] == len(ids) > 30 and np.allclose(full["uv"], uv, atol=0.01)
+    ref = dict(zip(full["ids"], full["uv"]))
+    d = [np.hypot(*(np.array(p) - ref[i])) for i, p in zip(half["ids"], half["uv"]) if i in ref]
+    assert len(d) > 30 and np.median(d) < 1.0, (len(d), np.median(d) if d else None)

@@ -20,7 +20,8 @@ ALLOWED: dict[str, set[str]] = {
     "drivers": set(),
     "daemon": set(),  # the package root: __version__ only
     "daemon.bus": {"daemon"},
-    "daemon.ritad": {"daemon", "daemon.bus", "drivers"},
+    "daemon.ritad": {"daemon", "daemon.bus", "drivers",
+                     "calibration"},  # camera.detect (daemon/ritad/detect.py) runs the product's own detectors
     "daemon.ctl": {"daemon", "daemon.bus", "daemon.worker",  # ritactl recompute runs the worker's computation
                    "daemon.console"},  # ritactl console starts the console program
     "daemon.console": {"daemon", "daemon.bus"},

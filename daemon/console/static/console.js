@@ -148,6 +148,7 @@ async function drawFrame(meta, blob) {
       const cx = ((meta.full_w / 2 - meta.x) / meta.step), cy = ((meta.full_h / 2 - meta.y) / meta.step);
       ctx.moveTo(cx, 0); ctx.lineTo(cx, cv.height); ctx.moveTo(0, cy); ctx.lineTo(cv.width, cy); ctx.stroke();
     }
+    if (window.drawDetection) drawDetection(ctx, meta);   // detect.js: the last detection's corners or mark
     S.meta = meta;
     S.framesDrawn += 1;
     S.latencies.push(Date.now() - meta.host_time_ns / 1e6);   // acquisition → drawn, same host clock
