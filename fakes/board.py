@@ -4,7 +4,8 @@ The operator holds a small ChArUco board (``calibration.board.DEFAULT_BOARD``) u
 camera; its pose is given relative to the camera (CCS, mm), set through the sim-only bus
 command ``sim.hold_board`` (:meth:`fakes.world.World.hold_board`). The renderer
 (:mod:`fakes.render`) draws it over the scene: each sub-sample's viewing ray is
-intersected with the board plane (as the plate's top face is), and the print's texture
+intersected with the board plane (as the plate's top face is), and the print's texture,
+box-filtered over one sub-sample's footprint (so a pixel integrates its area),
 looked up there.
 
 Simplifications (stated, not tuned): the recipe starts by putting the robot on its
