@@ -126,10 +126,9 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     err = rob_H_cam_error(np.array(ref["rob_H_cam"]), np.array(truth["rob_H_cam"]))
     print(f"\nclosed loop rob_H_cam vs truth: {err}")
     assert err["t_xy_mm"] < 0.06 and err["t_z_mm"] < 0.045, err
-    # §7.3 asks rotation < 0.015°; at this reduced image size the intrinsics' principal point is
-    # good to ~0.1 px, i.e. ~0.012° of camera tilt, and the closed loop misses it (0.019° in the
-    # demo, reported in issue #14's note); with the world's own lens it is 0.002°
-    assert err["rot_deg"] < 0.03, err
+    # §7.3: rotation < 0.015° (measured 0.0047° here; the demo's seed 1 still misses it, 0.016°:
+    # docs/accuracy.md, "The closed loop without ground truth")
+    assert err["rot_deg"] < 0.015, err
     active = c.call("calib.results")["active"]
     assert active["job"] == ref["job"] and Path(active["dataset"], "result.yaml").exists()
 
@@ -239,7 +238,7 @@ def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
     assert answered and result is not None and not result.get("failed"), result
     truth = c.call("sim.truth")
     err = rob_H_cam_error(np.array(result["rob_H_cam"]), np.array(truth["rob_H_cam"]))
-    assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.03  # rotation: see the first test
+    assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.015, err  # §7.3
 
 
 def test_cancel_then_resume(daemon):
