@@ -48,9 +48,17 @@ class Board:
         if not 0 < self.marker_mm < self.square_mm:
             raise ValueError(f"board {self.board_id!r}: marker_mm={self.marker_mm} must be in (0, square_mm="
                              f"{self.square_mm})")
-        if not self.aruco_dict.startswith("DICT_"):
+        from calibration.patches import dictionary_size
+
+        try:
+            size = dictionary_size(self.aruco_dict)
+        except ValueError:
             raise ValueError(f"board {self.board_id!r}: aruco_dict={self.aruco_dict!r} is not an OpenCV "
-                             f"dictionary name (e.g. 'DICT_4X4_100')")
+                             f"dictionary name (e.g. 'DICT_4X4_100')") from None
+        needed = self.board_cols * self.board_rows // 2
+        if needed > size:  # checked here, not at the first capture after the operator set up
+            raise ValueError(f"board {self.board_id!r}: {self.board_cols}x{self.board_rows} squares need {needed} "
+                             f"markers, {self.aruco_dict} has {size}")
 
     def board_size_mm(self) -> tuple[float, float]:
         return self.board_cols * self.square_mm, self.board_rows * self.square_mm

@@ -14,7 +14,8 @@ bench, drawn as a plain mid-grey surface (the floor and plate under the robot's 
 pose are not drawn then); the board is perfectly flat and evenly lit, and no depth of
 field is modelled. The print is exactly its nominal definition unless the world carries
 ``board_print_scale`` (true size / nominal size per board axis; the hook for a print that
-differs from its file, e.g. a printer's scale error: no source sets it yet).
+differs from its file: the error profiles set it from the target's print error group,
+fakes/effects.py; docs/accuracy.md).
 
 :func:`answer_intrinsics_prompt` plays the operator for the ``intrinsics`` procedure: it
 reads the view key in the prompt, holds the board in the recipe's nominal pose plus the

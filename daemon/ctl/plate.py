@@ -50,6 +50,9 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
         from daemon.worker.survey import CalibrationError, survey_plate
     except ImportError as exc:
         return fail(Exit.FAIL, "unavailable", f"plate survey needs the full install (numpy, OpenCV): {exc}", a.json)
+    if Path(a.out).resolve() == Path(a.plate).resolve():  # the design file is the survey's input: keep it
+        return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file --plate {a.plate}: "
+                                                 f"write the surveyed plate to another file", a.json)
     try:
         plate = survey_plate(Path(a.folder), _read_plate(a.plate), a.plate)
         atomic_write_json(Path(a.out), plate)

@@ -29,10 +29,13 @@ CMD = "camera.detect"
 
 
 def _gray8(frame: Frame) -> np.ndarray:
-    img = frame.pixels
-    if img.ndim != 2:
-        raise CommandError(ErrorCode.BAD_ARGS, f"{CMD}: frames of shape {img.shape} are not searched")
-    return (img >> 8).astype(np.uint8) if img.dtype.itemsize == 2 else img  # as camera.preview shows it
+    """8-bit grey for the detectors, whatever the pixel format (demosaiced, 12/16-bit scaled)."""
+    from calibration.image import to_grey
+
+    try:
+        return to_grey(frame.pixels, frame.pixel_format)
+    except ValueError as exc:
+        raise CommandError(ErrorCode.BAD_ARGS, f"{CMD}: {exc}") from None
 
 
 def _downscaled(img: np.ndarray, width: int | None) -> tuple[np.ndarray, float]:

@@ -16,10 +16,31 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
+import numpy as np
+
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Reply, Request
 from drivers.base import Frame
 
+
+
+def display_grey(frame: Frame) -> np.ndarray:
+    """8-bit grey as the sensor exposed it: the top 8 bits of the format's depth (no auto gain, so
+    the operator judges the exposure), Bayer demosaiced, RGB as luma."""
+    import cv2
+
+    img, fmt = frame.pixels, frame.pixel_format or "Mono8"
+    if img.dtype.itemsize == 2:
+        img = (img >> (4 if "12" in fmt else 8)).astype(np.uint8)
+    if fmt.startswith("Bayer"):
+        from calibration.image import OPENCV_BAYER
+
+        return cv2.cvtColor(np.ascontiguousarray(img), getattr(cv2, f"COLOR_Bayer{OPENCV_BAYER[fmt[5:7]]}2GRAY"))
+    if img.ndim == 3:
+        return cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
+    if img.ndim != 2:
+        raise CommandError(ErrorCode.BAD_ARGS, f"camera.preview: frames of shape {img.shape} are not shown")
+    return img
 
 class Previews:
     def __init__(self, latest: Callable[[], Frame | None]) -> None:
@@ -40,11 +61,7 @@ class Previews:
     def _picture(self, frame: Frame, a: dict[str, Any]) -> Reply:
         import cv2
 
-        img = frame.pixels
-        if img.ndim != 2:
-            raise CommandError(ErrorCode.BAD_ARGS, f"camera.preview: frames of shape {img.shape} are not shown")
-        if img.dtype.itemsize == 2:
-            img = (img >> 8).astype("u1")  # an 8-bit view shows the high byte
+        img = display_grey(frame)
         H, W = img.shape
         x, y = min(max(a["roi_x"] or 0, 0), W - 1), min(max(a["roi_y"] or 0, 0), H - 1)
         w, h = min(a["roi_w"] or W, W - x), min(a["roi_h"] or H, H - y)

@@ -155,3 +155,12 @@ def test_a_red_object_in_one_photograph_is_dropped(fetched) -> None:
     assert "red" in view["rings_missing"] and "dropped" in view["rings_missing"]["red"]
     truth = _true_seats(fetched[1])
     assert np.linalg.norm(np.array(res.plate.nests_ref_nst["red"]) - truth["red"]) <= 0.050
+
+
+def test_out_never_overwrites_the_design_file(tmp_path: Path, capsys) -> None:
+    design = tmp_path / "plate.json"
+    design.write_text('{"design": true}')
+    code = ritactl(["plate", "survey", str(tmp_path), "--plate", str(design), "--out", str(design)])
+    err = capsys.readouterr().err
+    assert code == 5 and "would overwrite the design file" in err and "Traceback" not in err
+    assert design.read_text() == '{"design": true}'
