@@ -123,6 +123,13 @@ def test_answer_at_the_prompt_is_delivered(endpoint, c, capsys, monkeypatch):
     assert c.call("calib.inbox", job=job, timeout_s=0) == {"answer": "ok"}  # Enter takes the only choice
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C reaches ritactl as it does at a terminal, even when the suite itself runs in the
+    background (`make test &`: a non-interactive shell starts it with SIGINT ignored, and an
+    ignored signal stays ignored in every child, so Python would install no KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Ritactl:
     """ritactl as a process, its output collected by threads (for real SIGINTs)."""
 
@@ -130,7 +137,8 @@ class Ritactl:
         self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, *argv],
                                      cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True,
-                                     env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONFAULTHANDLER": "1"})
+                                     env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONFAULTHANDLER": "1"},
+                                     preexec_fn=_as_from_a_terminal)
         self.text = {"out": "", "err": ""}
         for name, stream in (("out", self.proc.stdout), ("err", self.proc.stderr)):
             threading.Thread(target=self._read, args=(name, stream), daemon=True).start()
@@ -145,7 +153,9 @@ class Ritactl:
             if time.monotonic() > end and self.proc.poll() is None:
                 self.proc.send_signal(signal.SIGABRT)  # faulthandler: where ritactl was, for the message
                 time.sleep(1.0)
-            assert time.monotonic() < end and self.proc.poll() is None, (what, self.proc.returncode, self.text)
+            assert time.monotonic() < end and self.proc.poll() is None, \
+                f"waiting for {what!r}: exit {self.proc.returncode}\n--- stdout\n{self.text['out']}\n--- stderr\n" \
+                f"{self.text['err']}"
             if poke:
                 poke()
             time.sleep(0.2)
