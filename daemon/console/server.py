@@ -29,7 +29,7 @@ from daemon.bus.command_table import COMMANDS, PROCEDURES, ROLES
 from daemon.bus.protocol import CommandError
 from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
-from daemon.console.imaging import view
+from daemon.bus.png_write import frame_png
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
@@ -207,7 +207,7 @@ class Console:
         """A full-resolution frame from the robot (also stored there), saved as PNG on this laptop."""
         result, frames = self.bridge.call_raw("camera.capture", {"pixels": True, "save": True, "label": label}, 60.0)
         header = result["header"]
-        png, _ = view(header, frames[0], 1 << 30)
+        png = frame_png(header, frames[0])  # at the frame's own depth and channels, as ritactl capture --out
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)[:40] or "frame"
         path = self.captures / f"{time.strftime('%Y%m%d-%H%M%S')}-{safe}-{header.get('frame_id', 0)}.png"
         atomic_write_bytes(path, png)

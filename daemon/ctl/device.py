@@ -8,12 +8,9 @@ sets them appended, so the operator knows what to type.
 from __future__ import annotations
 
 import argparse
-import array
 import json
 import math
 import re
-import struct
-import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -21,6 +18,7 @@ from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.command_table import COMMANDS, POS, TABLE, Arg, Command
 from daemon.ctl.io import print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import CtlError, Exit
+from daemon.bus.png_write import frame_png, png_bytes
 from daemon.bus.protocol import CommandError
 
 # options that act on this computer only, not sent to the daemon
@@ -31,18 +29,9 @@ LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
 
 
 def write_png(path: Path, pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8) -> None:
-    """Minimal lossless PNG writer (greyscale or RGB), so the laptop needs no imaging library."""
-    colour = {1: 0, 3: 2, 4: 6}[channels]
-    stride = width * channels * bit_depth // 8
-    raw = b"".join(b"\x00" + pixels[y * stride:(y + 1) * stride] for y in range(height))
-
-    def chunk(tag: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, bit_depth, colour, 0, 0, 0))
-           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+    """Lossless PNG (greyscale or RGB) written through a temp file (daemon/bus/png_write.py)."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(png)
+    tmp.write_bytes(png_bytes(pixels, width, height, channels, bit_depth))
     tmp.replace(path)
 
 
@@ -147,15 +136,10 @@ def _check_out(out: str) -> None:
 
 def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
     h = result["header"]
-    shape = h["shape"]
-    depth = 16 if h["dtype"].endswith("2") else 8
-    data = bytes(extra[0].buffer)
-    if depth == 16 and h["dtype"].startswith("<"):  # PNG stores 16-bit samples big-endian
-        words = array.array("H", data)
-        words.byteswap()
-        data = words.tobytes()
     try:
-        write_png(Path(out), data, shape[1], shape[0], shape[2] if len(shape) == 3 else 1, depth)
+        tmp = Path(out).with_name(Path(out).name + ".tmp")
+        tmp.write_bytes(frame_png(h, extra[0].buffer))
+        tmp.replace(Path(out))
         Path(out).with_suffix(".json").write_text(json.dumps(h, indent=2))
     except OSError as exc:
         raise CtlError(Exit.BAD_INPUT, "bad_input", f"cannot write {out}: {exc.strerror or exc}") from None

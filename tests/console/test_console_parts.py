@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from daemon.console.imaging import view
+from daemon.bus.png_write import frame_png
 from daemon.ctl.main import main as ritactl
 
 
@@ -21,26 +21,15 @@ def frame(h: int = 300, w: int = 401, dtype: str = "|u1") -> tuple[dict, np.ndar
     return {"shape": [h, w], "dtype": dtype}, img
 
 
-def test_downscaled_view_is_the_strided_frame():
-    header, img = frame()
-    png, meta = view(header, img.tobytes(), 100)
-    assert meta["step"] == 5 and (meta["out_w"], meta["out_h"]) == (81, 60)
-    np.testing.assert_array_equal(decode(png), img[::5, ::5])
-
-
-def test_region_of_interest_is_full_resolution_and_clamped_to_the_frame():
-    header, img = frame()
-    png, meta = view(header, img.tobytes(), 640, roi=(350, 250, 200, 200))
-    assert meta["step"] == 1 and (meta["x"], meta["y"], meta["w"], meta["h"]) == (350, 250, 51, 50)
-    np.testing.assert_array_equal(decode(png), img[250:300, 350:401])
-
-
-def test_mono16_shows_its_high_byte_and_other_types_are_refused():
-    header, img = frame(40, 50, "<u2")
-    png, _ = view(header, img.tobytes(), 50)
-    np.testing.assert_array_equal(decode(png), (img >> 8).astype(np.uint8))
-    with pytest.raises(ValueError, match="float32"):
-        view({"shape": [2, 2], "dtype": "float32"}, b"\0" * 16, 2)
+@pytest.mark.parametrize("shape, dtype", [((30, 40), "<u2"), ((30, 40, 3), "|u1"), ((30, 40), "|u1")])
+def test_capture_png_keeps_the_frame_depth_and_channels(shape, dtype):
+    """The console's Capture and `ritactl camera capture --out` write the frame as it came (lossless)."""
+    img = np.random.default_rng(1).integers(0, 4096 if dtype == "<u2" else 256, shape).astype(np.dtype(dtype))
+    png = frame_png({"shape": list(shape), "dtype": dtype}, img.tobytes())
+    back = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    if back.ndim == 3:
+        back = cv2.cvtColor(back, cv2.COLOR_BGR2RGB)
+    assert back.dtype == img.dtype and np.array_equal(back, img)
 
 
 def test_console_without_a_daemon_exits_3_without_traceback(tmp_path, capsys, monkeypatch):
