@@ -51,6 +51,8 @@ class SimConfig:
     mark: str = "M1"
     seed: int = 0
     pixel_format: str = "Mono8"  # rendered images: Mono8, or e.g. BayerRG8 (the colour sensor, fakes.colour)
+    stream_points: int = 21  # tracker stream samples along each validation approach (error model only)
+    imu_readings: int = 10  # inclinometer readings averaged at a standstill (1 s at 10 Hz)
 
     def __post_init__(self) -> None:
         for name in ("sigma_t_mm", "mark_sigma_px", "pnp_sigma_px", "path_sigma_mm", "tilt_sigma_mrad",
@@ -76,6 +78,7 @@ class CalibrationObs:
     abs_H_rob_true: np.ndarray
     cam_H_ref_true: np.ndarray
     pixel_format: str = "Mono8"  # of ``image`` (a Bayer image is the raw mosaic)
+    imu_deg: tuple[float, float] | None = None  # the inclinometer's roll, pitch at P0 (``report_tilt``)
 
 
 @dataclass
@@ -91,6 +94,12 @@ class MarkObs:
     pitch_deg: float | None
     abs_H_rob_true: np.ndarray
     uv_true: np.ndarray
+    # with the world's error model and ``SimConfig.stream_points``: the inclinometer at the previous
+    # stop, and the tracker's stream along the approach with a reading of the inclinometer per point
+    prev_roll_deg: float | None = None
+    prev_pitch_deg: float | None = None
+    stream: np.ndarray | None = None  # (N, 3) measured reflector positions, P_prev → P_at
+    stream_tilt_deg: np.ndarray | None = None  # (N, 2) roll, pitch as reported
 
 
 @dataclass
@@ -162,7 +171,21 @@ class Simulation:
         prev = w.settle(RobotPose(pose.x_mm - d * math.cos(a) - lateral * math.sin(a),
                                   pose.y_mm - d * math.sin(a) + lateral * math.cos(a), head - turn))
         at = w.settle(RobotPose(pose.x_mm, pose.y_mm, head, pose.roll_rad, pose.pitch_rad))
+        self._last_path = self._path(prev, at, turn)
         return at, w.robot_reflector_abs(w.abs_H_rob(prev)), w.robot_reflector_abs(w.abs_H_rob(at))
+
+    def _path(self, prev: RobotPose, at: RobotPose, turn_deg: float) -> list[RobotPose]:
+        """Settled poses along the bent move prev → at (heading turning evenly), ends included."""
+        n = max(2, self.cfg.stream_points)
+        out = []
+        for t in np.linspace(0.0, 1.0, n):
+            # a circular arc's chord from prev runs at prev's heading + turn·t/2 and is ≈ t·d long
+            a = math.radians(prev.heading_deg + turn_deg * t / 2.0)
+            x = prev.x_mm + t * self.cfg.move_mm * math.cos(a)
+            y = prev.y_mm + t * self.cfg.move_mm * math.sin(a)
+            out.append(self.world.settle(RobotPose(x, y, prev.heading_deg + turn_deg * t)))
+        out[0], out[-1] = prev, at
+        return out
 
     # ------------------------------------------------------------------ calibration
 
@@ -201,8 +224,11 @@ class Simulation:
             ids, uv = true_corner_projections(w, cfg.size, abs_H_cam)
             uv = uv + self.rng(stream + "-corners").normal(0.0, cfg.pnp_sigma_px, size=uv.shape)
             cam_ref = pose_from_corners(ids, uv, self.model, self.plate)
+        imu = None
+        if cfg.report_tilt:
+            imu = self._standstill_tilt(pose0, self.rng(stream + "-imu"))
         return CalibrationObs(heading_deg, abs_P_nests, P0, P1, cam_ref, image, abs_H_rob0, cam_H_ref_true,
-                              cfg.pixel_format)
+                              cfg.pixel_format, imu)
 
     # ------------------------------------------------------------------ validation
 
@@ -223,9 +249,11 @@ class Simulation:
                 if w.on_plate(pose.x_mm, pose.y_mm):
                     raise ValueError(f"validation stop at ({pose.x_mm:.0f}, {pose.y_mm:.0f}) is on the plate; "
                                      "move the mark away from it")
+                extra: dict[str, Any] = {}
                 if w.effects.active:
                     pose, P_prev_true, P_at_true = self._stop(pose, rng)
                     abs_H_rob = w.abs_H_rob(pose)
+                    extra = self._stream(self._last_path, f"{stream}-{k}-{r}")
                 else:
                     abs_H_rob = w.abs_H_rob(pose)
                     a = math.radians(psi)
@@ -241,11 +269,27 @@ class Simulation:
                 uv = self._locate(abs_H_cam, uv_true, rng, f"{stream}-{k}-{r}")
                 roll = pitch = None
                 if cfg.report_tilt:
-                    r_rad, p_rad = w.effects.inclinometer(pose.roll_rad, pose.pitch_rad, imu_rng)
-                    roll, pitch = math.degrees(r_rad), math.degrees(p_rad)
+                    roll, pitch = self._standstill_tilt(pose, imu_rng)
                 out.observations.append(MarkObs(k, pose.heading_deg, uv, P_prev, P_at, roll, pitch, abs_H_rob,
-                                                uv_true))
+                                                uv_true, **extra))
         return out
+
+    def _stream(self, path: list[RobotPose], name: str) -> dict[str, Any]:
+        """The tracker's stream along ``path`` and, with ``report_tilt``, the inclinometer per point."""
+        w, rng = self.world, self.rng(name + "-stream")
+        P = np.array([self._tracker(w.robot_reflector_abs(w.abs_H_rob(q)), rng) for q in path])
+        out: dict[str, Any] = {"stream": P}
+        if self.cfg.report_tilt:
+            tilt = np.degrees([w.effects.inclinometer(q.roll_rad, q.pitch_rad, rng) for q in path])
+            prev = self._standstill_tilt(path[0], rng)
+            out.update(stream_tilt_deg=tilt, prev_roll_deg=prev[0], prev_pitch_deg=prev[1])
+        return out
+
+    def _standstill_tilt(self, pose: RobotPose, rng: np.random.Generator) -> tuple[float, float]:
+        """The mean of ``imu_readings`` inclinometer readings at a stop (degrees), as the worker takes it."""
+        r = np.degrees([self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
+                        for _ in range(max(1, self.cfg.imu_readings))])
+        return float(r[:, 0].mean()), float(r[:, 1].mean())
 
     def _locate(self, abs_H_cam: np.ndarray, uv_true: np.ndarray, rng: np.random.Generator, name: str
                 ) -> np.ndarray:

@@ -1,0 +1,247 @@
+"""Compensations of a real robot's error sources at use (issue #15; docs/accuracy.md).
+
+Each compensation is switchable (:class:`Compensation`) and every result names the ones
+applied. None of them changes the paper's equations; they change their inputs:
+
+* **tilt** — the base's inclinometer gives roll and pitch at every stop. Its mounting
+  offset is calibrated at referencing, where the robot stands on the plate whose normal
+  the tracker measured (:func:`imu_offset_deg`): reading − plate tilt. At use the tilt
+  (reading − offset) rotates the robot frame about its own axes, and the approach
+  direction is taken between *ground points* (the reflector moved down the robot's
+  tilted z axis by the reflector height): the reflector sits ~0.35 m above the floor,
+  so 1 mrad of tilt moves it 0.35 mm sideways, which bends a 200 mm chord by 1.7 mrad.
+* **heading_fit** — the heading is the end tangent of a curve fitted to the tracker's
+  stream along the last part of the approach (:func:`fit_heading`), not the chord
+  P_prev→P_at, which is off the final heading by half the path's turn.
+* **bias** — the robot-frame bias b of an earlier 8-direction experiment
+  (calibration/metrics.py ``fit_bias``: cluster means M_k = M + R(ψ_k)·b) is removed
+  from ``rob_H_scn`` (:func:`apply_bias`). Right for what is fixed in the robot frame
+  (calibration error of rob_H_cam, an inclinometer offset left after the plate); wrong
+  for what is fixed in ACS (the reflector mount's eccentricity toward the tracker stays).
+
+Angles follow the world's and :func:`calibration.measure.robot_pose_at`'s convention
+``R = R_z(ψ) · R_y(pitch) · R_x(roll)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration.frames import check_H, rot_x, rot_y, rot_z
+from calibration.registration import as_points
+
+#: the compensation names, in the order results list them
+NAMES = ("tilt", "heading_fit", "bias")
+#: the fewest stream points and the shortest span a heading fit accepts
+MIN_FIT_POINTS, MIN_FIT_SPAN_MM = 5, 20.0
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """Which compensations to apply (all off = the paper's method)."""
+
+    tilt: bool = False
+    heading_fit: bool = False
+    bias: bool = False
+
+    @classmethod
+    def parse(cls, value: Any) -> "Compensation":
+        """From a config/params value: None/False/"none", True/"all", or names (list or comma string)."""
+        if value is None or value is False or value == "none" or value == []:
+            return cls()
+        if value is True or value == "all":
+            return cls(True, True, True)
+        names = [s.strip() for s in value.split(",")] if isinstance(value, str) else list(value)
+        unknown = [n for n in names if n not in NAMES]
+        if unknown:
+            raise ValueError(f"unknown compensation(s) {unknown} (known: {', '.join(NAMES)}, or 'all'/'none')")
+        return cls(**{n: True for n in names})
+
+    def names(self) -> list[str]:
+        return [n for n in NAMES if getattr(self, n)]
+
+
+def tilt_of_pose(abs_H_rob: np.ndarray) -> tuple[float, float]:
+    """(roll, pitch) in degrees of a robot pose, ``R = R_z(ψ)·R_y(pitch)·R_x(roll)``."""
+    R = check_H(abs_H_rob, "abs_H_rob")[:3, :3]
+    pitch = -math.asin(max(-1.0, min(1.0, float(R[2, 0]))))
+    roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
+    return math.degrees(roll), math.degrees(pitch)
+
+
+def imu_offset_deg(abs_H_rob_ref: np.ndarray, roll_deg: float, pitch_deg: float) -> tuple[float, float]:
+    """Inclinometer offset: its reading on the plate minus the plate-derived tilt of the robot."""
+    for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
+        if not np.isfinite(a) or abs(a) > 10:
+            raise ValueError(f"imu_offset_deg: {name}={a} is not a plausible inclinometer reading (|a| <= 10°)")
+    roll_ref, pitch_ref = tilt_of_pose(abs_H_rob_ref)
+    return roll_deg - roll_ref, pitch_deg - pitch_ref
+
+
+def body_z(heading_deg: float, roll_deg: float, pitch_deg: float) -> np.ndarray:
+    """The robot's z axis in ACS for a heading and a tilt."""
+    R = rot_z(math.radians(heading_deg)) @ rot_y(math.radians(pitch_deg)) @ rot_x(math.radians(roll_deg))
+    return R[:, 2]
+
+
+def ground_point(abs_P_refl: Any, heading_deg: float, roll_deg: float, pitch_deg: float,
+                 height_mm: float) -> np.ndarray:
+    """The point ``height_mm`` below the reflector along the robot's tilted z axis (on the floor)."""
+    P = as_points(abs_P_refl, "abs_P_refl", 1)[0]
+    return P - height_mm * body_z(heading_deg, roll_deg, pitch_deg)
+
+
+def reflector_height_mm(rob_H_scn: np.ndarray) -> float:
+    """Reflector height above the surface the robot stands on: the SCS plane's distance in RCS."""
+    H = check_H(rob_H_scn, "rob_H_scn")
+    h = -float(H[:3, 3] @ H[:3, 2])
+    if not 0.0 < h < 5000.0:
+        raise ValueError(f"reflector_height_mm: the SCS plane lies {h:.1f} mm below the reflector; "
+                         "expected a positive height (is rob_H_scn from a referencing result?)")
+    return h
+
+
+def ground_chord(abs_P_prev: Any, abs_P_at: Any, tilt_prev: tuple[float, float], tilt_at: tuple[float, float],
+                 height_mm: float) -> np.ndarray:
+    """An equivalent ``abs_P_prev`` whose chord to ``abs_P_at`` runs between the two ground points."""
+    P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
+    P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
+    v = P_at - P_prev
+    heading = math.degrees(math.atan2(v[1], v[0]))  # the chord's; its tilt error is second order here
+    g_prev = ground_point(P_prev, heading, *tilt_prev, height_mm)
+    g_at = ground_point(P_at, heading, *tilt_at, height_mm)
+    return P_at - (g_at - g_prev)
+
+
+def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any) -> np.ndarray:
+    """Unit ACS direction (z = 0) of a bent straight move's tangent at its end point.
+
+    The two ends are the standstill measurements ``abs_P_prev`` and ``abs_P_at``; the
+    stream ``points`` (N, 3) between them give the bend. A move that bends on a circular
+    arc lies, to second order, ``e(s) = c·s·(s − L)`` to the side of its chord (s along
+    the chord of length L); one parameter c is fitted to the stream and the end tangent
+    is the chord turned by ``c·L``. Anchoring the ends keeps the fit well conditioned: a
+    free quadratic's end slope is several times noisier than the chord error it removes.
+    """
+    P = as_points(points, "points")[:, :2]
+    a = as_points(abs_P_prev, "abs_P_prev", 1)[0][:2]
+    b = as_points(abs_P_at, "abs_P_at", 1)[0][:2]
+    L = float(np.linalg.norm(b - a))
+    if len(P) < MIN_FIT_POINTS or L < MIN_FIT_SPAN_MM:
+        raise ValueError(f"fit_heading: {len(P)} stream points over a {L:.1f} mm move "
+                         f"(need >= {MIN_FIT_POINTS} points over >= {MIN_FIT_SPAN_MM:.0f} mm)")
+    u = (b - a) / L
+    n = np.array([-u[1], u[0]])
+    s, e = (P - a) @ u, (P - a) @ n
+    inside = (s > 0.02 * L) & (s < 0.98 * L)  # the ends carry no bend information
+    if np.count_nonzero(inside) < MIN_FIT_POINTS - 2:
+        raise ValueError(f"fit_heading: only {np.count_nonzero(inside)} stream points lie between the two stops")
+    g = s[inside] * (s[inside] - L)
+    c = float(g @ e[inside] / (g @ g))
+    d = u + c * L * n
+    d = d / np.linalg.norm(d)
+    return np.array([d[0], d[1], 0.0])
+
+
+def apply_bias(rob_H_scn: np.ndarray, b_mm: Any) -> np.ndarray:
+    """``rob_H_scn`` with the robot-frame bias b (RCS x, y, mm) removed from what it maps."""
+    H = check_H(rob_H_scn, "rob_H_scn").copy()
+    b = np.asarray(b_mm, dtype=float).reshape(-1)
+    if b.shape != (2,) or not np.all(np.isfinite(b)):
+        raise ValueError(f"apply_bias: b must be 2 finite values (mm), got {b.tolist()}")
+    if np.hypot(*b) > 5.0:
+        raise ValueError(f"apply_bias: |b| = {np.hypot(*b):.3f} mm is not a plausible calibration bias (<= 5 mm)")
+    H[:2, 3] -= b
+    return H
+
+
+@dataclass
+class Stop:
+    """What one stop provides: the approach's two reflector points, tilt readings, the stream."""
+
+    abs_P_prev: np.ndarray
+    abs_P_at: np.ndarray
+    tilt_prev: tuple[float, float] | None = None  # inclinometer roll, pitch (deg) as read
+    tilt_at: tuple[float, float] | None = None
+    stream: np.ndarray | None = None  # (N, 3) reflector positions along the approach, in time order
+    stream_tilt: np.ndarray | None = None  # (N, 2) readings per stream point
+
+
+@dataclass
+class Applied:
+    """The inputs of :func:`calibration.measure.measure_mark` after compensation, and the record."""
+
+    abs_P_prev: np.ndarray  # an equivalent previous point: the heading is P_at − abs_P_prev
+    roll_deg: float | None
+    pitch_deg: float | None
+    rob_H_scn: np.ndarray
+    applied: list[str]
+    skipped: dict[str, str]
+
+
+def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) -> np.ndarray:
+    """The stream's points moved down the tilted z axis (when the tilt is known per point)."""
+    P = as_points(stop.stream, "stream")
+    if stop.stream_tilt is None:
+        return P
+    t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
+    if t.shape != (len(P), 2):
+        raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
+    # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white:
+    # a quadratic in the distance travelled keeps the one and averages the other
+    s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
+    if len(P) > 4:
+        A = np.column_stack([np.ones_like(s), s, s ** 2])
+        t = A @ np.linalg.lstsq(A, t, rcond=None)[0]
+    v = P[-1] - P[0]
+    heading = math.degrees(math.atan2(v[1], v[0]))
+    return np.array([ground_point(p, heading, float(r), float(q), height_mm) for p, (r, q) in zip(P, t)])
+
+
+def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
+               imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None) -> Applied:
+    """Apply ``comp`` to one stop; a compensation without its input is skipped and says why."""
+    P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
+    P_prev = as_points(stop.abs_P_prev, "abs_P_prev", 1)[0]
+    out = Applied(P_prev, None, None, check_H(rob_H_scn, "rob_H_scn"), [], {})
+    tilt_ok = stop.tilt_at is not None and stop.tilt_prev is not None and imu_offset is not None
+    offset = imu_offset if imu_offset is not None else (0.0, 0.0)
+    height = reflector_height_mm(rob_H_scn)
+    if comp.tilt:
+        if not tilt_ok:
+            out.skipped["tilt"] = ("no inclinometer offset in the calibration" if imu_offset is None
+                                   else "the base reported no tilt at this stop")
+        else:
+            at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
+            prev = (stop.tilt_prev[0] - offset[0], stop.tilt_prev[1] - offset[1])
+            out.roll_deg, out.pitch_deg = at
+            out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height)
+            out.applied.append("tilt")
+    if comp.heading_fit:
+        if stop.stream is None or len(stop.stream) < MIN_FIT_POINTS:
+            out.skipped["heading_fit"] = "no tracker stream was recorded along the approach"
+        else:
+            use_tilt = "tilt" in out.applied and stop.stream_tilt is not None
+            pts = _ground_stream(stop, offset, height) if use_tilt else as_points(stop.stream, "stream")
+            # out.abs_P_prev is P_at minus the ground chord when the tilt is compensated
+            if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
+                v = P_at - P_prev
+                at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
+                pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
+            u = fit_heading(pts, out.abs_P_prev, P_at)
+            out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
+            out.applied.append("heading_fit")
+    if comp.bias:
+        if bias_b_mm is None:
+            out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"
+        else:
+            out.rob_H_scn = apply_bias(out.rob_H_scn, bias_b_mm)
+            out.applied.append("bias")
+    return out
+
+
+__all__ = ["Applied", "Compensation", "NAMES", "Stop", "compensate", "apply_bias", "body_z", "fit_heading", "ground_chord", "ground_point",
+           "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]
