@@ -110,10 +110,10 @@ def ground_chord(abs_P_prev: Any, abs_P_at: Any, tilt_prev: tuple[float, float],
     P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
     P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
     v = P_at - P_prev
-    heading = math.degrees(math.atan2(v[1], v[0]))  # the chord's; its tilt error is second order here
-    g_prev = ground_point(P_prev, heading, *tilt_prev, height_mm)
-    g_at = ground_point(P_at, heading, *tilt_at, height_mm)
-    return P_at - (g_at - g_prev)
+    for _ in range(2):  # the heading only orients the tilt: one refinement takes its error to 2nd order
+        heading = math.degrees(math.atan2(v[1], v[0]))
+        v = ground_point(P_at, heading, *tilt_at, height_mm) - ground_point(P_prev, heading, *tilt_prev, height_mm)
+    return P_at - v
 
 
 def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any) -> np.ndarray:

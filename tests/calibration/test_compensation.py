@@ -1,0 +1,109 @@
+"""calibration/compensation.py: each compensation's geometry, its refusals, and what it buys (issue #15)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calibration.compensation import (Compensation, Stop, apply_bias, compensate, fit_heading, ground_chord,
+                                      ground_point, imu_offset_deg, reflector_height_mm, tilt_of_pose)
+from calibration.frames import apply_H, make_H, rot_x, rot_y, rot_z
+
+H_MM = 350.0
+#: a calibration's rob_H_scn: SCS plane 350 mm below the reflector, z up
+ROB_H_SCN = make_H(np.eye(3), np.array([200.0, 50.0, -H_MM]), "rob_H_scn")
+
+
+def pose(heading: float, roll: float, pitch: float, P=(0.0, 0.0, 0.0)) -> np.ndarray:
+    R = rot_z(math.radians(heading)) @ rot_y(math.radians(pitch)) @ rot_x(math.radians(roll))
+    return make_H(R, np.asarray(P, float), "abs_H_rob")
+
+
+def test_parse_names_and_refusal():
+    assert Compensation.parse(None).names() == [] and Compensation.parse("none").names() == []
+    assert Compensation.parse("all").names() == ["tilt", "heading_fit", "bias"]
+    assert Compensation.parse("bias, tilt").names() == ["tilt", "bias"]
+    with pytest.raises(ValueError, match="'tlit'"):
+        Compensation.parse(["tlit"])
+
+
+def test_tilt_of_pose_round_trip_and_offset():
+    H = pose(123.0, 0.07, -0.05)
+    assert tilt_of_pose(H) == pytest.approx((0.07, -0.05), abs=1e-12)
+    # the inclinometer reads the plate's tilt plus its offset: the offset comes back
+    assert imu_offset_deg(H, 0.07 + 0.01, -0.05 - 0.02) == pytest.approx((0.01, -0.02), abs=1e-12)
+    with pytest.raises(ValueError, match="roll_deg=nan"):
+        imu_offset_deg(H, float("nan"), 0.0)
+
+
+def test_ground_point_follows_the_tilted_axis():
+    assert ground_point([1, 2, 3], 40.0, 0.0, 0.0, H_MM) == pytest.approx([1, 2, 3 - H_MM])
+    g = ground_point([0, 0, 0], 90.0, 0.1, 0.0, H_MM)  # rolled while heading +y: the z axis leans to +x
+    assert g[0] == pytest.approx(-H_MM * math.sin(math.radians(0.1)), rel=1e-6)
+    assert reflector_height_mm(ROB_H_SCN) == pytest.approx(H_MM)
+
+
+def test_ground_chord_removes_the_tilt_difference():
+    """The reflector leans with the floor; the chord between the ground points does not."""
+    heading = 30.0
+    u = np.array([math.cos(math.radians(heading)), math.sin(math.radians(heading)), 0.0])
+    g_prev, g_at = np.zeros(3), 200.0 * u
+    tilts = [(0.06, -0.02), (-0.04, 0.05)]  # deg: 1.7 mrad of roll difference
+    P_prev, P_at = (apply_H(pose(heading, *t, g), [0, 0, H_MM]) for t, g in zip(tilts, (g_prev, g_at)))
+    v_raw = P_at - P_prev
+    raw_err = math.atan2(v_raw[1], v_raw[0]) - math.radians(heading)
+    assert abs(raw_err) > 1e-3  # ~1.7 mrad of heading error from the tilt alone
+    v = P_at - ground_chord(P_prev, P_at, tilts[0], tilts[1], H_MM)
+    assert abs(math.atan2(v[1], v[0]) - math.radians(heading)) < 2e-6
+
+
+def arc(kappa: float, d: float, n: int, heading: float = 0.0) -> np.ndarray:
+    s = np.linspace(0.0, d, n)
+    a = math.radians(heading)
+    # exact circular arc starting at the origin with heading a
+    return np.column_stack([(np.sin(a + kappa * s) - math.sin(a)) / kappa,
+                            (math.cos(a) - np.cos(a + kappa * s)) / kappa, np.zeros(n)])
+
+
+def test_fit_heading_finds_the_end_tangent_of_a_bent_move():
+    kappa, d = 2.5e-6, 200.0  # 50 µm sideways at the end of 200 mm (calibration.md §4.4)
+    P = arc(kappa, d, 41, heading=25.0)
+    truth = math.radians(25.0) + kappa * d
+    u = fit_heading(P, P[0], P[-1])
+    chord = P[-1] - P[0]
+    assert abs(math.atan2(chord[1], chord[0]) - truth) > 2e-4  # the chord is off by κd/2 = 250 µrad
+    assert abs(math.atan2(u[1], u[0]) - truth) < 1e-6
+    rng = np.random.default_rng(3)
+    errs = [math.atan2(*fit_heading(P + rng.normal(0, 0.01, P.shape) * [1, 1, 0], P[0], P[-1])[1::-1]) - truth
+            for _ in range(200)]
+    assert np.sqrt(np.mean(np.square(errs))) < 1.5e-4  # 10 µm per stream point: better than the chord
+    with pytest.raises(ValueError, match="3 stream points"):
+        fit_heading(P[:3], P[0], P[-1])
+
+
+def test_apply_bias_and_its_refusal():
+    H = apply_bias(ROB_H_SCN, [0.03, -0.01])
+    assert H[:3, 3] == pytest.approx([199.97, 50.01, -H_MM])
+    with pytest.raises(ValueError, match="6.000 mm"):
+        apply_bias(ROB_H_SCN, [6.0, 0.0])
+
+
+def test_compensate_says_why_it_skips():
+    stop = Stop(np.array([0.0, 0.0, H_MM]), np.array([200.0, 0.0, H_MM]))
+    a = compensate(Compensation.parse("all"), stop, ROB_H_SCN)
+    assert a.applied == []
+    assert set(a.skipped) == {"tilt", "heading_fit", "bias"}
+    assert "offset" in a.skipped["tilt"] and "stream" in a.skipped["heading_fit"]
+    assert np.array_equal(a.rob_H_scn, ROB_H_SCN) and a.roll_deg is None
+
+
+def test_compensations_beat_the_paper_on_the_simulated_robot():
+    """paper+imu world, rendering-free: each seed meets issue #15's bounds with every compensation on."""
+    from fakes.accuracy import Case, run
+
+    for seed in (100, 101):
+        off = run(Case("paper+imu"), seed)
+        on = run(Case("paper+imu", Compensation.parse("all")), seed)
+        assert on["enclosing_mm"] <= 0.25 and on["pairwise_mm"] <= 0.07 and on["abs_rms_mm"] <= 0.10, on
+        assert on["abs_rms_mm"] < off["abs_rms_mm"] and on["pairwise_mm"] < off["pairwise_mm"]
