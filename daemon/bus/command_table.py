@@ -233,7 +233,8 @@ TABLE: tuple[Command, ...] = (
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
             result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
-                Arg("params", "map", "the procedure's parameters", default={}),
+                Arg("params", "map", "the procedure's parameters (declared in daemon/bus/procedure_params.py; "
+                    "passed to the worker as sent)", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
             result="{delivered}; answer must be one of the prompt's choices",

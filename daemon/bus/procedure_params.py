@@ -23,6 +23,8 @@ from daemon.bus.protocol import CommandError, ErrorCode
 
 @dataclass(frozen=True)
 class Param(Arg):
+    """A procedure parameter: an :class:`Arg` whose ``type`` may also be ``vec`` or ``file``."""
+
     length: int = 0          # vec: how many numbers
     installed: str = ""      # file: the robot's installed file the worker uses when none is given
     content: str = "object"  # file: "object", or "xyz_map" ({name: [x, y, z]})
@@ -89,10 +91,16 @@ def defaults() -> dict[str, Any]:
 DEFAULTS = defaults()
 
 
-def _bad(procedure: str, p: Param | None, text: str) -> CommandError:
-    exc = CommandError(ErrorCode.BAD_ARGS, f"{procedure}: {text}")
-    exc.field = p.name if p else ""  # type: ignore[attr-defined] - the console marks the field
-    return exc
+class ParamError(CommandError):
+    """``bad_args`` about one parameter: ``field`` names it (the console outlines that field), or is empty."""
+
+    def __init__(self, message: str, field: str = "") -> None:
+        super().__init__(ErrorCode.BAD_ARGS, message)
+        self.field = field
+
+
+def _bad(procedure: str, p: Param | None, text: str) -> ParamError:
+    return ParamError(f"{procedure}: {text}", p.name if p else "")
 
 
 def _number(procedure: str, p: Param, v: Any, integer: bool) -> float | int:
@@ -195,4 +203,4 @@ def schema() -> dict[str, list[dict[str, Any]]]:
                     for p in params] for proc, params in PARAMS.items()}
 
 
-__all__ = ["DEFAULTS", "PARAMS", "Param", "check_params", "check_value", "load_files", "schema"]
+__all__ = ["DEFAULTS", "PARAMS", "Param", "ParamError", "check_params", "check_value", "load_files", "schema"]

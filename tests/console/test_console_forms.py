@@ -92,7 +92,7 @@ def test_parameter_table_keeps_the_worker_defaults():
 def test_bad_parameters_are_refused_naming_the_field(proc, params, field, words):
     with pytest.raises(CommandError) as exc:
         check_params(proc, params)
-    assert exc.value.code == "bad_args" and getattr(exc.value, "field") == field and words in str(exc.value)
+    assert exc.value.code == "bad_args" and exc.value.field == field and words in str(exc.value)
 
 
 def test_every_procedure_has_a_form_and_the_page_gets_it():

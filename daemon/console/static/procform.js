@@ -15,8 +15,8 @@ function paramInput(p) {   // the input element(s) of one parameter, as HTML
       p.choices.map((c) => `<option${c === p.default ? " selected" : ""}>${c}</option>`).join("") + "</select>";
   }
   if (p.kind === "vec") {
-    return [...Array(p.length).keys()].map((i) => `<input id="${fieldId(p.name, i)}" class="ctl" size="8" inputmode="decimal" ` +
-      `title="${title}" placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("");
+    return `<span class="vec">` + [...Array(p.length).keys()].map((i) => `<input id="${fieldId(p.name, i)}" class="ctl" size="7" ` +
+      `inputmode="decimal" title="${title}" placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("") + "</span>";
   }
   if (p.kind === "file") {
     return `<input id="${fieldId(p.name)}" class="ctl" size="28" list="robot-json" title="${title}; a data-dir path on the robot" ` +
@@ -27,6 +27,7 @@ function paramInput(p) {   // the input element(s) of one parameter, as HTML
 
 function renderProcForm() {
   const params = (S.procParams || {})[$("proc").value] || [];
+  $("proc-form").dataset.procedure = $("proc").value;
   $("proc-form").innerHTML = params.map((p) =>
     `<label class="field" data-param="${p.name}"><span>${p.name}${p.required ? " *" : ""}${p.unit ? " (" + p.unit + ")" : ""}</span>` +
     `${paramInput(p)}</label>`).join("");

@@ -13,6 +13,7 @@ function startSurvey() {
 
 function showSurvey(s) {
   S.survey = s;
+  if (s.state === "running") S.surveySteps = (S.surveySteps || 0) + 1;   // progress updates seen (tests)
   const running = s.state === "running";
   $("survey-start").disabled = running;
   $("survey-cancel").disabled = !running;
