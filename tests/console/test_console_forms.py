@@ -133,21 +133,40 @@ def test_console_checks_the_page_and_reads_the_chosen_files_on_the_robot(tmp_pat
     assert params["reversal"] is True and set(params) == {"plate", "nests_approx_trk", "reversal"}
 
 
-def test_survey_from_the_console_reports_a_bad_folder_and_empty_fields(tmp_path):
+def test_survey_from_the_console_reports_a_bad_folder_and_empty_fields_and_cancels(tmp_path, monkeypatch):
+    import sys
+
     design = tmp_path / "rt" / "data" / "sim" / "plate.json"  # the simulated installer's design file
 
-    async def run(endpoint: str) -> tuple[dict, dict]:
+    async def cancel(ws: Any) -> tuple[dict, dict, dict]:
+        """A survey that takes long (a stand-in child that prints one progress line and sleeps) cancelled."""
+        slow = "import sys, time; print('[ 12.5%] read a.png (1/8)', file=sys.stderr, flush=True); time.sleep(60)"
+        monkeypatch.setattr("daemon.console.survey.SURVEY_ARGV", (sys.executable, "-c", slow))
+        args = {"op": "survey", "action": "start", "folder": str(tmp_path), "plate": str(design),
+                "out": str(tmp_path / "plate.json")}
+        assert (await ask(ws, args))["ok"]
+        running = await survey_state(ws, ("running",), 10)
+        while running.get("percent") != 12.5:
+            running = await survey_state(ws, ("running",), 10)
+        second = await ask(ws, args)
+        assert (await ask(ws, {"op": "survey", "action": "cancel"}))["ok"]
+        return running, second, await survey_state(ws, ("cancelled", "failed", "done"), 10)
+
+    async def run(endpoint: str) -> tuple[dict, dict, tuple]:
         async with console_ws(endpoint, tmp_path / "captures") as ws:
             empty = await ask(ws, {"op": "survey", "action": "start", "folder": " ", "plate": str(design),
                                    "out": "x.json"})
             started = await ask(ws, {"op": "survey", "action": "start", "folder": str(tmp_path / "no-photos"),
                                      "plate": str(design), "out": str(tmp_path / "plate.json")})
             assert started["ok"], started
-            return empty, await survey_state(ws, ("failed", "done"), 60)
+            return empty, await survey_state(ws, ("failed", "done"), 60), await cancel(ws)
 
     with ritad_in_process(tmp_path / "rt") as (d, _):
-        empty, end = asyncio.run(run(d.server.endpoints[0]))
+        empty, end, (running, second, cancelled) = asyncio.run(run(d.server.endpoints[0]))
     assert not empty["ok"] and "photo folder is empty" in empty["error"]["message"]
     assert end["state"] == "failed" and end["exit"] == 5, end  # ritactl plate survey's bad-input exit code
     assert f"{tmp_path / 'no-photos'}: not a folder of photographs" in end["message"], end
     assert not (tmp_path / "plate.json").exists()
+    assert running["step"] == "read a.png (1/8)"  # the verb's progress line, shown
+    assert not second["ok"] and second["error"]["code"] == "busy"  # one survey at a time
+    assert cancelled["state"] == "cancelled" and "nothing was written" in cancelled["message"]
