@@ -20,7 +20,7 @@ Pipeline (docs/operations.md, "Plate survey"):
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -36,6 +36,8 @@ MIN_CORNERS = 12  # per usable photograph
 MIN_VIEWS = 3
 #: a ring observation this far (px) from the bundle's solution is not the ring (σ_ring is ~0.02 px)
 RING_OUTLIER_PX = 0.5
+#: ``progress(fraction done, step)``: how far the survey is, for a caller that shows it
+Progress = Callable[[float, str], None]
 
 
 @dataclass
@@ -49,14 +51,17 @@ class View:
     missing: dict[str, str]  # colour -> why not found
 
 
-def detect_views(images: dict[str, np.ndarray], plate: Plate) -> tuple[list[View], dict[str, str]]:
+def detect_views(images: dict[str, np.ndarray], plate: Plate,
+                 progress: Progress | None = None) -> tuple[list[View], dict[str, str]]:
     """Detections of every photograph with enough corners, and {name: why skipped} for the others."""
     patches = plate.survey_patches()
     if not patches:
         raise ValueError(f"plate {plate.plate_id!r} has no survey patches: the survey needs a plate definition "
                          f"with `patches` (docs/datasets.md)")
     views, skipped = [], {}
-    for name, image in images.items():
+    for i, (name, image) in enumerate(images.items()):
+        if progress:
+            progress(i / len(images), f"patch corners and rings in {name} ({i + 1}/{len(images)})")
         rgb = check_rgb(image, name)
         grey = cv2.cvtColor(np.clip(rgb, 0, 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
         ref_P, uv, _ = detect_patch_corners(grey, patches, plate.aruco_dict)
@@ -204,20 +209,23 @@ def _bundle(views: list[View], model: CameraModel, poses: list[np.ndarray], seat
     return b, bias
 
 
-def run_survey(images: dict[str, np.ndarray], plate: Plate) -> SurveyResult:
+def run_survey(images: dict[str, np.ndarray], plate: Plate, progress: Progress | None = None) -> SurveyResult:
     """Survey the nest seats from RGB photographs ``{name: image}`` of the whole plate.
 
     ``plate`` is the plate's design (board, patches, δ); the result is a copy with the
     surveyed seats, their 1σ and the report. Raises CalibrationError (not enough data,
     a ring missing everywhere) or ValueError (bad input), each naming the file or colour.
+    ``progress(fraction, step)``, when given, hears each photograph's detection and the bundle.
     """
     if not images:
         raise ValueError("no photographs to survey")
     size = _same_size(images)
-    views, skipped = detect_views(images, plate)
+    views, skipped = detect_views(images, plate, progress)
     if len(views) < MIN_VIEWS:
         raise CalibrationError(f"only {len(views)} usable photograph(s) of {len(images)} (need >= {MIN_VIEWS}): "
                                + "; ".join(f"{n}: {why}" for n, why in list(skipped.items())[:4]))
+    if progress:
+        progress(1.0, f"camera calibration and bundle adjustment over {len(views)} photographs")
     model, poses, rms0 = calibrate(views, size)
     seats = initial_seats(views, model, poses, {})
     seats = initial_seats(views, model, poses, seats)

@@ -2,7 +2,8 @@
 
 Runs what the browser tests run: a simulated ritad, ``ritactl console`` and headless
 Debian chromium; then drives the page as an operator (live view, tracker aim + find,
-referencing with its prompt, the detected plate corners, the 8-direction experiment) and as a viewer key, and
+referencing from its form with its prompt, the detected plate corners, the 8-direction experiment, the plate
+survey) and as a viewer key, and
 saves one picture per view. The operator's hands (placing the robot, locking the
 tracker on the robot when the prompt asks) are the simulation's, as in the demo.
 
@@ -27,9 +28,14 @@ def set_value(drv, element_id: str, value: str) -> None:
     drv.execute_script("document.getElementById(arguments[0]).value = arguments[1];", element_id, value)
 
 
-def run_procedure(drv, procedure: str, params: dict, answer=None, timeout: float = 300) -> None:
-    set_value(drv, "proc", procedure)
-    set_value(drv, "proc-params", json.dumps(params))
+def run_procedure(drv, procedure: str, fields: dict, answer=None, timeout: float = 300) -> None:
+    """Choose ``procedure``, type ``fields`` (form input id → text) into its form, start it."""
+    drv.execute_script("const s = document.getElementById('proc'); s.value = arguments[0];"
+                       "s.dispatchEvent(new Event('change'));", procedure)
+    for element_id, value in fields.items():
+        el = drv.find_element("id", element_id)
+        el.clear()
+        el.send_keys(value)
     drv.find_element("id", "proc-start").click()
     if answer is not None:
         wait_for("the prompt", lambda: drv.find_element("id", "prompt").is_displayed(), 60)
@@ -61,7 +67,7 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
 
     run_intrinsics(c, {"board": sim["board"]}, seed=1, timeout=300, answer=install)
     c.call("sim.place_robot_on_plate")
-    params = {"plate": sim["plate"], "nests_approx_trk": sim["nests"]}
+    fields = {"pp-plate": "sim/plate.json", "pp-nests_approx_trk": "sim/nests.json"}  # files on the robot
 
     def answer() -> None:
         drv.find_element("id", "prompt").location_once_scrolled_into_view
@@ -69,14 +75,29 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
         lock_on_robot(c)
         drv.find_element("id", "prompt-choice-ok").click()
 
-    run_procedure(drv, "referencing", params, answer)
+    run_procedure(drv, "referencing", fields, answer)
     drv.find_element("id", "proc-panel").location_once_scrolled_into_view
     drv.save_screenshot(str(out / "console-referencing.png"))
     detect_view(drv, c, out)
     mark = c.call("sim.truth")["marks"][0]  # where the simulated floor mark is: the operator can see it
-    run_procedure(drv, "experiment", {"mark_xy": [mark["x_mm"], mark["y_mm"]], "repetitions": 2})
+    run_procedure(drv, "experiment", {"pp-mark_xy-0": f"{mark['x_mm']:.1f}", "pp-mark_xy-1": f"{mark['y_mm']:.1f}",
+                                      "pp-repetitions": "2"})
     drv.find_element("id", "proc-panel").location_once_scrolled_into_view
     drv.save_screenshot(str(out / "console-experiment.png"))
+    survey_view(drv, c, data, out)
+
+
+def survey_view(drv, c, data: Path, out: Path) -> None:
+    """The plate survey run from the page on photographs the simulated installer took (a laptop folder)."""
+    made = c.call("sim.survey_images", views=4, width_px=1800, timeout=300)
+    for element_id, value in (("survey-folder", str(data / made["folder"])),
+                              ("survey-plate", str(data / "sim" / "plate.json")),
+                              ("survey-out", str(data.parent / "surveyed-plate.json"))):
+        set_value(drv, element_id, value)
+    drv.find_element("id", "survey-start").click()
+    wait_for("the survey", lambda: drv.execute_script("return (window.rita.survey || {}).state") == "done", 120)
+    drv.find_element("id", "survey-panel").location_once_scrolled_into_view
+    drv.save_screenshot(str(out / "console-survey.png"))
 
 
 def detect_view(drv, c, out: Path) -> None:

@@ -149,17 +149,19 @@ TABLE: tuple[Command, ...] = (
                 Arg("quality", "int", "JPEG quality", default=80, lo=10, hi=95),
                 Arg("after", "int", "frame id the client already shows", default=-1, lo=-1))),
     Command("camera.detect", "the plate target's ChArUco corners or a floor mark in the newest streamed frame, "
-            "on demand (one detection at a time)", verb="console",
+            "on demand (one detection at a time)", cli=("camera", "detect"),
             result="{target, frame_id, full_w, full_h, searched_w, searched_h, found, n, uv: sensor px "
                    "(corners: [[u, v], ...] with ids and plate_id; mark: [u, v]), took_s}; mark not found: "
                    "{found: false, message}; busy while a detection runs", args=(
-                Arg("target", "str", "what to look for", default="plate", choices=("plate", "dot", "cross")),
+                Arg("target", "str", "what to look for", default="plate", choices=("plate", "dot", "cross"),
+                    cli="--target"),
                 Arg("plate_file", "str", "plate definition (data-dir path) for target plate",
-                    default="calibration/plate.json"),
+                    default="calibration/plate.json", cli="--plate-file", metavar="FILE"),
                 Arg("width", "int", "search a copy downscaled to this width (faster, coarser)", unit="px", lo=64,
-                    hi=16384, default_text="the full frame"),
+                    hi=16384, default_text="the full frame", cli="--width", metavar="PX"),
                 Arg("size_px", "float", "mark size (dot radius or cross half-size) in sensor px: searches "
-                    "coarse to fine", unit="px", lo=0, lo_open=True, default_text="unknown: full-resolution search"))),
+                    "coarse to fine", unit="px", lo=0, lo_open=True, default_text="unknown: full-resolution search",
+                    cli="--size", metavar="PX"))),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
@@ -231,7 +233,8 @@ TABLE: tuple[Command, ...] = (
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
             result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
-                Arg("params", "map", "the procedure's parameters", default={}),
+                Arg("params", "map", "the procedure's parameters (declared in daemon/bus/procedure_params.py; "
+                    "passed to the worker as sent)", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
             result="{delivered}; answer must be one of the prompt's choices",

@@ -26,9 +26,12 @@ from aiohttp import WSMsgType, web
 
 from daemon import __version__
 from daemon.bus.command_table import COMMANDS, PROCEDURES, ROLES
+from daemon.bus.procedure_params import schema as procedure_schema
 from daemon.bus.protocol import CommandError
 from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
+from daemon.console.jobs import start_job
+from daemon.console.survey import Survey
 from daemon.bus.png_write import frame_png
 
 log = logging.getLogger(__name__)
@@ -41,8 +44,8 @@ PAGE_COMMANDS = sorted(n for n, c in COMMANDS.items() if not c.worker_only)
 
 
 def _error(exc: BaseException) -> dict[str, str]:
-    if isinstance(exc, CommandError):
-        return {"code": exc.code, "message": exc.args[0] if exc.args else exc.code}
+    if isinstance(exc, CommandError):  # ``field``: the form field a bad procedure parameter came from
+        return {"code": exc.code, "message": exc.args[0] if exc.args else exc.code, "field": getattr(exc, "field", "")}
     return {"code": "internal", "message": f"{type(exc).__name__}: {exc}"}
 
 
@@ -59,6 +62,7 @@ class Tab:
         self.frame_id = -1  # the newest frame this tab has (camera.preview's ``after``)
         self.sent_at = 0.0
         self.preview_error = ""
+        self.survey_version = -1  # the survey state this tab has
 
 
 class Console:
@@ -67,6 +71,7 @@ class Console:
         self.captures = captures
         self.tabs: set[Tab] = set()
         self.frames_sent = 0
+        self.survey = Survey()
 
     # ------------------------------------------------------------------ http
     def app(self) -> web.Application:
@@ -88,6 +93,7 @@ class Console:
     def info_payload(self) -> dict[str, Any]:
         b = self.bridge
         return {"console": __version__, "role": b.role, "roles": list(ROLES), "procedures": list(PROCEDURES),
+                "procedure_params": procedure_schema(),
                 "commands": {n: COMMANDS[n].role for n in PAGE_COMMANDS}, "daemon": b.hello,
                 "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
 
@@ -179,6 +185,8 @@ class Console:
             asyncio.create_task(self._call(tab, req))
         elif op == "capture":
             asyncio.create_task(self._capture(tab, req))
+        elif op == "survey":
+            asyncio.create_task(self._survey(tab, req))
 
     async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any, pool: Any = None) -> None:
         try:
@@ -197,8 +205,22 @@ class Console:
             return
         timeout = req.get("timeout")
         timeout = float(timeout) if isinstance(timeout, (int, float)) and 0 < timeout <= 600 else 30.0
+        if cmd == "calib.start":  # the page's form values, checked again and its files read on the robot
+            await self._reply(tab, req, start_job, self.bridge, args, timeout)
+            return
         pool = self.bridge.urgent if cmd == "robot.stop" else None
         await self._reply(tab, req, self.bridge.call, cmd, args, timeout, pool=pool)
+
+    async def _survey(self, tab: Tab, req: dict[str, Any]) -> None:
+        """Start or cancel the plate survey (on this laptop; daemon/console/survey.py)."""
+        try:
+            result = self.survey.cancel() if req.get("action") == "cancel" else await self.survey.start(req)
+            msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
+        except (CommandError, OSError) as exc:
+            err = _error(exc) if isinstance(exc, CommandError) else {"code": "failed", "message": str(exc)}
+            msg = {"type": "reply", "id": req.get("id"), "ok": False, "error": err}
+        if not tab.ws.closed:
+            await tab.ws.send_json(msg)
 
     async def _capture(self, tab: Tab, req: dict[str, Any]) -> None:
         await self._reply(tab, req, self._capture_sync, str(req.get("label") or "frame"))
@@ -222,6 +244,9 @@ class Console:
             msg = {"type": "state", "topics": topics, "events": events, "link": self.bridge.link,
                    "console": {"frames_sent": self.frames_sent, "tabs": len(self.tabs),
                                "preview_error": tab.preview_error}}
+            if tab.survey_version != self.survey.state["version"]:  # only when it changed: a report is large
+                msg["survey"] = self.survey.state
+                tab.survey_version = self.survey.state["version"]
             await tab.ws.send_str(json.dumps(msg, default=str))
             await asyncio.sleep(STATE_PERIOD_S)
 
@@ -287,6 +312,7 @@ async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None,
         else:
             await asyncio.sleep(duration)
     finally:
+        console.survey.close()
         await runner.cleanup()
 
 

@@ -17,6 +17,7 @@ from typing import Any
 
 from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS, PROCEDURES
+from daemon.bus.procedure_params import DEFAULTS
 from daemon.ctl.device import add_table_args, table_args
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import Exit, bad_input, for_verdict
@@ -274,7 +275,8 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
     p.add_argument("--robot-approx", nargs=3, type=float, metavar=("X", "Y", "Z"),
                    help="approximate robot reflector, tracker frame, mm")
     p.add_argument("--reversal", action="store_true", help="second referencing turned 180° (instrument reversal)")
-    p.add_argument("--distance", type=float, help="straight drive between P0 and P1, mm (default 200)")
+    p.add_argument("--distance", type=float,
+                   help=f"straight drive between P0 and P1, mm (default {DEFAULTS['distance_mm']:g})")
     p.set_defaults(fn=cmd_calibrate)
     p = sub.add_parser("intrinsics", parents=[common],
                        help="camera model from a hand-held board, view by view as the prompts say")
@@ -284,14 +286,18 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
         p = sub.add_parser(name, parents=[common], help=f"{name} with the active calibration")
         p.add_argument("--mark", nargs=2, type=float, required=True, metavar=("X", "Y"),
                        help="approximate mark position, ACS mm")
-        p.add_argument("--kind", default="dot", choices=["dot", "cross"], help="mark shape (default dot)")
+        p.add_argument("--kind", default=DEFAULTS["kind"], choices=["dot", "cross"],
+                       help=f"mark shape (default {DEFAULTS['kind']})")
         if name == "measure-mark":
             p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
         else:
-            p.add_argument("--directions", type=int, default=8, help="approach directions (default 8)")
-            p.add_argument("--reps", type=int, default=5, help="repetitions per direction (default 5)")
-            p.add_argument("--seed", type=int, default=1, help="seed of the approach order (default 1)")
-            p.add_argument("--psi0", type=float, default=0.0, help="heading of the first direction, deg")
+            d = DEFAULTS  # the procedures' parameter table (daemon/bus/procedure_params.py)
+            p.add_argument("--directions", type=int, default=d["directions"],
+                           help=f"approach directions (default {d['directions']})")
+            p.add_argument("--reps", type=int, default=d["repetitions"],
+                           help=f"repetitions per direction (default {d['repetitions']})")
+            p.add_argument("--seed", type=int, default=d["seed"], help=f"seed of the approach order (default {d['seed']})")
+            p.add_argument("--psi0", type=float, default=d["psi0_deg"], help="heading of the first direction, deg")
         p.set_defaults(fn=fn)
 
 

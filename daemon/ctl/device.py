@@ -28,6 +28,27 @@ LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
 }
 
 
+def _detect_text(r: dict[str, Any]) -> tuple[str, Exit]:
+    """``camera detect``: the count or the mark's position; nothing found is exit 2 (FAIL)."""
+    where = (f"frame {r.get('frame_id')}, searched {r.get('searched_w')}×{r.get('searched_h')} of "
+             f"{r.get('full_w')}×{r.get('full_h')} px, {r.get('took_s')} s")
+    if r.get("target") == "plate":
+        if not r.get("found"):
+            return f"no corners of plate {r.get('plate_id')} found ({where})", Exit.FAIL
+        uv = r["uv"]
+        box = [min(p[0] for p in uv), min(p[1] for p in uv), max(p[0] for p in uv), max(p[1] for p in uv)]
+        return (f"{r['n']} corners of plate {r.get('plate_id')} ({where}); within u {box[0]:.0f}–{box[2]:.0f}, "
+                f"v {box[1]:.0f}–{box[3]:.0f} px"), Exit.OK
+    if not r.get("found"):
+        return f"no {r.get('target')} mark found ({where}): {r.get('message', '')}", Exit.FAIL
+    u, v = r["uv"]
+    return f"{r.get('target')} mark at u {u:.2f}, v {v:.2f} px ({where})", Exit.OK
+
+
+#: results a generated subcommand shows in words (with --json: the result, same exit code)
+RESULT_TEXT: dict[str, Callable[[dict[str, Any]], tuple[str, Exit]]] = {"camera.detect": _detect_text}
+
+
 def write_png(path: Path, pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8) -> None:
     """Lossless PNG (greyscale or RGB) written through a temp file (daemon/bus/png_write.py)."""
     tmp = path.with_name(path.name + ".tmp")
@@ -175,6 +196,10 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
         _save_png(out, result, extra)
         print_result({"saved": out, "metadata": str(Path(out).with_suffix(".json"))}, a.json)
         return Exit.OK
+    if cmd.name in RESULT_TEXT:
+        text, code = RESULT_TEXT[cmd.name](result)
+        print_result(result, True) if a.json else print(text)
+        return code
     print_result(result, a.json)
     return Exit.OK
 

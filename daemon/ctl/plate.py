@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.ctl.exitcodes import Exit, for_verdict
-from daemon.ctl.io import fail
+from daemon.ctl.io import fail, say
 
 
 def _read_plate(path: str) -> dict[str, Any]:
@@ -54,7 +54,8 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
         return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file --plate {a.plate}: "
                                                  f"write the surveyed plate to another file", a.json)
     try:
-        plate = survey_plate(Path(a.folder), _read_plate(a.plate), a.plate)
+        plate = survey_plate(Path(a.folder), _read_plate(a.plate), a.plate,
+                             lambda pct, step: say(f"[{pct:5.1f}%] {step}", a.json))  # the console parses these
         atomic_write_json(Path(a.out), plate)
     except KeyboardInterrupt:
         return Exit.INTERRUPTED

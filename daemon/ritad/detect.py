@@ -119,7 +119,7 @@ class Detections:
             raise CommandError(ErrorCode.BAD_ARGS, f"{CMD}: {exc}") from None
         except CalibrationError as exc:
             return {"found": False, "n": 0, "message": str(exc)}
-        return {"found": True, "n": 1, "uv": _to_sensor(obs.uv, scale)}
+        return {"found": True, "n": 1, "uv": _to_sensor(obs.uv, scale)[0]}  # one point: [u, v] (docs/protocol.md)
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)

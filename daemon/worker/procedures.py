@@ -19,11 +19,11 @@ from daemon.worker.guided_intrinsics import intrinsics
 from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
 from daemon.bus.command_table import PROCEDURES
+from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.protocol import CommandError
 
-#: default parameters (mm, degrees)
-DEFAULTS = {"distance_mm": 200.0, "sigma_t_mm": 0.010, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
-            "offset_mm": 3.0, "seed": 1, "kind": "dot"}
+#: default parameters (mm, degrees): declared with the procedures' parameters in the bus library
+DEFAULTS = PARAM_DEFAULTS
 
 
 def param(ctx: JobContext, key: str) -> Any:

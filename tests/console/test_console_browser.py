@@ -106,16 +106,55 @@ def test_tracker_panel_shows_locked_after_aim_and_find(page, robot):
     assert wait_for("tracker panel says locked", lambda: text(page, "tracker-locked") == "locked", 30)
 
 
+def choose_procedure(drv, name: str) -> None:
+    js(drv, f"const s = document.getElementById('proc'); s.value = '{name}'; s.dispatchEvent(new Event('change'));")
+    wait_for(f"the {name} form", lambda: drv.find_element("id", "proc-form").get_attribute("data-procedure") == name, 5)
+
+
+def fill(drv, element_id: str, value: str) -> None:
+    el = drv.find_element("id", element_id)
+    el.clear()
+    el.send_keys(value)
+
+
+def test_procedure_form_shows_defaults_and_refuses_bad_values_naming_the_field(page, robot):
+    c: Client = robot["client"]
+    posted = len(c.call("calib.jobs")["jobs"])
+    choose_procedure(page, "experiment")
+    assert page.find_element("id", "pp-directions").get_attribute("value") == "8"  # the table's default, shown
+    assert page.find_element("id", "pp-kind").tag_name == "select"
+    assert page.find_element("id", "pp-calibration").get_attribute("placeholder").startswith("calibration/active.json")
+    fill(page, "pp-mark_xy-0", "100")
+    fill(page, "pp-mark_xy-1", "200")
+    fill(page, "pp-directions", "0")
+    click(page, "proc-start")
+    wait_for("the page's message", lambda: "directions" in text(page, "proc-error"), 5)
+    assert "0 is outside" in text(page, "proc-error") or "≥ 1" in text(page, "proc-error"), text(page, "proc-error")
+    marked = js(page, "return [...document.querySelectorAll('#proc-form .bad-field')].map(e => e.dataset.param)")
+    assert marked == ["directions"]
+    fill(page, "pp-directions", "8")
+    fill(page, "pp-speed_mm_s", "fast")
+    click(page, "proc-start")
+    wait_for("the page's message", lambda: "speed_mm_s" in text(page, "proc-error"), 5)
+    assert "not a number" in text(page, "proc-error")
+    # the console checks too: a value the page let through (advanced JSON) is refused there, naming the field
+    fill(page, "pp-speed_mm_s", "100")
+    js(page, "document.getElementById('proc-params').value = '{\"repetitions\": -2}';")
+    click(page, "proc-start")
+    wait_for("the console's message", lambda: "repetitions" in text(page, "proc-error"), 10)
+    js(page, "document.getElementById('proc-params').value = '';")
+    assert len(c.call("calib.jobs")["jobs"]) == posted, "a refused form posted a job"
+
+
 def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page, robot):
     from fakes.operator import lock_on_robot
 
     c: Client = robot["client"]
     install_camera_model(c, robot)  # the camera model comes from the product's own intrinsics
     c.call("sim.place_robot_on_plate")  # the installer's hands: the robot stands on the plate
-    params = {"plate": operator_file(robot, "plate.json"),  # the plate's design file; the model: the installed one
-              "nests_approx_trk": operator_file(robot, "nests.json")}  # no robot position: the worker asks
-    js(page, f"document.getElementById('proc').value = 'referencing';"
-             f"document.getElementById('proc-params').value = {json.dumps(json.dumps(params))};")
+    choose_procedure(page, "referencing")  # the plate's design file and the rough nests, files on the robot;
+    fill(page, "pp-plate", "sim/plate.json")  # the model: the installed one; no robot position: the worker asks
+    fill(page, "pp-nests_approx_trk", "sim/nests.json")
     click(page, "proc-start")
     wait_for("the prompt", lambda: page.find_element("id", "prompt").is_displayed(), 60)
     assert "reflector" in text(page, "prompt-question")
@@ -160,6 +199,26 @@ def test_detect_draws_the_plate_corners_over_the_live_view(page, robot):
     assert d and d["target"] == "plate" and d["n"] > 30, info
     assert info.startswith(f"{d['n']} corners"), info  # the count is shown
     assert before == 0 and overlay_pixels(shot) > 30, (before, overlay_pixels(shot))  # the dots are drawn
+
+
+def test_plate_survey_from_the_page_shows_progress_and_the_per_nest_report(page, robot):
+    """The survey runs on the laptop (the console's child process) from photographs in a laptop folder."""
+    made = robot["client"].call("sim.survey_images", views=3, width_px=1500, timeout=120)  # the installer's camera
+    data, out = robot["tmp"] / "data", robot["tmp"] / "surveyed-plate.json"
+    fill(page, "survey-folder", str(data / "no-such-folder"))
+    fill(page, "survey-plate", str(data / "sim" / "plate.json"))
+    fill(page, "survey-out", str(out))
+    click(page, "survey-start")
+    wait_for("the bad folder named", lambda: "not a folder of photographs" in text(page, "survey-message"), 30)
+    assert str(data / "no-such-folder") in text(page, "survey-message")
+    fill(page, "survey-folder", str(data / made["folder"]))
+    click(page, "survey-start")
+    wait_for("the survey done", lambda: js(page, "return (window.rita.survey || {}).state") == "done", 90)
+    assert js(page, "return window.rita.surveySteps") >= 2  # progress was shown while it ran
+    rows = page.find_element("id", "survey-nests").find_elements("tag name", "tr")
+    assert [r.find_elements("tag name", "td")[0].text for r in rows[1:]] == ["red", "green", "blue"]
+    verdict = json.loads(out.read_text())["survey"]["verdict"]  # the file written is the one reported
+    assert text(page, "survey-message").startswith(verdict) and "µm" in text(page, "survey-message")
 
 
 def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):

@@ -36,15 +36,16 @@ function connect() {
   };
 }
 function send(o) { if (S.ws && S.ws.readyState === 1) S.ws.send(JSON.stringify(o)); }
-function call(cmd, args = {}, timeout = 30) {
+function request(msg, what, timeout = 30) {  // one message with an id; its reply resolves or rejects
   return new Promise((resolve, reject) => {
     const id = S.nextId++;
     S.calls.set(id, { resolve, reject });
-    send({ op: "call", id, cmd, args, timeout });
-    setTimeout(() => { if (S.calls.delete(id)) reject({ code: "timeout", message: `${cmd}: no answer in ${timeout + 5} s` }); },
+    send({ ...msg, id });
+    setTimeout(() => { if (S.calls.delete(id)) reject({ code: "timeout", message: `${what}: no answer in ${timeout + 5} s` }); },
                (timeout + 5) * 1000);
   });
 }
+function call(cmd, args = {}, timeout = 30) { return request({ op: "call", cmd, args, timeout }, cmd, timeout); }
 function act(cmd, args = {}, timeout = 60) {  // a control's command: errors go to the toast, never silently
   return call(cmd, args, timeout).catch((e) => { toast(`${cmd}: ${e.message} [${e.code}]`); throw e; });
 }
@@ -68,9 +69,9 @@ function applyRole() {
   $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled"].includes(S.job.state);
 }
 function onHello(m) {
-  S.role = m.role; S.commands = m.commands; S.procedures = m.procedures;
+  S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params;
   const sel = $("proc");
-  if (!sel.options.length) for (const p of m.procedures) sel.add(new Option(p, p));
+  if (!sel.options.length) { for (const p of m.procedures) sel.add(new Option(p, p)); renderProcForm(); }
   applyRole();
 }
 
@@ -83,6 +84,7 @@ function onState(m) {
   if (t["robot.state"]) showRobot(t["robot.state"].data);
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
   for (const e of m.events) onEvent(e);
+  if (m.survey) showSurvey(m.survey);   // survey.js: sent when it changed
   const c = m.console;
   $("console-stats").textContent = `console: pictures to pages ${c.frames_sent}, tabs ${c.tabs}; ` +
     `this page drew ${S.framesDrawn}${c.preview_error ? "; camera: " + c.preview_error : ""}`;

@@ -15,19 +15,6 @@ async function fetchJson(path) {
   return resp.json();
 }
 
-async function startJob() {
-  let params;
-  try { params = JSON.parse($("proc-params").value || "{}"); } catch (e) { toast(`parameters are not JSON: ${e.message}`); return; }
-  if (typeof params !== "object" || Array.isArray(params) || params === null) { toast("parameters must be a JSON object"); return; }
-  try {
-    const r = await act("calib.start", { procedure: $("proc").value, params });
-    S.job = { job: r.job, state: "queued" };
-    S.shownResult = null;
-    showJob(S.job);
-    refreshJobs();
-  } catch (e) { /* act showed it */ }
-}
-
 async function refreshJobs() {
   let r;
   try { r = await call("calib.jobs", {}, 5); } catch (e) { return; }

@@ -1,0 +1,43 @@
+// Plate survey panel: `ritactl plate survey` run by the console on this laptop (daemon/console/survey.py).
+// The paths are the laptop's; the state (progress, report, error) comes with the state messages when it changes.
+"use strict";
+
+function startSurvey() {
+  const fields = { folder: $("survey-folder").value, plate: $("survey-plate").value, out: $("survey-out").value };
+  const empty = Object.entries({ folder: "photo folder", plate: "design file", out: "output file" }).find(([k]) => !fields[k].trim());
+  if (empty) { $("survey-message").textContent = `${empty[1]}: give a path on this computer`; return; }
+  $("survey-message").textContent = "starting…";
+  request({ op: "survey", action: "start", ...fields }, "plate survey", 30)
+    .catch((e) => { $("survey-message").textContent = `plate survey: ${e.message}`; });
+}
+
+function showSurvey(s) {
+  S.survey = s;
+  if (s.state === "running") S.surveySteps = (S.surveySteps || 0) + 1;   // progress updates seen (tests)
+  const running = s.state === "running";
+  $("survey-start").disabled = running;
+  $("survey-cancel").disabled = !running;
+  $("survey-progress").value = s.state === "done" ? 100 : (s.percent || 0);
+  $("survey-step").textContent = running ? s.step : (s.state === "idle" ? "" : `${s.state}${s.took_s ? ", " + s.took_s + " s" : ""}`);
+  const r = s.result;
+  $("survey-message").className = s.state === "failed" ? "err" : "";
+  if (s.state === "done" && r) {
+    $("survey-message").innerHTML = `<b class="pill ${r.verdict === "ok" ? "ok" : "bad"}">${r.verdict}</b> ` +
+      `${esc(r.message)}; wrote <code>${esc(s.out)}</code>`;
+    $("survey-nests").innerHTML = "<tr><th>nest</th><th>seat x, y, z (mm, PCS)</th><th>1σ x, y, z (µm)</th><th>photos</th></tr>" +
+      Object.entries(r.nests).map(([c, n]) => `<tr><td>${c}</td><td>${n.ref_P_nst_mm.map((v) => fmt(v, 3)).join(", ")}</td>` +
+        `<td>${n.sigma_mm.map((v) => fmt(v * 1000, 0)).join(", ")}</td><td>${n.views}</td></tr>`).join("");
+    $("survey-views").innerHTML = r.views.map((v) => `${esc(v.image)}: ${v.corners} corners, RMS ${fmt(v.corner_rms_px, 3)} px` +
+      (Object.keys(v.rings_missing || {}).length ? `; missing ${esc(Object.keys(v.rings_missing).join(", "))}` : "")).join("<br>") +
+      Object.entries(r.skipped || {}).map(([n, why]) => `<br>${esc(n)}: skipped, ${esc(why)}`).join("");
+  } else {
+    if (s.state !== "idle") $("survey-message").textContent = running ? `surveying ${s.folder}` : s.message;
+    if (running) { $("survey-nests").innerHTML = ""; $("survey-views").innerHTML = ""; }
+  }
+}
+function esc(t) { return String(t ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;"); }
+
+document.addEventListener("DOMContentLoaded", () => {
+  $("survey-start").onclick = startSurvey;
+  $("survey-cancel").onclick = () => request({ op: "survey", action: "cancel" }, "plate survey", 10).catch((e) => toast(e.message));
+});
