@@ -206,12 +206,21 @@ def cmd_intrinsics(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_measure_mark(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind})
+    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind,
+                                         **_compensation_params(a)})
+
+
+def _compensation_params(a: argparse.Namespace) -> dict[str, Any]:
+    """The issue #15 options a job gets only when given (the worker's defaults otherwise)."""
+    out: dict[str, Any] = {} if a.compensation is None else {"compensation": a.compensation}
+    if getattr(a, "store_bias", False):
+        out["store_bias"] = True
+    return out
 
 
 def cmd_experiment(c: Client, a: argparse.Namespace) -> int:
     return _start(c, a, "experiment", {"mark_xy": a.mark, "directions": a.directions, "repetitions": a.reps,
-                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0})
+                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0, **_compensation_params(a)})
 
 
 def cmd_results(c: Client, a: argparse.Namespace) -> int:
@@ -285,6 +294,8 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
         p.add_argument("--mark", nargs=2, type=float, required=True, metavar=("X", "Y"),
                        help="approximate mark position, ACS mm")
         p.add_argument("--kind", default="dot", choices=["dot", "cross"], help="mark shape (default dot)")
+        p.add_argument("--compensation", metavar="NAMES", help="issue #15 compensations: none, all (default) or "
+                                                              "a comma list of tilt,heading_fit,bias")
         if name == "measure-mark":
             p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
         else:
@@ -292,6 +303,8 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
             p.add_argument("--reps", type=int, default=5, help="repetitions per direction (default 5)")
             p.add_argument("--seed", type=int, default=1, help="seed of the approach order (default 1)")
             p.add_argument("--psi0", type=float, default=0.0, help="heading of the first direction, deg")
+            p.add_argument("--store-bias", action="store_true",
+                           help="store the fitted robot-frame bias b in the active calibration (docs/operations.md)")
         p.set_defaults(fn=fn)
 
 

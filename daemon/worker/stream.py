@@ -1,0 +1,104 @@
+"""The tracker's stream (and the inclinometer) along the final straight move of an approach (issue #15).
+
+The heading-fit compensation (calibration/compensation.py ``fit_heading``) needs the
+reflector's path between the two standstill points; the tilt compensation wants the
+tilt along it. The move is started without waiting; while it runs the worker polls
+``robot.status`` (tilt samples with the daemon's host time), and the tracker's
+``tracker.point`` telemetry is collected on a subscriber. Tilt samples are
+interpolated to the stream records' times. Record times: the packet's ``host_time_ns``
+minus the record's age within the packet (``device_time``, s + µs).
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from daemon.bus.protocol import CommandError, ErrorCode
+
+#: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
+DEFAULT_STREAM_RATE_HZ = 100.0
+MAX_STREAM_POINTS = 200
+#: a subscriber needs a moment to be connected before the first message it should see
+SUB_SETTLE_S = 0.2
+
+
+def _record_times_ns(msg: dict[str, Any]) -> np.ndarray:
+    """Host time (ns) of each record of one tracker.point message."""
+    n = int(msg["n"])
+    host = int(msg["host_time_ns"])
+    dt = msg.get("device_time")
+    if not dt or len(dt) != 2 or len(dt[0]) != n:
+        return np.full(n, host, dtype=np.int64)
+    dev = np.asarray(dt[0], dtype=np.int64) * 1_000_000_000 + np.asarray(dt[1], dtype=np.int64) * 1000
+    return host - (dev[-1] - dev)
+
+
+def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) ACS points and their host times (ns) from tracker.point messages, good records only."""
+    pts, times = [], []
+    for m in msgs:
+        xyz = np.column_stack([m["x"], m["y"], m["z"]]).astype(float)
+        ok = np.asarray(m.get("status") or [0] * len(xyz)) == 0
+        t = _record_times_ns(m)
+        pts.append(xyz[ok])
+        times.append(t[ok])
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    P, t = np.concatenate(pts), np.concatenate(times)
+    order = np.argsort(t, kind="stable")
+    P = P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3]
+    return P, t[order]
+
+
+def _thin(n: int, most: int) -> np.ndarray:
+    return np.arange(n) if n <= most else np.unique(np.linspace(0, n - 1, most).round().astype(int))
+
+
+def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout_s: float
+                        ) -> list[tuple[int, float, float]]:
+    """Start the move, poll robot.status until the base is idle; the tilt samples (host ns, roll, pitch)."""
+    ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True, wait=False)
+    samples: list[tuple[int, float, float]] = []
+    end = time.monotonic() + timeout_s
+    while True:
+        st = ctx.call("robot.status", timeout=30)
+        if st.get("roll_deg") is not None and st.get("pitch_deg") is not None:
+            samples.append((int(st["host_time_ns"]), float(st["roll_deg"]), float(st["pitch_deg"])))
+        if st.get("state") == "FAULT":
+            raise CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT during the approach: {st.get('fault')}")
+        if st.get("state") == "IDLE":
+            return samples
+        if time.monotonic() > end:
+            raise CommandError(ErrorCode.TIMEOUT, f"robot still moving {timeout_s:.0f} s after the approach started")
+
+
+def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
+                rate_hz: float = DEFAULT_STREAM_RATE_HZ) -> dict[str, Any]:
+    """Drive ``distance_mm`` straight while recording the stream; the stop record's ``stream`` entry."""
+    sub = ctx.client.subscriber(["tracker.point"])
+    try:
+        time.sleep(SUB_SETTLE_S)
+        started = ctx.call("tracker.stream.start", timeout=30, rate_hz=rate_hz)
+        t0 = time.time_ns()
+        try:
+            tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
+        finally:
+            t1 = time.time_ns()
+            ctx.call("tracker.stream.stop", timeout=30)
+        msgs = [m for _, m, _ in sub.iter(SUB_SETTLE_S) if isinstance(m, dict) and m.get("n")]
+    finally:
+        sub.close()
+    P, t = _abs_points(msgs, np.asarray(abs_H_trk, float))
+    keep = (t >= t0) & (t <= t1)
+    P, t = P[keep], t[keep]
+    idx = _thin(len(P), MAX_STREAM_POINTS)
+    P, t = P[idx], t[idx]
+    out: dict[str, Any] = {"rate_hz": started.get("rate_hz", rate_hz), "n": len(P), "abs_xyz": P.tolist(),
+                           "host_time_ns": t.tolist(), "tilt_samples": len(tilt)}
+    if len(tilt) >= 2 and len(P):
+        ts = np.array([s[0] for s in tilt], dtype=float)
+        out["tilt_deg"] = np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
+                                           np.interp(t, ts, [s[2] for s in tilt])]).tolist()
+    return out
