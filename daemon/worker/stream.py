@@ -22,6 +22,8 @@ DEFAULT_STREAM_RATE_HZ = 100.0
 MAX_STREAM_POINTS = 200
 #: a subscriber needs a moment to be connected before the first message it should see
 SUB_SETTLE_S = 0.2
+#: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
+LAST_PACKET_WAIT_S = 2.0
 
 
 def _record_times_ns(msg: dict[str, Any]) -> np.ndarray:
@@ -50,6 +52,20 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.n
     order = np.argsort(t, kind="stable")
     P = P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3]
     return P, t[order]
+
+
+def _collect_until(sub: Any, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
+    """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``."""
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
+        if got is None:
+            continue
+        data = got[1].get("data") if isinstance(got[1], dict) else None
+        if isinstance(data, dict) and data.get("n"):
+            msgs.append(data)
+            if int(data["host_time_ns"]) >= t_end_ns:
+                return
 
 
 def _thin(n: int, most: int) -> np.ndarray:
@@ -82,12 +98,13 @@ def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
         time.sleep(SUB_SETTLE_S)
         started = ctx.call("tracker.stream.start", timeout=30, rate_hz=rate_hz)
         t0 = time.time_ns()
+        msgs: list[dict[str, Any]] = []
         try:
             tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
-        finally:
             t1 = time.time_ns()
+            _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
+        finally:
             ctx.call("tracker.stream.stop", timeout=30)
-        msgs = [m for _, m, _ in sub.iter(SUB_SETTLE_S) if isinstance(m, dict) and m.get("n")]
     finally:
         sub.close()
     P, t = _abs_points(msgs, np.asarray(abs_H_trk, float))
