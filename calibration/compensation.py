@@ -231,9 +231,13 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                 v = P_at - P_prev
                 at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
                 pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
-            u = fit_heading(pts, out.abs_P_prev, P_at)
-            out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
-            out.applied.append("heading_fit")
+            try:
+                u = fit_heading(pts, out.abs_P_prev, P_at)
+            except ValueError as exc:  # too few points between the stops: the chord stays
+                out.skipped["heading_fit"] = str(exc)
+            else:
+                out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
+                out.applied.append("heading_fit")
     if comp.bias:
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"

@@ -21,7 +21,7 @@ from daemon.bus.protocol import CommandError, ErrorCode
 DEFAULT_STREAM_RATE_HZ = 100.0
 MAX_STREAM_POINTS = 200
 #: a subscriber needs a moment to be connected before the first message it should see
-SUB_SETTLE_S = 0.2
+SUB_SETTLE_S = 0.02
 #: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
 LAST_PACKET_WAIT_S = 2.0
 
