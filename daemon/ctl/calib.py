@@ -171,6 +171,12 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
         print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
     if d.get("table_markdown"):
         print("\n" + d["table_markdown"])
+    comp = d.get("compensation")
+    if comp:  # issue #15: which compensations took effect, and why not
+        done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"
+        print(f"  compensations (stops applied): {done}")
+        for n, why in (comp.get("skipped") or {}).items():
+            print(f"    {n} skipped: {'; '.join(why)}")
     print(f"  dataset: {d.get('dataset')}  {' '.join(d.get('files') or [])}")
     return code
 

@@ -114,6 +114,10 @@ def test_a_tilt_reading_moves_the_mark_by_the_reflector_height(exp, tmp_path):
 def test_ritactl_recompute_compensation_and_bad_name(exp, capsys):
     assert ctl.main(["--json", "recompute", str(exp), "--compensation", "none"]) == 0
     assert json.loads(capsys.readouterr().out)["compensation"]["requested"] == []
+    assert ctl.main(["recompute", str(exp), "--compensation", "tilt,heading_fit"]) == 0
+    shown = capsys.readouterr().out
+    assert "compensations (stops applied): tilt 4/4, heading_fit 3/4" in shown, shown
+    assert "heading_fit skipped: no tracker stream was recorded along the approach" in shown, shown
     assert ctl.main(["recompute", str(exp), "--compensation", "tilt,wobble"]) == 5
     err = capsys.readouterr().err
     assert "wobble" in err and "Traceback" not in err, err
