@@ -82,7 +82,7 @@ class Navigator:
             self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings)}
         if record and pa.get("abs_H_trk") is not None and self.stream_rate_hz > 0 and abs(distance_mm) <= 1900:
             self.last_record["stream"] = record_move(self.ctx, distance_mm, self.speed, pa["abs_H_trk"],
-                                                     self.stream_rate_hz)
+                                                     self.stream_rate_hz, self.last_record["imu_prev"])
         else:
             self.move(distance_mm)
         b, pb = self.where()

@@ -5,8 +5,8 @@ reflector's path between the two standstill points; the tilt compensation wants 
 tilt along it. The move is started without waiting; while it runs the worker polls
 ``robot.status`` (tilt samples with the daemon's host time), and the tracker's
 ``tracker.point`` telemetry is collected on a subscriber. Tilt samples are
-interpolated to the stream records' times. Record times: the packet's ``host_time_ns``
-minus the record's age within the packet (``device_time``, s + µs).
+interpolated to the stream records' times: the tracker's ``device_time`` (s + µs) per
+record, put on the host clock by the least-delayed packet's arrival ``host_time_ns``.
 """
 from __future__ import annotations
 
@@ -20,38 +20,42 @@ from daemon.bus.protocol import CommandError, ErrorCode
 #: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
 DEFAULT_STREAM_RATE_HZ = 100.0
 MAX_STREAM_POINTS = 200
+#: tilt samples during the move below which none are stored: a few single readings, interpolated,
+#: are worse than the two standstill means (compute then interpolates those along the move)
+MIN_TILT_SAMPLES = 5
 #: a subscriber needs a moment to be connected before the first message it should see
 SUB_SETTLE_S = 0.02
 #: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
 LAST_PACKET_WAIT_S = 2.0
 
 
-def _record_times_ns(msg: dict[str, Any]) -> np.ndarray:
-    """Host time (ns) of each record of one tracker.point message."""
-    n = int(msg["n"])
-    host = int(msg["host_time_ns"])
-    dt = msg.get("device_time")
+def _device_ns(msg: dict[str, Any]) -> np.ndarray | None:
+    """Device time (ns) of each record of one tracker.point message, or None without one."""
+    n, dt = int(msg["n"]), msg.get("device_time")
     if not dt or len(dt) != 2 or len(dt[0]) != n:
-        return np.full(n, host, dtype=np.int64)
-    dev = np.asarray(dt[0], dtype=np.int64) * 1_000_000_000 + np.asarray(dt[1], dtype=np.int64) * 1000
-    return host - (dev[-1] - dev)
+        return None
+    return np.asarray(dt[0], dtype=np.int64) * 1_000_000_000 + np.asarray(dt[1], dtype=np.int64) * 1000
 
 
 def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) ACS points and their host times (ns) from tracker.point messages, good records only."""
-    pts, times = [], []
-    for m in msgs:
-        xyz = np.column_stack([m["x"], m["y"], m["z"]]).astype(float)
-        ok = np.asarray(m.get("status") or [0] * len(xyz)) == 0
-        t = _record_times_ns(m)
-        pts.append(xyz[ok])
-        times.append(t[ok])
-    if not pts:
+    """(N, 3) ACS points in time order and their host times (ns), good records only.
+
+    Records are ordered and timed by the tracker's clock; one offset maps it to the host
+    clock: the smallest (packet arrival − its last record's device time), i.e. the packet
+    that waited least (arrival jitter would otherwise interleave records of two packets).
+    """
+    if not msgs:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    P, t = np.concatenate(pts), np.concatenate(times)
+    devs = [_device_ns(m) for m in msgs]
+    if any(d is None for d in devs):  # no device clock: each packet's records at its arrival
+        devs = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
+    offset = min(int(m["host_time_ns"]) - int(d[-1]) for m, d in zip(msgs, devs))
+    P = np.concatenate([np.column_stack([m["x"], m["y"], m["z"]]).astype(float) for m in msgs])
+    t = np.concatenate(devs) + offset
+    ok = np.concatenate([np.asarray(m.get("status") or [0] * int(m["n"])) == 0 for m in msgs])
+    P, t = P[ok], t[ok]
     order = np.argsort(t, kind="stable")
-    P = P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3]
-    return P, t[order]
+    return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order]
 
 
 def _collect_until(sub: Any, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
@@ -91,8 +95,13 @@ def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout
 
 
 def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
-                rate_hz: float = DEFAULT_STREAM_RATE_HZ) -> dict[str, Any]:
-    """Drive ``distance_mm`` straight while recording the stream; the stop record's ``stream`` entry."""
+                rate_hz: float = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Drive ``distance_mm`` straight while recording the stream; the stop record's ``stream`` entry.
+
+    ``start_tilt`` (the standstill reading before the move) anchors the tilt before the
+    first sample taken while moving; without it the points at the start would get a
+    mid-move tilt.
+    """
     sub = ctx.client.subscriber(["tracker.point"])
     try:
         time.sleep(SUB_SETTLE_S)
@@ -114,7 +123,9 @@ def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
     P, t = P[idx], t[idx]
     out: dict[str, Any] = {"rate_hz": started.get("rate_hz", rate_hz), "n": len(P), "abs_xyz": P.tolist(),
                            "host_time_ns": t.tolist(), "tilt_samples": len(tilt)}
-    if len(tilt) >= 2 and len(P):
+    if len(tilt) >= MIN_TILT_SAMPLES and len(P):
+        if start_tilt:
+            tilt.insert(0, (t0, float(start_tilt["roll_deg"]), float(start_tilt["pitch_deg"])))
         ts = np.array([s[0] for s in tilt], dtype=float)
         out["tilt_deg"] = np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
                                            np.interp(t, ts, [s[2] for s in tilt])]).tolist()

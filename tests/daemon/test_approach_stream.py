@@ -9,6 +9,7 @@ import numpy as np
 
 from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
+from daemon.worker.stream import MIN_TILT_SAMPLES
 from fakes.operator import lock_on_robot
 from tests.ritad_up import ritad_in_process
 
@@ -24,7 +25,7 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
         params = {"imu_readings": 5, "stream_rate_hz": 1000.0}
         job = c.call("calib.start", procedure="measure-mark", params=params)["job"]  # no worker takes it
         ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": params}, tmp_path / "data")
-        nav = Navigator(ctx, speed_mm_s=50.0)
+        nav = Navigator(ctx, speed_mm_s=10.0)  # 0.3 s of wall time: enough robot.status polls for tilt samples
         a, b = nav.straight(150.0, record=True)
         rec = nav.last_record
         assert rec["imu_prev"]["n"] == 5 and abs(rec["imu_prev"]["roll_deg"]) < 1.0, rec["imu_prev"]
@@ -38,4 +39,8 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
         assert np.all(np.diff(along) > -1.0), "stream points are not in time order"
         side = u[0] * (P - a)[:, 1] - u[1] * (P - a)[:, 0]
         assert np.abs(side).max() < 5.0, np.abs(side).max()
-        assert len(s["tilt_deg"]) == len(P) and s["tilt_samples"] >= 2, s["tilt_samples"]
+        assert s["tilt_samples"] >= MIN_TILT_SAMPLES, s["tilt_samples"]
+        T = np.array(s["tilt_deg"])
+        assert T.shape == (len(P), 2)
+        # anchored at the standstill reading before the move; the floor tilts by well under 0.1° here
+        assert np.abs(T[0] - [rec["imu_prev"]["roll_deg"], rec["imu_prev"]["pitch_deg"]]).max() < 0.02, T[0]
