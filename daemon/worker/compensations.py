@@ -13,6 +13,7 @@ docs/datasets.md ("Compensations") documents every field written here.
 """
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -136,8 +137,6 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     path = cdir / "active.json"
     if not path.exists():
         return "robot-frame bias NOT stored: there is no active calibration"
-    import json
-
     active = json.loads(path.read_text())
     if active.get("job") != result.get("calibration_job"):
         return (f"robot-frame bias NOT stored: the experiment used calibration {result.get('calibration_job')!r} "
