@@ -183,16 +183,24 @@ class Applied:
 
 
 def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) -> np.ndarray:
-    """The stream's points moved down the tilted z axis (when the tilt is known per point)."""
+    """The stream's points moved down the tilted z axis.
+
+    The tilt per point is the stream's own reading when there is one, else the two
+    standstill readings interpolated along the distance travelled: the raw reflector
+    stream against the ground chord would show their tilt difference × height as a bend.
+    """
     P = as_points(stop.stream, "stream")
+    s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
     if stop.stream_tilt is None:
-        return P
+        f = (s / max(float(s[-1]), 1e-9))[:, None]
+        t = (1 - f) * np.asarray(stop.tilt_prev, float) + f * np.asarray(stop.tilt_at, float) - np.asarray(offset)
+        return np.array([ground_point(p, math.degrees(math.atan2(*(P[-1] - P[0])[1::-1])), float(r), float(q),
+                                      height_mm) for p, (r, q) in zip(P, t)])
     t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
     if t.shape != (len(P), 2):
         raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
     # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white:
     # a quadratic in the distance travelled keeps the one and averages the other
-    s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
     if len(P) > 4:
         A = np.column_stack([np.ones_like(s), s, s ** 2])
         t = A @ np.linalg.lstsq(A, t, rcond=None)[0]
@@ -224,16 +232,20 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         if stop.stream is None or len(stop.stream) < MIN_FIT_POINTS:
             out.skipped["heading_fit"] = "no tracker stream was recorded along the approach"
         else:
-            use_tilt = "tilt" in out.applied and stop.stream_tilt is not None
+            use_tilt = "tilt" in out.applied
             pts = _ground_stream(stop, offset, height) if use_tilt else as_points(stop.stream, "stream")
             # out.abs_P_prev is P_at minus the ground chord when the tilt is compensated
             if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
                 v = P_at - P_prev
                 at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
                 pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
-            u = fit_heading(pts, out.abs_P_prev, P_at)
-            out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
-            out.applied.append("heading_fit")
+            try:
+                u = fit_heading(pts, out.abs_P_prev, P_at)
+            except ValueError as exc:  # too few points between the stops: the chord stays
+                out.skipped["heading_fit"] = str(exc)
+            else:
+                out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
+                out.applied.append("heading_fit")
     if comp.bias:
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"

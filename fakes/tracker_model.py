@@ -150,16 +150,23 @@ class TrackerModel:
             return self.world.effects.tracker_measure(pos, self.rng)
         return pos + self.rng.normal(0.0, self.sigma_mm, 3)
 
-    def measure_records(self, n: int, t0_s: float, dt_s: float) -> np.ndarray | None:
-        """``n`` continuous records, the first at time ``t0_s`` (s since server start)."""
+    def measure_records(self, n: int, t0_s: float, dt_s: float, origin_s: float | None = None) -> np.ndarray | None:
+        """``n`` continuous records, the first at time ``t0_s`` (s since server start at monotonic ``origin_s``).
+
+        With ``origin_s``, the robot's reflector is measured where the robot was at each
+        record's time (``World.robot_at``), so a stream taken while it drives follows its path.
+        """
         pos = self.locked_position()
         if pos is None:
             return None
         rec = np.zeros(n, MEAS_VALUE)
+        at = np.repeat(pos[None, :], n, axis=0)
+        if origin_s is not None and self.state.locked == "robot":
+            at = np.array([self.world.robot_reflector_trk_at(origin_s + t0_s + dt_s * i) for i in range(n)])
         if self.world.effects.model.tracker is not None:
-            xyz = self.world.effects.tracker_measure(np.repeat(pos[None, :], n, axis=0), self.rng)
+            xyz = self.world.effects.tracker_measure(at, self.rng)
         else:
-            xyz = pos + self.rng.normal(0.0, self.sigma_mm, (n, 3))
+            xyz = at + self.rng.normal(0.0, self.sigma_mm, (n, 3))
         xyz = xyz * self.state.length_unit()
         rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         t = t0_s + dt_s * np.arange(n)

@@ -341,7 +341,7 @@ class FakeTrackerServer:
                     if n <= 0:
                         continue
                 n = min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS)
-                rec = self.model.measure_records(n, t_next - self.t0, dt)
+                rec = self.model.measure_records(n, t_next - self.t0, dt, self.t0)
                 if rec is None:  # beam lost: tell the client the way a real server does
                     await s.send(encode_error(C.StartMeasurement, RS.MeasurementStatusNotReady))
                     return

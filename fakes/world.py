@@ -23,6 +23,8 @@ from __future__ import annotations
 import hashlib
 import math
 import threading
+import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -157,6 +159,9 @@ class World:
         else:
             self.robot = RobotPose(*p.start_pose)
         self.robot = self.settle(self.robot)
+        #: recent (monotonic time, pose) of the robot, so a tracker stream sees it where it was when
+        #: each record was taken, not where it is when the packet goes out (the base moves between)
+        self.robot_track: deque[tuple[float, RobotPose]] = deque([(time.monotonic(), self.robot)], maxlen=2000)
 
     # ------------------------------------------------------------------ randomness
 
@@ -280,6 +285,28 @@ class World:
     def set_robot(self, pose: RobotPose) -> None:
         with self.lock:
             self.robot = pose
+            self.robot_track.append((time.monotonic(), pose))
+
+    def robot_at(self, t: float) -> RobotPose:
+        """The robot's pose at monotonic time ``t``: linear between the poses the base set around it."""
+        with self.lock:
+            track, now = list(self.robot_track), self.robot
+        if t >= track[-1][0] or track[-1][1] is not now:  # a pose set directly (tests) is the pose now
+            return now
+        if t <= track[0][0]:
+            return track[0][1]
+        i = next(j for j in range(len(track) - 1, 0, -1) if track[j - 1][0] <= t)
+        (ta, a), (tb, b) = track[i - 1], track[i]
+        f = 0.0 if tb <= ta else (t - ta) / (tb - ta)
+        mix = lambda u, v: u + f * (v - u)  # noqa: E731
+        z = None if a.z_mm is None or b.z_mm is None else mix(a.z_mm, b.z_mm)
+        heading = a.heading_deg + f * math.remainder(b.heading_deg - a.heading_deg, 360.0)  # across ±180°
+        return RobotPose(mix(a.x_mm, b.x_mm), mix(a.y_mm, b.y_mm), heading,
+                         mix(a.roll_rad, b.roll_rad), mix(a.pitch_rad, b.pitch_rad), z)
+
+    def robot_reflector_trk_at(self, t: float) -> np.ndarray:
+        """The robot's reflector in the tracker frame at monotonic time ``t``."""
+        return apply_H(inv_H(self.abs_H_trk), self.robot_reflector_abs(self.abs_H_rob(self.robot_at(t))))
 
     def hold_board(self, **pose: Any) -> dict[str, Any]:
         """The operator holds the calibration board at a pose relative to the camera (fakes/board.py)."""

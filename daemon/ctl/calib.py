@@ -172,6 +172,12 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
         print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
     if d.get("table_markdown"):
         print("\n" + d["table_markdown"])
+    comp = d.get("compensation")
+    if comp:  # issue #15: which compensations took effect, and why not
+        done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"
+        print(f"  compensations (stops applied): {done}")
+        for n, why in (comp.get("skipped") or {}).items():
+            print(f"    {n} skipped: {'; '.join(why)}")
     print(f"  dataset: {d.get('dataset')}  {' '.join(d.get('files') or [])}")
     return code
 
@@ -207,12 +213,21 @@ def cmd_intrinsics(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_measure_mark(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind})
+    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind,
+                                         **_compensation_params(a)})
+
+
+def _compensation_params(a: argparse.Namespace) -> dict[str, Any]:
+    """The issue #15 options a job gets only when given (the worker's defaults otherwise)."""
+    out: dict[str, Any] = {} if a.compensation is None else {"compensation": a.compensation}
+    if getattr(a, "store_bias", False):
+        out["store_bias"] = True
+    return out
 
 
 def cmd_experiment(c: Client, a: argparse.Namespace) -> int:
     return _start(c, a, "experiment", {"mark_xy": a.mark, "directions": a.directions, "repetitions": a.reps,
-                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0})
+                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0, **_compensation_params(a)})
 
 
 def cmd_results(c: Client, a: argparse.Namespace) -> int:
@@ -288,6 +303,8 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
                        help="approximate mark position, ACS mm")
         p.add_argument("--kind", default=DEFAULTS["kind"], choices=["dot", "cross"],
                        help=f"mark shape (default {DEFAULTS['kind']})")
+        p.add_argument("--compensation", metavar="NAMES", help="issue #15 compensations: none, all (default) or "
+                                                              "a comma list of tilt,heading_fit,bias")
         if name == "measure-mark":
             p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
         else:
@@ -298,6 +315,8 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
                            help=f"repetitions per direction (default {d['repetitions']})")
             p.add_argument("--seed", type=int, default=d["seed"], help=f"seed of the approach order (default {d['seed']})")
             p.add_argument("--psi0", type=float, default=d["psi0_deg"], help="heading of the first direction, deg")
+            p.add_argument("--store-bias", action="store_true",
+                           help="store the fitted robot-frame bias b in the active calibration (docs/operations.md)")
         p.set_defaults(fn=fn)
 
 

@@ -58,7 +58,7 @@ def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:
 
     return recompute(Path(a.dataset), camera_model=_input_file(a.camera_model, "camera model"),
                      plate=_input_file(a.plate, "plate definition"),
-                     calibration=_input_file(a.calibration, "calibration result"))
+                     calibration=_input_file(a.calibration, "calibration result"), compensation=a.compensation)
 
 
 def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]:
@@ -113,6 +113,9 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--plate", metavar="FILE", help="plate.json to use instead of the stored one")
     p.add_argument("--calibration", metavar="FILE",
                    help="referencing result.json to use instead of the stored one (experiment, measure-mark)")
+    p.add_argument("--compensation", metavar="NAMES",
+                   help="issue #15 compensations: none, all, or a comma list of tilt,heading_fit,bias "
+                        "(experiment, measure-mark; default: as the job ran). A bad name exits 2")
     p.set_defaults(fn=cmd_recompute, offline=True)
 
 

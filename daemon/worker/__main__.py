@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError
+from daemon.worker.compensations import store_bias
 from daemon.worker.compute import COMPUTE
 from daemon.worker.job import Cancelled, JobContext, StepFailed
 from daemon.worker.procedures import RUNNERS
@@ -91,6 +92,12 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         result = save_result(ctx.root, data_dir, result)
         if ctx.procedure == "intrinsics":  # the stored result says whether it was installed
             result = add_message(ctx.root, data_dir, result, install_camera_model(ctx, result))
+        if ctx.procedure == "experiment" and ctx.params.get("store_bias"):  # issue #15: b with the calibration
+            try:
+                note = store_bias(data_dir, result)
+            except ValueError as exc:
+                note = f"robot-frame bias NOT stored: {exc}"
+            result = add_message(ctx.root, data_dir, result, note)
     except Cancelled as exc:
         ctx.finish("cancelled")
         ctx.report("error", {"message": str(exc), "cancelled": True})
@@ -110,7 +117,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
     ctx.state.pop("failure", None)
     ctx.finish("done")
     summary = {k: result.get(k) for k in ("procedure", "verdict", "messages", "rob_H_cam", "dataset", "mark",
-                                          "table_markdown", "files", "uncertainty")}
+                                          "table_markdown", "files", "uncertainty", "compensation")}
     ctx.report("result", summary)  # the last report: a job with a result is final
     return result
 

@@ -22,6 +22,9 @@ from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
+from calibration.compensation import Compensation, compensate
+from daemon.worker.compensations import (calibration_inputs, compensation_summary, parse_compensation,
+                                         plate_imu_offset, stop_of, stop_record)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -87,6 +90,9 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     out["residuals_mm"] = first_d.get("nest_residuals_mm")
     out["verdict"] = "fail" if "fail" in verdicts else ("warn" if "warn" in verdicts else "ok")
     out["messages"] = messages
+    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs])
+    if imu is not None:  # issue #15: the inclinometer's offset, part of the calibration like rob_H_scn
+        out.update(imu_offset_deg=imu["imu_offset_deg"], imu_offset_runs_deg=imu["runs"])
     return out
 
 
@@ -95,36 +101,40 @@ MARK_SIZE_MM = {"dot": 0.4, "cross": 0.6}
 
 
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
-                 size_mm: float | None, sigma_t_mm: float) -> dict[str, Any]:
+                 size_mm: float | None, sigma_t_mm: float, comp: Compensation) -> dict[str, Any]:
+    """One stop's mark in ACS with ``comp`` applied (calibration/compensation.py does the math)."""
     scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
-    rob_H_scn = np.array(calib["rob_H_scn"], dtype=float)
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
-    robot = stop.get("robot") or {}
-    roll, pitch = robot.get("roll_deg"), robot.get("pitch_deg")
-    if roll is None or pitch is None:
-        roll = pitch = None
-    m = measure_image(load(stop["image"]), scs, rob_H_scn, _abs(stop["P_prev"]), _abs(stop["P_at"]), kind=kind,
-                      mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=roll, pitch_deg=pitch,
+    offset, bias = calibration_inputs(calib)
+    a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
+                   bias_b_mm=bias)
+    P_at = _abs(stop["P_at"])
+    m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
+                      mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=sigma_t_mm,
                       cov_rob_H_scn=None if cov is None else np.array(cov))
-    abs_H_rob = robot_pose_at(_abs(stop["P_prev"]), _abs(stop["P_at"]))
+    abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
     return {"abs_xyz": m.abs_P.tolist(), "uv": m.uv.tolist(), "std_mm": float(m.std_mm), "heading_deg": heading,
-            **({"k": stop["k"]} if "k" in stop else {})}
+            **({"k": stop["k"]} if "k" in stop else {}), "compensation": stop_record(comp, a)}
 
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """One floor mark in ACS from one stop (image + approach positions)."""
+    comp = parse_compensation(obs.get("compensation"))
     r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
-                     obs.get("mark_size_mm"), _sigma_t(obs))
+                     obs.get("mark_size_mm"), _sigma_t(obs), comp)
     return {"schema": RESULT_SCHEMA, "procedure": "measure-mark", "software": calib_version,
-            "calibration_job": obs["calibration"].get("job"), "mark": r, "verdict": "ok", "messages": []}
+            "calibration_job": obs["calibration"].get("job"), "mark": r,
+            "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),
+            "verdict": "ok", "messages": []}
 
 
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
     kind, load = obs.get("kind", "dot"), _eight_bit(load)
-    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), _sigma_t(obs))
+    comp = parse_compensation(obs.get("compensation"))
+    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), _sigma_t(obs), comp)
              for s in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
     headings = np.array([m["heading_deg"] for m in marks])
@@ -132,6 +142,7 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     metrics = experiment_metrics(xy, headings, groups)
     return {"schema": RESULT_SCHEMA, "procedure": "experiment", "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
+            "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "verdict": "ok", "messages": []}
 
 

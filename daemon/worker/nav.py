@@ -13,7 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
 from daemon.worker.job import JobContext
+from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move
 
 MIN_HEADING_MOVE_MM = 20.0
 
@@ -31,6 +33,11 @@ class Navigator:
         self.turn_speed = turn_speed_deg_s
         self.nav = ctx.state.setdefault("nav", {"heading_deg": None})
         self.last_points: tuple[dict[str, Any], dict[str, Any]] | None = None
+        #: issue #15 inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
+        self.last_record: dict[str, Any] = {}
+        self.imu_readings = int(ctx.params.get("imu_readings", DEFAULT_IMU_READINGS))
+        rate = ctx.params.get("stream_rate_hz", DEFAULT_STREAM_RATE_HZ)
+        self.stream_rate_hz = None if rate is None else float(rate)
 
     # ------------------------------------------------------------------ primitives
 
@@ -65,10 +72,21 @@ class Navigator:
         self.nav["heading_deg"] = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
         self.move(-probe_mm)
 
-    def straight(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
-        """Move and update the heading from the measured displacement; returns (before, after)."""
+    def straight(self, distance_mm: float, record: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Move and update the heading from the measured displacement; returns (before, after).
+
+        ``record``: the inclinometer at the start (``imu_readings`` averaged) and the
+        tracker's stream along the move go to ``last_record`` (issue #15 compensations).
+        """
         a, pa = self.where()
-        self.move(distance_mm)
+        if record:
+            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings)}
+        if (record and pa.get("abs_H_trk") is not None and (self.stream_rate_hz is None or self.stream_rate_hz > 0)
+                and abs(distance_mm) <= 1900):
+            self.last_record["stream"] = record_move(self.ctx, distance_mm, self.speed, pa["abs_H_trk"],
+                                                     self.stream_rate_hz, self.last_record["imu_prev"])
+        else:
+            self.move(distance_mm)
         b, pb = self.where()
         self.last_points = (pa, pb)  # the full tracker points, for the dataset
         if abs(distance_mm) >= MIN_HEADING_MOVE_MM:
@@ -98,4 +116,4 @@ class Navigator:
         u = np.array([math.cos(math.radians(heading_deg)), math.sin(math.radians(heading_deg))])
         self.goto(np.asarray(xy, float) - d_mm * u)
         self.turn_to(heading_deg)
-        return self.straight(d_mm)
+        return self.straight(d_mm, record=True)

@@ -14,6 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.plate import NEST_NAMES
+from daemon.worker.compensations import parse_compensation, read_tilt
 from daemon.worker.compute import footprint_abs
 from daemon.worker.guided_intrinsics import intrinsics
 from daemon.worker.job import JobContext
@@ -55,7 +56,9 @@ def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) ->
         file, header, _ = ctx.capture_image(f"{tag}-p0")
         P0 = ctx.call("tracker.measure", timeout=60)
         robot = ctx.call("robot.status")
-        runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot})
+        imu = read_tilt(ctx.call, param(ctx, "imu_readings"))  # None: the base reports no tilt
+        runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot,
+                     **({"imu0": imu} if imu else {})})
         ctx.mark_done(f"{tag}.image")
     run = next(r for r in runs if r["tag"] == tag)
     if not ctx.done(f"{tag}.drive"):
@@ -122,8 +125,10 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
+    # issue #15: the inclinometer at both stops and the stream between them, when the base/tracker give them
+    rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings")), **nav.last_record}
     return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
-            "offset_mm": offset.tolist()}
+            "offset_mm": offset.tolist(), **{k: v for k, v in rec.items() if v}}
 
 
 def _installed(ctx: JobContext, name: str) -> dict[str, Any]:
@@ -154,6 +159,8 @@ def _mark_setup(ctx: JobContext) -> tuple[dict[str, Any], Navigator]:
     """The active calibration, a navigator, and the mark's parameters recorded in the observations."""
     for key in ("kind", "sigma_t_mm"):
         ctx.obs.setdefault(key, param(ctx, key))
+    parse_compensation(ctx.params.get("compensation"))  # a bad name fails before the robot moves
+    ctx.obs.setdefault("compensation", ctx.params.get("compensation", "all"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
     return _calibration(ctx), Navigator(ctx, param(ctx, "speed_mm_s"))
 

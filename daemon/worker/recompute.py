@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
+from daemon.worker.compensations import parse_compensation
 from daemon.worker.compute import COMPUTE
 from daemon.worker.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
@@ -57,8 +58,19 @@ def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[
     return obs
 
 
+def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None) -> dict[str, Any]:
+    """``obs`` with another set of issue #15 compensations (none, all, or names): a bad name is a ValueError."""
+    if compensation is None:
+        return obs
+    if proc not in ("experiment", "measure-mark"):
+        raise ValueError(f"--compensation does not apply to a {proc} dataset (it applies to experiment, measure-mark)")
+    parse_compensation(compensation)
+    return {**obs, "compensation": compensation}
+
+
 def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: dict[str, Any] | None = None,
-              calibration: dict[str, Any] | None = None) -> tuple[dict[str, Any], float | None]:
+              calibration: dict[str, Any] | None = None, compensation: str | None = None
+              ) -> tuple[dict[str, Any], float | None]:
     """Return (result, largest numeric difference to the stored result.json or None).
 
     Raises :class:`DatasetInvalid` listing every problem of the folder, ``ValueError``
@@ -72,11 +84,12 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     state = json.loads((root / "state.json").read_text())
     proc = state["procedure"]
     overrides = {"camera_model": camera_model, "plate": plate, "calibration": calibration}
-    obs = apply_overrides(root, proc, state["obs"], overrides)
+    obs = apply_compensation(proc, apply_overrides(root, proc, state["obs"], overrides), compensation)
     result = COMPUTE[proc](obs, _load(root))
     result["job"] = state.get("job") or root.name
     result["params"] = {k: v for k, v in (state.get("params") or {}).items()
                         if k not in ("plate", "camera_model", "calibration")}
+    overrides["compensation"] = compensation
     if any(v is not None for v in overrides.values()):
         result["recomputed_with"] = sorted(k for k, v in overrides.items() if v is not None)
         return result, None  # other inputs: a difference to the stored result is expected

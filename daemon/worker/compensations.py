@@ -1,0 +1,150 @@
+"""The issue #15 compensations on the product path: what the worker records and how compute uses it.
+
+The math is :mod:`calibration.compensation` (one source of truth); this module only
+moves data between the bus, the dataset's stop records and that math:
+
+* :func:`read_tilt` — the inclinometer averaged at a standstill (``imu_readings``);
+* :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
+* :func:`plate_imu_offset` — the inclinometer offset from the on-plate runs (referencing);
+* :func:`compensation_summary` — which compensations were requested, applied, skipped;
+* :func:`store_bias` — an experiment's fitted robot-frame bias into the active calibration.
+
+docs/datasets.md ("Compensations") documents every field written here.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calibration.compensation import NAMES, Compensation, Stop, imu_offset_deg
+from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.storage import atomic_write_json, calibration_dir
+
+#: inclinometer readings averaged at a standstill (1 s at the base's 10 Hz)
+DEFAULT_IMU_READINGS: int = PARAM_DEFAULTS["imu_readings"]  # the procedures' parameter table
+#: the compensations a job applies when its parameters do not say
+DEFAULT_COMPENSATION = "all"
+
+
+def parse_compensation(value: Any) -> Compensation:
+    """``Compensation.parse`` with the error naming the parameter (a ValueError: exit code 2 in ritactl)."""
+    try:
+        return Compensation.parse(DEFAULT_COMPENSATION if value is None else value)
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise ValueError(f"compensation={value!r}: {exc}") from None
+
+
+def read_tilt(call: Any, n: int) -> dict[str, Any] | None:
+    """Mean roll/pitch of ``n`` robot.status readings at a standstill, or None when the base reports no tilt.
+
+    ``call`` is ``ctx.call``. Never fails for a base without an inclinometer: the
+    first reading without roll/pitch ends it.
+    """
+    readings = []
+    for _ in range(max(1, int(n))):
+        st = call("robot.status")
+        if st.get("roll_deg") is None or st.get("pitch_deg") is None:
+            return None
+        readings.append((float(st["roll_deg"]), float(st["pitch_deg"])))
+    r = np.array(readings)
+    return {"roll_deg": float(r[:, 0].mean()), "pitch_deg": float(r[:, 1].mean()), "n": len(r),
+            "roll_std_deg": float(r[:, 0].std()), "pitch_std_deg": float(r[:, 1].std())}
+
+
+def _tilt(rec: dict[str, Any] | None) -> tuple[float, float] | None:
+    return None if not rec else (float(rec["roll_deg"]), float(rec["pitch_deg"]))
+
+
+def stop_of(stop: dict[str, Any]) -> Stop:
+    """The compensation inputs of one stored stop record (its approach points, tilt, stream)."""
+    stream = stop.get("stream") or {}
+    pts = stream.get("abs_xyz")
+    tilt = stream.get("tilt_deg")
+    return Stop(np.asarray(stop["P_prev"]["abs_xyz"], float), np.asarray(stop["P_at"]["abs_xyz"], float),
+                _tilt(stop.get("imu_prev")), _tilt(stop.get("imu_at")),
+                None if not pts else np.asarray(pts, float),
+                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float))
+
+
+def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray]) -> dict[str, Any] | None:
+    """Mean inclinometer offset over the on-plate runs that read the inclinometer (None: none did)."""
+    offs = [imu_offset_deg(H, *_tilt(r["imu0"])) for r, H in zip(runs_obs, abs_H_robs) if r.get("imu0")]
+    if not offs:
+        return None
+    o = np.array(offs)
+    return {"imu_offset_deg": o.mean(axis=0).tolist(), "runs": o.tolist()}
+
+
+def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | None, list[float] | None]:
+    """(imu_offset_deg, robot_bias_mm) a calibration holds, each None when absent."""
+    off = calib.get("imu_offset_deg")
+    b = calib.get("robot_bias_mm")
+    return (None if off is None else (float(off[0]), float(off[1]))), (None if b is None else [float(v) for v in b])
+
+
+def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
+    """The per-stop compensation record of a mark."""
+    return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
+
+
+def compensation_summary(comp: Compensation, records: list[dict[str, Any]], calib: dict[str, Any]) -> dict[str, Any]:
+    """Over all stops: per compensation how many stops applied it and why the others skipped it."""
+    offset, bias = calibration_inputs(calib)
+    out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
+                           "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias}
+    for name in NAMES:
+        if name not in out["requested"]:
+            continue
+        out["applied"][name] = sum(name in r["applied"] for r in records)
+        reasons = sorted({r["skipped"][name] for r in records if name in r["skipped"]})
+        if reasons:
+            out["skipped"][name] = reasons
+    return out
+
+
+def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
+    """``active`` with the experiment ``result``'s fitted bias b added to what it already held.
+
+    An experiment that already applied the calibration's bias fits only what is left,
+    so the stored bias is the sum; one that did not fits the whole bias.
+    """
+    fit = (result.get("metrics") or {}).get("fit")
+    if not fit or fit.get("b") is None:
+        raise ValueError("the experiment fitted no robot-frame bias (too few directions?): nothing to store")
+    summary = result.get("compensation") or {}
+    held = active.get("robot_bias_mm")
+    applied = held is not None and summary.get("applied", {}).get("bias", 0) > 0
+    b = np.asarray(fit["b"], float) + (np.asarray(held, float) if applied else 0.0)
+    return {**active, "robot_bias_mm": b.tolist(),
+            "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit["b"]), "fit_rms_mm": fit.get("rms_mm"),
+                           "added_to_mm": held if applied else None,
+                           "compensation": [n for n in summary.get("requested", []) if summary["applied"].get(n)],
+                           "stored": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
+
+
+def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
+    """Write the fitted bias into the active calibration (atomic); the one line the result's messages get.
+
+    Only when the experiment used the calibration that is still active: a bias
+    belongs to the calibration it was measured with. The previous active calibration
+    stays in ``calibration/history`` (it is there already under its job id); the new
+    one is also kept there as ``<calibration job>.bias-<experiment job>.json``.
+    """
+    cdir = calibration_dir(data_dir)
+    path = cdir / "active.json"
+    if not path.exists():
+        return "robot-frame bias NOT stored: there is no active calibration"
+    active = json.loads(path.read_text())
+    if active.get("job") != result.get("calibration_job"):
+        return (f"robot-frame bias NOT stored: the experiment used calibration {result.get('calibration_job')!r} "
+                f"but {active.get('job')!r} is active now")
+    new = biased_calibration(active, result)
+    atomic_write_json(cdir / "history" / f"{active.get('job')}.bias-{result.get('job')}.json", new)
+    atomic_write_json(path, new)
+    b = new["robot_bias_mm"]
+    return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm stored in the active calibration {path} "
+            f"(later jobs apply it with compensation 'bias')")

@@ -1,0 +1,132 @@
+"""The tracker's stream (and the inclinometer) along the final straight move of an approach (issue #15).
+
+The heading-fit compensation (calibration/compensation.py ``fit_heading``) needs the
+reflector's path between the two standstill points; the tilt compensation wants the
+tilt along it. The move is started without waiting; while it runs the worker polls
+``robot.status`` (tilt samples with the daemon's host time), and the tracker's
+``tracker.point`` telemetry is collected on a subscriber. Tilt samples are
+interpolated to the stream records' times: the tracker's ``device_time`` (s + µs) per
+record, put on the host clock by the least-delayed packet's arrival ``host_time_ns``.
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from daemon.bus.protocol import CommandError, ErrorCode
+
+#: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
+DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
+MAX_STREAM_POINTS = 200
+#: tilt samples during the move below which none are stored: a few single readings, interpolated,
+#: are worse than the two standstill means (compute then interpolates those along the move)
+MIN_TILT_SAMPLES = 5
+#: a subscriber needs a moment to be connected before the first message it should see
+SUB_SETTLE_S = 0.02
+#: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
+LAST_PACKET_WAIT_S = 2.0
+
+
+def _device_ns(msg: dict[str, Any]) -> np.ndarray | None:
+    """Device time (ns) of each record of one tracker.point message, or None without one."""
+    n, dt = int(msg["n"]), msg.get("device_time")
+    if not dt or len(dt) != 2 or len(dt[0]) != n:
+        return None
+    return np.asarray(dt[0], dtype=np.int64) * 1_000_000_000 + np.asarray(dt[1], dtype=np.int64) * 1000
+
+
+def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) ACS points in time order and their host times (ns), good records only.
+
+    Records are ordered and timed by the tracker's clock; one offset maps it to the host
+    clock: the smallest (packet arrival − its last record's device time), i.e. the packet
+    that waited least (arrival jitter would otherwise interleave records of two packets).
+    """
+    if not msgs:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    devs = [_device_ns(m) for m in msgs]
+    if any(d is None for d in devs):  # no device clock: each packet's records at its arrival
+        devs = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
+    offset = min(int(m["host_time_ns"]) - int(d[-1]) for m, d in zip(msgs, devs))
+    P = np.concatenate([np.column_stack([m["x"], m["y"], m["z"]]).astype(float) for m in msgs])
+    t = np.concatenate(devs) + offset
+    ok = np.concatenate([np.asarray(m.get("status") or [0] * int(m["n"])) == 0 for m in msgs])
+    P, t = P[ok], t[ok]
+    order = np.argsort(t, kind="stable")
+    return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order]
+
+
+def _collect_until(sub: Any, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
+    """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``."""
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
+        if got is None:
+            continue
+        data = got[1].get("data") if isinstance(got[1], dict) else None
+        if isinstance(data, dict) and data.get("n"):
+            msgs.append(data)
+            if int(data["host_time_ns"]) >= t_end_ns:
+                return
+
+
+def _thin(n: int, most: int) -> np.ndarray:
+    return np.arange(n) if n <= most else np.unique(np.linspace(0, n - 1, most).round().astype(int))
+
+
+def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout_s: float
+                        ) -> list[tuple[int, float, float]]:
+    """Start the move, poll robot.status until the base is idle; the tilt samples (host ns, roll, pitch)."""
+    ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True, wait=False)
+    samples: list[tuple[int, float, float]] = []
+    end = time.monotonic() + timeout_s
+    while True:
+        st = ctx.call("robot.status", timeout=30)
+        if st.get("roll_deg") is not None and st.get("pitch_deg") is not None:
+            samples.append((int(st["host_time_ns"]), float(st["roll_deg"]), float(st["pitch_deg"])))
+        if st.get("state") == "FAULT":
+            raise CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT during the approach: {st.get('fault')}")
+        if st.get("state") == "IDLE":
+            return samples
+        if time.monotonic() > end:
+            raise CommandError(ErrorCode.TIMEOUT, f"robot still moving {timeout_s:.0f} s after the approach started")
+
+
+def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
+                rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Drive ``distance_mm`` straight while recording the stream; the stop record's ``stream`` entry.
+
+    ``start_tilt`` (the standstill reading before the move) anchors the tilt before the
+    first sample taken while moving; without it the points at the start would get a
+    mid-move tilt.
+    """
+    sub = ctx.client.subscriber(["tracker.point"])
+    try:
+        time.sleep(SUB_SETTLE_S)
+        started = ctx.call("tracker.stream.start", timeout=30, **({} if rate_hz is None else {"rate_hz": rate_hz}))
+        t0 = time.time_ns()
+        msgs: list[dict[str, Any]] = []
+        try:
+            tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
+            t1 = time.time_ns()
+            _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
+        finally:
+            ctx.call("tracker.stream.stop", timeout=30)
+    finally:
+        sub.close()
+    P, t = _abs_points(msgs, np.asarray(abs_H_trk, float))
+    keep = (t >= t0) & (t <= t1)
+    P, t = P[keep], t[keep]
+    idx = _thin(len(P), MAX_STREAM_POINTS)
+    P, t = P[idx], t[idx]
+    out: dict[str, Any] = {"rate_hz": started.get("rate_hz", rate_hz), "n": len(P), "abs_xyz": P.tolist(),
+                           "host_time_ns": t.tolist(), "tilt_samples": len(tilt)}
+    if len(tilt) >= MIN_TILT_SAMPLES and len(P):
+        if start_tilt:
+            tilt.insert(0, (t0, float(start_tilt["roll_deg"]), float(start_tilt["pitch_deg"])))
+        ts = np.array([s[0] for s in tilt], dtype=float)
+        out["tilt_deg"] = np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
+                                           np.interp(t, ts, [s[2] for s in tilt])]).tolist()
+    return out

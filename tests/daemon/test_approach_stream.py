@@ -1,0 +1,46 @@
+"""Issue #15 on the real path: a paper+imu approach move records the tracker stream and the tilt.
+
+ritad in-process with the fakes of the ``paper+imu`` profile; the worker's Navigator drives
+one short recorded straight move (what ``nav.approach`` ends with) through the bus.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.worker.job import JobContext
+from daemon.worker.nav import Navigator
+from daemon.worker.stream import MIN_TILT_SAMPLES
+from fakes.operator import lock_on_robot
+from tests.ritad_up import ritad_in_process
+
+
+def _paper_imu(cfg) -> None:
+    cfg.sim.profile = "paper+imu"
+
+
+def test_recorded_approach_holds_stream_and_tilt(tmp_path):
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", configure=_paper_imu) as (_, c):
+        lock_on_robot(c)
+        # the sim runs motions 50x faster than real time: 1 kHz of wall time is 20 Hz of robot time
+        params = {"imu_readings": 5, "stream_rate_hz": 1000.0}
+        job = c.call("calib.start", procedure="measure-mark", params=params)["job"]  # no worker takes it
+        ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": params}, tmp_path / "data")
+        nav = Navigator(ctx, speed_mm_s=10.0)  # 0.3 s of wall time: enough robot.status polls for tilt samples
+        a, b = nav.straight(150.0, record=True)
+        rec = nav.last_record
+        assert rec["imu_prev"]["n"] == 5 and abs(rec["imu_prev"]["roll_deg"]) < 1.0, rec["imu_prev"]
+        s = rec["stream"]
+        P = np.array(s["abs_xyz"])
+        assert s["n"] == len(P) >= 10, s["n"]
+        # the points run from the start to the end stop, in time order, close to the chord
+        u = (b - a) / np.linalg.norm(b - a)
+        along = (P - a) @ u
+        assert along.min() < 20.0 and along.max() > 130.0, (along.min(), along.max())
+        assert np.all(np.diff(along) > -1.0), "stream points are not in time order"
+        side = u[0] * (P - a)[:, 1] - u[1] * (P - a)[:, 0]
+        assert np.abs(side).max() < 5.0, np.abs(side).max()
+        assert s["tilt_samples"] >= MIN_TILT_SAMPLES, s["tilt_samples"]
+        T = np.array(s["tilt_deg"])
+        assert T.shape == (len(P), 2)
+        # anchored at the standstill reading before the move; the floor tilts by well under 0.1° here
+        assert np.abs(T[0] - [rec["imu_prev"]["roll_deg"], rec["imu_prev"]["pitch_deg"]]).max() < 0.02, T[0]

@@ -1,0 +1,151 @@
+"""Issue #15 compensations in the worker's compute path, on small written datasets (no daemon).
+
+The datasets come from tests/dataset_writer.py (the robot upright on a level floor, exact
+approach points); the compensation inputs are added to their stop records the way the
+worker stores them, so every expected figure follows from the geometry alone.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration.compensation import tilt_of_pose
+from daemon.bus.datasets import check_file, validate_folder
+from daemon.ctl import main as ctl
+from daemon.worker.compensations import store_bias
+from daemon.worker.compute import compute_referencing
+from daemon.worker.recompute import recompute
+from tests.dataset_writer import write_experiment, write_referencing
+
+MARK = np.array([1500.0, 200.0, 3.0])
+HEADINGS = (0.0, 90.0, 180.0, 270.0)
+TILT = {"roll_deg": 0.02, "pitch_deg": -0.03, "n": 10, "roll_std_deg": 0.001, "pitch_std_deg": 0.001}
+
+
+@pytest.fixture(scope="module")
+def ref(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ref") / "ref"
+    truth = write_referencing(root)
+    return root, truth, recompute(root)[0]
+
+
+def _state(root: Path) -> dict:
+    return json.loads((root / "state.json").read_text())
+
+
+def _edit(root: Path, fn) -> None:
+    s = _state(root)
+    fn(s)
+    (root / "state.json").write_text(json.dumps(s))
+
+
+def _with_inputs(stop: dict, stream: bool = True) -> None:
+    """Level robot, the inclinometer reading its offset TILT; a straight stream P_prev → P_at."""
+    stop["imu_prev"], stop["imu_at"] = dict(TILT), dict(TILT)
+    if stream:
+        a, b = np.array(stop["P_prev"]["abs_xyz"]), np.array(stop["P_at"]["abs_xyz"])
+        pts = a + np.linspace(0, 1, 21)[:, None] * (b - a)
+        stop["stream"] = {"rate_hz": 100.0, "n": 21, "abs_xyz": pts.tolist(), "host_time_ns": list(range(21)),
+                          "tilt_samples": 3, "tilt_deg": [[TILT["roll_deg"], TILT["pitch_deg"]]] * 21}
+
+
+@pytest.fixture(scope="module")
+def exp(ref, tmp_path_factory):
+    """An experiment whose calibration holds the inclinometer offset and a 0.5 mm robot-frame bias."""
+    root, truth, calib = ref
+    cal = {**calib, "job": "cal-1", "imu_offset_deg": [TILT["roll_deg"], TILT["pitch_deg"]],
+           "robot_bias_mm": [0.5, 0.0]}
+    folder = tmp_path_factory.mktemp("exp") / "exp"
+    write_experiment(folder, cal, truth, MARK, headings=HEADINGS, reps=1)
+    _edit(folder, lambda s: [_with_inputs(st, stream=i != 3) for i, st in enumerate(s["obs"]["stops"])])
+    return folder
+
+
+def _errors(result: dict) -> np.ndarray:
+    return np.array([np.array(m["abs_xyz"][:2]) - MARK[:2] for m in result["marks"]])
+
+
+def test_imu_offset_is_the_plate_reading_minus_the_plate_tilt(ref, tmp_path):
+    root, _, calib = ref
+    assert "imu_offset_deg" not in calib  # no readings: nothing stored
+    s = _state(root)
+    s["obs"]["runs"][0]["imu0"] = dict(TILT)
+    res = compute_referencing(s["obs"], lambda f: __import__("cv2").imread(str(root / f), 0))
+    roll, pitch = tilt_of_pose(np.array(res["runs"][0]["abs_H_rob"]))
+    assert res["imu_offset_deg"] == pytest.approx([TILT["roll_deg"] - roll, TILT["pitch_deg"] - pitch], abs=1e-12)
+    assert check_file(res, "result", "result.json") == []
+
+
+def test_none_all_and_skips_on_a_level_robot(exp):
+    assert validate_folder(exp) == []
+    none = recompute(exp, compensation="none")[0]
+    assert none["compensation"]["requested"] == [] and none["recomputed_with"] == ["compensation"]
+    assert np.abs(_errors(none)).max() < 1e-3
+    both = recompute(exp, compensation="tilt,heading_fit")[0]
+    assert both["compensation"]["applied"] == {"tilt": 4, "heading_fit": 3}
+    assert both["compensation"]["skipped"] == {"heading_fit": ["no tracker stream was recorded along the approach"]}
+    assert np.abs(_errors(both)).max() < 1e-3  # level robot, offset removed, straight path: nothing changes
+    full = recompute(exp)[0]  # the default: all
+    assert full["compensation"]["applied"]["bias"] == 4
+    for m, e in zip(full["marks"], _errors(full)):  # b is removed in the robot frame: it turns with the heading
+        psi = math.radians(m["heading_deg"])
+        assert e == pytest.approx([-0.5 * math.cos(psi), -0.5 * math.sin(psi)], abs=1e-3)
+    assert check_file(full, "result", "result.json") == []
+
+
+def test_a_tilt_reading_moves_the_mark_by_the_reflector_height(exp, tmp_path):
+    """The inclinometer says pitched 0.1° at the stop: the ground chord and the mapping change accordingly."""
+    folder = tmp_path / "tilted"
+    import shutil
+
+    shutil.copytree(exp, folder)
+    _edit(folder, lambda s: [st["imu_at"].update(pitch_deg=TILT["pitch_deg"] + 0.1) for st in s["obs"]["stops"]])
+    none = _errors(recompute(folder, compensation="none")[0])
+    tilt = _errors(recompute(folder, compensation="tilt")[0])
+    moved = np.linalg.norm(tilt - none, axis=1)
+    # the writer's reflector height (300 mm) times the 0.1° the inclinometer claims
+    assert moved == pytest.approx(300.0 * math.sin(math.radians(0.1)), rel=0.05)
+
+
+def test_ritactl_recompute_compensation_and_bad_name(exp, capsys):
+    assert ctl.main(["--json", "recompute", str(exp), "--compensation", "none"]) == 0
+    assert json.loads(capsys.readouterr().out)["compensation"]["requested"] == []
+    assert ctl.main(["recompute", str(exp), "--compensation", "tilt,heading_fit"]) == 0
+    shown = capsys.readouterr().out
+    assert "compensations (stops applied): tilt 4/4, heading_fit 3/4" in shown, shown
+    assert "heading_fit skipped: no tracker stream was recorded along the approach" in shown, shown
+    assert ctl.main(["recompute", str(exp), "--compensation", "tilt,wobble"]) == 5
+    err = capsys.readouterr().err
+    assert "wobble" in err and "Traceback" not in err, err
+
+
+def test_stored_bias_round_trip(ref, tmp_path):
+    """A 0.5 mm calibration error → the experiment fits b → stored → the next run applies it."""
+    root, truth, calib = ref
+    wrong = json.loads(json.dumps({**calib, "job": "cal-1"}))
+    wrong["rob_H_scn"][0][3] += 0.5
+    data = tmp_path / "data"
+    (data / "calibration" / "history").mkdir(parents=True)
+    (data / "calibration" / "active.json").write_text(json.dumps(wrong))
+    write_experiment(tmp_path / "e1", wrong, truth, MARK, headings=HEADINGS, reps=1)
+    first = {**recompute(tmp_path / "e1")[0], "job": "exp-1"}
+    assert first["compensation"]["skipped"]["bias"]
+    note = store_bias(data, first)
+    assert "stored" in note, note
+    active = json.loads((data / "calibration" / "active.json").read_text())
+    assert active["robot_bias_mm"] == pytest.approx(first["metrics"]["fit"]["b"])
+    assert np.hypot(*active["robot_bias_mm"]) == pytest.approx(0.5, abs=2e-3)
+    assert active["robot_bias"]["job"] == "exp-1"
+    assert (data / "calibration" / "history" / "cal-1.bias-exp-1.json").exists()
+    assert check_file(active, "result", "active.json") == []
+    write_experiment(tmp_path / "e2", active, truth, MARK, headings=HEADINGS, reps=1)
+    second = recompute(tmp_path / "e2")[0]
+    assert second["compensation"]["applied"]["bias"] == 4
+    assert np.abs(_errors(second)).max() < 2e-3 and np.hypot(*second["metrics"]["fit"]["b"]) < 2e-3
+    # a bias belongs to the calibration it was measured with
+    other = {**first, "calibration_job": "cal-0"}
+    assert "NOT stored" in store_bias(data, other)
