@@ -183,19 +183,9 @@ class Applied:
 
 
 def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) -> np.ndarray:
-    """The stream's points moved down the tilted z axis.
-
-    The tilt per point is the stream's own reading when there is one, else the two
-    standstill readings interpolated along the distance travelled: the raw reflector
-    stream against the ground chord would show their tilt difference × height as a bend.
-    """
+    """The stream's points moved down the tilted z axis, with the inclinometer read along the stream."""
     P = as_points(stop.stream, "stream")
     s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
-    if stop.stream_tilt is None:
-        f = (s / max(float(s[-1]), 1e-9))[:, None]
-        t = (1 - f) * np.asarray(stop.tilt_prev, float) + f * np.asarray(stop.tilt_at, float) - np.asarray(offset)
-        return np.array([ground_point(p, math.degrees(math.atan2(*(P[-1] - P[0])[1::-1])), float(r), float(q),
-                                      height_mm) for p, (r, q) in zip(P, t)])
     t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
     if t.shape != (len(P), 2):
         raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
@@ -209,6 +199,11 @@ def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) ->
     return np.array([ground_point(p, heading, float(r), float(q), height_mm) for p, (r, q) in zip(P, t)])
 
 
+#: why heading_fit is skipped when the tilt is compensated but was not read along the stream
+NO_STREAM_TILT = ("the inclinometer was not read along the stream: the reflector's lean (tilt × height, which "
+                  "the floor changes along the move) would read as a bend; the ground chord is used")
+
+
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None) -> Applied:
     """Apply ``comp`` to one stop; a compensation without its input is skipped and says why."""
@@ -217,7 +212,7 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
     out = Applied(P_prev, None, None, check_H(rob_H_scn, "rob_H_scn"), [], {})
     tilt_ok = stop.tilt_at is not None and stop.tilt_prev is not None and imu_offset is not None
     offset = imu_offset if imu_offset is not None else (0.0, 0.0)
-    height = reflector_height_mm(rob_H_scn)
+    height = reflector_height_mm(rob_H_scn) if comp.tilt and tilt_ok else 0.0  # only the tilt needs it
     if comp.tilt:
         if not tilt_ok:
             out.skipped["tilt"] = ("no inclinometer offset in the calibration" if imu_offset is None
@@ -229,8 +224,13 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
             out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height)
             out.applied.append("tilt")
     if comp.heading_fit:
-        if stop.stream is None or len(stop.stream) < MIN_FIT_POINTS:
+        if stop.stream is None or len(stop.stream) == 0:
             out.skipped["heading_fit"] = "no tracker stream was recorded along the approach"
+        elif len(stop.stream) < MIN_FIT_POINTS:
+            out.skipped["heading_fit"] = (f"the stream along the approach holds {len(stop.stream)} points "
+                                          f"(the fit needs >= {MIN_FIT_POINTS})")
+        elif "tilt" in out.applied and stop.stream_tilt is None:
+            out.skipped["heading_fit"] = NO_STREAM_TILT
         else:
             use_tilt = "tilt" in out.applied
             pts = _ground_stream(stop, offset, height) if use_tilt else as_points(stop.stream, "stream")
@@ -250,10 +250,13 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"
         else:
-            out.rob_H_scn = apply_bias(out.rob_H_scn, bias_b_mm)
-            out.applied.append("bias")
+            try:
+                out.rob_H_scn = apply_bias(out.rob_H_scn, bias_b_mm)
+                out.applied.append("bias")
+            except ValueError as exc:  # a stored b that cannot be a calibration bias: measure without it
+                out.skipped["bias"] = str(exc)
     return out
 
 
-__all__ = ["Applied", "Compensation", "NAMES", "Stop", "compensate", "apply_bias", "body_z", "fit_heading", "ground_chord", "ground_point",
-           "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]
+__all__ = ["Applied", "Compensation", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias", "body_z", "compensate",
+           "fit_heading", "ground_chord", "ground_point", "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]

@@ -5,8 +5,10 @@ for it, shows the device states, locks the tracker onto the robot's reflector, t
 a capture (image + tracker point + robot state saved as a dataset entry), watches
 telemetry for a moment, then runs the closed loop an operator runs on a real Rita:
 the guided intrinsics (the simulated operator holds the board), the plate survey from
-photographs, ``ritactl calibrate --reversal`` with that camera model and plate, and
-``ritactl experiment``; each result is printed next to the simulated ground truth
+photographs and ``ritactl calibrate --reversal`` with that camera model and plate; then
+the same camera and plate on a realistic floor (``--profile paper+imu``, daemon/demo_floor.py):
+referencing and ``ritactl experiment`` with and without the compensations. Each result is
+printed next to the simulated ground truth
 (``fakes/score.py``: truth grades, it never feeds the loop). Stops the daemon with
 SIGTERM. Output goes to ``demo-out/`` (emptied first).
 """
@@ -18,7 +20,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
@@ -70,6 +71,7 @@ def run_intrinsics(c: Client, out: Path) -> int:
         print(f"  intrinsics failed: {r.get('error') or r.get('messages')}")
         return 1
     model = json.loads((Path(r["dataset"]) / "result.json").read_text())["camera_model"]
+    (out / "camera_model.json").write_text(json.dumps(model))  # the second part takes it to another floor
     std = model.get("std") or {}
     K = model["K"]
     print(f"  {len(r['_prompts'])} prompts answered; verdict {r['verdict']}; f = {K[0][0]:.2f} ± {std.get('fx', 0):.2f} px,"
@@ -114,46 +116,19 @@ def run_referencing(c: Client, out: Path, endpoint: str, plate: Path, robot_trk:
     return 0
 
 
-def run_experiment(c: Client, out: Path, endpoint: str) -> int:
-    """The paper's 8-direction experiment on a floor mark, scored against the mark's true position."""
-    import numpy as np
-
-    from fakes.operator import rough_mark
-
-    name, approx = rough_mark(c, 0)
-    say(f"8-direction repeatability experiment on mark {name} (5 repetitions each)")
-    rc = ritactl(endpoint, "experiment", "--mark", str(approx[0]), str(approx[1]), "--reps", "5")
-    if rc:
-        return rc
-    mark = c.call("sim.truth")["marks"][0]  # scoring only
-    hist = c.call("calib.results")["history"]
-    exp = json.loads(Path(hist[0]["file"]).read_text()) if hist else {}
-    if exp.get("procedure") == "experiment":
-        xy = np.array([m["abs_xyz"][:2] for m in exp["marks"]])
-        true = np.array([mark["x_mm"], mark["y_mm"]])
-        fit = exp["metrics"].get("fit") or {}
-        print(f"\n  vs ground truth: grand mean off by {np.hypot(*(xy.mean(0) - true)) * 1000:.1f} µm; "
-              f"fitted M off by {np.hypot(*(np.array(fit.get('M', xy.mean(0))) - true)) * 1000:.1f} µm; "
-              f"|b| = {fit.get('b_norm_mm', float('nan')) * 1000:.1f} µm")
-        report = out / "report"
-        report.mkdir(exist_ok=True)
-        for name in ("report.md", "report.csv", "clusters.png"):
-            src = Path(exp["dataset"]) / name
-            if src.exists():
-                (report / name).write_bytes(src.read_bytes())
-        print(f"  report files: {report}/report.md, report.csv, clusters.png")
-    return 0
-
-
 def run_calibration(c: Client, out: Path, endpoint: str, robot_trk: list[float]) -> int:
-    """intrinsics → plate survey → referencing → experiment, each consuming the previous one's output."""
+    """intrinsics → plate survey → referencing, each consuming the previous one's output; then the
+    same camera and plate on a realistic floor (daemon/demo_floor.py): referencing and experiment."""
+    from daemon.demo_floor import run_realistic_floor
+
     print("\n  (sim.truth is read by the simulated operator's eye to point the tracker, and to score the results"
           " printed as 'vs ground truth'; it never enters the product's calculations)")
     rc = run_intrinsics(c, out)
     plate = None if rc else run_survey(c, out, endpoint)
     if plate is None:
         return rc or 1
-    return run_referencing(c, out, endpoint, plate, robot_trk) or run_experiment(c, out, endpoint)
+    return run_referencing(c, out, endpoint, plate, robot_trk) or run_realistic_floor(
+        out, out / "camera_model.json", plate, operator_files(c, out)["nests"], say, ritactl)
 
 
 def main() -> int:

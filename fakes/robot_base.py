@@ -39,6 +39,10 @@ def _wrap_deg(angle: float) -> float:
     return math.remainder(angle, 360.0)
 
 
+#: the inclinometer's output period in robot time (Murata SCA100T: 10 Hz bandwidth, fakes/errors.py)
+IMU_PERIOD_S = 0.1
+
+
 @dataclass
 class Motion:
     """One MOVE or TURN in progress: its start and planned end, in truth and odometry."""
@@ -79,7 +83,13 @@ class FakeBase:
         self._fault_rng = world.rng("robot.fault")
         self._slip_rng = world.rng("robot.slip")
         self._bend_rng = world.rng("robot.bend")
+        # inclinometer noise: at a standstill from a generator drawn afresh for each stop, so that the
+        # readings a procedure takes there do not depend on how many polls (ritad's 2 Hz STATUS, the
+        # worker's polls while moving) came before; while moving from its own generator
         self._imu_rng = world.rng("robot.imu")
+        self._imu_moving_rng = world.rng("robot.imu.moving")
+        self._stops = 0
+        self._imu_held: tuple[float, tuple[float, float]] | None = None  # (clock, sample) of the output
         self.odometry = (0.0, 0.0, 0.0)
         self.state = "IDLE"
         self.fault = ""
@@ -163,13 +173,23 @@ class FakeBase:
             pose = self.world.robot
         roll = pitch = None
         if self.world.params.base_has_inclinometer:
-            r, p = self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, self._imu_rng)
-            roll, pitch = math.degrees(r), math.degrees(p)
+            roll, pitch = self._inclinometer(pose)
         x, y, h = self.odometry
         battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
         self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
                    None if roll is None else rp.num(roll, 6), None if pitch is None else rp.num(pitch, 6),
                    rp.num(battery, 3), rp.text_field(self.fault))
+
+    def _inclinometer(self, pose: RobotPose) -> tuple[float, float]:
+        """The inclinometer's output (deg): a new sample every IMU_PERIOD_S of robot time, held between."""
+        now = self.clock()
+        held = self._imu_held
+        if held is not None and self.motion is None and now - held[0] < IMU_PERIOD_S * self.time_scale:
+            return held[1]
+        rng = self._imu_rng if self.motion is None else self._imu_moving_rng
+        r, p = self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
+        self._imu_held = (now, (math.degrees(r), math.degrees(p)))
+        return self._imu_held[1]
 
     def _stop(self, seq: int, msg: rp.Message) -> None:
         self._advance()
@@ -329,6 +349,9 @@ class FakeBase:
         self.odometry = (ox, oy, _wrap_deg(oh))
         self.travelled_mm += f * m.path
         self.motion = None
+        self._stops += 1
+        self._imu_rng = self.world.rng(f"robot.imu.stop{self._stops}")
+        self._imu_held = None
         if result == "FAULT":
             self.state, self.fault = "FAULT", reason
             self._send("FAULT", m.seq, reason, "simulated wheel stall")

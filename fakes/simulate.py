@@ -175,15 +175,19 @@ class Simulation:
         return at, w.robot_reflector_abs(w.abs_H_rob(prev)), w.robot_reflector_abs(w.abs_H_rob(at))
 
     def _path(self, prev: RobotPose, at: RobotPose, turn_deg: float) -> list[RobotPose]:
-        """Settled poses along the bent move prev → at (heading turning evenly), ends included."""
+        """Settled poses along the bent move prev → at (heading turning evenly), ends included.
+
+        A circular arc that turns by δ over the chord c lies ``(δ·|c|/2)·t·(1 − t)`` to the
+        right of the chord for a left turn (to second order), ``t`` the fraction travelled.
+        """
         n = max(2, self.cfg.stream_points)
+        c = np.array([at.x_mm - prev.x_mm, at.y_mm - prev.y_mm])
+        left = np.array([-c[1], c[0]]) / max(float(np.linalg.norm(c)), 1e-9)
+        sag = math.radians(turn_deg) * float(np.linalg.norm(c)) / 2.0
         out = []
         for t in np.linspace(0.0, 1.0, n):
-            # a circular arc's chord from prev runs at prev's heading + turn·t/2 and is ≈ t·d long
-            a = math.radians(prev.heading_deg + turn_deg * t / 2.0)
-            x = prev.x_mm + t * self.cfg.move_mm * math.cos(a)
-            y = prev.y_mm + t * self.cfg.move_mm * math.sin(a)
-            out.append(self.world.settle(RobotPose(x, y, prev.heading_deg + turn_deg * t)))
+            x, y = np.array([prev.x_mm, prev.y_mm]) + t * c - sag * t * (1.0 - t) * left
+            out.append(self.world.settle(RobotPose(float(x), float(y), prev.heading_deg + turn_deg * t)))
         out[0], out[-1] = prev, at
         return out
 

@@ -69,6 +69,9 @@ class TrackerModel:
         if not self.sigma_mm >= 0:
             raise ValueError(f"tracker sigma_mm={sigma_mm!r} must be >= 0")
         self.rng = world.rng("tracker.noise")
+        # the stream's own generator: how many records a stream holds depends on timing, and single
+        # measurements must not (their noise stays the same whatever was streamed before)
+        self.stream_rng = world.rng("tracker.stream")
         self.state = TrackerState()
 
     def reset(self) -> None:
@@ -164,9 +167,9 @@ class TrackerModel:
         if origin_s is not None and self.state.locked == "robot":
             at = np.array([self.world.robot_reflector_trk_at(origin_s + t0_s + dt_s * i) for i in range(n)])
         if self.world.effects.model.tracker is not None:
-            xyz = self.world.effects.tracker_measure(at, self.rng)
+            xyz = self.world.effects.tracker_measure(at, self.stream_rng)
         else:
-            xyz = at + self.rng.normal(0.0, self.sigma_mm, (n, 3))
+            xyz = at + self.stream_rng.normal(0.0, self.sigma_mm, (n, 3))
         xyz = xyz * self.state.length_unit()
         rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         t = t0_s + dt_s * np.arange(n)

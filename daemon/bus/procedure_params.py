@@ -43,10 +43,17 @@ MARK_SIZE = Param("mark_size_mm", _FLOAT, "mark size: dot radius or cross half-s
                   lo_open=True, default_text="0.4 for a dot, 0.6 for a cross")
 IMU_READINGS = Param("imu_readings", "int", "inclinometer readings averaged at each standstill (issue #15 tilt)",
                      default=10, lo=1, hi=1000)
+IMU_INTERVAL = Param("imu_interval_s", _FLOAT, "time between those readings: the inclinometer's output period "
+                     "(closer readings repeat one sample)", unit="s", default=0.1, lo=0, hi=10)
 COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of tilt, heading_fit, bias "
                      "(docs/accuracy.md)", default="all")
+APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT, "speed of the recorded final move of each approach (more "
+                       "stream points and inclinometer samples along it)", unit="mm/s", lo=0, lo_open=True,
+                       default_text="speed_mm_s")
 STREAM_RATE = Param("stream_rate_hz", _FLOAT, "tracker stream rate on the final approach (heading_fit)", unit="Hz",
-                    lo=0, hi=10000, default_text="the tracker's configured rate ([tracker] stream_rate_hz); 0: none")
+                    lo=0, hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz); 0: none")
+#: the inputs of the compensations at mark stops (docs/operations.md, "Compensations")
+ISSUE_15 = (COMPENSATION, IMU_READINGS, IMU_INTERVAL, STREAM_RATE, APPROACH_SPEED)
 CALIBRATION = Param("calibration", "file", "calibration result to measure with", installed="calibration/active.json",
                     default_text="the active calibration")
 
@@ -61,7 +68,7 @@ PARAMS: dict[str, tuple[Param, ...]] = {
         Param("robot_approx_trk", "vec", "approximate robot reflector, tracker frame", unit="mm", length=3,
               default_text="none: the worker asks"),
         Param("reversal", "bool", "second referencing turned 180° (instrument reversal)", default=False),
-        DISTANCE, SPEED, SIGMA_T, IMU_READINGS),
+        DISTANCE, SPEED, SIGMA_T, IMU_READINGS, IMU_INTERVAL),
     "intrinsics": (
         Param("board", "file", "the hand-held board's definition (board.json)", installed="calibration/board.json",
               default_text="the installed board"),),
@@ -69,7 +76,7 @@ PARAMS: dict[str, tuple[Param, ...]] = {
         MARK_XY, KIND,
         Param("heading_deg", _FLOAT, "approach heading, ACS", unit="°", lo=-360, hi=360,
               default_text="the robot's current heading"),
-        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, COMPENSATION, IMU_READINGS, STREAM_RATE),
+        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, *ISSUE_15),
     "experiment": (
         MARK_XY, KIND,
         Param("directions", "int", "approach directions", default=8, lo=1),
@@ -78,7 +85,7 @@ PARAMS: dict[str, tuple[Param, ...]] = {
         Param("psi0_deg", _FLOAT, "heading of the first direction, ACS", unit="°", default=0.0, lo=-360, hi=360),
         Param("offset_mm", _FLOAT, "largest random offset of the mark from the image centre", unit="mm",
               default=3.0, lo=0),
-        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, COMPENSATION, IMU_READINGS, STREAM_RATE,
+        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, *ISSUE_15,
         Param("store_bias", "bool", "store the fitted robot-frame bias b in the active calibration "
               "(docs/operations.md)", default=False)),
 }

@@ -27,7 +27,7 @@ from aiohttp import WSMsgType, web
 from daemon import __version__
 from daemon.bus.command_table import COMMANDS, PROCEDURES, ROLES
 from daemon.bus.procedure_params import schema as procedure_schema
-from daemon.bus.protocol import CommandError
+from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
 from daemon.console.jobs import start_job
@@ -212,8 +212,12 @@ class Console:
         await self._reply(tab, req, self.bridge.call, cmd, args, timeout, pool=pool)
 
     async def _survey(self, tab: Tab, req: dict[str, Any]) -> None:
-        """Start or cancel the plate survey (on this laptop; daemon/console/survey.py)."""
+        """Start or cancel the plate survey (on this laptop; daemon/console/survey.py); an operator's control."""
         try:
+            role = self.bridge.role
+            if role not in ROLES or ROLES.index(role) < ROLES.index("operator"):
+                raise CommandError(ErrorCode.FORBIDDEN, f"the plate survey is an operator's control; this console's "
+                                                        f"key has the role {role!r}")
             result = self.survey.cancel() if req.get("action") == "cancel" else await self.survey.start(req)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
         except (CommandError, OSError) as exc:

@@ -20,32 +20,35 @@ from typing import Any
 
 import numpy as np
 
-from calibration.compensation import NAMES, Compensation, Stop, imu_offset_deg
+from calibration.compensation import NAMES, Compensation, Stop, apply_bias, imu_offset_deg
 from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.storage import atomic_write_json, calibration_dir
 
 #: inclinometer readings averaged at a standstill (1 s at the base's 10 Hz)
 DEFAULT_IMU_READINGS: int = PARAM_DEFAULTS["imu_readings"]  # the procedures' parameter table
 #: the compensations a job applies when its parameters do not say
-DEFAULT_COMPENSATION = "all"
+DEFAULT_COMPENSATION: str = PARAM_DEFAULTS["compensation"]
 
 
 def parse_compensation(value: Any) -> Compensation:
-    """``Compensation.parse`` with the error naming the parameter (a ValueError: exit code 2 in ritactl)."""
+    """``Compensation.parse`` with the error naming the parameter (a ValueError: ritactl recompute exits 5)."""
     try:
         return Compensation.parse(DEFAULT_COMPENSATION if value is None else value)
     except (ValueError, TypeError, AttributeError) as exc:
         raise ValueError(f"compensation={value!r}: {exc}") from None
 
 
-def read_tilt(call: Any, n: int) -> dict[str, Any] | None:
+def read_tilt(call: Any, n: int, interval_s: float = 0.0) -> dict[str, Any] | None:
     """Mean roll/pitch of ``n`` robot.status readings at a standstill, or None when the base reports no tilt.
 
-    ``call`` is ``ctx.call``. Never fails for a base without an inclinometer: the
-    first reading without roll/pitch ends it.
+    ``call`` is ``ctx.call``. The readings are ``interval_s`` apart (the inclinometer's
+    output period: closer readings repeat one sample and average nothing). Never fails
+    for a base without an inclinometer: the first reading without roll/pitch ends it.
     """
     readings = []
-    for _ in range(max(1, int(n))):
+    for i in range(max(1, int(n))):
+        if i:
+            time.sleep(max(0.0, float(interval_s)))
         st = call("robot.status")
         if st.get("roll_deg") is None or st.get("pitch_deg") is None:
             return None
@@ -116,9 +119,15 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[s
     if not fit or fit.get("b") is None:
         raise ValueError("the experiment fitted no robot-frame bias (too few directions?): nothing to store")
     summary = result.get("compensation") or {}
-    held = active.get("robot_bias_mm")
-    applied = held is not None and summary.get("applied", {}).get("bias", 0) > 0
+    n_applied, n_stops = summary.get("applied", {}).get("bias", 0), summary.get("stops", 0)
+    if 0 < n_applied < n_stops:
+        raise ValueError(f"the bias was applied to {n_applied} of {n_stops} stops only: the fit mixes both")
+    # what the experiment's own calibration copy applied (not what is active now: another job may have
+    # stored a bias since this one started)
+    held = summary.get("robot_bias_mm") if n_applied else None
+    applied = held is not None
     b = np.asarray(fit["b"], float) + (np.asarray(held, float) if applied else 0.0)
+    apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
     return {**active, "robot_bias_mm": b.tolist(),
             "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit["b"]), "fit_rms_mm": fit.get("rms_mm"),
                            "added_to_mm": held if applied else None,
@@ -132,7 +141,7 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     Only when the experiment used the calibration that is still active: a bias
     belongs to the calibration it was measured with. The previous active calibration
     stays in ``calibration/history`` (it is there already under its job id); the new
-    one is also kept there as ``<calibration job>.bias-<experiment job>.json``.
+    one is also kept as ``calibration/history/bias/<calibration job>.bias-<experiment job>.json``.
     """
     cdir = calibration_dir(data_dir)
     path = cdir / "active.json"
@@ -142,8 +151,12 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     if active.get("job") != result.get("calibration_job"):
         return (f"robot-frame bias NOT stored: the experiment used calibration {result.get('calibration_job')!r} "
                 f"but {active.get('job')!r} is active now")
-    new = biased_calibration(active, result)
-    atomic_write_json(cdir / "history" / f"{active.get('job')}.bias-{result.get('job')}.json", new)
+    try:
+        new = biased_calibration(active, result)
+    except ValueError as exc:
+        return f"robot-frame bias NOT stored: {exc}"
+    # the copy goes beside the history, not into it: it is no new referencing result
+    atomic_write_json(cdir / "history" / "bias" / f"{active.get('job')}.bias-{result.get('job')}.json", new)
     atomic_write_json(path, new)
     b = new["robot_bias_mm"]
     return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm stored in the active calibration {path} "

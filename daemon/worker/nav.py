@@ -8,16 +8,20 @@ positions (P_prev, P_at) the paper's robot pose needs.
 """
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
 import numpy as np
 
+from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
 from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
 from daemon.worker.job import JobContext
 from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move
 
 MIN_HEADING_MOVE_MM = 20.0
+
+log = logging.getLogger(__name__)
 
 
 def wrap_deg(a: float) -> float:
@@ -36,6 +40,9 @@ class Navigator:
         #: issue #15 inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
         self.last_record: dict[str, Any] = {}
         self.imu_readings = int(ctx.params.get("imu_readings", DEFAULT_IMU_READINGS))
+        self.imu_interval_s = float(ctx.params.get("imu_interval_s", PARAM_DEFAULTS["imu_interval_s"]))
+        # the recorded final move may run slower: more stream points and inclinometer samples along it
+        self.approach_speed = float(ctx.params.get("approach_speed_mm_s") or speed_mm_s)
         rate = ctx.params.get("stream_rate_hz", DEFAULT_STREAM_RATE_HZ)
         self.stream_rate_hz = None if rate is None else float(rate)
 
@@ -80,11 +87,16 @@ class Navigator:
         """
         a, pa = self.where()
         if record:
-            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings)}
+            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings, self.imu_interval_s)}
         if (record and pa.get("abs_H_trk") is not None and (self.stream_rate_hz is None or self.stream_rate_hz > 0)
                 and abs(distance_mm) <= 1900):
-            self.last_record["stream"] = record_move(self.ctx, distance_mm, self.speed, pa["abs_H_trk"],
-                                                     self.stream_rate_hz, self.last_record["imu_prev"])
+            stream, why = record_move(self.ctx, distance_mm, self.approach_speed, pa["abs_H_trk"], self.stream_rate_hz,
+                                      self.last_record["imu_prev"])
+            if stream is None:  # heading_fit then reports "no tracker stream was recorded"; the log says why
+                log.warning("approach without the tracker's stream: %s", why)
+                self.move(distance_mm)
+            else:
+                self.last_record["stream"] = stream
         else:
             self.move(distance_mm)
         b, pb = self.where()

@@ -56,7 +56,7 @@ def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) ->
         file, header, _ = ctx.capture_image(f"{tag}-p0")
         P0 = ctx.call("tracker.measure", timeout=60)
         robot = ctx.call("robot.status")
-        imu = read_tilt(ctx.call, param(ctx, "imu_readings"))  # None: the base reports no tilt
+        imu = read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s"))  # None: no tilt
         runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot,
                      **({"imu0": imu} if imu else {})})
         ctx.mark_done(f"{tag}.image")
@@ -126,7 +126,7 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
     # issue #15: the inclinometer at both stops and the stream between them, when the base/tracker give them
-    rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings")), **nav.last_record}
+    rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s")), **nav.last_record}
     return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
             "offset_mm": offset.tolist(), **{k: v for k, v in rec.items() if v}}
 
@@ -160,7 +160,7 @@ def _mark_setup(ctx: JobContext) -> tuple[dict[str, Any], Navigator]:
     for key in ("kind", "sigma_t_mm"):
         ctx.obs.setdefault(key, param(ctx, key))
     parse_compensation(ctx.params.get("compensation"))  # a bad name fails before the robot moves
-    ctx.obs.setdefault("compensation", ctx.params.get("compensation", "all"))
+    ctx.obs.setdefault("compensation", param(ctx, "compensation"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
     return _calibration(ctx), Navigator(ctx, param(ctx, "speed_mm_s"))
 

@@ -95,8 +95,12 @@ def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout
 
 
 def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
-                rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Drive ``distance_mm`` straight while recording the stream; the stop record's ``stream`` entry.
+                rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None
+                ) -> tuple[dict[str, Any] | None, str]:
+    """Drive ``distance_mm`` straight while recording the stream: (the stop record's ``stream``, "").
+
+    When the stream cannot start, nothing has moved yet: (None, why), and the caller drives
+    without it.
 
     ``start_tilt`` (the standstill reading before the move) anchors the tilt before the
     first sample taken while moving; without it the points at the start would get a
@@ -105,7 +109,10 @@ def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
     sub = ctx.client.subscriber(["tracker.point"])
     try:
         time.sleep(SUB_SETTLE_S)
-        started = ctx.call("tracker.stream.start", timeout=30, **({} if rate_hz is None else {"rate_hz": rate_hz}))
+        try:
+            started = ctx.call("tracker.stream.start", timeout=30, **({} if rate_hz is None else {"rate_hz": rate_hz}))
+        except CommandError as exc:  # the stream only serves heading_fit: the approach goes on without it
+            return None, f"the tracker's stream did not start ({exc.args[0]})"
         t0 = time.time_ns()
         msgs: list[dict[str, Any]] = []
         try:
@@ -129,4 +136,4 @@ def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
         ts = np.array([s[0] for s in tilt], dtype=float)
         out["tilt_deg"] = np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
                                            np.interp(t, ts, [s[2] for s in tilt])]).tolist()
-    return out
+    return out, ""

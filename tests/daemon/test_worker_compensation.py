@@ -140,7 +140,7 @@ def test_stored_bias_round_trip(ref, tmp_path):
     assert active["robot_bias_mm"] == pytest.approx(first["metrics"]["fit"]["b"])
     assert np.hypot(*active["robot_bias_mm"]) == pytest.approx(0.5, abs=2e-3)
     assert active["robot_bias"]["job"] == "exp-1"
-    assert (data / "calibration" / "history" / "cal-1.bias-exp-1.json").exists()
+    assert (data / "calibration" / "history" / "bias" / "cal-1.bias-exp-1.json").exists()  # beside the history
     assert check_file(active, "result", "active.json") == []
     write_experiment(tmp_path / "e2", active, truth, MARK, headings=HEADINGS, reps=1)
     second = recompute(tmp_path / "e2")[0]
@@ -149,3 +149,14 @@ def test_stored_bias_round_trip(ref, tmp_path):
     # a bias belongs to the calibration it was measured with
     other = {**first, "calibration_job": "cal-0"}
     assert "NOT stored" in store_bias(data, other)
+    # a second fit adds to what ITS experiment applied (the copy in its calibration), whatever is active now
+    again = {**second, "job": "exp-2", "calibration_job": "cal-1"}
+    again["compensation"] = {**again["compensation"], "robot_bias_mm": [0.2, 0.0]}
+    store_bias(data, again)
+    b = json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"]
+    assert b == pytest.approx(np.add(second["metrics"]["fit"]["b"], [0.2, 0.0]))
+    # a b no calibration can have is refused before anything is written
+    bad = {**second, "job": "exp-3", "calibration_job": "cal-1",
+           "metrics": {**second["metrics"], "fit": {**second["metrics"]["fit"], "b": [7.0, 0.0]}}}
+    assert "NOT stored" in store_bias(data, bad) and "7.500 mm" in store_bias(data, bad)  # 7 fitted + 0.5 applied
+    assert json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"] == b

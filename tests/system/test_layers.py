@@ -26,7 +26,9 @@ ALLOWED: dict[str, set[str]] = {
                    "daemon.console"},  # ritactl console starts the console program
     "daemon.console": {"daemon", "daemon.bus"},
     "daemon.worker": {"daemon", "daemon.bus", "calibration"},
-    "daemon.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes"},
+    "daemon.demo": {"daemon", "daemon.bus", "daemon.ctl", "daemon.demo_floor", "fakes"},
+    # the demo's second part recomputes a dataset without compensations, as ritactl recompute does
+    "daemon.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.worker", "fakes"},
     "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},
 }
 

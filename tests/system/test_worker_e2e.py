@@ -275,3 +275,45 @@ def test_cancel_then_resume(daemon):
     assert state["status"] == "done" and len(state["obs"]["stops"]) == 3
     names = [e["name"] for e in json.loads((root / "dataset.json").read_text())["entries"]]
     assert len(names) == len(set(names)) == 3
+
+
+def _truth_scores(result: dict, mark: dict) -> dict:
+    xy = np.array([m["abs_xyz"][:2] for m in result["marks"]])
+    d = xy - [mark["x_mm"], mark["y_mm"]]
+    return {"enclosing": result["metrics"]["enclosing_diameter_mm"], "pairwise": result["metrics"]["pairwise_mean_mm"],
+            "abs_rms": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))}
+
+
+def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_path):
+    """Issue #15 through ritad and the worker: the module's camera model and surveyed plate on a
+    realistic floor (``--profile paper+imu``, same seed: same camera, plate and robot). Referencing
+    with reversal calibrates the inclinometer's offset; a short learning experiment on mark M2
+    stores the robot-frame bias; the 8 × 5 experiment on M1 then runs with the compensations.
+    Per-seed bounds of the issue: enclosing ≤ 0.25, pairwise ≤ 0.07, absolute RMS ≤ 0.10 mm
+    (the rendering-free budget's p95 over 10 seeds: 0.227 / 0.039 / 0.063, docs/accuracy.md)."""
+    c0, tmp = daemon
+    model = json.loads((Path(c0.call("data.dir")["data_dir"]) / "calibration" / "camera_model.json").read_text())
+    with start_ritad(tmp=tmp_path, args=["--seed", "3", "--profile", "paper+imu"], timeout=90) as r:
+        r.wait_ready(timeout=90, worker=True)
+        with r.client() as c:
+            # the simulated base runs 50× faster than real time: its inclinometer's 0.1 s is 2 ms here
+            imu = {"imu_interval_s": 0.002}
+            params = {**referencing_params(c, tmp), "camera_model": model, "reversal": True, **imu}
+            ref = run_ok(c, "referencing", params)
+            assert ref["verdict"] in ("ok", "warn"), ref
+            assert len(c.call("calib.results")["active"]["imu_offset_deg"]) == 2  # calibrated on the plate
+            truth = c.call("sim.truth")  # scoring only
+            run_ok(c, "experiment", {"mark_xy": rough_mark(c, 1)[1], "kind": truth["marks"][1]["kind"],
+                                     "repetitions": 1, "store_bias": True, **imu})
+            assert "robot_bias_mm" in c.call("calib.results")["active"]
+            exp = run_ok(c, "experiment", {"mark_xy": rough_mark(c, 0)[1], "repetitions": 5, **imu})
+    stored = json.loads(Path(exp["dataset"], "result.json").read_text())
+    applied = stored["compensation"]["applied"]
+    # heading_fit needs the inclinometer along the stream, which the 50×-fast simulated move does not
+    # give through ritad (docs/operations.md): it is skipped with that reason, or applied
+    assert applied["tilt"] == 40 and applied["bias"] == 40, stored["compensation"]
+    on = _truth_scores(stored, truth["marks"][0])
+    off = _truth_scores(recompute(Path(exp["dataset"]), compensation="none")[0], truth["marks"][0])
+    print(f"\npaper+imu through ritad, without / with compensations: {off} / {on}")
+    assert on["enclosing"] <= 0.25 and on["pairwise"] <= 0.07 and on["abs_rms"] <= 0.10, on
+    assert on["abs_rms"] < off["abs_rms"] / 3, (on, off)  # the floor's tilt was the absolute error

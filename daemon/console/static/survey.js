@@ -15,8 +15,8 @@ function showSurvey(s) {
   S.survey = s;
   if (s.state === "running") S.surveySteps = (S.surveySteps || 0) + 1;   // progress updates seen (tests)
   const running = s.state === "running";
-  $("survey-start").disabled = running;
-  $("survey-cancel").disabled = !running;
+  $("survey-start").disabled = running || !allowed("calib.start");   // an operator's control, as on the robot
+  $("survey-cancel").disabled = !running || !allowed("calib.start");
   $("survey-progress").value = s.state === "done" ? 100 : (s.percent || 0);
   $("survey-step").textContent = running ? s.step : (s.state === "idle" ? "" : `${s.state}${s.took_s ? ", " + s.took_s + " s" : ""}`);
   const r = s.result;
