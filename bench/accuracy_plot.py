@@ -48,7 +48,7 @@ def _panel(img: np.ndarray, x0: int, key: str, title: str, summary: dict, goal: 
     cv2.line(img, (x0 + PAD, bottom), (x0 + PANEL_W - PAD, bottom), (0, 0, 0), 1)
 
 
-def budget_png(summary: dict[str, dict], goals: dict[str, tuple[str, float]], paper: dict[str, float],
+def budget_png(summary: dict[str, dict], goals: dict[str, float], paper: dict[str, float],
                path: Path) -> None:
     """Write the plot of ``summary`` (case label -> metric -> (median, p95)) to ``path``."""
     h = TOP + len(summary) * ROW_H + 40
@@ -56,7 +56,7 @@ def budget_png(summary: dict[str, dict], goals: dict[str, tuple[str, float]], pa
     for i, label in enumerate(summary):
         cv2.putText(img, label, (8, TOP + i * ROW_H + 16), FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for j, (key, title) in enumerate(PANELS):
-        _panel(img, LABEL_W + j * PANEL_W, key, title, summary, goals.get(key, (None, None))[1], paper.get(key))
+        _panel(img, LABEL_W + j * PANEL_W, key, title, summary, goals.get(key), paper.get(key))
     cv2.putText(img, "bar: median over seeds, whisker: p95; red: issue #15 goal (paper+imu, all compensations); "
                 "blue: the paper's glass plate", (8, h - 14), FONT, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
     ok, buf = cv2.imencode(".png", img)

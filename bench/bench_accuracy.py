@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.accuracy_plot import budget_png  # noqa: E402
 from bench.common import machine  # noqa: E402
 from calibration.compensation import Compensation  # noqa: E402
-from fakes.accuracy import Case, run, summarise  # noqa: E402
+from fakes.accuracy import GOALS_MM, PAPER_MM, Case, run, summarise  # noqa: E402
 from fakes.errors import GROUPS  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402
 
@@ -36,8 +36,6 @@ ALL = Compensation.parse("all")
 CASES = (Case("ideal"), Case("paper"), Case("paper", Compensation.parse("heading_fit,bias")),
          Case("paper+imu"), Case("paper+imu", Compensation.parse("tilt")),
          Case("paper+imu", Compensation.parse("tilt,heading_fit")), Case("paper+imu", ALL))
-GOALS = {"enclosing_mm": ("≤ 0.25", 0.25), "pairwise_mm": ("≤ 0.07", 0.07), "abs_rms_mm": ("≤ 0.10", 0.10)}
-PAPER = {"enclosing_mm": 0.747, "pairwise_mm": 0.215}
 HEAD = ("enclosing diameter", "pairwise cluster means", "abs. error RMS", "rob_H_cam t_xy", "rob_H_cam rotation [°]")
 
 
@@ -107,7 +105,7 @@ def main() -> None:
     print(f"# Accuracy budget, {len(seeds)} seeds ({seeds[0]}…), median / p95, mm\n\n{machine()}\n")
     print("## Profile × compensation\n")
     _, summary = table(CASES, seeds)
-    budget_png(summary, GOALS, PAPER, Path(args.png))
+    budget_png(summary, GOALS_MM, PAPER_MM, Path(args.png))
     print(f"\n(plot: {args.png})\n")
     if not args.quick:
         print("## Each effect switched off\n")

@@ -18,11 +18,12 @@ from typing import Any, Callable
 import numpy as np
 
 from daemon.bus.client import Client
+from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
 
-PAPER = {"enclosing": 0.747, "pairwise": 0.215}  # the paper's glass plate (Table target_direction_metrics)
-GOALS = {"enclosing": 0.25, "pairwise": 0.07, "abs_rms": 0.10}  # issue #15, paper+imu with compensations
+PAPER = {k.removesuffix("_mm"): v for k, v in PAPER_MM.items()}
+GOALS = {k.removesuffix("_mm"): v for k, v in GOALS_MM.items()}
 
 
 def _truth_errors(result: dict[str, Any], mark: dict[str, Any]) -> dict[str, float]:

@@ -30,6 +30,10 @@ from fakes import profiles
 from fakes.simulate import MarkObs, SimConfig, Simulation
 from fakes.world import World, WorldParams
 
+#: the paper's glass-plate figures (Table target_direction_metrics) and issue #15's goals for
+#: ``paper+imu`` with the compensations (mm), by metric key
+PAPER_MM = {"enclosing_mm": 0.747, "pairwise_mm": 0.215}
+GOALS_MM = {"enclosing_mm": 0.25, "pairwise_mm": 0.07, "abs_rms_mm": 0.10}
 #: metric keys of one run, in table order (mm; rotation in degrees)
 METRICS = ("enclosing_mm", "pairwise_mm", "abs_rms_mm", "t_xy_mm", "rotation_deg")
 
@@ -102,4 +106,4 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:
             for k in METRICS}
 
 
-__all__ = ["Case", "METRICS", "measure_all", "run", "summarise"]
+__all__ = ["Case", "GOALS_MM", "METRICS", "PAPER_MM", "measure_all", "run", "summarise"]

@@ -303,7 +303,7 @@ def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
                        help="approximate mark position, ACS mm")
         p.add_argument("--kind", default=DEFAULTS["kind"], choices=["dot", "cross"],
                        help=f"mark shape (default {DEFAULTS['kind']})")
-        p.add_argument("--compensation", metavar="NAMES", help="issue #15 compensations: none, all (default) or "
+        p.add_argument("--compensation", metavar="NAMES", help="issue #15 compensations: none, all or "
                                                               "a comma list of tilt,heading_fit,bias")
         if name == "measure-mark":
             p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
