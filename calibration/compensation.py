@@ -189,11 +189,16 @@ def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) ->
     t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
     if t.shape != (len(P), 2):
         raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
-    # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white:
-    # a quadratic in the distance travelled keeps the one and averages the other
-    if len(P) > 4:
-        A = np.column_stack([np.ones_like(s), s, s ** 2])
-        t = A @ np.linalg.lstsq(A, t, rcond=None)[0]
+    # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white: the
+    # tilt is the line between the two standstill means (10 readings each) plus one quadratic bump
+    # fitted to the readings taken while moving, which keeps the shape and averages the noise
+    t0 = np.asarray(stop.tilt_prev, float) - np.asarray(offset)
+    t1 = np.asarray(stop.tilt_at, float) - np.asarray(offset)
+    L = max(float(s[-1]), 1e-9)
+    line = t0 + np.outer(s / L, t1 - t0)
+    g = s * (s - L)
+    a = (g @ (t - line)) / max(float(g @ g), 1e-18)
+    t = line + np.outer(g, a)
     v = P[-1] - P[0]
     heading = math.degrees(math.atan2(v[1], v[0]))
     return np.array([ground_point(p, heading, float(r), float(q), height_mm) for p, (r, q) in zip(P, t)])
