@@ -15,6 +15,7 @@ function showSurvey(s) {
   S.survey = s;
   if (s.state === "running") S.surveySteps = (S.surveySteps || 0) + 1;   // progress updates seen (tests)
   const running = s.state === "running";
+  $("survey-start").dataset.busy = running ? "1" : "";   // applyRole keeps a busy control disabled
   $("survey-start").disabled = running || !allowed("calib.start");   // an operator's control, as on the robot
   $("survey-cancel").disabled = !running || !allowed("calib.start");
   $("survey-progress").value = s.state === "done" ? 100 : (s.percent || 0);
