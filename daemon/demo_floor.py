@@ -15,24 +15,14 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from daemon.bus.client import Client
 from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
+from fakes.score import score_experiment
 
 PAPER = {k.removesuffix("_mm"): v for k, v in PAPER_MM.items()}
 GOALS = {k.removesuffix("_mm"): v for k, v in GOALS_MM.items()}
-
-
-def _truth_errors(result: dict[str, Any], mark: dict[str, Any]) -> dict[str, float]:
-    xy = np.array([m["abs_xyz"][:2] for m in result["marks"]])
-    d = xy - [mark["x_mm"], mark["y_mm"]]
-    m = result["metrics"]
-    return {"enclosing": m["enclosing_diameter_mm"], "pairwise": m["pairwise_mean_mm"],
-            "abs_rms": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))),
-            "grand_mean": float(np.hypot(*d.mean(axis=0)))}
 
 
 def _summary(without: dict[str, float], with_: dict[str, float], applied: str) -> None:
@@ -83,7 +73,7 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
     print("\n  The paper's table WITHOUT compensation (the same dataset, ritactl recompute --compensation none):\n")
     print("  " + plain["table_markdown"].replace("\n", "\n  "))
     applied = [k for k, n in (result.get("compensation") or {}).get("applied", {}).items() if n]
-    _summary(_truth_errors(plain, truth_marks[0]), _truth_errors(result, truth_marks[0]), "+".join(applied) or "none")
+    _summary(score_experiment(plain, truth_marks[0]), score_experiment(result, truth_marks[0]), "+".join(applied) or "none")
     report = out / "report"
     report.mkdir(exist_ok=True)
     for f in ("report.md", "report.csv", "clusters.png"):

@@ -41,4 +41,14 @@ def score_nests(plate: dict[str, Any], truth: dict[str, Any]) -> dict[str, float
     return {n: float(np.linalg.norm(np.asarray(plate["nests_ref_nst"][n], float) - seats[n])) for n in seats}
 
 
-__all__ = ["FULL_WIDTH_PX", "score_camera_model", "score_nests", "score_rob_H_cam", "true_seats"]
+def score_experiment(result: dict[str, Any], mark: dict[str, Any]) -> dict[str, float]:
+    """An experiment result's paper metrics and its marks' ACS error against the true mark (mm)."""
+    xy = np.array([m["abs_xyz"][:2] for m in result["marks"]])
+    d = xy - [mark["x_mm"], mark["y_mm"]]
+    m = result["metrics"]
+    return {"enclosing": m["enclosing_diameter_mm"], "pairwise": m["pairwise_mean_mm"],
+            "abs_rms": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))),
+            "grand_mean": float(np.hypot(*d.mean(axis=0)))}
+
+
+__all__ = ["FULL_WIDTH_PX", "score_camera_model", "score_experiment", "score_nests", "score_rob_H_cam", "true_seats"]

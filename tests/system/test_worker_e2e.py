@@ -27,7 +27,7 @@ from daemon.demo import operator_files
 from daemon.worker.survey import survey_plate
 from fakes.board import run_intrinsics
 from fakes.operator import lock_on_robot, rough_mark
-from fakes.score import score_camera_model, score_nests
+from fakes.score import score_camera_model, score_experiment, score_nests
 from fakes.launch import start_ritad
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -277,13 +277,6 @@ def test_cancel_then_resume(daemon):
     assert len(names) == len(set(names)) == 3
 
 
-def _truth_scores(result: dict, mark: dict) -> dict:
-    xy = np.array([m["abs_xyz"][:2] for m in result["marks"]])
-    d = xy - [mark["x_mm"], mark["y_mm"]]
-    return {"enclosing": result["metrics"]["enclosing_diameter_mm"], "pairwise": result["metrics"]["pairwise_mean_mm"],
-            "abs_rms": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))}
-
-
 def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_path):
     """Issue #15 through ritad and the worker: the module's camera model and surveyed plate on a
     realistic floor (``--profile paper+imu``, same seed: same camera, plate and robot). Referencing
@@ -312,8 +305,8 @@ def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_pat
     # heading_fit needs the inclinometer along the stream, which the 50×-fast simulated move does not
     # give through ritad (docs/operations.md): it is skipped with that reason, or applied
     assert applied["tilt"] == 40 and applied["bias"] == 40, stored["compensation"]
-    on = _truth_scores(stored, truth["marks"][0])
-    off = _truth_scores(recompute(Path(exp["dataset"]), compensation="none")[0], truth["marks"][0])
+    on = score_experiment(stored, truth["marks"][0])
+    off = score_experiment(recompute(Path(exp["dataset"]), compensation="none")[0], truth["marks"][0])
     print(f"\npaper+imu through ritad, without / with compensations: {off} / {on}")
     assert on["enclosing"] <= 0.25 and on["pairwise"] <= 0.07 and on["abs_rms"] <= 0.10, on
     assert on["abs_rms"] < off["abs_rms"] / 3, (on, off)  # the floor's tilt was the absolute error
