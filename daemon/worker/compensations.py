@@ -70,7 +70,8 @@ def stop_of(stop: dict[str, Any]) -> Stop:
     return Stop(np.asarray(stop["P_prev"]["abs_xyz"], float), np.asarray(stop["P_at"]["abs_xyz"], float),
                 _tilt(stop.get("imu_prev")), _tilt(stop.get("imu_at")),
                 None if not pts else np.asarray(pts, float),
-                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float))
+                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float),
+                reverse=float(stop.get("move_mm", 1.0)) < 0)
 
 
 def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray]) -> dict[str, Any] | None:

@@ -63,7 +63,10 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     load = _eight_bit(load)
     runs = []
     for i, run in enumerate(obs["runs"]):
-        res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
+        P0, P1 = _abs(run["P0"]), _abs(run["P1"])
+        if float(run.get("move_mm", 1.0)) < 0:  # driven backwards: the robot's x axis is P0 − P1
+            P1 = 2 * P0 - P1
+        res = reference(model, plate, abs_P_nests, P0, P1, image=load(run["image"]),
                         sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
@@ -107,7 +110,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     offset, bias = calibration_inputs(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias)
+                   bias_b_mm=bias, anchor_sigma_mm=sigma_t_mm)
     P_at = _abs(stop["P_at"])
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
