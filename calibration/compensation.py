@@ -32,6 +32,7 @@ import numpy as np
 
 from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit
 from calibration.frames import check_H, rot_x, rot_y, rot_z
+from calibration.imu_mount import body_tilt, rot2
 from calibration.registration import as_points
 
 #: the compensation names, in the order results list them
@@ -177,18 +178,18 @@ class Applied:
     skipped: dict[str, str]
 
 
-def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) -> np.ndarray:
+def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0) -> np.ndarray:
     """The stream's points moved down the tilted z axis, with the inclinometer read along the stream."""
     P = as_points(stop.stream, "stream")
     s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
-    t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
+    t = (np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)) @ rot2(yaw_deg).T
     if t.shape != (len(P), 2):
         raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
     # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white: the
     # tilt is the line between the two standstill means (10 readings each) plus one quadratic bump
     # fitted to the readings taken while moving, which keeps the shape and averages the noise
-    t0 = np.asarray(stop.tilt_prev, float) - np.asarray(offset)
-    t1 = np.asarray(stop.tilt_at, float) - np.asarray(offset)
+    t0 = np.asarray(body_tilt(stop.tilt_prev, offset, yaw_deg))
+    t1 = np.asarray(body_tilt(stop.tilt_at, offset, yaw_deg))
     L = max(float(s[-1]), 1e-9)
     line = t0 + np.outer(s / L, t1 - t0)
     g = s * (s - L)
@@ -211,23 +212,22 @@ LEAN_NOT_COMPENSATED = ("the tilt is not compensated and the reflector's lean ch
 
 
 def _tilt_applied(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
-                  height: float) -> None:
-    at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
-    prev = (stop.tilt_prev[0] - offset[0], stop.tilt_prev[1] - offset[1])
+                  height: float, yaw: float) -> None:
+    at, prev = body_tilt(stop.tilt_at, offset, yaw), body_tilt(stop.tilt_prev, offset, yaw)
     out.roll_deg, out.pitch_deg = at
     out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height, stop.reverse)
     out.applied.append("tilt")
 
 
 def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
-                 height: float, anchor_sigma_mm: float) -> None:
+                 height: float, anchor_sigma_mm: float, yaw: float) -> None:
     """The end tangent of the stream's bend, only when it is shown (calibration/bend_fit.py)."""
     use_tilt = "tilt" in out.applied
-    pts = _ground_stream(stop, offset, height) if use_tilt else as_points(stop.stream, "stream")
+    pts = _ground_stream(stop, offset, height, yaw) if use_tilt else as_points(stop.stream, "stream")
     sign = -1.0 if stop.reverse else 1.0
     if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
         v = sign * (P_at - P_prev)
-        at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
+        at = body_tilt(stop.tilt_at, offset, yaw)
         pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
     start = P_at - sign * (P_at - out.abs_P_prev)  # the travel's start of the (ground) chord
     try:
@@ -252,7 +252,7 @@ def _lean_change_um(stop: Stop, height: float) -> float | None:
 
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None,
-               anchor_sigma_mm: float = 0.010) -> Applied:
+               anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0) -> Applied:
     """Apply ``comp`` to one stop; a compensation without its input, or one the data contradict, is skipped
     and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured)."""
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
@@ -267,7 +267,7 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
             out.skipped["tilt"] = ("no inclinometer offset in the calibration" if imu_offset is None
                                    else "the base reported no tilt at this stop")
         else:
-            _tilt_applied(out, stop, P_prev, P_at, offset, height)
+            _tilt_applied(out, stop, P_prev, P_at, offset, height, imu_yaw_deg)
     if comp.heading_fit:
         lean = None if "tilt" in out.applied else _lean_change_um(stop, height)
         if stop.stream is None or len(stop.stream) == 0:
@@ -281,7 +281,7 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
             d = abs(stop.tilt_at[0] - stop.tilt_prev[0])
             out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean, d=d, h=height)
         else:
-            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm)
+            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg)
     if comp.bias:
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"

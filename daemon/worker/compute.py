@@ -22,9 +22,9 @@ from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
-from calibration.compensation import Compensation, compensate
+from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.worker.compensations import (calibration_inputs, compensation_summary, parse_compensation,
-                                         plate_imu_offset, stop_of, stop_record)
+                                         imu_yaw, plate_imu_offset, stop_of, stop_record)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -93,9 +93,14 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     out["residuals_mm"] = first_d.get("nest_residuals_mm")
     out["verdict"] = "fail" if "fail" in verdicts else ("warn" if "warn" in verdicts else "ok")
     out["messages"] = messages
-    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs])
-    if imu is not None:  # issue #15: the inclinometer's offset, part of the calibration like rob_H_scn
-        out.update(imu_offset_deg=imu["imu_offset_deg"], imu_offset_runs_deg=imu["runs"])
+    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs], reflector_height_mm(np.array(out["rob_H_scn"])))
+    if imu is not None:  # the inclinometer's mounting, part of the calibration like rob_H_scn
+        if imu["imu_offset_deg"] is not None:
+            out.update(imu_offset_deg=imu["imu_offset_deg"], imu_yaw_deg=imu["imu_yaw_deg"])
+        out.update(imu_offset_runs_deg=imu["runs"], imu_yaw_sigma_deg=imu["imu_yaw_sigma_deg"])
+        out["messages"] = out["messages"] + imu["messages"]
+        if imu["verdict"] == "warn" and out["verdict"] == "ok":
+            out["verdict"] = "warn"
     return out
 
 
@@ -110,7 +115,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     offset, bias = calibration_inputs(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias, anchor_sigma_mm=sigma_t_mm)
+                   bias_b_mm=bias, anchor_sigma_mm=sigma_t_mm, imu_yaw_deg=imu_yaw(calib))
     P_at = _abs(stop["P_at"])
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
