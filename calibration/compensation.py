@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit
+from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.imu_mount import body_tilt, rot2
 from calibration.registration import as_points
@@ -275,8 +276,13 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         elif len(stop.stream) < MIN_FIT_POINTS:
             out.skipped["heading_fit"] = (f"the stream along the approach holds {len(stop.stream)} points "
                                           f"(the fit needs >= {MIN_FIT_POINTS})")
+        elif (why := stream_ends_check(stop.stream, P_prev, P_at, anchor_sigma_mm)) is not None:
+            out.skipped["heading_fit"] = why
         elif "tilt" in out.applied and stop.stream_tilt is None:
             out.skipped["heading_fit"] = NO_STREAM_TILT
+        elif "tilt" in out.applied and (why := stream_tilt_check(stop.stream_tilt, stop.tilt_prev, stop.tilt_at,
+                                                                 0.0)) is not None:
+            out.skipped["heading_fit"] = why
         elif lean is not None and lean > 3.0 * anchor_sigma_mm * 1000.0:
             d = abs(stop.tilt_at[0] - stop.tilt_prev[0])
             out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean, d=d, h=height)

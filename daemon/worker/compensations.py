@@ -136,6 +136,9 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[s
     fit = (result.get("metrics") or {}).get("fit")
     if not fit or fit.get("b") is None:
         raise ValueError("the experiment fitted no robot-frame bias (too few directions?): nothing to store")
+    check = (result.get("checks") or {}).get("bias_model") or {}
+    if check.get("ok") is False:  # the data contradict the bias model: b would not be a robot-frame bias
+        raise ValueError(check.get("message") or "the cluster means do not follow M + R(ψ)·b")
     summary = result.get("compensation") or {}
     n_applied, n_stops = summary.get("applied", {}).get("bias", 0), summary.get("stops", 0)
     if 0 < n_applied < n_stops:

@@ -14,6 +14,7 @@ import numpy as np
 
 from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
+from calibration.checks import bias_model_check
 from calibration.frames import apply_H
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
@@ -148,10 +149,13 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])
     metrics = experiment_metrics(xy, headings, groups)
+    check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm,
+                             [m["std_mm"] for m in marks])
     return {"schema": RESULT_SCHEMA, "procedure": "experiment", "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
             "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
-            "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "verdict": "ok", "messages": []}
+            "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
+            "verdict": "ok" if check["ok"] else "warn", "messages": [] if check["ok"] else [check["message"]]}
 
 
 #: the focal length's 1σ above which an intrinsics model is only a warn (issue #14's 0.1 % goal)

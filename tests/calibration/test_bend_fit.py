@@ -73,9 +73,20 @@ def test_a_shape_it_cannot_model_falls_back_to_the_chord_and_says_so():
 
 def test_compensate_reports_a_skipped_fit_with_its_reason():
     s = np.linspace(0.0, L, 40)
-    P = np.column_stack([s, np.zeros(40), np.zeros(40)]) + np.random.default_rng(2).normal(0, 0.03, (40, 3))
+    P = np.column_stack([s, np.zeros(40), np.zeros(40)]) + np.random.default_rng(2).normal(0, 0.03, (40, 3)) * [0, 1, 0]
     stop = Stop(np.array([0.0, 0.0, 0.0]), np.array([L, 0.0, 0.0]), stream=P)
     rob_H_scn = np.eye(4)
     rob_H_scn[:3, 3] = [200.0, 0.0, -350.0]
     a = compensate(Compensation(heading_fit=True), stop, rob_H_scn)
     assert a.applied == [] and "the chord is used" in a.skipped["heading_fit"]
+
+
+def test_a_stream_that_misses_the_standstill_points_is_not_used():
+    """A stream shifted 0.3 mm (a wrong frame or clock) contradicts the anchors: the chord, with the reason."""
+    s = np.linspace(0.0, L, 200)
+    P = np.column_stack([s, SHAPES["arc"](s), np.zeros(200)]) + [0.0, 0.3, 0.0]
+    stop = Stop(np.array([0.0, 0.0, 0.0]), np.array([L, 0.0, 0.0]), stream=P)
+    rob_H_scn = np.eye(4)
+    rob_H_scn[:3, 3] = [200.0, 0.0, -350.0]
+    a = compensate(Compensation(heading_fit=True), stop, rob_H_scn)
+    assert a.applied == [] and "does not run between the standstill points" in a.skipped["heading_fit"]
