@@ -38,3 +38,16 @@ def test_png_writer_roundtrip(tmp_path):
     img16 = (np.arange(37 * 23, dtype=np.uint16) * 61).reshape(23, 37)
     ctl.write_png(tmp_path / "b.png", img16.astype(">u2").tobytes(), 37, 23, bit_depth=16)
     assert np.array_equal(cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_UNCHANGED), img16)
+
+
+def test_ritactl_status_against_a_daemon_loads_no_numpy_or_opencv(tmp_path):
+    """The laptop's most used verb, end to end: numpy and OpenCV blocked, it still answers (exit 0)."""
+    from tests.ctl_sim import sim_daemon
+
+    code = ("import sys\nfor m in ('numpy', 'cv2', 'harvesters', 'serial'): sys.modules[m] = None  # import fails\n"
+            "from daemon.ctl.main import main\nsys.exit(main(sys.argv[1:]))")
+    with sim_daemon(tmp_path) as d:
+        res = subprocess.run([sys.executable, "-c", code, "--endpoint", d.server.endpoints[0], "status"],
+                             capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "READY" in res.stdout and "Traceback" not in res.stderr
