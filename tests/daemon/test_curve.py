@@ -85,6 +85,7 @@ def test_unknown_key_is_refused_within_a_second_and_logged(secured):
             c.call("ping")
         assert time.monotonic() - t0 < 1.5  # the ZAP refusal, not the 5 s timeout
     assert str(e.value).startswith("refused: key mallory is not allowed by the daemon")
+    assert "--role operator" in str(e.value)  # the hint is the whole command to run on the robot
     assert isinstance(e.value, ClientTimeout)  # existing handlers map it to exit 3
     log = wait_for_log(secured["log"], f"refused CURVE key {mallory['public'].decode()} client from 127.0.0.1")
     assert "unknown key" in log
