@@ -13,6 +13,7 @@ import pytest
 
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientRefused, ClientTimeout
+from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -73,8 +74,9 @@ def test_allowed_key_works_and_is_logged(secured):
     with Client(secured["tcp"], timeout=5, curve=alice) as c:
         assert c.call("ping")["pong"] is True
         assert "help" in c.call("help")["commands"]
-    time.sleep(0.3)
-    assert alice["public"].decode() in secured["log"].read_text()  # audit trail: the key id of who asked
+        with pytest.raises(CommandError):  # alice is a viewer: reads log at DEBUG, a refused motion at WARNING
+            c.call("robot.move", distance_mm=1.0, confirm=True)
+    wait_for_log(secured["log"], alice["public"].decode(), 30)  # audit trail: the key id of who asked
 
 
 def test_unknown_key_is_refused_within_a_second_and_logged(secured):
