@@ -60,9 +60,9 @@ def main(n: int = 3000) -> None:
             time.sleep(2.5)  # past the key ring's "changed too recently" window: steady state
             with Client(ep, timeout=5, curve=curve) as c:
                 c.call("ping")  # handshake and first re-read of the folder outside the timing
-                for cmd in ("ping", "robot.stop") if target in (1, 1000) else ("ping",):
+                for cmd in ("ping", "robot.release") if target in (1, 1000) else ("ping",):
                     t = round_trips(c, cmd, n)
-                    what = "`robot.stop` (forbidden: viewer)" if cmd != "ping" else "`ping`"
+                    what = "`robot.release` (forbidden: viewer)" if cmd != "ping" else "`ping`"
                     print(f"| {target} | {what}, n={n} | p50 {pct(t, 50):.3f} ms, p99 {pct(t, 99):.3f} ms, max {max(t):.1f} ms | "
                           f"p99 ≤ 5 ms |")
     finally:

@@ -30,13 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit
+from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
+from calibration.imu_mount import body_tilt, rot2
 from calibration.registration import as_points
 
 #: the compensation names, in the order results list them
 NAMES = ("tilt", "heading_fit", "bias")
-#: the fewest stream points and the shortest span a heading fit accepts
-MIN_FIT_POINTS, MIN_FIT_SPAN_MM = 5, 20.0
 
 
 @dataclass(frozen=True)
@@ -105,45 +106,40 @@ def reflector_height_mm(rob_H_scn: np.ndarray) -> float:
 
 
 def ground_chord(abs_P_prev: Any, abs_P_at: Any, tilt_prev: tuple[float, float], tilt_at: tuple[float, float],
-                 height_mm: float) -> np.ndarray:
-    """An equivalent ``abs_P_prev`` whose chord to ``abs_P_at`` runs between the two ground points."""
+                 height_mm: float, reverse: bool = False) -> np.ndarray:
+    """An equivalent ``abs_P_prev`` whose chord to ``abs_P_at`` runs between the two ground points.
+
+    ``reverse``: the move ran backwards, so the robot's x axis (which orients the tilt) is
+    the travel's opposite; the equivalent point then lies ahead of the travel, so that
+    ``abs_P_at − result`` is still the robot's x axis.
+    """
     P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
     P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
+    sign = -1.0 if reverse else 1.0
     v = P_at - P_prev
     for _ in range(2):  # the heading only orients the tilt: one refinement takes its error to 2nd order
-        heading = math.degrees(math.atan2(v[1], v[0]))
+        heading = math.degrees(math.atan2(sign * v[1], sign * v[0]))
         v = ground_point(P_at, heading, *tilt_at, height_mm) - ground_point(P_prev, heading, *tilt_prev, height_mm)
-    return P_at - v
+    return P_at - sign * v
 
 
-def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any) -> np.ndarray:
-    """Unit ACS direction (z = 0) of a bent straight move's tangent at its end point.
+def forward_prev(abs_P_prev: Any, abs_P_at: Any, reverse: bool) -> np.ndarray:
+    """The approach's start as the paper's equations want it: ``P_at − result`` along the robot's x axis."""
+    P_prev = as_points(abs_P_prev, "abs_P_prev", 1)[0]
+    P_at = as_points(abs_P_at, "abs_P_at", 1)[0]
+    return 2.0 * P_at - P_prev if reverse else P_prev
 
-    The two ends are the standstill measurements ``abs_P_prev`` and ``abs_P_at``; the
-    stream ``points`` (N, 3) between them give the bend. A move that bends on a circular
-    arc lies, to second order, ``e(s) = c·s·(s − L)`` to the side of its chord (s along
-    the chord of length L); one parameter c is fitted to the stream and the end tangent
-    is the chord turned by ``c·L``. Anchoring the ends keeps the fit well conditioned: a
-    free quadratic's end slope is several times noisier than the chord error it removes.
+
+def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any, anchor_sigma_mm: float = 0.010) -> np.ndarray:
+    """Unit ACS direction (z = 0) of a bent move's tangent at its end; ValueError when no bend is shown.
+
+    See :func:`bend_fit` (calibration/bend_fit.py): the chord turned by the fitted end slope,
+    only when the bend is significant against the anchors' and the stream's noise.
     """
-    P = as_points(points, "points")[:, :2]
-    a = as_points(abs_P_prev, "abs_P_prev", 1)[0][:2]
-    b = as_points(abs_P_at, "abs_P_at", 1)[0][:2]
-    L = float(np.linalg.norm(b - a))
-    if len(P) < MIN_FIT_POINTS or L < MIN_FIT_SPAN_MM:
-        raise ValueError(f"fit_heading: {len(P)} stream points over a {L:.1f} mm move "
-                         f"(need >= {MIN_FIT_POINTS} points over >= {MIN_FIT_SPAN_MM:.0f} mm)")
-    u = (b - a) / L
-    n = np.array([-u[1], u[0]])
-    s, e = (P - a) @ u, (P - a) @ n
-    inside = (s > 0.02 * L) & (s < 0.98 * L)  # the ends carry no bend information
-    if np.count_nonzero(inside) < MIN_FIT_POINTS - 2:
-        raise ValueError(f"fit_heading: only {np.count_nonzero(inside)} stream points lie between the two stops")
-    g = s[inside] * (s[inside] - L)
-    c = float(g @ e[inside] / (g @ g))
-    d = u + c * L * n
-    d = d / np.linalg.norm(d)
-    return np.array([d[0], d[1], 0.0])
+    fit = bend_fit(points, abs_P_prev, abs_P_at, anchor_sigma_mm)
+    if not fit.significant:
+        raise ValueError(fit.why)
+    return fit.direction
 
 
 def apply_bias(rob_H_scn: np.ndarray, b_mm: Any) -> np.ndarray:
@@ -168,6 +164,7 @@ class Stop:
     tilt_at: tuple[float, float] | None = None
     stream: np.ndarray | None = None  # (N, 3) reflector positions along the approach, in time order
     stream_tilt: np.ndarray | None = None  # (N, 2) readings per stream point
+    reverse: bool = False  # the final move ran backwards (MOVE < 0): the robot's x axis is P_prev − P_at
 
 
 @dataclass
@@ -182,24 +179,24 @@ class Applied:
     skipped: dict[str, str]
 
 
-def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float) -> np.ndarray:
+def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0) -> np.ndarray:
     """The stream's points moved down the tilted z axis, with the inclinometer read along the stream."""
     P = as_points(stop.stream, "stream")
     s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
-    t = np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)
+    t = (np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)) @ rot2(yaw_deg).T
     if t.shape != (len(P), 2):
         raise ValueError(f"stream_tilt must be (N, 2) = ({len(P)}, 2) readings, got {t.shape}")
     # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white: the
     # tilt is the line between the two standstill means (10 readings each) plus one quadratic bump
     # fitted to the readings taken while moving, which keeps the shape and averages the noise
-    t0 = np.asarray(stop.tilt_prev, float) - np.asarray(offset)
-    t1 = np.asarray(stop.tilt_at, float) - np.asarray(offset)
+    t0 = np.asarray(body_tilt(stop.tilt_prev, offset, yaw_deg))
+    t1 = np.asarray(body_tilt(stop.tilt_at, offset, yaw_deg))
     L = max(float(s[-1]), 1e-9)
     line = t0 + np.outer(s / L, t1 - t0)
     g = s * (s - L)
     a = (g @ (t - line)) / max(float(g @ g), 1e-18)
     t = line + np.outer(g, a)
-    v = P[-1] - P[0]
+    v = (P[0] - P[-1]) if stop.reverse else (P[-1] - P[0])  # the robot's x axis orients the tilt
     heading = math.degrees(math.atan2(v[1], v[0]))
     return np.array([ground_point(p, heading, float(r), float(q), height_mm) for p, (r, q) in zip(P, t)])
 
@@ -209,48 +206,88 @@ NO_STREAM_TILT = ("the inclinometer was not read along the stream: the reflector
                   "the floor changes along the move) would read as a bend; the ground chord is used")
 
 
+#: why heading_fit is skipped when the tilt is not compensated but the floor's tilt changes along the move
+LEAN_NOT_COMPENSATED = ("the tilt is not compensated and the reflector's lean changes by {lean:.0f} µm across "
+                        "the move (inclinometer {d:.4f}° × {h:.0f} mm): a bend fit would read the lean as a turn; "
+                        "the chord is used")
+
+
+def _tilt_applied(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
+                  height: float, yaw: float) -> None:
+    at, prev = body_tilt(stop.tilt_at, offset, yaw), body_tilt(stop.tilt_prev, offset, yaw)
+    out.roll_deg, out.pitch_deg = at
+    out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height, stop.reverse)
+    out.applied.append("tilt")
+
+
+def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
+                 height: float, anchor_sigma_mm: float, yaw: float) -> None:
+    """The end tangent of the stream's bend, only when it is shown (calibration/bend_fit.py)."""
+    use_tilt = "tilt" in out.applied
+    pts = _ground_stream(stop, offset, height, yaw) if use_tilt else as_points(stop.stream, "stream")
+    sign = -1.0 if stop.reverse else 1.0
+    if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
+        v = sign * (P_at - P_prev)
+        at = body_tilt(stop.tilt_at, offset, yaw)
+        pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
+    start = P_at - sign * (P_at - out.abs_P_prev)  # the travel's start of the (ground) chord
+    try:
+        fit = bend_fit(pts, start, P_at, anchor_sigma_mm)
+    except ValueError as exc:  # too few points between the stops: the chord stays
+        out.skipped["heading_fit"] = str(exc)
+        return
+    if not fit.significant:
+        out.skipped["heading_fit"] = fit.why
+        return
+    out.abs_P_prev = P_at - sign * float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * fit.direction
+    out.applied.append("heading_fit")
+
+
+def _lean_change_um(stop: Stop, height: float) -> float | None:
+    """How far the reflector's lean moves it sideways across the move, from the two standstill readings."""
+    if stop.tilt_prev is None or stop.tilt_at is None:
+        return None
+    d = abs(stop.tilt_at[0] - stop.tilt_prev[0])  # roll leans the reflector across the travel
+    return math.radians(d) * height * 1000.0
+
+
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
-               imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None) -> Applied:
-    """Apply ``comp`` to one stop; a compensation without its input is skipped and says why."""
+               imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None,
+               anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0) -> Applied:
+    """Apply ``comp`` to one stop; a compensation without its input, or one the data contradict, is skipped
+    and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured)."""
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
     P_prev = as_points(stop.abs_P_prev, "abs_P_prev", 1)[0]
-    out = Applied(P_prev, None, None, check_H(rob_H_scn, "rob_H_scn"), [], {})
+    out = Applied(forward_prev(P_prev, P_at, stop.reverse), None, None, check_H(rob_H_scn, "rob_H_scn"), [], {})
     tilt_ok = stop.tilt_at is not None and stop.tilt_prev is not None and imu_offset is not None
     offset = imu_offset if imu_offset is not None else (0.0, 0.0)
-    height = reflector_height_mm(rob_H_scn) if comp.tilt and tilt_ok else 0.0  # only the tilt needs it
+    needs_height = (comp.tilt and tilt_ok) or (comp.heading_fit and stop.tilt_at is not None)
+    height = reflector_height_mm(rob_H_scn) if needs_height else 0.0
     if comp.tilt:
         if not tilt_ok:
             out.skipped["tilt"] = ("no inclinometer offset in the calibration" if imu_offset is None
                                    else "the base reported no tilt at this stop")
         else:
-            at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
-            prev = (stop.tilt_prev[0] - offset[0], stop.tilt_prev[1] - offset[1])
-            out.roll_deg, out.pitch_deg = at
-            out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height)
-            out.applied.append("tilt")
+            _tilt_applied(out, stop, P_prev, P_at, offset, height, imu_yaw_deg)
     if comp.heading_fit:
+        lean = None if "tilt" in out.applied else _lean_change_um(stop, height)
         if stop.stream is None or len(stop.stream) == 0:
             out.skipped["heading_fit"] = "no tracker stream was recorded along the approach"
         elif len(stop.stream) < MIN_FIT_POINTS:
             out.skipped["heading_fit"] = (f"the stream along the approach holds {len(stop.stream)} points "
                                           f"(the fit needs >= {MIN_FIT_POINTS})")
+        elif (why := stream_ends_check(stop.stream, P_prev, P_at, anchor_sigma_mm)) is not None:
+            out.skipped["heading_fit"] = why
         elif "tilt" in out.applied and stop.stream_tilt is None:
             out.skipped["heading_fit"] = NO_STREAM_TILT
+        elif "tilt" in out.applied and (why := stream_tilt_check(stop.stream_tilt, stop.tilt_prev, stop.tilt_at,
+                                                                 0.0)) is not None:
+            out.skipped["heading_fit"] = why
+        elif lean is not None and lean > 3.0 * anchor_sigma_mm * 1000.0:
+            d = abs(stop.tilt_at[0] - stop.tilt_prev[0])
+            out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean, d=d, h=height)
         else:
-            use_tilt = "tilt" in out.applied
-            pts = _ground_stream(stop, offset, height) if use_tilt else as_points(stop.stream, "stream")
-            # out.abs_P_prev is P_at minus the ground chord when the tilt is compensated
-            if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
-                v = P_at - P_prev
-                at = (stop.tilt_at[0] - offset[0], stop.tilt_at[1] - offset[1])
-                pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
-            try:
-                u = fit_heading(pts, out.abs_P_prev, P_at)
-            except ValueError as exc:  # too few points between the stops: the chord stays
-                out.skipped["heading_fit"] = str(exc)
-            else:
-                out.abs_P_prev = P_at - float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * u
-                out.applied.append("heading_fit")
+            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg)
     if comp.bias:
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"
@@ -263,5 +300,6 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
     return out
 
 
-__all__ = ["Applied", "Compensation", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias", "body_z", "compensate",
-           "fit_heading", "ground_chord", "ground_point", "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]
+__all__ = ["Applied", "Compensation", "LEAN_NOT_COMPENSATED", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias",
+           "body_z", "compensate", "fit_heading", "forward_prev", "ground_chord", "ground_point", "imu_offset_deg",
+           "reflector_height_mm", "tilt_of_pose"]

@@ -22,6 +22,8 @@ from daemon.bus.protocol import CommandError, ErrorCode
 
 ROLES = ("viewer", "operator", "admin")
 PROCEDURES = ("referencing", "intrinsics", "measure-mark", "experiment")
+#: the procedures that drive the robot: a STOP stops their jobs, and they cannot start while it is latched
+MOVING_PROCEDURES = ("referencing", "measure-mark", "experiment")
 POS = "POS"
 REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
 
@@ -211,8 +213,12 @@ TABLE: tuple[Command, ...] = (
                 Arg("speed_deg_s", "float", "turn rate (limit: config [robot] max_turn_speed_deg_s)",
                     unit="°/s", default=20.0, lo=0, lo_open=True, cli="--speed", metavar="DEG_S"),
                 _CONFIRM, _WAIT, _motion_timeout("angle_deg", "speed_deg_s"))),
-    Command("robot.stop", "stop the base now (jumps every queue, no confirmation)", "operator",
-            cli=("robot", "stop"), result="{stopped}"),
+    Command("robot.stop", "stop the base now and latch: every job that drives is stopped, every motion refused "
+            "until robot.release (any key may stop; no confirmation)", "viewer",
+            cli=("robot", "stop"), result="{stopped, latched, jobs_stopped}"),
+    Command("robot.release", "clear a latched stop: motions and robot jobs are allowed again (stopped jobs "
+            "continue only on calib.resume)", "operator", cli=("robot", "release"),
+            result="{released, was_latched}"),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
                    "inclinometer), battery_v"),
@@ -263,7 +269,8 @@ TABLE: tuple[Command, ...] = (
                 Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file"))),
     Command("calib.results", "active calibration and every stored result", verb="results",
             result="{active, history}"),
-    Command("calib.resume", "queue a failed or cancelled job again; the worker continues from its checkpoint",
+    Command("calib.resume", "queue a failed, cancelled or stopped job again; the worker continues from its "
+            "checkpoint (a stopped one only after robot.release)",
             "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
             result="{job, worker_seen_s_ago}", args=(
@@ -383,8 +390,8 @@ def markdown_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "PROCEDURES", "REQUIRED", "ROLES", "TABLE", "check_arg",
-           "help_entry", "markdown_table", "validate"]
+__all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES",
+           "TABLE", "check_arg", "help_entry", "markdown_table", "validate"]
 
 if __name__ == "__main__":
     import sys

@@ -43,6 +43,7 @@ class ErrorCode:
     INTERNAL = "internal"
     UNAUTHORIZED = "unauthorized"  # the CURVE key was revoked while connected
     FORBIDDEN = "forbidden"  # the caller's role may not send this command; the message names both roles
+    STOPPED = "stopped"  # the robot's stop is latched: no motion until an operator's robot.release
 
 
 class ProtocolError(Exception):

@@ -54,9 +54,10 @@ def final_of(j: dict[str, Any]) -> dict[str, Any] | None:
     if isinstance(j.get("result"), dict) and j["result"]:  # also a failure's, with failed/cancelled set
         return {"job": j["job"], **j["result"], **({"cancelled": True} if state == "cancelled" else {})}
     err = j.get("error")
-    if err or state in ("failed", "cancelled"):
+    if err or state in ("failed", "cancelled", "stopped"):
         msg = err.get("message") if isinstance(err, dict) else (err or f"job {state}")
-        return {"job": j["job"], "failed": True, "cancelled": state == "cancelled", "message": str(msg)}
+        return {"job": j["job"], "failed": True, "cancelled": state == "cancelled", "stopped": state == "stopped",
+                "message": str(msg)}
     return None
 
 
@@ -113,18 +114,18 @@ def _follow(c: Client, sub: Any, j: dict[str, Any] | None, job: str, interactive
 
 
 def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> int:
-    """Ctrl-C while following: detach, or cancel a motion procedure (asked; a second Ctrl-C says yes)."""
+    """Ctrl-C while following: detach, or stop the robot with a motion procedure (asked; a second Ctrl-C: yes)."""
     reattach = f"`ritactl follow {job}` re-attaches"
     if procedure not in MOTION_PROCEDURES:
         say(f"\ndetached; job {job} goes on. {reattach}, `ritactl cancel {job}` stops it.", as_json)
         return Exit.INTERRUPTED
-    if yes_after_ctrl_c(f"job {job} moves the robot. cancel the job too?", as_json):
-        c.call("calib.cancel", job=job)
-        say(f"\ncancel requested for {job}: the worker stops at its next step; the base finishes its current "
-            "motion (`ritactl robot stop` halts it now).", as_json)
+    if yes_after_ctrl_c(f"job {job} moves the robot. stop the robot (and the job)?", as_json):
+        r = c.call("robot.stop")  # the one latched stop, as `ritactl robot stop` and the console's STOP
+        say(f"\nrobot stopped and latched; stopped job(s): {', '.join(r.get('jobs_stopped') or []) or 'none'}. "
+            f"`ritactl robot release`, then `ritactl resume {job}` continues it.", as_json)
     else:
-        say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl cancel {job}` stops the job, "
-            f"`ritactl robot stop` halts the base; {reattach}.", as_json)
+        say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl robot stop` stops the robot and "
+            f"the job, `ritactl cancel {job}` cancels it after its current step; {reattach}.", as_json)
     return Exit.INTERRUPTED
 
 
@@ -146,13 +147,14 @@ def follow(c: Client, job: str, interactive: bool = True, as_json: bool = False)
 
 
 def show_result(d: dict[str, Any], as_json: bool = False) -> int:
-    """Print a job's result (or failure); its exit code (``for_verdict``; failed/cancelled: FAIL)."""
+    """Print a job's result (or failure); its exit code (``for_verdict``; failed/cancelled/stopped: FAIL)."""
     code = Exit.FAIL if d.get("failed") else for_verdict(d.get("verdict"))
     if as_json:
         print_result(d, True)
         return code
     if d.get("failed"):
-        print(f"{'CANCELLED' if d.get('cancelled') else 'FAILED'}: {d.get('message')}")
+        print(f"{'CANCELLED' if d.get('cancelled') else 'STOPPED' if d.get('stopped') else 'FAILED'}: "
+              f"{d.get('message')}")
         return code
     print(f"\nresult: {d.get('procedure')} verdict={d.get('verdict')}")
     for m in d.get("messages") or []:
@@ -254,10 +256,12 @@ def cmd_jobs(c: Client, a: argparse.Namespace) -> int:
         return Exit.OK
     for j in r["jobs"]:
         end = final_of(j)
-        state = j["state"] if end is None else ("cancelled" if end.get("cancelled") else
-                                                "failed" if end.get("failed") else "done")
+        state = j["state"] if end is None else ("cancelled" if end.get("cancelled") else "stopped"
+                                                if end.get("stopped") else "failed" if end.get("failed") else "done")
         p = {} if end else (j.get("progress") or {})
         print(f"{j['job']:50s} {j['procedure']!s:13s} {state:9s} {p.get('percent', '')} {p.get('step', '')}")
+    if (r.get("latch") or {}).get("latched"):
+        print(f"STOP LATCHED by {r['latch'].get('by')}: stopped jobs resume after `ritactl robot release`")
     print(f"worker last seen {r.get('worker_seen_s_ago')} s ago")
     return Exit.OK
 

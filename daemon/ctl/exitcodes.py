@@ -12,7 +12,7 @@ import enum
 class Exit(enum.IntEnum):
     OK = 0            # done; a procedure's verdict is "ok"
     WARN = 1          # a procedure finished with verdict "warn"
-    FAIL = 2          # verdict "fail", a failed/cancelled job, or a calibration error
+    FAIL = 2          # verdict "fail", a failed/cancelled/stopped job, or a calibration error
     NO_ANSWER = 3     # no reply: the daemon is down (its ipc socket file is missing), unreachable, or refused this key
     REFUSED = 4       # the daemon answered with an error (bad_args, device fault, forbidden, ...)
     BAD_INPUT = 5     # a local file or dataset is missing or invalid (validate found problems), or a package

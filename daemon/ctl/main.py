@@ -7,7 +7,7 @@ Examples::
     ritactl watch --frames        # frame rate, drops and latency of the image stream
     ritactl capture --label nest-red
     ritactl tracker measure | aim X Y Z | find --distance MM | stream start --rate HZ | stream stop | status
-    ritactl robot move MM --yes [--speed MM_S] | turn DEG --yes | stop | status
+    ritactl robot move MM --yes [--speed MM_S] | turn DEG --yes | stop | release | status
     ritactl camera capture --out frame.png | stream start | stream stop | status
     ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
     ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
@@ -72,6 +72,10 @@ def cmd_status(c: Client, a: argparse.Namespace) -> int:
         reason = f" - {s['reason']}" if s["reason"] else ""
         print(f"  {kind:8s} {s['state']:12s} reconnects={s['reconnects']} jobs={s['jobs_done']}"
               f"/{s['jobs_failed']} failed{reason}")
+    latch = h.get("latch") or {}
+    if latch.get("latched"):  # plainly: the robot will not move until someone releases it
+        print(f"  STOP LATCHED by {latch.get('by')}: no motion until `ritactl robot release` "
+              f"({latch.get('refused', 0)} motion(s) refused)")
     t, f, cm = h["telemetry"], h["frames"], h["commands"]
     print(f"  telemetry sent={t['sent']} dropped={sum(t['dropped'].values())}   frames sent={f['sent']} "
           f"dropped={f['dropped']}   commands={cm['requests']} errors={cm['errors']}")

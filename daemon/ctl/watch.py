@@ -39,6 +39,7 @@ class LiveStatus:
     robot: dict[str, Any] = field(default_factory=dict)
     fps: float | None = None
     job: dict[str, Any] | None = None
+    latch: dict[str, Any] = field(default_factory=dict)
     _frames: tuple[float, int] | None = None  # (uptime_s, frames sent) of the last health message
 
     def update(self, topic: str, d: dict[str, Any]) -> str | None:
@@ -56,6 +57,12 @@ class LiveStatus:
             return self._tracker_event(d)
         elif topic == "robot.state":
             self.robot = d
+        elif topic == "robot.latch":
+            self.latch = d
+            return (f"robot STOP LATCHED by {d.get('by')}: no motion until `ritactl robot release`"
+                    if d.get("latched") else f"robot stop released by {d.get('by')}")
+        elif topic == "robot.refused":
+            return f"refused: {d.get('message')}"
         elif topic == "robot.event" and d.get("event") == "FAULT":
             return f"robot motion FAULT: {d.get('reason') or d.get('result') or d}"
         elif topic.startswith("calib."):
@@ -66,6 +73,7 @@ class LiveStatus:
 
     def _health(self, d: dict[str, Any]) -> None:
         self.devices = {k: v["state"] for k, v in d["devices"].items()}
+        self.latch = d.get("latch") or self.latch
         now = (d["uptime_s"], d["frames"]["sent"])
         if self._frames is not None and now[0] > self._frames[0]:
             self.fps = (now[1] - self._frames[1]) / (now[0] - self._frames[0])
@@ -86,6 +94,8 @@ class LiveStatus:
             return f">>> job {job} asks: {d.get('question')} {d.get('choices')}  (ritactl answer {job} TEXT)"
         elif topic == "calib.result":
             self.job = None
+            if d.get("stopped"):
+                return f"job {job} STOPPED: {d.get('message')}"
             if d.get("failed"):
                 return f"job {job} FAILED: {d.get('message')}"
             return f"job {job} finished: {d.get('procedure')} verdict {d.get('verdict')}"
@@ -101,7 +111,8 @@ class LiveStatus:
         rob = (f"{r.get('state', '?')} x {_fmt(r.get('x_mm'))} y {_fmt(r.get('y_mm'))} "
                f"hdg {_fmt(r.get('heading_deg'))}° {tilt}") if r else "no state yet"
         cam = f"{self.fps:.1f} fps" if self.fps is not None else "? fps"
-        parts = [f"tracker {dev.get('tracker', '?')} {self.lock} {trk}", f"robot {dev.get('robot', '?')} {rob}",
+        stop = " STOP LATCHED" if self.latch.get("latched") else ""
+        parts = [f"tracker {dev.get('tracker', '?')} {self.lock} {trk}", f"robot {dev.get('robot', '?')}{stop} {rob}",
                  f"camera {dev.get('camera', '?')} {cam}"]
         if self.job:
             j = self.job
@@ -152,6 +163,7 @@ def _snapshot(c: Client, status: LiveStatus, echo: Callable[[str, dict[str, Any]
         if echo is not None:
             echo(topic, {**m, "snapshot": True})
     status.devices.update({k: v["state"] for k, v in snap["devices"].items()})
+    status.latch = snap.get("latch") or status.latch
     try:  # the lock is only announced on change: ask once
         ts = c.call("tracker.status", timeout=2).get("tracker_status")
         status.lock = {"Ready": "locked", "Busy": "locked", "NotReady": "no lock"}.get(ts, status.lock)

@@ -21,15 +21,21 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable
 
-from daemon.bus.command_table import COMMANDS, PROCEDURES
+from daemon.bus.command_table import COMMANDS, MOVING_PROCEDURES, PROCEDURES
 from daemon.bus.procedure_params import check_params
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
+from daemon.ritad.stop_latch import StopLatch
 
 REPORT_KINDS = next(a.choices for a in COMMANDS["calib.report"].args if a.name == "kind")
 #: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
 FINAL_STATES = ("done", "failed", "cancelled")
-RESUMABLE = ("failed", "cancelled")
+RESUMABLE = ("failed", "cancelled", "stopped")
+#: a robot STOP stops the jobs of moving procedures in these states
+ACTIVE_STATES = ("queued", "running", "waiting")
+#: a stopped job whose worker has not reported the end of its run yet is resumed anyway after this long
+#: without a sign of the worker (it died; the next worker finds the job stopped)
+WORKER_GONE_S = 60.0
 #: job ids name dataset folders: no separators, no leading dot
 JOB_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,127}")
 
@@ -52,6 +58,14 @@ class _Mailbox:
                     w.set_result(item)
                     return
             self._items.append(item)
+
+    def remove(self, pred: Callable[[Any], bool]) -> bool:
+        """Take the queued items ``pred`` matches out; whether there were any."""
+        with self._lock:
+            keep = [i for i in self._items if not pred(i)]
+            found = len(keep) != len(self._items)
+            self._items = collections.deque(keep)
+        return found
 
     def get(self, timeout: float) -> Future:
         fut: Future = Future()
@@ -83,11 +97,16 @@ class CalibJobs:
     States: ``queued`` → ``running`` ⇄ ``waiting`` (a prompt) → ``done`` | ``failed`` |
     ``cancelled``. The last three are final: once a job has a result or an error, later
     progress or prompt reports cannot move it back (a stale report is ignored), and only
-    ``calib.resume`` of a failed or cancelled job queues it again.
+    ``calib.resume`` of a failed or cancelled job queues it again. A robot STOP puts the
+    active jobs of moving procedures into ``stopped`` at once (the worker learns it from its
+    inbox, and the latch refuses its next motion); ``calib.resume`` continues a stopped job
+    only after ``robot.release`` and after its worker has ended the stopped run.
     """
 
-    def __init__(self, publish: Callable[[str, Any], None], data_dir: Path | None = None) -> None:
+    def __init__(self, publish: Callable[[str, Any], None], data_dir: Path | None = None,
+                 latch: StopLatch | None = None) -> None:
         self._publish = publish
+        self.latch = latch if latch is not None else StopLatch(publish)
         self._data_dir = Path(data_dir) if data_dir is not None else None  # finds jobs of an earlier daemon run
         self._queue = _Mailbox()
         self._inboxes: dict[str, _Mailbox] = collections.defaultdict(_Mailbox)
@@ -125,8 +144,13 @@ class CalibJobs:
 
     # ---------------------------------------------------------------- operator side
 
+    def _not_latched(self, cmd: str, proc: str) -> None:
+        if proc in MOVING_PROCEDURES and self.latch.latched:
+            raise CommandError(ErrorCode.STOPPED, self.latch.message(f"{cmd} ({proc} drives the robot)"))
+
     def start(self, req: Request) -> Any:
         proc, params = req.args["procedure"], req.args["params"]
+        self._not_latched(req.cmd, proc)
         if req.args.get("job") is None:
             job_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{proc}-{uuid.uuid4().hex[:6]}"
         else:
@@ -147,9 +171,13 @@ class CalibJobs:
         job = self.jobs.get(job_id) or self._from_disk(req.cmd, job_id)
         return self._enqueue(self._resumable(req.cmd, job), "queued (resumed)")
 
-    @staticmethod
-    def _resumable(cmd: str, job: dict[str, Any]) -> dict[str, Any]:
+    def _resumable(self, cmd: str, job: dict[str, Any]) -> dict[str, Any]:
         state = job["state"]
+        self._not_latched(cmd, job["procedure"])
+        age = self.worker_age()
+        if state == "stopped" and not job.get("run_ended", True) and age is not None and age < WORKER_GONE_S:
+            raise CommandError(ErrorCode.BUSY, f"{cmd}: the worker has not yet ended the stopped run of job "
+                                               f"{job['job']!r}; try again in a few seconds")
         if state == "done":
             raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is done; there is nothing to resume "
                                                    f"(start a new job to measure again)")
@@ -169,7 +197,7 @@ class CalibJobs:
             raise CommandError(ErrorCode.NOT_FOUND, f"{cmd}: no calibration job {job_id!r} "
                                                     f"(recent: {', '.join(list(self.jobs)[-5:]) or 'none'})")
         status = st.get("status")
-        state = status if status in FINAL_STATES else "failed"  # "running" on disk: its worker died
+        state = status if status in (*FINAL_STATES, "stopped") else "failed"  # "running" on disk: its worker died
         return self._new_job(job_id, st["procedure"], {}, "dataset on disk", state)
 
     def answer(self, req: Request) -> Any:
@@ -189,7 +217,7 @@ class CalibJobs:
 
     def cancel(self, req: Request) -> Any:
         job = self._need_job(req)
-        if job["state"] in FINAL_STATES:
+        if job["state"] in (*FINAL_STATES, "stopped"):
             raise CommandError(ErrorCode.BAD_ARGS, f"calib.cancel: job {job['job']!r} is already {job['state']}; "
                                                    f"there is nothing to cancel")
         self._inboxes[job["job"]].put({"cancel": True})
@@ -197,7 +225,27 @@ class CalibJobs:
 
     def list(self, req: Request) -> Any:
         return {"jobs": list(self.jobs.values()), "queued": len(self._queue),
-                "worker_seen_s_ago": self.worker_age()}
+                "worker_seen_s_ago": self.worker_age(), "latch": self.latch.snapshot()}
+
+    def stop_moving_jobs(self, by: str) -> list[str]:
+        """A robot STOP: every active job that drives becomes ``stopped`` now; their ids."""
+        out = []
+        for job in self.jobs.values():
+            if job["procedure"] not in MOVING_PROCEDURES or job["state"] not in ACTIVE_STATES:
+                continue
+            job_id = job["job"]
+            never_ran = self._queue.remove(lambda item, j=job_id: item.get("job") == j)
+            if not never_ran:  # its worker sees this at its next bus call, before any further step
+                self._inboxes[job_id].put({"stop": True})
+            msg = (f"stopped by {by} (robot STOP); `ritactl robot release`, then `ritactl resume {job_id}` "
+                   f"continues it from its last completed step")
+            payload = {"job": job_id, "procedure": job["procedure"], "state": "stopped", "stopped": True,
+                       "failed": True, "message": msg}
+            job.update(state="stopped", prompt=None, run_ended=never_ran, result=payload, error=msg)
+            log.warning("job %s stopped by %s", job_id, by)
+            self._publish("calib.result", payload)
+            out.append(job_id)
+        return out
 
     def worker_age(self) -> float | None:
         """Seconds since the worker last called, or None if it never did (shown in ``daemon.health``)."""
@@ -224,7 +272,10 @@ class CalibJobs:
         if job is None:  # a job resumed by a restarted worker after a daemon restart: adopt it
             proc = req.args.get("procedure")
             job = self._new_job(job_id, proc if proc in PROCEDURES else "?", {}, "worker (resumed)", "running")
-        if job["state"] in FINAL_STATES:
+        if job["state"] == "stopped" and kind in ("result", "error"):  # the worker ended the stopped run
+            job["run_ended"] = True
+            return {"ok": True, "ignored": f"job {job_id} is stopped"}
+        if job["state"] in (*FINAL_STATES, "stopped"):
             log.info("job %s is %s: ignoring a late %s report", job_id, job["state"], kind)
             return {"ok": True, "ignored": f"job {job_id} is already {job['state']}"}
         if kind == "progress":

@@ -5,7 +5,8 @@ daemon. ``build_handlers`` wraps every handler with the command table's validato
 handler reads ``req.args`` already checked and defaulted (``bad_args`` names a bad one)
 and only checks what the table cannot: limits from the config, the world's presence.
 A handler answers at once or returns a Future completed in a device runner or the
-storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent.
+storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent and latches
+(daemon/ritad/stop_latch.py): no motion until ``robot.release``.
 """
 from __future__ import annotations
 
@@ -86,6 +87,11 @@ def _camera(s: Services) -> dict[str, Handler]:
             "camera.status": lambda req: s.job("camera", lambda c: c.status())}
 
 
+def _who(req: Request) -> str:
+    """The sender as logs and the latch name it: the key's name (or the local peer) and its role."""
+    return f"{req.peer.split(' (', 1)[0]} ({req.role})"
+
+
 def _check_motion(req: Request, amount: str, limit: float, speed: str, max_speed: float) -> None:
     """Config limits (the table's ranges cannot know them), then the confirmation."""
     a, v = req.args[amount], req.args[speed]
@@ -105,7 +111,12 @@ def _robot(s: Services) -> dict[str, Handler]:
     def motion(req: Request, amount: str, speed: str, fn: Callable[[Any, float, float], Any]) -> Any:
         a, v = req.args[amount], req.args[speed]
         timeout = req.args["timeout_s"] or 60.0 + 2 * abs(a) / v  # the table's default_text says the same
-        return s.motion(lambda r: fn(r, a, v), req.args["wait"], timeout)
+
+        def guarded(robot: Any) -> Any:  # again in the owner thread: a STOP may have come while this was queued
+            s.latch.guard(req.cmd, _who(req))
+            return fn(robot, a, v)
+
+        return s.motion(guarded, req.args["wait"], timeout)
 
     def move(req: Request) -> Any:
         _check_motion(req, "distance_mm", s.robot.max_distance_mm, "speed_mm_s", s.robot.max_speed_mm_s)
@@ -115,8 +126,19 @@ def _robot(s: Services) -> dict[str, Handler]:
         _check_motion(req, "angle_deg", 360.0, "speed_deg_s", s.robot.max_turn_speed_deg_s)
         return motion(req, "angle_deg", "speed_deg_s", lambda r, a, v: r.turn(a, v))
 
-    return {"robot.move": move, "robot.turn": turn,
-            "robot.stop": _then(lambda: s.job("robot", lambda r: r.stop(), urgent=True), {"stopped": True}),
+    def stop(req: Request) -> Any:
+        """Latch first (this thread serves every request in order), stop the jobs, then halt the base."""
+        who = _who(req)
+        s.latch.engage(who)
+        stopped = s.calib.stop_moving_jobs(who)
+        halted = s.job("robot", lambda r: r.stop(), urgent=True)
+        s.abort_motions(s.latch.message("the motion"))
+        return chain(halted, lambda _: {"stopped": True, "latched": True, "jobs_stopped": stopped})
+
+    def release(req: Request) -> Any:
+        return {"released": True, "was_latched": s.latch.release(_who(req))}
+
+    return {"robot.move": move, "robot.turn": turn, "robot.stop": stop, "robot.release": release,
             "robot.status": lambda req: chain(s.job("robot", lambda r: r.status()), lambda st: st.to_dict())}
 
 
@@ -218,9 +240,19 @@ def _detect(s: Services) -> dict[str, Handler]:
 GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview, _detect)
 
 
-def validated(cmd: str, handler: Handler) -> Handler:
-    """``handler`` seeing ``req.args`` checked and defaulted by the command table."""
-    return lambda req: handler(dataclasses.replace(req, args=validate(cmd, req.args)))
+#: motions refused while the stop is latched (robot.move and robot.turn are also guarded in the runner)
+LATCHED = frozenset({"robot.move", "robot.turn", "tracker.aim", "tracker.find", "sim.place_robot_on_plate"})
+
+
+def validated(cmd: str, handler: Handler, s: Services) -> Handler:
+    """``handler`` seeing ``req.args`` checked and defaulted by the command table; motions refused when latched."""
+    def run(req: Request) -> Any:
+        args = validate(cmd, req.args)
+        if cmd in LATCHED:
+            s.latch.guard(cmd, _who(req))
+        return handler(dataclasses.replace(req, args=args))
+
+    return run
 
 
 def build_handlers(s: Services) -> dict[str, Handler]:
@@ -230,4 +262,4 @@ def build_handlers(s: Services) -> dict[str, Handler]:
         raw.update(group(s))
     if set(raw) != set(COMMANDS):
         raise RuntimeError(f"handlers and command table differ: {sorted(set(raw) ^ set(COMMANDS))}")
-    return {name: validated(name, h) for name, h in raw.items()}
+    return {name: validated(name, h, s) for name, h in raw.items()}

@@ -46,6 +46,7 @@ from daemon.ritad.motion import MotionWaiters  # noqa: E402
 from daemon.ritad.runner import DeviceRunner  # noqa: E402
 from daemon.ritad.server import CommandServer  # noqa: E402
 from daemon.ritad.services import Services  # noqa: E402
+from daemon.ritad.stop_latch import LATCH_FILE, StopLatch  # noqa: E402
 from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
 from drivers.base import Device, Frame  # noqa: E402
 
@@ -79,9 +80,10 @@ class Daemon:
         self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
         self.motions = MotionWaiters(lambda fn: self.job("robot", fn))
         self.stop_event = threading.Event()
+        publish = lambda topic, data: self.telemetry.publish(topic, data)  # noqa: E731 - telemetry starts later
+        self.latch = StopLatch(publish, Path(cfg.daemon.data_dir) / LATCH_FILE)  # persists across restarts
         # data_dir lets calib.resume find jobs a previous ritad ran
-        self.calib = CalibJobs(lambda topic, data: self.telemetry.publish(topic, data),
-                               data_dir=Path(cfg.daemon.data_dir))
+        self.calib = CalibJobs(publish, data_dir=Path(cfg.daemon.data_dir), latch=self.latch)
         self.worker = WorkerSupervisor(self._worker_cmd, Path(cfg.daemon.data_dir) / "worker.log",
                                        enabled=cfg.daemon.start_worker)
 
@@ -130,6 +132,7 @@ class Daemon:
                                     plain_role=self.config.security.ipc_role)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
+        self.telemetry.publish("robot.latch", self.latch.snapshot())  # late joiners' snapshot holds it too
         for kind in KINDS:
             runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
@@ -169,11 +172,13 @@ class Daemon:
                         abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
                         robot=cfg.robot, calib=self.calib, world=self.world,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
-                        state=self.state, latest_frame=lambda: self.frames.last_frame)
+                        state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
+                        abort_motions=self.motions.abort)
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""
-        return {**self.telemetry.snapshot(), "devices": {k: r.snapshot() for k, r in self.runners.items()}}
+        return {**self.telemetry.snapshot(), "devices": {k: r.snapshot() for k, r in self.runners.items()},
+                "latch": self.latch.snapshot()}
 
     def job(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
         return self.runners[kind].submit(fn, urgent=urgent, timeout=timeout)
@@ -200,6 +205,7 @@ class Daemon:
                 "commands": {"requests": self.server.requests, "errors": self.server.errors,
                              "pending": self.server.pending},
                 "worker": {"pid": self.worker.pid, "seen_s_ago": self.calib.worker_age()},
+                "latch": self.latch.snapshot(),
                 "alive": self.alive()}
 
     def alive(self) -> bool:

@@ -37,6 +37,14 @@ class MotionWaiters:
             else:
                 fut.set_exception(CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT: {payload}"))
 
+    def abort(self, message: str) -> None:
+        """Fail every motion waiting for its end with ``stopped`` (a latched STOP ended it)."""
+        with self._lock:
+            waiters, self._waiters = self._waiters, []
+        for fut in waiters:
+            if not fut.done():
+                fut.set_exception(CommandError(ErrorCode.STOPPED, message))
+
     def _forget(self, fut: Future) -> bool:
         with self._lock:
             if fut not in self._waiters:

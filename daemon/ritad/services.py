@@ -2,17 +2,18 @@
 
 ``Daemon.services()`` fills it in; tests build one with fakes. Each field says what a
 handler group needs: device jobs, robot motions, the storage thread, the data dir, the
-few config values handlers read, the calibration mailbox and the simulated world.
+few config values handlers read, the calibration mailbox, the stop latch and the simulated world.
 """
 from __future__ import annotations
 
 from concurrent.futures import Executor, Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
 from daemon.ritad.calib_jobs import CalibJobs
 from daemon.ritad.config import RobotSection
+from daemon.ritad.stop_latch import StopLatch
 
 
 class SubmitJob(Protocol):
@@ -41,3 +42,5 @@ class Services:
     health: Callable[[], dict[str, Any]]
     state: Callable[[], dict[str, Any]]
     latest_frame: Callable[[], Any] = lambda: None  # the newest published Frame, for camera.preview
+    latch: StopLatch = field(default_factory=lambda: StopLatch(lambda topic, data: None))  # the latched stop
+    abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end

@@ -19,7 +19,7 @@ from typing import Any
 from calibration.errors import CalibrationError
 from daemon.worker.compensations import store_bias
 from daemon.worker.compute import COMPUTE
-from daemon.worker.job import Cancelled, JobContext, StepFailed
+from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped
 from daemon.worker.procedures import RUNNERS
 from daemon.worker.store import add_message, install_camera_model, save_result
 from daemon.bus.client import Client, ClientTimeout
@@ -102,6 +102,11 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         ctx.finish("cancelled")
         ctx.report("error", {"message": str(exc), "cancelled": True})
         return None
+    except Stopped as exc:  # no further bus call: the daemon already shows the job stopped
+        log.warning("job %s stopped at %s: %s", ctx.job_id, ctx.step, exc)
+        ctx.finish("stopped")
+        ctx.report("error", {"message": str(exc), "stopped": True, "step": ctx.step})
+        return None
     except Exception as exc:  # noqa: BLE001 - any failure ends this job, never the worker
         # a device refused, a gate failed or input was bad: keep the observations, say how to resume
         ctx.state.setdefault("failure", {"step": ctx.step, "message": operator_message(exc)})
@@ -120,6 +125,14 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                                           "table_markdown", "files", "uncertainty", "compensation")}
     ctx.report("result", summary)  # the last report: a job with a result is final
     return result
+
+
+def _stopped_in_daemon(client: Client) -> set[str]:
+    """Jobs the daemon holds as stopped: a restarted worker must not resume them on its own."""
+    try:
+        return {j["job"] for j in client.call("calib.jobs", timeout=10)["jobs"] if j.get("state") == "stopped"}
+    except (ClientTimeout, CommandError, KeyError, TypeError):
+        return set()
 
 
 def unfinished(data_dir: Path) -> list[dict[str, Any]]:
@@ -157,7 +170,13 @@ def main(argv: list[str] | None = None) -> int:
     except ClientTimeout as exc:
         print(f"calibration worker: {exc.args[0]}", file=sys.stderr)
         return 3
+    stopped = _stopped_in_daemon(client)
     for job in unfinished(data_dir):
+        if job["job"] in stopped:  # stopped while its worker was gone: it waits for calib.resume
+            ctx = JobContext(client, job, data_dir)
+            ctx.finish("stopped")
+            ctx.report("error", {"message": "stopped while no worker ran it", "stopped": True})
+            continue
         log.info("resuming job %s (%s)", job["job"], job["procedure"])
         run_job(client, job, data_dir)
         if args.once:

@@ -5,7 +5,7 @@ moves data between the bus, the dataset's stop records and that math:
 
 * :func:`read_tilt` — the inclinometer averaged at a standstill (``imu_readings``);
 * :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
-* :func:`plate_imu_offset` — the inclinometer offset from the on-plate runs (referencing);
+* :func:`plate_imu_offset` — the inclinometer's offset and yaw from the on-plate runs (referencing);
 * :func:`compensation_summary` — which compensations were requested, applied, skipped;
 * :func:`store_bias` — an experiment's fitted robot-frame bias into the active calibration.
 
@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.compensation import NAMES, Compensation, Stop, apply_bias, imu_offset_deg
+from calibration.compensation import NAMES, Compensation, Stop, apply_bias, tilt_of_pose
+from calibration.imu_mount import imu_mount
 from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.storage import atomic_write_json, calibration_dir
 
@@ -70,16 +71,28 @@ def stop_of(stop: dict[str, Any]) -> Stop:
     return Stop(np.asarray(stop["P_prev"]["abs_xyz"], float), np.asarray(stop["P_at"]["abs_xyz"], float),
                 _tilt(stop.get("imu_prev")), _tilt(stop.get("imu_at")),
                 None if not pts else np.asarray(pts, float),
-                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float))
+                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float),
+                reverse=float(stop.get("move_mm", 1.0)) < 0)
 
 
-def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray]) -> dict[str, Any] | None:
-    """Mean inclinometer offset over the on-plate runs that read the inclinometer (None: none did)."""
-    offs = [imu_offset_deg(H, *_tilt(r["imu0"])) for r, H in zip(runs_obs, abs_H_robs) if r.get("imu0")]
-    if not offs:
+def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray],
+                     height_mm: float) -> dict[str, Any] | None:
+    """The inclinometer's mounting from the on-plate runs that read it (None: none did).
+
+    calibration/imu_mount.py: the offset, and with two runs the yaw and the check that the
+    runs agree; its messages and verdict join the referencing result's.
+    """
+    pairs = [(tilt_of_pose(H), _tilt(r["imu0"]), _reading_sigma(r["imu0"]))
+             for r, H in zip(runs_obs, abs_H_robs) if r.get("imu0")]
+    if not pairs:
         return None
-    o = np.array(offs)
-    return {"imu_offset_deg": o.mean(axis=0).tolist(), "runs": o.tolist()}
+    return imu_mount([p[0] for p in pairs], [p[1] for p in pairs], [p[2] for p in pairs], height_mm).to_dict()
+
+
+def _reading_sigma(rec: dict[str, Any]) -> float:
+    """1σ of an averaged standstill reading (deg) from its spread and count."""
+    n = max(int(rec.get("n") or 1), 1)
+    return float(np.hypot(rec.get("roll_std_deg") or 0.0, rec.get("pitch_std_deg") or 0.0)) / np.sqrt(2.0 * n)
 
 
 def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | None, list[float] | None]:
@@ -87,6 +100,11 @@ def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | Non
     off = calib.get("imu_offset_deg")
     b = calib.get("robot_bias_mm")
     return (None if off is None else (float(off[0]), float(off[1]))), (None if b is None else [float(v) for v in b])
+
+
+def imu_yaw(calib: dict[str, Any]) -> float:
+    """The inclinometer's yaw in the body a calibration holds (0 when it was not resolved)."""
+    return float(calib.get("imu_yaw_deg") or 0.0)
 
 
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
@@ -118,6 +136,9 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[s
     fit = (result.get("metrics") or {}).get("fit")
     if not fit or fit.get("b") is None:
         raise ValueError("the experiment fitted no robot-frame bias (too few directions?): nothing to store")
+    check = (result.get("checks") or {}).get("bias_model") or {}
+    if check.get("ok") is False:  # the data contradict the bias model: b would not be a robot-frame bias
+        raise ValueError(check.get("message") or "the cluster means do not follow M + R(ψ)·b")
     summary = result.get("compensation") or {}
     n_applied, n_stops = summary.get("applied", {}).get("bias", 0), summary.get("stops", 0)
     if 0 < n_applied < n_stops:

@@ -14,6 +14,7 @@ import numpy as np
 
 from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
+from calibration.checks import bias_model_check
 from calibration.frames import apply_H
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
@@ -22,9 +23,9 @@ from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
-from calibration.compensation import Compensation, compensate
+from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.worker.compensations import (calibration_inputs, compensation_summary, parse_compensation,
-                                         plate_imu_offset, stop_of, stop_record)
+                                         imu_yaw, plate_imu_offset, stop_of, stop_record)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -63,7 +64,10 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     load = _eight_bit(load)
     runs = []
     for i, run in enumerate(obs["runs"]):
-        res = reference(model, plate, abs_P_nests, _abs(run["P0"]), _abs(run["P1"]), image=load(run["image"]),
+        P0, P1 = _abs(run["P0"]), _abs(run["P1"])
+        if float(run.get("move_mm", 1.0)) < 0:  # driven backwards: the robot's x axis is P0 − P1
+            P1 = 2 * P0 - P1
+        res = reference(model, plate, abs_P_nests, P0, P1, image=load(run["image"]),
                         sigma_t_mm=sigma_t, seed=i, model_dict=obs["camera_model"])
         runs.append(res)
     first = runs[0]
@@ -90,9 +94,14 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     out["residuals_mm"] = first_d.get("nest_residuals_mm")
     out["verdict"] = "fail" if "fail" in verdicts else ("warn" if "warn" in verdicts else "ok")
     out["messages"] = messages
-    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs])
-    if imu is not None:  # issue #15: the inclinometer's offset, part of the calibration like rob_H_scn
-        out.update(imu_offset_deg=imu["imu_offset_deg"], imu_offset_runs_deg=imu["runs"])
+    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs], reflector_height_mm(np.array(out["rob_H_scn"])))
+    if imu is not None:  # the inclinometer's mounting, part of the calibration like rob_H_scn
+        if imu["imu_offset_deg"] is not None:
+            out.update(imu_offset_deg=imu["imu_offset_deg"], imu_yaw_deg=imu["imu_yaw_deg"])
+        out.update(imu_offset_runs_deg=imu["runs"], imu_yaw_sigma_deg=imu["imu_yaw_sigma_deg"])
+        out["messages"] = out["messages"] + imu["messages"]
+        if imu["verdict"] == "warn" and out["verdict"] == "ok":
+            out["verdict"] = "warn"
     return out
 
 
@@ -107,7 +116,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     offset, bias = calibration_inputs(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias)
+                   bias_b_mm=bias, anchor_sigma_mm=sigma_t_mm, imu_yaw_deg=imu_yaw(calib))
     P_at = _abs(stop["P_at"])
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
@@ -140,10 +149,13 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])
     metrics = experiment_metrics(xy, headings, groups)
+    check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm,
+                             [m["std_mm"] for m in marks])
     return {"schema": RESULT_SCHEMA, "procedure": "experiment", "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
             "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
-            "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "verdict": "ok", "messages": []}
+            "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
+            "verdict": "ok" if check["ok"] else "warn", "messages": [] if check["ok"] else [check["message"]]}
 
 
 #: the focal length's 1σ above which an intrinsics model is only a warn (issue #14's 0.1 % goal)

@@ -17,7 +17,7 @@ import numpy as np
 
 from calibration import __version__
 from daemon.bus.client import Client
-from daemon.bus.protocol import CommandError
+from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import Dataset, atomic_write_json
 from daemon.worker.images import grey_loader
 
@@ -26,6 +26,10 @@ log = logging.getLogger("daemon.worker")
 
 class Cancelled(Exception):
     """The operator cancelled the job."""
+
+
+class Stopped(Exception):
+    """The robot's stop was latched: this run ends at once; ``calib.resume`` continues it after release."""
 
 
 class StepFailed(Exception):
@@ -88,7 +92,12 @@ class JobContext:
 
     def call(self, cmd: str, timeout: float = 120.0, **args: Any) -> Any:
         self.check_cancel()
-        return self.client.call(cmd, timeout=timeout, **args)
+        try:
+            return self.client.call(cmd, timeout=timeout, **args)
+        except CommandError as exc:
+            if exc.code == ErrorCode.STOPPED:  # a refused or aborted motion: the job stops here
+                raise Stopped(exc.args[0]) from None
+            raise
 
     def report(self, kind: str, data: dict[str, Any]) -> None:
         try:
@@ -103,7 +112,12 @@ class JobContext:
         self.report("progress", {"step": step, "percent": round(percent, 1), "waiting_for": waiting_for, **extra})
 
     def check_cancel(self) -> None:
-        msg = self.client.call("calib.inbox", timeout=10, job=self.job_id, timeout_s=0)
+        """Before every bus call: a STOP or a cancel posted for this job ends it here."""
+        self._ended_by(self.client.call("calib.inbox", timeout=10, job=self.job_id, timeout_s=0))
+
+    def _ended_by(self, msg: Any) -> None:
+        if msg and msg.get("stop"):
+            raise Stopped(f"job {self.job_id} stopped: the robot's stop is latched")
         if msg and msg.get("cancel"):
             raise Cancelled(f"job {self.job_id} cancelled by the operator")
 
@@ -115,8 +129,7 @@ class JobContext:
             msg = self.client.call("calib.inbox", timeout=40, job=self.job_id, timeout_s=30)
             if not msg:
                 continue
-            if msg.get("cancel"):
-                raise Cancelled(f"job {self.job_id} cancelled by the operator")
+            self._ended_by(msg)
             answer = str(msg.get("answer", ""))
             if choices and answer not in choices:
                 self.report("prompt", {"question": f"please answer one of {choices}: {question}",

@@ -36,6 +36,8 @@ class Navigator:
         self.speed = speed_mm_s
         self.turn_speed = turn_speed_deg_s
         self.nav = ctx.state.setdefault("nav", {"heading_deg": None})
+        if ctx.resumed:  # a run stopped (or killed) mid-turn leaves the robot off the checkpointed heading
+            self.nav["heading_deg"] = None
         self.last_points: tuple[dict[str, Any], dict[str, Any]] | None = None
         #: issue #15 inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
         self.last_record: dict[str, Any] = {}

@@ -70,6 +70,7 @@ def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) ->
         ctx.mark_done(f"{tag}.drive")
     if not ctx.done(f"{tag}.P1"):
         run["P1"] = ctx.call("tracker.measure", timeout=60)
+        run["move_mm"] = float(param(ctx, "distance_mm"))
         v = np.asarray(run["P1"]["abs_xyz"]) - np.asarray(run["P0"]["abs_xyz"])
         nav.nav["heading_deg"] = math.degrees(math.atan2(v[1], v[0]))
         ctx.mark_done(f"{tag}.P1")
@@ -128,7 +129,8 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     # issue #15: the inclinometer at both stops and the stream between them, when the base/tracker give them
     rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s")), **nav.last_record}
     return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
-            "offset_mm": offset.tolist(), **{k: v for k, v in rec.items() if v}}
+            "offset_mm": offset.tolist(), "move_mm": float(param(ctx, "distance_mm")),
+            **{k: v for k, v in rec.items() if v}}
 
 
 def _installed(ctx: JobContext, name: str) -> dict[str, Any]:

@@ -119,8 +119,8 @@ def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
             tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
             t1 = time.time_ns()
             _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
-        finally:
-            ctx.call("tracker.stream.stop", timeout=30)
+        finally:  # also when a STOP ended the move: past the job's stop check, the stream must end
+            ctx.client.call("tracker.stream.stop", timeout=30)
     finally:
         sub.close()
     P, t = _abs_points(msgs, np.asarray(abs_H_trk, float))

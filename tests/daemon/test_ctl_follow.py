@@ -161,16 +161,16 @@ class Ritactl:
             time.sleep(0.2)
 
 
-@pytest.mark.parametrize("keys, cancelled", [("y\n", True), ("\n", False), (None, True), ("", False)])
-def test_ctrl_c_during_a_motion_procedure_asks_to_cancel(endpoint, c, keys, cancelled):
-    """y: cancel; Enter or EOF: detach with the hint; a second Ctrl-C: cancel."""
+@pytest.mark.parametrize("keys, stopped", [("y\n", True), ("\n", False), (None, True), ("", False)])
+def test_ctrl_c_during_a_motion_procedure_asks_to_stop_the_robot(endpoint, c, keys, stopped):
+    """y: the latched stop (the job stopped too); Enter or EOF: detach with the hint; a second Ctrl-C: stop."""
     job = post_job(c, "referencing")
     f = Ritactl(endpoint, "follow", job)
     try:
         f.wait_for("moving", "out", poke=lambda: report(c, job, "progress", {"step": "drive", "percent": 20,
                                                                               "waiting_for": "robot moving"}))
         f.proc.send_signal(signal.SIGINT)
-        f.wait_for("cancel the job too? [y/N]", "err")
+        f.wait_for("stop the robot (and the job)? [y/N]", "err")
         if keys is None:
             f.proc.send_signal(signal.SIGINT)
         else:
@@ -182,15 +182,18 @@ def test_ctrl_c_during_a_motion_procedure_asks_to_cancel(endpoint, c, keys, canc
         time.sleep(0.2)
         assert "Traceback" not in f.text["err"] + f.text["out"]
         inbox = c.call("calib.inbox", job=job, timeout_s=0)
-        if cancelled:
-            assert inbox == {"cancel": True} and "cancel requested" in f.text["out"]
+        if stopped:
+            assert "robot stopped and latched" in f.text["out"], f.text  # (a queued job just leaves the queue)
+            assert c.call("state")["latch"]["latched"]
+            assert {j["job"]: j for j in c.call("calib.jobs")["jobs"]}[job]["state"] == "stopped"
         else:
-            assert inbox is None
+            assert inbox is None and not c.call("state")["latch"]["latched"]
             assert f"ritactl cancel {job}" in f.text["out"] and "ritactl robot stop" in f.text["out"]
     finally:
         if f.proc.poll() is None:
             f.proc.kill()
             f.proc.wait(10)
+        c.call("robot.release")
 
 
 def test_closed_pipe_after_a_daemon_answer(endpoint):
@@ -231,10 +234,12 @@ def test_ctrl_c_during_robot_move_offers_to_stop_it(endpoint, c, keys):
             c.call("robot.stop")
         wait_robot(c, "IDLE", 5)
         assert "Traceback" not in f.text["err"] + f.text["out"]
+        assert c.call("state")["latch"]["latched"]  # Ctrl-C's "stop the robot" latches like any STOP
     finally:
         if f.proc.poll() is None:
             f.proc.kill()
             f.proc.wait(10)
+        c.call("robot.release")
 
 
 def test_daemon_errors_name_the_option_to_type(endpoint, capsys):

@@ -87,6 +87,29 @@ def test_viewer_watches_but_may_not_move_start_jobs_or_capture(robot):
             assert code_of(c, cmd, **args) == ("forbidden", f"{cmd} needs role {need}; key vic is viewer")
 
 
+def test_a_viewer_stops_the_robot_and_only_an_operator_releases_it(robot, caplog):
+    """Stopping is never forbidden: the viewer's STOP halts a moving base and latches, logged with its name."""
+    caplog.set_level(logging.INFO, logger="daemon.ritad")
+    with client(robot, "vic") as vic, client(robot, "ole") as ole:
+        ole.call("robot.move", distance_mm=300.0, speed_mm_s=2.0, confirm=True, wait=False)  # 150 s of motion
+        end = time.monotonic() + 20
+        while ole.call("robot.status")["state"] != "MOVING":
+            assert time.monotonic() < end
+            time.sleep(0.02)
+        assert vic.call("robot.stop")["latched"]
+        end = time.monotonic() + 5
+        while ole.call("robot.status")["state"] != "IDLE":
+            assert time.monotonic() < end, "base not idle after a viewer's STOP"
+            time.sleep(0.01)
+        latch = vic.call("state")["latch"]
+        assert latch["latched"] and latch["by"] == "vic (viewer)", latch
+        assert code_of(ole, "robot.move", **MOVE)[0] == "stopped"
+        assert code_of(vic, "robot.release")[0] == "forbidden"
+        assert ole.call("robot.release") == {"released": True, "was_latched": True}
+        ole.call("robot.move", **MOVE)
+    assert any("robot STOP by vic (viewer)" in r.getMessage() for r in caplog.records)
+
+
 def test_operator_moves_starts_jobs_captures_but_may_not_change_keys(robot, caplog):
     caplog.set_level(logging.INFO, logger="daemon.ritad.server")
     with client(robot, "ole") as c:
@@ -108,6 +131,7 @@ def test_operator_moves_starts_jobs_captures_but_may_not_change_keys(robot, capl
 def test_local_ipc_client_is_operator_by_default(robot):
     with Client(robot["ipc"], timeout=10) as c:
         assert code_of(c, "robot.stop") == ("ok", "")
+        assert code_of(c, "robot.release") == ("ok", "")
         assert code_of(c, "keys.list")[0] == "forbidden"
 
 
@@ -116,7 +140,9 @@ def test_admin_manages_keys_and_changes_apply_to_open_connections(robot):
         assert {k["name"]: k["role"] for k in admin.call("keys.list")["keys"]}["rex"] == "operator"
         rex.call("robot.stop")
         admin.call("keys.role", name="rex", role="viewer")  # no restart: rex's open connection is a viewer now
-        assert code_of(rex, "robot.stop") == ("forbidden", "robot.stop needs role operator; key rex is viewer")
+        assert code_of(rex, "robot.release") == ("forbidden", "robot.release needs role operator; key rex is viewer")
+        assert code_of(rex, "robot.stop") == ("ok", "")  # stopping is never forbidden
+        admin.call("robot.release")
         assert rex.call("status")["devices"]
         assert admin.call("keys.revoke", name="rex") == {"revoked": "rex"}
         assert code_of(rex, "status")[0] == "unauthorized"  # the open connection loses access at once

@@ -160,3 +160,16 @@ def test_stored_bias_round_trip(ref, tmp_path):
            "metrics": {**second["metrics"], "fit": {**second["metrics"]["fit"], "b": [7.0, 0.0]}}}
     assert "NOT stored" in store_bias(data, bad) and "7.500 mm" in store_bias(data, bad)  # 7 fitted + 0.5 applied
     assert json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"] == b
+
+
+def test_a_bias_the_data_contradict_is_not_stored():
+    """The experiment's cluster means do not follow M + R(ψ)·b: storing b would compensate blindly."""
+    from daemon.worker.compensations import biased_calibration
+
+    result = {"job": "e1", "metrics": {"fit": {"b": [0.05, 0.0], "rms_mm": 0.08}},
+              "compensation": {"requested": [], "applied": {}, "stops": 8},
+              "checks": {"bias_model": {"ok": False, "message": "the cluster means do not follow M + R(ψ)·b: ..."}}}
+    with pytest.raises(ValueError, match="do not follow"):
+        biased_calibration({"job": "c1"}, result)
+    result["checks"]["bias_model"] = {"ok": True}
+    assert biased_calibration({"job": "c1"}, result)["robot_bias_mm"] == [0.05, 0.0]

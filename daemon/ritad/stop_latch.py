@@ -1,0 +1,110 @@
+"""The latched stop: one meaning for every STOP, whoever sends it.
+
+``robot.stop`` (any key, viewers included) engages the latch before the base is told
+to halt, in the ROUTER thread, so no later request can slip a motion in between. While
+latched every motion command is refused with ``stopped``, also a motion already queued
+in the robot's runner (``guard`` runs again in the owner thread just before the line is
+written). Only an operator's ``robot.release`` clears it. The latch survives a daemon
+restart (a file in the data dir): a watchdog restart must not turn a stopped robot into
+one that drives on.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.bus.storage import atomic_write_json
+
+log = logging.getLogger(__name__)
+
+#: the latch's file in the data dir
+LATCH_FILE = "stop_latch.json"
+#: refused motions are logged once per this many seconds per sender, with a count
+REFUSAL_LOG_INTERVAL_S = 10.0
+
+
+class StopLatch:
+    """Latched / released, who latched it and why; publishes ``robot.latch`` on every change."""
+
+    def __init__(self, publish: Callable[[str, Any], None], path: Path | None = None) -> None:
+        self._publish = publish
+        self._path = path
+        self._lock = threading.Lock()
+        self.latched = False
+        self.by = ""
+        self.reason = ""
+        self.since_ns: int | None = None
+        self.refused = 0
+        self._unlogged: dict[str, tuple[float, int]] = {}  # sender -> (last log time, refusals since)
+        self._load()
+
+    def _load(self) -> None:
+        try:
+            st = json.loads(self._path.read_text()) if self._path is not None and self._path.exists() else None
+        except (OSError, ValueError) as exc:  # unreadable: fail safe, stay stopped
+            st = {"latched": True, "by": "ritad", "reason": f"latch file unreadable ({exc})"}
+        if isinstance(st, dict) and st.get("latched"):
+            self.latched, self.by = True, str(st.get("by", "?"))
+            self.reason = str(st.get("reason", ""))
+            self.since_ns = int(st.get("since_ns") or time.time_ns())
+            log.warning("robot stop latched since an earlier run (by %s): motion refused until "
+                        "`ritactl robot release`", self.by)
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            return {"latched": self.latched, "by": self.by, "since_ns": self.since_ns, "reason": self.reason,
+                    "refused": self.refused}
+
+    def _changed(self) -> None:
+        snap = self.snapshot()
+        if self._path is not None:
+            try:
+                atomic_write_json(self._path, snap)
+            except OSError as exc:  # the latch still holds in memory
+                log.error("cannot persist the stop latch to %s: %s", self._path, exc)
+        self._publish("robot.latch", snap)
+
+    def engage(self, by: str, reason: str = "robot.stop") -> None:
+        """Latch (again): a second STOP re-stamps who and when, and still halts the base."""
+        with self._lock:
+            self.latched, self.by, self.reason, self.since_ns = True, by, reason, time.time_ns()
+        log.warning("robot STOP by %s (%s): motion latched off until `ritactl robot release`", by, reason)
+        self._changed()
+
+    def release(self, by: str) -> bool:
+        """Clear the latch; returns whether it was latched."""
+        with self._lock:
+            was = self.latched
+            self.latched, self.reason, self.since_ns = False, "", None
+            self.by = by if was else self.by
+        if was:
+            log.warning("robot stop released by %s: motion allowed again", by)
+            self._changed()
+        return was
+
+    def message(self, cmd: str) -> str:
+        when = time.strftime("%H:%M:%S", time.localtime((self.since_ns or 0) / 1e9))
+        return (f"{cmd} refused: the robot is stopped (latched by {self.by} at {when}); "
+                f"an operator clears it with `ritactl robot release` or the console's Release")
+
+    def guard(self, cmd: str, by: str) -> None:
+        """Raise ``stopped`` when latched, counting, logging (rate-limited) and publishing the refusal."""
+        if not self.latched:
+            return
+        msg = self.message(cmd)
+        with self._lock:
+            self.refused += 1
+            last, since = self._unlogged.get(by, (0.0, 0))
+            now = time.monotonic()
+            due = now - last >= REFUSAL_LOG_INTERVAL_S
+            self._unlogged[by] = (now, 0) if due else (last, since + 1)
+        if due:
+            log.warning("refused %s from %s: stopped%s", cmd, by,
+                        f" ({since} more refusals since the last line)" if since else "")
+        self._publish("robot.refused", {"cmd": cmd, "by": by, "message": msg})
+        raise CommandError(ErrorCode.STOPPED, msg)
