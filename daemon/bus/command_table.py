@@ -73,19 +73,14 @@ class Arg:
         return self.type + (f" ({self.unit})" if self.unit else "")
 
     def checked(self, value: Any, noun: str = "argument") -> Any:
-        """``value`` checked (type, finiteness, range, choices); ints become floats for float args.
-
-        The one checking path of the command table and the procedures' parameter table (``Param``
-        extends it); :class:`BadValue` says why, naming ``noun`` and the name.
-        """
+        """``value`` checked (type, finiteness, range, choices; ints become floats for float args): the one
+        check of the command table and of the procedures' parameters (``Param``); :class:`BadValue` says why."""
         name = f"{noun} {self.name!r}"
         if isinstance(value, bool) and self.type not in ("bool", "any") or not isinstance(value, _PY_TYPES[self.type]):
             raise BadValue(f"{name} must be {self.kind_text()}: {_TYPE_WORDS[self.type]}, got {value!r:.80}")
         if self.type == "float":
-            try:
-                value = float(value)  # msgpack ints beyond 2**63 still fit a float
-            except OverflowError:
-                value = math.inf
+            # msgpack ints beyond 2**63 still fit a float; a JSON int may not
+            value = float(value) if not isinstance(value, int) or abs(value) < 1e308 else math.inf
             if not math.isfinite(value):
                 raise BadValue(f"{name} must be finite, got {value!r}")
         if self.type in ("float", "int") and (why := self.check(value)):
