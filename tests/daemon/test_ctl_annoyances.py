@@ -75,6 +75,11 @@ def _curve_config(tmp_path: Path) -> Path:
 
 def test_check_config_names_a_missing_server_key_file(tmp_path):
     cfg = _curve_config(tmp_path)
+    from daemon.ritad.config import load
+    from daemon.ritad.keycheck import server_key_candidates
+
+    if any(p.exists() for p in server_key_candidates(load(cfg), {})):
+        pytest.skip("this machine has an installed ritad unit whose server key exists")
     check = f"import sys\nfrom daemon.ritad.main import main\nsys.exit(main(['--check-config', {str(cfg)!r}]))"
     env = {k: v for k, v in os.environ.items() if k != "CREDENTIALS_DIRECTORY"}
     res = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=60, cwd=ROOT,
