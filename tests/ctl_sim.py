@@ -24,7 +24,8 @@ def sim_daemon(rt: Path, configure: Callable[[config.Config], None] | None = Non
 
 
 def post_job(c: Client, procedure: str = "referencing", job: str | None = None) -> str:
-    return c.call("calib.start", procedure=procedure, params={}, **({"job": job} if job else {}))["job"]
+    params = {"mark_xy": [0.0, 0.0]} if procedure in ("measure-mark", "experiment") else {}  # required there
+    return c.call("calib.start", procedure=procedure, params=params, **({"job": job} if job else {}))["job"]
 
 
 def report(c: Client, job: str, kind: str, data: dict) -> None:

@@ -33,6 +33,7 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils.monitor import parse_monitor_message
 
+from daemon.bus.repeatlog import RepeatGate
 from daemon.bus.roles import KeyEntry, read_entry
 
 log = logging.getLogger(__name__)
@@ -83,22 +84,16 @@ class RefusalLog:
     def __init__(self, window_s: float = 60.0) -> None:
         self.window_s = window_s
         self._lock = threading.Lock()
-        self._seen: dict[tuple[str, str], list[float]] = {}  # (who, host) -> [last logged, repeats since]
+        self._gate: RepeatGate[tuple[str, str]] = RepeatGate(window_s)  # (who, host)
         self.count = 0
 
     def refused(self, who: str, peer: str, why: str) -> None:
         host = peer.rsplit(":", 1)[0] if ":" in peer else peer  # repeats come from new ports
-        now = time.monotonic()
         with self._lock:
             self.count += 1
-            entry = self._seen.get((who, host))
-            if entry is not None and now - entry[0] < self.window_s:
-                entry[1] += 1
-                return
-            repeats = int(entry[1]) if entry else 0
-            if len(self._seen) > 1000:  # many keys or addresses: forget the quiet ones, stay bounded
-                self._seen = {k: v for k, v in self._seen.items() if now - v[0] < self.window_s}
-            self._seen[(who, host)] = [now, 0]
+            repeats = self._gate.admit((who, host))
+        if repeats is None:
+            return
         more = f" ({repeats} more attempt(s) in the last {self.window_s:g} s)" if repeats else ""
         log.warning("refused %s client from %s: %s%s", who, peer, why, more)
 

@@ -70,7 +70,9 @@ class Client:
 
     def __init__(self, endpoint: str | None = None, timeout: float = 5.0,
                  curve: dict[str, bytes] | tuple[dict[str, bytes] | None, str | None] | None = None,
-                 ctx: zmq.Context | None = None, key_id: str | None = None) -> None:
+                 ctx: zmq.Context | None = None, key_id: str | None = None, fail_fast: bool = False) -> None:
+        """``fail_fast``: an ipc endpoint without its socket file is no daemon; say so at once (ritactl)
+        instead of waiting out the timeout, as a client started before its daemon must."""
         if isinstance(curve, tuple):  # the (curve, key_id) pair from daemon.ctl.keys.client_curve
             curve, key_id = curve[0], key_id or curve[1]
         self.endpoint = endpoint or default_endpoint()
@@ -83,6 +85,7 @@ class Client:
         self.sock: zmq.Socket | None = None
         self._monitor: zmq.Socket | None = None
         self._hello: dict[str, Any] | None = None
+        self.fail_fast = fail_fast
 
     def _socket(self) -> zmq.Socket:
         if self.sock is None:
@@ -120,7 +123,8 @@ class Client:
             event = parse_monitor_message(self._monitor.recv_multipart())
             if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
                 return ClientRefused(f"refused: key {self.key_id} is not allowed by the daemon at {self.endpoint} "
-                                     f"(on the robot: `ritactl keys allow FILE.key --name NAME`)")
+                                     f"(on the robot: `ritactl keys allow FILE.key --name NAME --role operator`, "
+                                     f"or --role viewer to watch only)")
             mismatch = event["value"] == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
             if mismatch and self.curve:
                 return ClientRefused(f"refused: the daemon at {self.endpoint} does not use CURVE, but this "
@@ -142,9 +146,18 @@ class Client:
                              f"at {self.endpoint} to {cmd!r} within {wait:g} s (check --endpoint or "
                              f"${ENV_ENDPOINT})")
 
+    def _check_socket(self, cmd: str) -> None:
+        path = self.endpoint.removeprefix("ipc://")
+        if self.endpoint.startswith("ipc://") and not path.startswith("@") and not os.path.exists(path):
+            raise ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r}: its socket file {path} does "
+                                f"not exist (is the daemon running? `systemctl status ritad`; another daemon: set "
+                                f"--endpoint or ${ENV_ENDPOINT})", code="no_answer")
+
     def call_raw(self, cmd: str, args: dict[str, Any] | None = None,
                  timeout: float | None = None) -> tuple[Any, list[zmq.Frame]]:
         """Send a command; return ``(result, attachments)`` or raise CommandError/ClientTimeout."""
+        if self.fail_fast:
+            self._check_socket(cmd)
         req_id = f"{self._prefix}-{next(self._ids)}"
         sock = self._socket()
         sock.send(make_request(req_id, cmd, args))

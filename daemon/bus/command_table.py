@@ -69,6 +69,36 @@ class Arg:
             return f"{_num(value)} is {word} {self.range_text()}{' ' + self.unit if self.unit else ''}"
         return None
 
+    def kind_text(self) -> str:
+        return self.type + (f" ({self.unit})" if self.unit else "")
+
+    def checked(self, value: Any, noun: str = "argument") -> Any:
+        """``value`` checked (type, finiteness, range, choices; ints become floats for float args): the one
+        check of the command table and of the procedures' parameters (``Param``); :class:`BadValue` says why."""
+        name = f"{noun} {self.name!r}"
+        if isinstance(value, bool) and self.type not in ("bool", "any") or not isinstance(value, _PY_TYPES[self.type]):
+            raise BadValue(f"{name} must be {self.kind_text()}: {_TYPE_WORDS[self.type]}, got {value!r:.80}")
+        if self.type == "float":
+            # msgpack ints beyond 2**63 still fit a float; a JSON int may not
+            value = float(value) if not isinstance(value, int) or abs(value) < 1e308 else math.inf
+            if not math.isfinite(value):
+                raise BadValue(f"{name} must be finite, got {value!r}")
+        if self.type in ("float", "int") and (why := self.check(value)):
+            raise BadValue(f"{name}: {why}")
+        if self.choices and value not in self.choices:
+            raise BadValue(f"{name}: {value!r:.80} is not one of {', '.join(self.choices)}")
+        return value
+
+
+class BadValue(ValueError):
+    """Why a value does not fit its :class:`Arg`; the caller adds the command or procedure."""
+
+
+_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
+                                          "map": (dict,), "any": (object,)}
+_TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+               "map": "a JSON object", "any": "anything"}
+
 
 @dataclass(frozen=True)
 class Command:
@@ -240,8 +270,9 @@ TABLE: tuple[Command, ...] = (
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
             result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
-                Arg("params", "map", "the procedure's parameters (declared in daemon/bus/procedure_params.py; "
-                    "passed to the worker as sent)", default={}),
+                Arg("params", "map", "the procedure's parameters, checked against its table in "
+                    "daemon/bus/procedure_params.py (types, ranges, names; a definition file as the JSON object)",
+                    default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
             result="{delivered}; answer must be one of the prompt's choices",
@@ -284,32 +315,16 @@ assert all(c.role in ROLES for c in TABLE)
 
 # ---------------------------------------------------------------------------- validation
 
-_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
-                                          "map": (dict,), "any": (object,)}
-
-
 def _bad(cmd: str, text: str) -> CommandError:
     return CommandError(ErrorCode.BAD_ARGS, f"{cmd}: {text}")
 
 
-def _kind_text(arg: Arg) -> str:
-    return arg.type + (f" ({arg.unit})" if arg.unit else "")
-
-
 def check_arg(cmd: str, arg: Arg, value: Any) -> Any:
-    """``value`` checked against ``arg`` (type, finiteness, range, choices); ints become floats for float args."""
-    ok_types = _PY_TYPES[arg.type]
-    if isinstance(value, bool) and arg.type not in ("bool", "any") or not isinstance(value, ok_types):
-        raise _bad(cmd, f"argument {arg.name!r} must be {_kind_text(arg)}, got {value!r}")
-    if arg.type == "float":
-        value = float(value)  # msgpack ints beyond 2**63 still fit a float
-        if not math.isfinite(value):
-            raise _bad(cmd, f"argument {arg.name!r} must be finite, got {value!r}")
-    if arg.type in ("float", "int") and (why := arg.check(value)):
-        raise _bad(cmd, f"argument {arg.name!r}: {why}")
-    if arg.choices and value not in arg.choices:
-        raise _bad(cmd, f"argument {arg.name!r}: {value!r} is not one of {', '.join(arg.choices)}")
-    return value
+    """``value`` checked against ``arg`` (:meth:`Arg.checked`); ``bad_args`` names the command and argument."""
+    try:
+        return arg.checked(value)
+    except BadValue as exc:
+        raise _bad(cmd, str(exc)) from None
 
 
 def validate(cmd: str, args: dict[str, Any]) -> dict[str, Any]:
@@ -323,7 +338,7 @@ def validate(cmd: str, args: dict[str, Any]) -> dict[str, Any]:
         value = args.get(arg.name)
         if arg.name not in args or (value is None and arg.default is None):
             if arg.required:
-                raise _bad(cmd, f"missing argument {arg.name!r} ({_kind_text(arg)})")
+                raise _bad(cmd, f"missing argument {arg.name!r} ({arg.kind_text()})")
             out[arg.name] = copy.deepcopy(arg.default)  # a handler may keep a default map
             continue
         out[arg.name] = check_arg(cmd, arg, value)
@@ -370,8 +385,8 @@ def markdown_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Arg", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES", "TABLE",
-           "check_arg", "help_entry", "markdown_table", "validate"]
+__all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES",
+           "TABLE", "check_arg", "help_entry", "markdown_table", "validate"]
 
 if __name__ == "__main__":
     import sys

@@ -3,12 +3,15 @@
 The worker takes its defaults from here (``DEFAULTS``, daemon/worker/procedures.py), ritactl's
 procedure verbs their option defaults, and the console builds its per-procedure form from
 ``schema()`` and re-validates what the page sends with ``check_params`` (the page is never
-trusted). The daemon itself passes ``params`` through unchanged, as it always did.
+trusted). ritad checks every new job's ``params`` again with ``check_params`` before it queues
+the job: the daemon is the authority, the clients' checks only answer earlier.
 
 Kinds beyond the command table's scalar types: ``vec`` (``length`` finite numbers, e.g. an
 approximate x, y) and ``file`` (a JSON definition: on the bus the object itself, as ritactl
 sends the file it read; in the console a data-dir path on the robot, read and parsed there,
-empty meaning the robot's installed file named by ``installed``). Stdlib only, like the table.
+empty meaning the robot's installed file named by ``installed``). Values are checked by
+:meth:`Arg.checked`, the command table's own path, which ``Param`` extends with those kinds.
+Stdlib only, like the table.
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from daemon.bus.command_table import PROCEDURES, REQUIRED, Arg
+from daemon.bus.command_table import PROCEDURES, REQUIRED, Arg, BadValue
 from daemon.bus.protocol import CommandError, ErrorCode
 
 
@@ -28,6 +31,39 @@ class Param(Arg):
     length: int = 0          # vec: how many numbers
     installed: str = ""      # file: the robot's installed file the worker uses when none is given
     content: str = "object"  # file: "object", or "xyz_map" ({name: [x, y, z]})
+
+    def checked(self, value: Any, noun: str = "parameter", paths: bool = True) -> Any:
+        """As :meth:`Arg.checked`, plus ``vec`` and ``file``: a file is its parsed JSON object, or (``paths``)
+        a data-dir path the console reads on the robot."""
+        name = f"{noun} {self.name!r}"
+        if self.type == "vec":
+            if not isinstance(value, list) or len(value) != self.length:
+                raise BadValue(f"{name} must be {self.length} numbers ({self.unit}), got {value!r:.80}")
+            number = Arg(self.name, "float", self.help, unit=self.unit, lo=self.lo, hi=self.hi, lo_open=self.lo_open)
+            return [number.checked(c, noun) for c in value]
+        if self.type == "file":
+            if paths and isinstance(value, str) and value.strip():
+                return value.strip()
+            if self.content == "xyz_map" and isinstance(value, dict):
+                return xyz_map(name, value)
+            if not isinstance(value, dict):
+                where = "a data-dir file path or a JSON object" if paths else "the file's JSON object"
+                raise BadValue(f"{name} must be {where}, got {value!r:.80}")
+            return value
+        return super().checked(value, noun)
+
+
+def xyz_map(name: str, v: Any) -> dict[str, list[float]]:
+    """``{name: [x, y, z]}`` with finite numbers, as floats."""
+    if not isinstance(v, dict) or not v:
+        raise BadValue(f"{name} must be a JSON object {{name: [x, y, z]}}, got {v!r:.80}")
+    out = {}
+    for key, xyz in v.items():
+        if not (isinstance(xyz, list) and len(xyz) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                                                and math.isfinite(c) for c in xyz)):
+            raise BadValue(f"{name}: {key!r} must be [x, y, z] (3 numbers), got {xyz!r:.80}")
+        out[str(key)] = [float(c) for c in xyz]
+    return out
 
 
 _FLOAT = "float"
@@ -108,82 +144,57 @@ DEFAULTS = defaults()
 
 
 class ParamError(CommandError):
-    """``bad_args`` about one parameter: ``field`` names it (the console outlines that field), or is empty."""
+    """``bad_args`` about parameters: ``field`` names the first bad declared one (the console outlines
+    that field) or is empty; ``fields`` names every bad one, unknown names included."""
 
-    def __init__(self, message: str, field: str = "") -> None:
+    def __init__(self, message: str, field: str = "", fields: tuple[str, ...] = ()) -> None:
         super().__init__(ErrorCode.BAD_ARGS, message)
         self.field = field
+        self.fields = fields or ((field,) if field else ())
 
 
 def _bad(procedure: str, p: Param | None, text: str) -> ParamError:
     return ParamError(f"{procedure}: {text}", p.name if p else "")
 
 
-def _number(procedure: str, p: Param, v: Any, integer: bool) -> float | int:
-    want = "an integer" if integer else "a number"
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
-        raise _bad(procedure, p, f"parameter {p.name!r} must be {want}{' (' + p.unit + ')' if p.unit else ''}, "
-                                  f"got {v!r}")
-    if not math.isfinite(v):
-        raise _bad(procedure, p, f"parameter {p.name!r} must be finite, got {v!r}")
-    if why := p.check(v):
-        raise _bad(procedure, p, f"parameter {p.name!r}: {why}")
-    return v if integer else float(v)
+def check_value(procedure: str, p: Param, v: Any, paths: bool = True) -> Any:
+    """``v`` checked against ``p`` (:meth:`Param.checked`); ``bad_args`` names the procedure and parameter."""
+    try:
+        return p.checked(v, paths=paths)
+    except BadValue as exc:
+        raise _bad(procedure, p, str(exc)) from None
 
 
-def _xyz_map(procedure: str, p: Param, v: Any) -> dict[str, list[float]]:
-    if not isinstance(v, dict) or not v:
-        raise _bad(procedure, p, f"parameter {p.name!r} must be a JSON object {{name: [x, y, z]}}, got {v!r:.80}")
-    out = {}
-    for name, xyz in v.items():
-        if not (isinstance(xyz, list) and len(xyz) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool)
-                                                                and math.isfinite(c) for c in xyz)):
-            raise _bad(procedure, p, f"parameter {p.name!r}: {name!r} must be [x, y, z] (3 numbers), got {xyz!r:.80}")
-        out[str(name)] = [float(c) for c in xyz]
-    return out
+def check_params(procedure: str, params: Any, *, required: bool = True, paths: bool = True) -> dict[str, Any]:
+    """The parameters checked; null or absent means the worker's default.
 
-
-def check_value(procedure: str, p: Param, v: Any) -> Any:
-    """``v`` checked against ``p``; a file parameter's value is a data-dir path (str) or the parsed object."""
-    if p.type in ("float", "int"):
-        return _number(procedure, p, v, p.type == "int")
-    if p.type == "bool" and not isinstance(v, bool):
-        raise _bad(procedure, p, f"parameter {p.name!r} must be true or false, got {v!r}")
-    if p.type == "str" and (not isinstance(v, str) or (p.choices and v not in p.choices)):
-        raise _bad(procedure, p, f"parameter {p.name!r}: {v!r} is not one of {', '.join(p.choices)}")
-    if p.type == "vec":
-        if not isinstance(v, list) or len(v) != p.length:
-            raise _bad(procedure, p, f"parameter {p.name!r} must be {p.length} numbers ({p.unit}), got {v!r:.80}")
-        return [_number(procedure, p, c, False) for c in v]
-    if p.type == "file":
-        if isinstance(v, str) and v.strip():
-            return v.strip()
-        if p.content == "xyz_map" and isinstance(v, dict):
-            return _xyz_map(procedure, p, v)
-        if not isinstance(v, dict):
-            raise _bad(procedure, p, f"parameter {p.name!r} must be a data-dir file path or a JSON object, "
-                                     f"got {v!r:.80}")
-    return v
-
-
-def check_params(procedure: str, params: Any) -> dict[str, Any]:
-    """The parameters checked (``bad_args`` names the first bad one); null or absent: the worker's default."""
+    ``bad_args`` names every bad parameter: wrong type, out of range, unknown, or (``required``)
+    missing. ``paths``: a file parameter may be a data-dir path (the console's form); on the bus
+    it is the file's JSON object, which is what the worker uses.
+    """
     if procedure not in PARAMS:
         raise _bad(procedure, None, f"no such procedure (one of {', '.join(PROCEDURES)})")
     if not isinstance(params, dict):
         raise _bad(procedure, None, f"the parameters must be a JSON object, got {params!r:.80}")
     known = {p.name: p for p in PARAMS[procedure]}
-    unknown = sorted(set(params) - set(known))
-    if unknown:
-        raise _bad(procedure, None, f"unknown parameter {unknown[0]!r} (known: {', '.join(known)})")
-    out = {}
+    out: dict[str, Any] = {}
+    bad: list[tuple[str, str]] = [(str(n), f"unknown parameter {n!r}") for n in params if n not in known]
     for name, p in known.items():
         v = params.get(name)
-        if v is None or (p.type == "file" and v == ""):
-            if p.required:
-                raise _bad(procedure, p, f"parameter {name!r} is required ({p.help})")
-            continue
-        out[name] = check_value(procedure, p, v)
+        try:
+            if v is None or (p.type == "file" and v == ""):
+                if p.required and required:
+                    raise BadValue(f"parameter {name!r} is required ({p.help})")
+                continue
+            out[name] = p.checked(v, paths=paths)
+        except BadValue as exc:
+            bad.append((name, str(exc)))
+    if bad:
+        text = "; ".join(why for _, why in bad)
+        if len(bad) > len([n for n, _ in bad if n in known]):
+            text += f" (known: {', '.join(known)})"
+        first = next((n for n, _ in bad if n in known), "")
+        raise ParamError(f"{procedure}: {text}", first, tuple(n for n, _ in bad))
     return out
 
 
@@ -203,7 +214,10 @@ def load_files(procedure: str, params: dict[str, Any], read: Callable[[str], byt
             why = exc.args[0] if exc.args else type(exc).__name__
             raise _bad(procedure, p, f"parameter {p.name!r}: cannot use {path}: {why}") from None
         if p.content == "xyz_map":
-            obj = _xyz_map(procedure, p, obj)
+            try:
+                obj = xyz_map(f"parameter {p.name!r}", obj)
+            except BadValue as exc:
+                raise _bad(procedure, p, f"{exc} (in {path})") from None
         elif not isinstance(obj, dict):
             raise _bad(procedure, p, f"parameter {p.name!r}: {path} is not a JSON object")
         out[p.name] = obj

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
-from daemon.ctl.exitcodes import Exit, for_verdict
+from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
 from daemon.ctl.io import fail
 
 
@@ -72,7 +72,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     try:
         from daemon.worker.recompute import CalibrationError  # fails here, clearly, without OpenCV
     except ImportError as exc:
-        return fail(Exit.FAIL, "unavailable", f"recompute needs the full install (numpy, OpenCV): {exc}", a.json)
+        e = missing_extra("ritactl recompute", "laptop", "numpy and OpenCV", exc)
+        return fail(e.exit, e.code, e.args[0], a.json)
     try:
         result, diff = _run(a)
         if a.out:

@@ -19,7 +19,7 @@ from daemon.bus.command_table import COMMANDS, POS, TABLE, Arg, Command
 from daemon.ctl.io import print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import CtlError, Exit
 from daemon.bus.png_write import frame_png, png_bytes
-from daemon.bus.protocol import CommandError
+from daemon.bus.protocol import CommandError, ErrorCode
 
 # options that act on this computer only, not sent to the daemon
 LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
@@ -191,6 +191,9 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
     except ClientTimeout:
         raise
     except CommandError as exc:
+        if exc.code == ErrorCode.CONFIRM_REQUIRED:  # the daemon's message speaks of the bus argument
+            raise CommandError(exc.code, f"`ritactl {' '.join(cmd.cli)}` moves the robot: add --yes to confirm "
+                                         f"that it may move") from None
         raise CommandError(exc.code, with_cli_names(cmd, exc.args[0])) from None
     if out:
         _save_png(out, result, extra)

@@ -250,7 +250,7 @@ def _main(argv: list[str], as_json: bool) -> int:
     except (OSError, ValueError) as exc:  # CtlConfigError, KeyConfigError: they name the file
         return fail(Exit.BAD_INPUT, "bad_input", str(exc), a.json)
     client = Client(conn["endpoint"], timeout=a.timeout or conn["timeout"] or 5.0, curve=conn["curve"],
-                    key_id=conn["key_id"])
+                    key_id=conn["key_id"], fail_fast=True)
     try:
         return _run(a.fn, client, a)
     finally:

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from daemon.ctl.exitcodes import Exit, for_verdict
+from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
 from daemon.ctl.io import fail, say
 
 
@@ -49,7 +49,8 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
         from daemon.bus.storage import atomic_write_json
         from daemon.worker.survey import CalibrationError, survey_plate
     except ImportError as exc:
-        return fail(Exit.FAIL, "unavailable", f"plate survey needs the full install (numpy, OpenCV): {exc}", a.json)
+        e = missing_extra("ritactl plate survey", "laptop", "numpy and OpenCV", exc)
+        return fail(e.exit, e.code, e.args[0], a.json)
     if Path(a.out).resolve() == Path(a.plate).resolve():  # the design file is the survey's input: keep it
         return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file --plate {a.plate}: "
                                                  f"write the surveyed plate to another file", a.json)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.command_table import COMMANDS, MOVING_PROCEDURES, PROCEDURES
+from daemon.bus.procedure_params import check_params
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch
@@ -154,6 +155,8 @@ class CalibJobs:
             job_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{proc}-{uuid.uuid4().hex[:6]}"
         else:
             job_id = self._job_id(req)
+        # the daemon is the authority on parameters: bad ones never reach a job (a resume keeps the job's own)
+        params = check_params(proc, params, required=job_id not in self.jobs, paths=False)
         if job_id in self.jobs:  # posting an existing id resumes it (as calib.resume does)
             job = self._resumable(req.cmd, self.jobs[job_id])
             if job["procedure"] != proc:

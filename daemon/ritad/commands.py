@@ -103,7 +103,8 @@ def _check_motion(req: Request, amount: str, limit: float, speed: str, max_speed
                                                f"(the configured limit)")
     if req.args["confirm"] is not True:
         raise CommandError(ErrorCode.CONFIRM_REQUIRED,
-                           f"{req.cmd} moves the robot: resend with confirm=true (ritactl: --yes)")
+                           f"{req.cmd} moves the robot: send it again with confirm=true to confirm "
+                           f"(ritactl: add --yes)")
 
 
 def _robot(s: Services) -> dict[str, Handler]:

@@ -275,7 +275,14 @@ def load_config(args: argparse.Namespace) -> config_mod.Config:
 
 
 def check_config(cfg: config_mod.Config) -> int:
-    """``--check-config``: the file passed every check ritad makes before it binds."""
+    """``--check-config``: the file passed every check ritad makes before it binds; the key files exist."""
+    from daemon.ritad.keycheck import key_problems
+
+    errors, warnings = key_problems(cfg)
+    for e in errors:
+        print(f"ritad: {cfg.source}: {e}", file=sys.stderr)
+    if errors:
+        return RitadExit.CANNOT_START  # what a start with this file would exit with
     d = cfg.daemon
     print(f"ritad: {cfg.source}: configuration OK")
     for key in ("command_endpoints", "telemetry_endpoints", "frame_endpoints"):
@@ -283,6 +290,8 @@ def check_config(cfg: config_mod.Config) -> int:
     for kind in KINDS:
         print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
     print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
+    for w in warnings:
+        print(f"  WARNING: {w}")
     insecure = _insecure_tcp(cfg)
     if insecure:
         print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")

@@ -28,6 +28,7 @@ import zmq
 
 from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
                              parse_request)
+from daemon.bus.repeatlog import RepeatGate, times
 from daemon.bus.roles import refusal
 from daemon.ritad.publisher import open_sockets
 
@@ -64,7 +65,16 @@ class Caller(NamedTuple):
 #: commands that move something physical (or the simulated robot): logged with the caller's key
 MOTION_COMMANDS = frozenset({"robot.move", "robot.turn", "robot.stop", "tracker.aim", "tracker.find",
                              "sim.place_robot_on_plate"})
-QUIET_COMMANDS = frozenset({"ping", "state", "status", "health"})  # polled: not logged
+#: reads that pages, ritactl and the worker poll (state, statuses, pictures, file chunks, job mailboxes):
+#: logged at DEBUG, else one open console page alone writes several INFO lines a second
+READ_COMMANDS = frozenset({"ping", "help", "hello", "state", "status", "health", "data.dir", "sim.truth",
+                           "tracker.status", "camera.status", "robot.status", "tracker.measure",
+                           "camera.preview", "camera.capture", "camera.detect", "files.list", "files.read",
+                           "files.hash", "calib.jobs", "calib.results", "calib.next", "calib.inbox",
+                           "calib.report"})
+QUIET_COMMANDS = READ_COMMANDS  # the older name
+#: a refusal repeated by a client in a loop is logged once per window with its count
+REFUSAL_WINDOW_S = 60.0
 _ARGS = reprlib.Repr()  # motion args in the log, bounded whatever a client sends
 _ARGS.maxdict, _ARGS.maxstring, _ARGS.maxother = 10, 60, 60
 
@@ -99,6 +109,8 @@ class CommandServer(threading.Thread):
         self.errors = 0
         self.pending = 0
         self.heartbeat = time.monotonic()
+        self._refusals: RepeatGate[tuple[str, str, str]] = RepeatGate(REFUSAL_WINDOW_S)  # owner thread only
+        self._flushed = time.monotonic()
 
     # ------------------------------------------------------------------ helpers
 
@@ -118,10 +130,27 @@ class CommandServer(threading.Thread):
             self._send(envelope, ok_reply(req_id, result))
 
     def _error(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, code: str, message: str,
-               cmd: str = "") -> None:
+               cmd: str = "", who: str = "") -> None:
         self.errors += 1
-        log.info("command %s failed: [%s] %s", cmd or "?", code, message)
+        self._log_error(cmd or "?", code, message, who)
         self._send(envelope, error_reply(req_id, code, message))
+
+    def _log_error(self, cmd: str, code: str, message: str, who: str) -> None:
+        """One line per (command, code, sender) per window; a crash is always logged."""
+        level = logging.WARNING if code == ErrorCode.FORBIDDEN else logging.INFO
+        text = f"command {cmd} failed: [{code}] {message}" + (f" ({who})" if who else "")
+        held = 0 if code == ErrorCode.INTERNAL else self._refusals.admit((cmd, code, who), (level, text))
+        if held is not None:
+            log.log(level, "%s%s", text, times(held + 1, REFUSAL_WINDOW_S) if held else "")
+
+    def _flush_refusals(self) -> None:
+        """Counts of refusals held back whose window ended (at most once a second)."""
+        now = time.monotonic()
+        if now - self._flushed < 1.0:
+            return
+        self._flushed = now
+        for _, n, (level, text) in self._refusals.overdue():
+            log.log(level, "%s%s", text, times(n, REFUSAL_WINDOW_S))
 
     def _caller(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> Caller | None:
         """Who sent ``frames`` and their role; None for a CURVE key that is no longer allowed."""
@@ -149,9 +178,8 @@ class CommandServer(threading.Thread):
                         f"unknown command {cmd!r}; 'help' lists the commands", cmd)
             return None
         why = refusal(cmd, caller.role, caller.who)
-        if why is not None:
-            log.warning("forbidden: %s id=%s from %s (role %s)", cmd, req_id, caller.peer, caller.role)
-            self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd)
+        if why is not None:  # a WARNING naming the sender (rate-limited like every refusal)
+            self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd, f"from {caller.peer}, role {caller.role}")
             return None
         return caller
 
@@ -181,8 +209,9 @@ class CommandServer(threading.Thread):
         if cmd in MOTION_COMMANDS:
             log.info("motion %s id=%s from %s (role %s): %s", cmd, req_id, caller.peer, caller.role,
                      _ARGS.repr(msg["args"]))
-        elif cmd not in QUIET_COMMANDS:
-            log.info("command %s id=%s from %s", cmd, req_id, request.peer)
+        else:
+            log.log(logging.DEBUG if cmd in READ_COMMANDS else logging.INFO, "command %s id=%s from %s", cmd, req_id,
+                    request.peer)
         try:
             result = self.handlers[cmd](request)
         except CommandError as exc:
@@ -232,6 +261,7 @@ class CommandServer(threading.Thread):
         poller.register(self._wake_r, zmq.POLLIN)
         while not self._stop_evt.is_set():
             self.heartbeat = time.monotonic()
+            self._flush_refusals()
             events = dict(poller.poll(200))
             if self._wake_r in events:
                 self._drain_done()

@@ -22,7 +22,7 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
     with ritad_in_process(tmp_path / "rt", tmp_path / "data", configure=_paper_imu) as (_, c):
         lock_on_robot(c)
         # the sim runs motions 50x faster than real time: 1 kHz of wall time is 20 Hz of robot time
-        params = {"imu_readings": 5, "stream_rate_hz": 1000.0}
+        params = {"mark_xy": [0.0, 0.0], "imu_readings": 5, "stream_rate_hz": 1000.0}
         job = c.call("calib.start", procedure="measure-mark", params=params)["job"]  # no worker takes it
         ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": params}, tmp_path / "data")
         nav = Navigator(ctx, speed_mm_s=10.0)  # 0.3 s of wall time: enough robot.status polls for tilt samples

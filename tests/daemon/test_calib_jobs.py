@@ -50,8 +50,8 @@ def test_done_job_stays_done_after_a_late_progress_report():
 
 def test_cancelled_and_failed_are_told_apart():
     bus = Bus()
-    a = bus("calib.start", procedure="experiment", params={})["job"]
-    b = bus("calib.start", procedure="experiment", params={})["job"]
+    a = bus("calib.start", procedure="experiment", params={"mark_xy": [0, 0]})["job"]
+    b = bus("calib.start", procedure="experiment", params={"mark_xy": [0, 0]})["job"]
     bus("calib.report", job=a, kind="error", data={"message": "stopped", "cancelled": True})
     bus("calib.report", job=b, kind="error", data={"message": "the tracker lost the beam"})
     sa, sb = bus.state(a), bus.state(b)

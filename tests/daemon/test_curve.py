@@ -13,6 +13,7 @@ import pytest
 
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientRefused, ClientTimeout
+from daemon.bus.protocol import CommandError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -73,8 +74,9 @@ def test_allowed_key_works_and_is_logged(secured):
     with Client(secured["tcp"], timeout=5, curve=alice) as c:
         assert c.call("ping")["pong"] is True
         assert "help" in c.call("help")["commands"]
-    time.sleep(0.3)
-    assert alice["public"].decode() in secured["log"].read_text()  # audit trail: the key id of who asked
+        with pytest.raises(CommandError):  # alice is a viewer: reads log at DEBUG, a refused motion at WARNING
+            c.call("robot.move", distance_mm=1.0, confirm=True)
+    wait_for_log(secured["log"], alice["public"].decode(), 30)  # audit trail: the key id of who asked
 
 
 def test_unknown_key_is_refused_within_a_second_and_logged(secured):
@@ -85,6 +87,7 @@ def test_unknown_key_is_refused_within_a_second_and_logged(secured):
             c.call("ping")
         assert time.monotonic() - t0 < 1.5  # the ZAP refusal, not the 5 s timeout
     assert str(e.value).startswith("refused: key mallory is not allowed by the daemon")
+    assert "--role operator" in str(e.value)  # the hint is the whole command to run on the robot
     assert isinstance(e.value, ClientTimeout)  # existing handlers map it to exit 3
     log = wait_for_log(secured["log"], f"refused CURVE key {mallory['public'].decode()} client from 127.0.0.1")
     assert "unknown key" in log

@@ -44,7 +44,7 @@ def code(fn, *a, **kw) -> str:
 
 def test_stop_stops_every_moving_job_at_once_and_not_the_intrinsics():
     bus = Bus()
-    running = bus("calib.start", procedure="experiment", params={})["job"]
+    running = bus("calib.start", procedure="experiment", params={"mark_xy": [0, 0]})["job"]
     assert bus("calib.next", timeout_s=0).result(1)["job"] == running  # the worker took it
     bus("calib.report", job=running, kind="progress", data={"step": "direction 1/8", "percent": 5})
     queued = bus("calib.start", procedure="referencing", params={})["job"]
@@ -66,7 +66,7 @@ def test_stop_stops_every_moving_job_at_once_and_not_the_intrinsics():
 
 def test_resume_only_after_release_and_after_the_stopped_run_ended():
     bus = Bus()
-    job = bus("calib.start", procedure="experiment", params={})["job"]
+    job = bus("calib.start", procedure="experiment", params={"mark_xy": [0, 0]})["job"]
     bus("calib.next", timeout_s=0).result(1)
     bus.latch.engage("vic (viewer)")
     bus.jobs.stop_moving_jobs("vic (viewer)")
