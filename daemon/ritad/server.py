@@ -137,7 +137,7 @@ class CommandServer(threading.Thread):
 
     def _log_error(self, cmd: str, code: str, message: str, who: str) -> None:
         """One line per (command, code, sender) per window; a crash is always logged."""
-        level = logging.WARNING if code == ErrorCode.FORBIDDEN else logging.INFO
+        level = logging.WARNING if code in (ErrorCode.FORBIDDEN, ErrorCode.STOPPED) else logging.INFO
         text = f"command {cmd} failed: [{code}] {message}" + (f" ({who})" if who else "")
         held = 0 if code == ErrorCode.INTERNAL else self._refusals.admit((cmd, code, who), (level, text))
         if held is not None:

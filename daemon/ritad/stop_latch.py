@@ -24,8 +24,6 @@ log = logging.getLogger(__name__)
 
 #: the latch's file in the data dir
 LATCH_FILE = "stop_latch.json"
-#: refused motions are logged once per this many seconds per sender, with a count
-REFUSAL_LOG_INTERVAL_S = 10.0
 
 
 class StopLatch:
@@ -40,7 +38,6 @@ class StopLatch:
         self.reason = ""
         self.since_ns: int | None = None
         self.refused = 0
-        self._unlogged: dict[str, tuple[float, int]] = {}  # sender -> (last log time, refusals since)
         self._load()
 
     def _load(self) -> None:
@@ -93,18 +90,12 @@ class StopLatch:
                 f"an operator clears it with `ritactl robot release` or the console's Release")
 
     def guard(self, cmd: str, by: str) -> None:
-        """Raise ``stopped`` when latched, counting, logging (rate-limited) and publishing the refusal."""
+        """Raise ``stopped`` when latched, counting and publishing the refusal (the command server logs it,
+        once per command and sender per minute with the count)."""
         if not self.latched:
             return
         msg = self.message(cmd)
         with self._lock:
             self.refused += 1
-            last, since = self._unlogged.get(by, (0.0, 0))
-            now = time.monotonic()
-            due = now - last >= REFUSAL_LOG_INTERVAL_S
-            self._unlogged[by] = (now, 0) if due else (last, since + 1)
-        if due:
-            log.warning("refused %s from %s: stopped%s", cmd, by,
-                        f" ({since} more refusals since the last line)" if since else "")
         self._publish("robot.refused", {"cmd": cmd, "by": by, "message": msg})
         raise CommandError(ErrorCode.STOPPED, msg)
