@@ -21,6 +21,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator
 
+from daemon.bus.obs_checks import stream_problems
 from daemon.bus.png_check import png_info
 
 SCHEMA_FILES = ("common", "dataset", "capture", "state", "plate", "camera_model", "result", "board")
@@ -88,8 +89,13 @@ def _json_path(parts: Any) -> str:
     return out
 
 
-def _short(text: str) -> str:
-    return text if len(text) <= _MAX_MESSAGE else text[:_MAX_MESSAGE - 3] + "..."
+def _reason(err: Any) -> str:
+    """The validator's reason in full; only a long quoted value inside it is shortened."""
+    text = err.message
+    shown = repr(err.instance)
+    if len(text) > _MAX_MESSAGE and len(shown) > 40 and shown in text:
+        text = text.replace(shown, shown[:37] + "...", 1)
+    return text
 
 
 def check_schema(doc: Any, name: str, file: str) -> list[Problem]:
@@ -101,7 +107,7 @@ def check_schema(doc: Any, name: str, file: str) -> list[Problem]:
             out += [Problem(file, _json_path([*parts, key]), "missing (required)")
                     for key in err.validator_value if isinstance(err.instance, dict) and key not in err.instance]
         else:
-            out.append(Problem(file, _json_path(parts), _short(err.message)))
+            out.append(Problem(file, _json_path(parts), _reason(err)))
     return sorted(set(out), key=lambda p: (p.path, p.message))
 
 
@@ -316,6 +322,7 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     problems += _plate_problems(obs.get("board"), "state.json", ("obs", "board"))  # the same rule for a board
     for key in ("camera_model", "initial_model"):
         problems += _model_problems(obs.get(key), "state.json", ("obs", key))
+    problems += [Problem("state.json", _json_path(parts), msg) for parts, msg in stream_problems(obs)]
     calib = obs.get("calibration")
     scs = calib.get("scs") if isinstance(calib, dict) else None
     if isinstance(scs, dict):

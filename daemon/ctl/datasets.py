@@ -70,7 +70,7 @@ def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]
 def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
     try:
-        from daemon.worker.recompute import CalibrationError  # fails here, clearly, without OpenCV
+        from daemon.worker.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
     except ImportError as exc:
         e = missing_extra("ritactl recompute", "laptop", "numpy and OpenCV", exc)
         return fail(e.exit, e.code, e.args[0], a.json)
@@ -86,6 +86,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
                                                        f"problem(s) in its files or the given inputs:{lines}", a.json)
     except CalibrationError as exc:
         return fail(Exit.FAIL, "calibration_failed", f"calibration failed on {a.dataset}: {exc}", a.json)
+    except ComputationFailed as exc:
+        return fail(Exit.FAIL, "computation_failed", f"cannot recompute {a.dataset}: {exc}", a.json)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
         # the schema passed but a value does not make sense (e.g. a plate whose nests coincide)
         what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
@@ -98,7 +100,9 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         from daemon.ctl.calib import _show_result
 
         _show_result({**result, "dataset": a.out or a.dataset})
-        if diff is not None:
+        if diff is not None and diff.mismatches:
+            print(f"\nthe stored result differs ({len(diff.mismatches)}):" + "".join(f"\n  {m}" for m in diff.mismatches))
+        elif diff is not None:
             print(f"\nlargest difference to the stored result: {diff:.3g}")
     return for_verdict(result.get("verdict"))
 

@@ -8,6 +8,7 @@ dataset stored: this is how old data is re-evaluated after recalibrating the cam
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -29,14 +30,62 @@ def _load(root: Path):
     return grey_loader(root)
 
 
-def _max_diff(a: Any, b: Any) -> float:
+class ComputationFailed(Exception):
+    """The computation failed on a dataset that met its contract (ritactl recompute: exit 2)."""
+
+
+class Difference(float):
+    """The largest numeric difference to the stored result; infinite when anything else differs.
+
+    ``mismatches`` names each structural difference by its path in the result (a missing or
+    extra key, a list of another length, a changed string, verdict or flag, a number against
+    a non-number): a recompute that drops a mark or changes a verdict never passes as "0.0".
+    """
+
+    mismatches: list[str]
+
+    def __new__(cls, max_abs: float, mismatches: list[str]) -> "Difference":
+        self = super().__new__(cls, math.inf if mismatches else max_abs)
+        self.mismatches = mismatches
+        return self
+
+
+def _a(word: str) -> str:
+    """``word`` with its indefinite article: "an experiment", "a referencing"."""
+    return f"{'an' if word[:1] in 'aeiou' else 'a'} {word}"
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def compare(a: Any, b: Any, path: str = "result") -> tuple[float, list[str]]:
+    """(largest numeric difference, mismatches) between a recomputed value ``a`` and the stored ``b``."""
     if isinstance(a, dict) and isinstance(b, dict):
-        return max([_max_diff(a[k], b[k]) for k in a.keys() & b.keys()] or [0.0])
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b):
-        return max([_max_diff(x, y) for x, y in zip(a, b)] or [0.0])
-    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
-        return abs(float(a) - float(b))
-    return 0.0
+        out, bad = 0.0, [f"{path}.{k}: missing from the recomputed result" for k in sorted(b.keys() - a.keys())]
+        bad += [f"{path}.{k}: not in the stored result" for k in sorted(a.keys() - b.keys())]
+        for k in sorted(a.keys() & b.keys()):
+            d, m = compare(a[k], b[k], f"{path}.{k}")
+            out, bad = max(out, d), bad + m
+        return out, bad
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        if len(a) != len(b):
+            return 0.0, [f"{path}: {len(a)} entries recomputed, {len(b)} stored"]
+        out, bad = 0.0, []
+        for i, (x, y) in enumerate(zip(a, b)):
+            d, m = compare(x, y, f"{path}[{i}]")
+            out, bad = max(out, d), bad + m
+        return out, bad
+    if _number(a) and _number(b):
+        d = abs(float(a) - float(b))
+        return (d, []) if math.isfinite(d) or a == b else (0.0, [f"{path}: {a!r} recomputed, {b!r} stored"])
+    if a == b and type(a) is type(b):
+        return 0.0, []
+    return 0.0, [f"{path}: {a!r} recomputed, {b!r} stored"]
+
+
+#: what a recompute must reproduce of the stored result
+COMPARED = ("verdict", "rob_H_cam", "rob_H_scn", "mark", "marks", "metrics", "camera_model")
 
 
 def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -47,7 +96,7 @@ def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[
             continue
         key = OVERRIDES[name].get(proc)
         if key is None:
-            raise ValueError(f"--{name.replace('_', '-')} does not apply to a {proc} dataset "
+            raise ValueError(f"--{name.replace('_', '-')} does not apply to {_a(proc)} dataset "
                              f"(it applies to {', '.join(OVERRIDES[name])})")
         problems = check_file(doc, _OVERRIDE_SCHEMA[name], f"--{name.replace('_', '-')}")
         if name == "calibration" and not problems and doc.get("procedure") != "referencing":
@@ -63,7 +112,7 @@ def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None)
     if compensation is None:
         return obs
     if proc not in ("experiment", "measure-mark"):
-        raise ValueError(f"--compensation does not apply to a {proc} dataset (it applies to experiment, measure-mark)")
+        raise ValueError(f"--compensation does not apply to {_a(proc)} dataset (it applies to experiment, measure-mark)")
     parse_compensation(compensation)
     return {**obs, "compensation": compensation}
 
@@ -71,7 +120,7 @@ def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None)
 def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: dict[str, Any] | None = None,
               calibration: dict[str, Any] | None = None, compensation: str | None = None
               ) -> tuple[dict[str, Any], float | None]:
-    """Return (result, largest numeric difference to the stored result.json or None).
+    """Return (result, its :class:`Difference` to the stored result.json, or None without one).
 
     Raises :class:`DatasetInvalid` listing every problem of the folder, ``ValueError``
     for an override that does not fit, and whatever the computation raises
@@ -85,7 +134,12 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     proc = state["procedure"]
     overrides = {"camera_model": camera_model, "plate": plate, "calibration": calibration}
     obs = apply_compensation(proc, apply_overrides(root, proc, state["obs"], overrides), compensation)
-    result = COMPUTE[proc](obs, _load(root))
+    try:
+        result = COMPUTE[proc](obs, _load(root))
+    except (ValueError, KeyError, TypeError, IndexError, ArithmeticError) as exc:
+        # the folder met its contract, so this is the computation failing on the data, not bad input
+        what = f"the stored data lacks {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
+        raise ComputationFailed(f"the {proc} computation failed on the stored data: {what}") from exc
     result["job"] = state.get("job") or root.name
     result["params"] = {k: v for k, v in (state.get("params") or {}).items()
                         if k not in ("plate", "camera_model", "calibration")}
@@ -93,10 +147,10 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     if any(v is not None for v in overrides.values()):
         result["recomputed_with"] = sorted(k for k, v in overrides.items() if v is not None)
         return result, None  # other inputs: a difference to the stored result is expected
-    diff = None
     stored_path = root / "result.json"
-    if stored_path.exists():
-        stored = json.loads(stored_path.read_text())
-        keys = [k for k in ("rob_H_cam", "rob_H_scn", "mark", "marks", "metrics", "camera_model") if k in result]
-        diff = max([_max_diff(result[k], stored.get(k)) for k in keys] or [0.0])
-    return result, diff
+    if not stored_path.exists():
+        return result, None
+    stored = json.loads(stored_path.read_text())
+    keys = [k for k in COMPARED if k in result or k in stored]
+    d, bad = compare({k: result.get(k) for k in keys}, {k: stored.get(k) for k in keys})
+    return result, Difference(d, bad)
