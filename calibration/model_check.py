@@ -35,6 +35,9 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 
+#: 1σ of the focal length assumed when the model states none: the ±5 % focal-length tolerance typical of
+#: machine-vision lens data sheets (unverified for a particular lens), taken as 1σ
+UNSTATED_F_REL = 0.05
 #: what to do about a bad camera model, appended to every finding
 ADVICE = ("re-run `ritactl intrinsics` with the tilted board views of its recipe (docs/operations.md) and "
           "install the new model")
@@ -232,10 +235,6 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
                          f"{100 * check.model_sigma_f:.2f} % (1σ), i.e. camera height ±{1000 * dz:.0f} µm at "
                          f"{gates.model_k_sigma:g}σ (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
     notes: list[str] = []
-    if check.model_sigma_f is None:
-        notes.append("camera model (note): camera_model.json carries no focal-length σ (std.fx, std.fy), so a "
-                     "focal length wrong together with its distortion cannot be ruled out (one planar view "
-                     "cannot see it)")
     if f is not None and not np.isfinite(f.sigma):
         notes.append("camera model (note): no focal length near the model's fits the target corners, so this "
                      "image cannot vouch for the model")
@@ -247,6 +246,28 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     check.messages = fails + warns + notes
     check.verdict = "fail" if fails else ("warn" if warns else "ok")
 
+
+def camera_height(check: ModelCheck, height_mm: float, rob_H_cam: np.ndarray) -> np.ndarray:
+    """What the model's focal length leaves of the camera's position: a 3×3 covariance (rob frame, mm²).
+
+    f and a distortion fitted for it trade off against the distance to a flat target (the
+    degeneracy above), so a relative focal error ε moves the camera by ε·height along its
+    optical axis. That term joins rob_H_cam's stated uncertainty, with the model's own σ of f,
+    or, for a model that states none, the focal tolerance of a lens nobody measured
+    (``UNSTATED_F_REL``), and a note says the camera height is not resolved by this model.
+    The marks, measured through the same SCS, are not affected.
+    """
+    axis = np.asarray(rob_H_cam, float)[:3, 2]
+    sigma_f = check.model_sigma_f
+    if sigma_f is None:
+        sigma_f = UNSTATED_F_REL
+        check.messages.append(
+            f"camera model (note): camera height not resolved by this model: ±{sigma_f * height_mm * 1000:.0f} µm "
+            f"(1σ, in rob_H_cam's stated uncertainty) — camera_model.json states no focal-length σ (std.fx, "
+            f"std.fy), so ±{100 * sigma_f:g} % of f is assumed, and a view of the flat plate cannot tell a focal "
+            f"length wrong with its distortion from the distance (floor marks are not affected); a model from "
+            f"`ritactl intrinsics` states its σ")
+    return (sigma_f * height_mm) ** 2 * np.outer(axis, axis)
 
 #: where each uncertain parameter of camera_model.json's ``std`` sits: (row, col) of K, or a dist index
 _STD_SLOTS = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)), "k1": ("dist", 0), "k2": ("dist", 1), "p1": ("dist", 2),

@@ -30,7 +30,7 @@ import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
-from calibration.model_check import ModelCheck, check_camera_model
+from calibration.model_check import ModelCheck, camera_height, check_camera_model
 from calibration.plate import Plate
 from calibration.registration import as_points, fit_plate, kabsch, nest_array
 from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_carlo, pnp_covariance
@@ -281,6 +281,9 @@ def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P
                          sigma_t_mm, sigma_plate_mm, cov, n_corners, rms_px, ambiguity, gates, mc_samples, seed)
     if n_corners is not None:
         mc = check_camera_model(model, board_corners_ref(plate, cam_ref.ids), cam_ref.uv, cam_H_ref, model_dict)
+        cov_f = camera_height(mc, float(abs(cam_H_ref[:3, 2] @ cam_H_ref[:3, 3])), res.rob_H_cam)
+        if res.uncertainty is not None:  # the stated t_z covers what the model's f leaves open
+            res.uncertainty.cov_rob_H_cam[:3, :3] += cov_f
         res.model_check = mc
         res.messages.extend(mc.messages)
         order = ("ok", "warn", "fail")
