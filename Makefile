@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml | $(PY)
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: $(STAMP)
-	$(PY) -m daemon.demo
+	$(PY) -m fakes.demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q --durations=15

@@ -1,6 +1,6 @@
 """Wall time of `make demo`'s main job and of each of its phases and procedure steps.
 
-Method: runs ``python -m daemon.demo`` (what ``make demo`` runs once the venv exists)
+Method: runs ``python -m fakes.demo`` (what ``make demo`` runs once the venv exists)
 unbuffered and timestamps every output line as it arrives. Phases are the demo's
 ``== ...`` headings; procedure steps are the ``[ xx.x%] step`` lines ritactl prints
 from the worker's ``calib.progress`` telemetry, each lasting until the next line of
@@ -30,7 +30,7 @@ def run_demo(timeout: float) -> tuple[list[tuple[float, str]], int, float]:
     """Run the demo; return its (seconds since start, line) pairs, exit code and wall time."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.demo"], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "fakes.demo"], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     lines: list[tuple[float, str]] = []
     assert proc.stdout is not None
@@ -76,7 +76,7 @@ def main() -> None:
     print(f"# bench_demo\n\nMachine: {machine()}\n")
     print("| phase / step | wall time | goal | met |\n|---|---|---|---|")
     ok = rc == 0 and wall <= 120
-    print(f"| **`python -m daemon.demo` in total** (exit code {rc}) | {wall:.1f} s | about 1–2 min "
+    print(f"| **`python -m fakes.demo` in total** (exit code {rc}) | {wall:.1f} s | about 1–2 min "
           f"(README) | {'yes' if ok else 'NO'} |")
     for name, dt in phases(lines, wall):
         print(f"| phase: {name} | {dt:.1f} s | – | – |")

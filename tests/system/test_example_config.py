@@ -22,7 +22,7 @@ import pytest
 
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientTimeout
-from daemon.demo import operator_files
+from fakes.demo import operator_files
 from fakes.board import run_intrinsics
 from tests.system.test_worker_e2e import referencing_params, run_job
 

@@ -26,10 +26,11 @@ ALLOWED: dict[str, set[str]] = {
                    "daemon.console"},  # ritactl console starts the console program
     "daemon.console": {"daemon", "daemon.bus"},
     "daemon.worker": {"daemon", "daemon.bus", "calibration"},
-    "daemon.demo": {"daemon", "daemon.bus", "daemon.ctl", "daemon.demo_floor", "fakes"},
-    # the demo's second part recomputes a dataset without compensations, as ritactl recompute does
-    "daemon.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.worker", "fakes"},
     "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},
+    # the demo composes the simulator with the product: it drives ritactl, and its second part recomputes
+    # a dataset without compensations as ritactl recompute does; no product module imports it
+    "fakes.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes"},
+    "fakes.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.worker", "fakes"},
 }
 
 
@@ -153,3 +154,12 @@ def test_no_import_cycles():
 def test_a_cycle_is_caught():
     tree = {"fakes.a": ("from fakes import b\n", False), "fakes.b": ("def f():\n    import fakes.a\n", False)}
     assert find_cycle(import_graph(tree)) == ["fakes.a", "fakes.b", "fakes.a"]
+
+
+def test_no_product_module_imports_the_simulator():
+    """daemon/, drivers/ and calibration/ never name fakes: the simulator enters by configuration only."""
+    tree = load_tree()
+    bad = [f"{mod} imports {imp}" for mod, (src, is_pkg) in sorted(tree.items())
+           if mod.split(".")[0] in ("daemon", "drivers", "calibration")
+           for imp in sorted(project_imports(src, mod, is_pkg)) if imp.split(".")[0] == "fakes"]
+    assert bad == []

@@ -17,7 +17,7 @@ import pytest
 
 from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.protocol import CommandError
-from daemon.demo import operator_files
+from fakes.demo import operator_files
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
 

@@ -23,7 +23,7 @@ from calibration.referencing import rob_H_cam_error
 from daemon.worker.recompute import recompute
 from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.datasets import validate_folder
-from daemon.demo import operator_files
+from fakes.demo import operator_files
 from daemon.worker.survey import survey_plate
 from fakes.board import run_intrinsics
 from fakes.operator import lock_on_robot, rough_mark

@@ -6,7 +6,7 @@ a capture (image + tracker point + robot state saved as a dataset entry), watche
 telemetry for a moment, then runs the closed loop an operator runs on a real Rita:
 the guided intrinsics (the simulated operator holds the board), the plate survey from
 photographs and ``ritactl calibrate --reversal`` with that camera model and plate; then
-the same camera and plate on a realistic floor (``--profile paper+imu``, daemon/demo_floor.py):
+the same camera and plate on a realistic floor (``--profile paper+imu``, fakes/demo_floor.py):
 referencing and ``ritactl experiment`` with and without the compensations. Each result is
 printed next to the simulated ground truth
 (``fakes/score.py``: truth grades, it never feeds the loop). Stops the daemon with
@@ -118,8 +118,8 @@ def run_referencing(c: Client, out: Path, endpoint: str, plate: Path, robot_trk:
 
 def run_calibration(c: Client, out: Path, endpoint: str, robot_trk: list[float]) -> int:
     """intrinsics → plate survey → referencing, each consuming the previous one's output; then the
-    same camera and plate on a realistic floor (daemon/demo_floor.py): referencing and experiment."""
-    from daemon.demo_floor import run_realistic_floor
+    same camera and plate on a realistic floor (fakes/demo_floor.py): referencing and experiment."""
+    from fakes.demo_floor import run_realistic_floor
 
     print("\n  (sim.truth is read by the simulated operator's eye to point the tracker, and to score the results"
           " printed as 'vs ground truth'; it never enters the product's calculations)")
