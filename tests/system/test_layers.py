@@ -29,7 +29,7 @@ ALLOWED: dict[str, set[str]] = {
     "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},
     # the demo composes the simulator with the product: it drives ritactl, and its second part recomputes
     # a dataset without compensations as ritactl recompute does; no product module imports it
-    "fakes.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes"},
+    "fakes.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes", "fakes.demo_floor"},
     "fakes.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.worker", "fakes"},
 }
 
