@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import ROOT, machine  # noqa: E402
 
 from fakes.simulate import SimConfig, Simulation  # noqa: E402
-from daemon.worker.recompute import recompute  # noqa: E402
+from daemon.compute.recompute import recompute  # noqa: E402
 from daemon.bus.datasets import validate_folder  # noqa: E402
 from daemon.bus.png_check import png_info  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402

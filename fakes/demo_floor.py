@@ -53,7 +53,7 @@ def _job(c: Client, endpoint: str, ritactl: Callable[..., int], procedure: str, 
 
 
 def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int]) -> int:
-    from daemon.worker.recompute import recompute
+    from daemon.compute.recompute import recompute
 
     truth_marks = c.call("sim.truth")["marks"]  # scoring only (and the operator's eye: rough_mark)
     name, approx = rough_mark(c, 1)

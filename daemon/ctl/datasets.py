@@ -54,7 +54,7 @@ def _input_file(path: str | None, what: str) -> Any:
 
 
 def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:
-    from daemon.worker.recompute import recompute
+    from daemon.compute.recompute import recompute
 
     return recompute(Path(a.dataset), camera_model=_input_file(a.camera_model, "camera model"),
                      plate=_input_file(a.plate, "plate definition"),
@@ -62,7 +62,7 @@ def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:
 
 
 def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]:
-    from daemon.worker.store import write_result_files
+    from daemon.compute.files import write_result_files
 
     return write_result_files(Path(out), result, dataset=dataset)
 
@@ -70,7 +70,7 @@ def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]
 def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
     try:
-        from daemon.worker.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
+        from daemon.compute.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
     except ImportError as exc:
         e = missing_extra("ritactl recompute", "laptop", "numpy and OpenCV", exc)
         return fail(e.exit, e.code, e.args[0], a.json)

@@ -47,7 +47,7 @@ def _show(plate: dict[str, Any], out: str) -> None:
 def cmd_survey(c: Any, a: argparse.Namespace) -> int:
     try:
         from daemon.bus.storage import atomic_write_json
-        from daemon.worker.survey import CalibrationError, survey_plate
+        from daemon.compute.survey import CalibrationError, survey_plate
     except ImportError as exc:
         e = missing_extra("ritactl plate survey", "laptop", "numpy and OpenCV", exc)
         return fail(e.exit, e.code, e.args[0], a.json)

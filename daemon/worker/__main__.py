@@ -18,7 +18,7 @@ from typing import Any
 
 from calibration.errors import CalibrationError
 from daemon.worker.compensations import store_bias
-from daemon.worker.compute import COMPUTE
+from daemon.compute.procedures import COMPUTE
 from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped
 from daemon.worker.procedures import RUNNERS
 from daemon.worker.store import add_message, install_camera_model, save_result

@@ -6,7 +6,7 @@ at once: enough board corners, and not a repeat of an earlier view. A bad view i
 for again with the reason; ``skip`` leaves a view out (the calculation then says whether
 the set still separates the focal length from the distance, and which view to add).
 Every accepted view is a completed step, so a resumed job asks only for the missing ones.
-The result is computed from the stored images by ``daemon.worker.compute.compute_intrinsics``
+The result is computed from the stored images by ``daemon.compute.procedures.compute_intrinsics``
 (as ``ritactl recompute`` does).
 """
 from __future__ import annotations

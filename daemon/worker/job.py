@@ -19,7 +19,7 @@ from calibration import __version__
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import Dataset, atomic_write_json
-from daemon.worker.images import grey_loader
+from daemon.compute.images import grey_loader
 
 log = logging.getLogger("daemon.worker")
 

@@ -2,7 +2,7 @@
 
 Every step first checks ``ctx.done(step)``: a resumed job skips what it already
 measured. Steps gather raw observations into ``ctx.obs``; the result is always
-computed from those stored observations by :mod:`daemon.worker.compute`, the
+computed from those stored observations by :mod:`daemon.compute.procedures`, the
 same code ``ritactl recompute`` runs.
 """
 from __future__ import annotations
@@ -14,8 +14,9 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.plate import NEST_NAMES
-from daemon.worker.compensations import parse_compensation, read_tilt
-from daemon.worker.compute import footprint_abs
+from daemon.compute.inputs import parse_compensation
+from daemon.worker.compensations import read_tilt
+from daemon.compute.procedures import footprint_abs
 from daemon.worker.guided_intrinsics import intrinsics
 from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
@@ -78,7 +79,7 @@ def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) ->
 
 def referencing(ctx: JobContext) -> None:
     """Nests, robot on the plate (image + P0), drive, P1; optional 180° reversal run."""
-    from daemon.worker.compute import compute_referencing
+    from daemon.compute.procedures import compute_referencing
 
     nav = Navigator(ctx, param(ctx, "speed_mm_s"))
     for key in ("plate", "camera_model"):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from daemon.bus.datasets import validate_folder
-from daemon.worker.images import grey_loader, read_image
+from daemon.compute.images import grey_loader, read_image
 from tests.ritad_up import ritad_in_process
 
 pytestmark = pytest.mark.timeout(120)

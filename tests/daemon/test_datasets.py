@@ -188,7 +188,7 @@ def test_validate_json_output_and_missing_folder(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def calibration(written):
     """The referencing result of the writer's folder: what an experiment is measured with."""
-    from daemon.worker.recompute import recompute
+    from daemon.compute.recompute import recompute
 
     return recompute(written[0])[0]
 
@@ -209,7 +209,7 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
 
 
 def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):
-    from daemon.worker.recompute import recompute
+    from daemon.compute.recompute import recompute
 
     stds = []
     for sigma in (0.005, 0.050):

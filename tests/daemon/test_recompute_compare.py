@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from daemon.ctl import main as ctl
-from daemon.worker.recompute import Difference, compare, recompute
+from daemon.compute.recompute import Difference, compare, recompute
 from tests.dataset_writer import write_experiment
 
 

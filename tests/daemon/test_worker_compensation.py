@@ -17,8 +17,8 @@ from calibration.compensation import tilt_of_pose
 from daemon.bus.datasets import check_file, validate_folder
 from daemon.ctl import main as ctl
 from daemon.worker.compensations import store_bias
-from daemon.worker.compute import compute_referencing
-from daemon.worker.recompute import recompute
+from daemon.compute.procedures import compute_referencing
+from daemon.compute.recompute import recompute
 from tests.dataset_writer import write_experiment, write_referencing
 
 MARK = np.array([1500.0, 200.0, 3.0])

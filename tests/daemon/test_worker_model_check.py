@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from calibration.plate import NEST_NAMES
-from daemon.worker.compute import compute_referencing
+from daemon.compute.procedures import compute_referencing
 from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 

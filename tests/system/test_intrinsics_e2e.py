@@ -14,7 +14,7 @@ import pytest
 from calibration.camera_model import CameraModel
 from daemon.bus.client import ClientTimeout
 from daemon.bus.datasets import check_file, validate_folder
-from daemon.worker.recompute import recompute
+from daemon.compute.recompute import recompute
 from fakes.board import answer_intrinsics_prompt, run_intrinsics
 from fakes.launch import start_ritad
 

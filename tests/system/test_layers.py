@@ -22,15 +22,16 @@ ALLOWED: dict[str, set[str]] = {
     "daemon.bus": {"daemon"},
     "daemon.ritad": {"daemon", "daemon.bus", "drivers",
                      "calibration"},  # camera.detect (daemon/ritad/detect.py) runs the product's own detectors
-    "daemon.ctl": {"daemon", "daemon.bus", "daemon.worker",  # ritactl recompute runs the worker's computation
+    "daemon.compute": {"daemon", "daemon.bus", "calibration"},  # the computation both programs share
+    "daemon.ctl": {"daemon", "daemon.bus", "daemon.compute",  # ritactl recompute and plate survey, on the laptop
                    "daemon.console"},  # ritactl console starts the console program
     "daemon.console": {"daemon", "daemon.bus"},
-    "daemon.worker": {"daemon", "daemon.bus", "calibration"},
+    "daemon.worker": {"daemon", "daemon.bus", "daemon.compute", "calibration"},
     "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},
     # the demo composes the simulator with the product: it drives ritactl, and its second part recomputes
     # a dataset without compensations as ritactl recompute does; no product module imports it
     "fakes.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes", "fakes.demo_floor"},
-    "fakes.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.worker", "fakes"},
+    "fakes.demo_floor": {"daemon", "daemon.bus", "daemon.ctl", "daemon.compute", "fakes"},
 }
 
 

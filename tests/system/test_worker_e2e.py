@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from calibration.referencing import rob_H_cam_error
-from daemon.worker.recompute import recompute
+from daemon.compute.recompute import recompute
 from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.datasets import validate_folder
 from fakes.demo import operator_files
-from daemon.worker.survey import survey_plate
+from daemon.compute.survey import survey_plate
 from fakes.board import run_intrinsics
 from fakes.operator import lock_on_robot, rough_mark
 from fakes.score import score_camera_model, score_experiment, score_nests

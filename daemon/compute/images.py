@@ -43,7 +43,7 @@ def read_image(root: Path, file: str) -> tuple[np.ndarray, str]:
 
 
 def grey_loader(root: Path) -> Callable[[str], np.ndarray]:
-    """file -> 8-bit grey image for the detectors (the LoadImage of daemon.worker.compute)."""
+    """file -> 8-bit grey image for the detectors (the LoadImage of daemon.compute.procedures)."""
     def load(file: str) -> np.ndarray:
         img, fmt = read_image(root, file)
         try:

@@ -24,7 +24,7 @@ from calibration.referencing import reference
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
-from daemon.worker.compensations import (calibration_inputs, compensation_summary, parse_compensation,
+from daemon.compute.inputs import (calibration_inputs, compensation_summary, parse_compensation,
                                          imu_yaw, plate_imu_offset, stop_of, stop_record)
 
 LoadImage = Callable[[str], np.ndarray]
@@ -44,7 +44,7 @@ def _sigma_t(obs: dict[str, Any]) -> float:
 def to_8bit(image: np.ndarray) -> np.ndarray:
     """An 8-bit grey image for the detectors (:func:`calibration.image.to_grey` of a format-less image).
 
-    The loaders already give 8-bit grey (daemon.worker.images); this keeps a raw
+    The loaders already give 8-bit grey (daemon.compute.images); this keeps a raw
     mono array handed in directly working: 16-bit is scaled by its peak, a pure gain.
     """
     return to_grey(np.asarray(image))

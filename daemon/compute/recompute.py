@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
-from daemon.worker.compensations import parse_compensation
-from daemon.worker.compute import COMPUTE
-from daemon.worker.images import grey_loader
+from daemon.compute.inputs import parse_compensation
+from daemon.compute.procedures import COMPUTE
+from daemon.compute.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
 #: which stored inputs each override replaces, per procedure (obs key)

@@ -1,0 +1,66 @@
+"""Result files of a procedure: versioned JSON, an OpenCV FileStorage YAML export and, for an experiment,
+its report and plot; the same for a live run and for ``ritactl recompute --out``."""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from daemon.bus.storage import atomic_write_bytes, atomic_write_json, atomic_write_text
+
+
+def write_yaml(path: Path, result: dict[str, Any]) -> None:
+    """OpenCV FileStorage YAML with the matrices a C++/HALCON user would want, written atomically."""
+    import cv2
+
+    fd, tmp = tempfile.mkstemp(suffix=".yaml", dir=path.parent)
+    os.close(fd)
+    fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+    try:
+        for key in ("job", "procedure", "software", "plate_id", "verdict", "created"):
+            if result.get(key) is not None:
+                fs.write(key, str(result[key]))
+        for key in ("rob_H_cam", "rob_H_scn"):
+            if result.get(key) is not None:
+                fs.write(key, np.array(result[key], dtype=np.float64))
+        if result.get("scs"):
+            fs.write("scn_H_cam", np.array(result["scs"]["scn_H_cam"], dtype=np.float64))
+        model = result.get("camera_model")
+        if model:
+            fs.write("camera_matrix", np.array(model["K"], dtype=np.float64))
+            fs.write("dist_coeffs", np.array(model["dist"], dtype=np.float64).reshape(1, -1))
+            fs.write("image_size", np.array(model["size"], dtype=np.int32).reshape(1, 2))
+        mark = result.get("mark")
+        if mark:
+            fs.write("mark_abs_xyz", np.array(mark["abs_xyz"], dtype=np.float64).reshape(1, 3))
+    finally:
+        fs.release()
+    data = Path(tmp).read_bytes()
+    os.unlink(tmp)
+    atomic_write_bytes(path, data)
+
+
+def write_result_files(root: Path, result: dict[str, Any], dataset: Path | str | None = None) -> dict[str, Any]:
+    """result.json, result.yaml and, for an experiment, report.md/.csv and clusters.png in ``root``.
+
+    The same files for a live run and for ``ritactl recompute --out``; returns the
+    result as written (with ``created``, ``dataset`` and, for experiments, ``files``).
+    """
+    root = Path(root)
+    result = {**result, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+              "dataset": str(dataset if dataset is not None else root)}
+    if result["procedure"] == "experiment":
+        result["files"] = ["report.md", "report.csv", "clusters.png"]
+    atomic_write_json(root / "result.json", result)
+    write_yaml(root / "result.yaml", result)
+    if result["procedure"] == "experiment":
+        atomic_write_text(root / "report.md", result["table_markdown"])
+        atomic_write_text(root / "report.csv", result["table_csv"])
+        from daemon.compute.report import plot_clusters
+
+        atomic_write_bytes(root / "clusters.png", plot_clusters(result))
+    return result

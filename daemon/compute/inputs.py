@@ -1,0 +1,101 @@
+"""What moves between a dataset's stop records and the compensation math (calibration/compensation.py).
+
+* :func:`parse_compensation` — a job's ``compensation`` parameter (default ``tilt,bias``);
+* :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
+* :func:`plate_imu_offset` — the inclinometer's offset and yaw from the on-plate runs (referencing);
+* :func:`compensation_summary` — which compensations were requested, applied, skipped.
+
+docs/datasets.md ("Compensations") documents every field read here.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
+from calibration.imu_mount import imu_mount
+from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+
+#: the compensations a job applies when its parameters do not say
+DEFAULT_COMPENSATION: str = PARAM_DEFAULTS["compensation"]
+
+
+def parse_compensation(value: Any) -> Compensation:
+    """``Compensation.parse`` with the error naming the parameter (a ValueError: ritactl recompute exits 5)."""
+    try:
+        return Compensation.parse(DEFAULT_COMPENSATION if value is None else value)
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise ValueError(f"compensation={value!r}: {exc}") from None
+
+
+def _tilt(rec: dict[str, Any] | None) -> tuple[float, float] | None:
+    return None if not rec else (float(rec["roll_deg"]), float(rec["pitch_deg"]))
+
+
+def stop_of(stop: dict[str, Any]) -> Stop:
+    """The compensation inputs of one stored stop record (its approach points, tilt, stream)."""
+    stream = stop.get("stream") or {}
+    pts = stream.get("abs_xyz")
+    tilt = stream.get("tilt_deg")
+    return Stop(np.asarray(stop["P_prev"]["abs_xyz"], float), np.asarray(stop["P_at"]["abs_xyz"], float),
+                _tilt(stop.get("imu_prev")), _tilt(stop.get("imu_at")),
+                None if not pts else np.asarray(pts, float),
+                None if not tilt or not pts or len(tilt) != len(pts) else np.asarray(tilt, float),
+                reverse=float(stop.get("move_mm", 1.0)) < 0)
+
+
+def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray],
+                     height_mm: float) -> dict[str, Any] | None:
+    """The inclinometer's mounting from the on-plate runs that read it (None: none did).
+
+    calibration/imu_mount.py: the offset, and with two runs the yaw and the check that the
+    runs agree; its messages and verdict join the referencing result's.
+    """
+    pairs = [(tilt_of_pose(H), _tilt(r["imu0"]), _reading_sigma(r["imu0"]))
+             for r, H in zip(runs_obs, abs_H_robs) if r.get("imu0")]
+    if not pairs:
+        return None
+    return imu_mount([p[0] for p in pairs], [p[1] for p in pairs], [p[2] for p in pairs], height_mm).to_dict()
+
+
+def _reading_sigma(rec: dict[str, Any]) -> float:
+    """1σ of an averaged standstill reading (deg) from its spread and count."""
+    n = max(int(rec.get("n") or 1), 1)
+    return float(np.hypot(rec.get("roll_std_deg") or 0.0, rec.get("pitch_std_deg") or 0.0)) / np.sqrt(2.0 * n)
+
+
+def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | None, list[float] | None]:
+    """(imu_offset_deg, robot_bias_mm) a calibration holds, each None when absent."""
+    off = calib.get("imu_offset_deg")
+    b = calib.get("robot_bias_mm")
+    return (None if off is None else (float(off[0]), float(off[1]))), (None if b is None else [float(v) for v in b])
+
+
+def imu_yaw(calib: dict[str, Any]) -> float:
+    """The inclinometer's yaw in the body a calibration holds (0 when it was not resolved)."""
+    return float(calib.get("imu_yaw_deg") or 0.0)
+
+
+def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
+    """The per-stop compensation record of a mark."""
+    return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
+
+
+def compensation_summary(comp: Compensation, records: list[dict[str, Any]], calib: dict[str, Any]) -> dict[str, Any]:
+    """Over all stops: per compensation how many stops applied it and why the others skipped it."""
+    offset, bias = calibration_inputs(calib)
+    out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
+                           "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias}
+    for name in NAMES:
+        if name not in out["requested"]:
+            continue
+        out["applied"][name] = sum(name in r["applied"] for r in records)
+        reasons = sorted({r["skipped"][name] for r in records if name in r["skipped"]})
+        if reasons:
+            out["skipped"][name] = reasons
+    return out
+
+
+__all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "imu_yaw", "parse_compensation",
+           "plate_imu_offset", "stop_of", "stop_record"]
