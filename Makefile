@@ -18,7 +18,7 @@ demo: $(STAMP)
 	$(PY) -m fakes.demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
