@@ -43,6 +43,7 @@ CASES = (
     _case("S-shaped path deviations", ("robot", "path_shape", "s")),
     _case("floor correlation 150 mm", ("floor", "correlation_mm", 150.0)),
     _case("path deviation 35 µm (instead of 50) per 0.2 m", ("robot", "lateral_sigma_mm", 0.035)),
+    _case("paper-fit+imu (mount eccentricity 0.18 mm)", profile="paper-fit+imu"),
 )
 
 
