@@ -86,7 +86,8 @@ def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, i
 
 
 def run(case: Case, seed: int) -> dict[str, Any]:
-    """One seed of ``case``: the metrics of :data:`METRICS` plus per-stop image positions and errors."""
+    """One seed of ``case``: the metrics of :data:`METRICS`, per-stop image positions, errors and σ figures
+    (:func:`measure_all`), and the experiment's full metrics (``metrics``)."""
     p = profiles.apply(case.profile, WorldParams(seed=seed))
     world = World(p.with_(errors=p.errors.without(*case.off).tweaked(case.tweak)))
     imu = world.params.base_has_inclinometer
@@ -113,8 +114,8 @@ def run(case: Case, seed: int) -> dict[str, Any]:
     return {"enclosing_mm": m.enclosing_diameter_mm, "pairwise_mm": m.pairwise_mean_mm,
             "abs_rms_mm": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), "t_xy_mm": e["t_xy_mm"],
             "rotation_deg": e["rot_deg"], "uv": np.array([o.uv for o in val.observations]),
-            "err_mm": np.linalg.norm(err, axis=1), "std_mm": sig[:, 0], "t_unit_mm2": sig[:, 1], "lever_mm": sig[:, 2], "size": sim.model.size,
-            "metrics": m}
+            "err_mm": np.linalg.norm(err, axis=1), "std_mm": sig[:, 0], "t_unit_mm2": sig[:, 1],
+            "lever_mm": sig[:, 2], "size": sim.model.size, "metrics": m}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:

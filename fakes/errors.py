@@ -197,5 +197,5 @@ def sources_table() -> str:
     return "\n".join(rows)
 
 
-__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PATH_SHAPES", "PlateErrors", "ReflectorErrors", "RobotErrors",
-           "TargetErrors", "TrackerErrors", "sourced", "sources_table"]
+__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PATH_SHAPES", "PlateErrors", "ReflectorErrors",
+           "RobotErrors", "TargetErrors", "TrackerErrors", "sourced", "sources_table"]

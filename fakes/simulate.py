@@ -158,8 +158,9 @@ class Simulation:
     def _stop(self, pose: RobotPose, rng: np.random.Generator) -> tuple[RobotPose, np.ndarray, np.ndarray]:
         """With the world's error model: the robot settled on its wheels after a move of d to ``pose``.
 
-        The move bends on an arc (fakes/errors.py RobotErrors) that ends at ``pose`` with
-        the heading turned by δ, so the chord from the previous stop runs at heading − δ/2;
+        The move bends (fakes/errors.py RobotErrors: an arc, or an S) and ends at ``pose``
+        ``bend`` to the side with the heading turned by δ (the S: 0), so the chord from the
+        previous stop runs bend/d off the start heading (the arc: heading − δ/2);
         the config's ``path_sigma_mm`` adds an independent sideways offset of the previous
         stop. Returns the settled pose and the true reflector centres at both stops.
         """
