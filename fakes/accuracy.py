@@ -34,6 +34,8 @@ from fakes.world import World, WorldParams
 #: ``paper+imu`` with the compensations (mm), by metric key
 PAPER_MM = {"enclosing_mm": 0.747, "pairwise_mm": 0.215}
 GOALS_MM = {"enclosing_mm": 0.25, "pairwise_mm": 0.07, "abs_rms_mm": 0.10}
+#: the referencing's Monte Carlo samples, as the worker takes them (the marks' stated σ needs cov_rob_H_scn)
+MC_SAMPLES = 200
 #: metric keys of one run, in table order (mm; rotation in degrees)
 METRICS = ("enclosing_mm", "pairwise_mm", "abs_rms_mm", "t_xy_mm", "rotation_deg")
 
@@ -44,11 +46,14 @@ class Case:
     comp: Compensation = Compensation()
     off: tuple[str, ...] = ()
     mark_window_mm: float = 3.0  # the mark's spread about the footprint centre
+    tweak: tuple[tuple[str, str, Any], ...] = ()  # (group, field, value): sensitivity cases
+    name: str = ""  # a short label for a tweaked case
 
     @property
     def label(self) -> str:
         comp = "+".join(self.comp.names()) or "none"
-        return f"{self.profile}, {comp}" + "".join(f" −{g}" for g in self.off)
+        tweaks = "".join(f" {g}.{f}={v}" for g, f, v in self.tweak)
+        return self.name or (f"{self.profile}, {comp}" + "".join(f" −{g}" for g in self.off) + tweaks)
 
 
 def _stop(o: MarkObs) -> Stop:
@@ -58,46 +63,59 @@ def _stop(o: MarkObs) -> Stop:
 
 
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
-                bias: Any) -> tuple[np.ndarray, np.ndarray]:
-    """ACS marks of every stop and their approach headings (deg), with ``comp`` applied."""
-    pts, heads = [], []
+                bias: Any, cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ACS marks of every stop, their approach headings (deg) and (N, 3) σ figures, with ``comp`` applied.
+
+    σ figures per stop: the stated std_mm as the worker reports it (daemon/worker/compute.py: the
+    tracker's 10 µm default, 0.05 px, the calibration's ``cov_rob_H_scn``), the mark variance per
+    unit tracker variance (mm²/mm², to restate σ with another σ_t) and the mark's lever arm from
+    the reflector (mm, to add a heading term).
+    """
+    pts, heads, sig = [], [], []
     for o in val.observations:
         a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias)
-        pts.append(measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
-                                pitch_deg=a.pitch_deg).abs_P)
+        m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
+                         pitch_deg=a.pitch_deg, cov_rob_H_scn=cov)
+        unit = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
+                            pitch_deg=a.pitch_deg, sigma_t_mm=1.0, sigma_px=0.0).std_mm ** 2
+        pts.append(m.abs_P)
+        sig.append((m.std_mm, unit, float(np.linalg.norm(m.rob_P[:2]))))
         v = o.abs_P_at - a.abs_P_prev
         heads.append(np.degrees(np.arctan2(v[1], v[0])))
-    return np.array(pts), np.array(heads)
+    return np.array(pts), np.array(heads), np.array(sig)
 
 
 def run(case: Case, seed: int) -> dict[str, Any]:
-    """One seed of ``case``: the metrics of :data:`METRICS` plus per-stop image positions and errors."""
+    """One seed of ``case``: the metrics of :data:`METRICS`, per-stop image positions, errors and σ figures
+    (:func:`measure_all`), and the experiment's full metrics (``metrics``)."""
     p = profiles.apply(case.profile, WorldParams(seed=seed))
-    world = World(p.with_(errors=p.errors.without(*case.off)))
+    world = World(p.with_(errors=p.errors.without(*case.off).tweaked(case.tweak)))
     imu = world.params.base_has_inclinometer
     cfg = SimConfig(seed=seed, pnp_sigma_px=0.05, report_tilt=imu, mark_window_mm=case.mark_window_mm)
     sim = Simulation(world, cfg)
     obs = sim.calibration()
     res = reference(sim.model, sim.plate, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, cam_ref=obs.cam_ref,
-                    mc_samples=0)
+                    mc_samples=MC_SAMPLES)
     scs = make_scs(sim.model, res.cam_H_ref)
     offset = imu_offset_deg(res.abs_H_rob, *obs.imu_deg) if obs.imu_deg is not None else None
     bias = None
     if case.comp.bias:  # learn b on another mark, as a later job would find it in the calibration
         learn = Simulation(world, SimConfig(**{**cfg.__dict__, "mark": "M2"})).validation("learn-bias")
         base = Compensation(case.comp.tilt, case.comp.heading_fit, False)
-        lp, lh = measure_all(learn, base, scs, res.rob_H_scn, offset, None)
+        lp, lh, _ = measure_all(learn, base, scs, res.rob_H_scn, offset, None)
         fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
         bias = None if fit is None else fit.b
     val = sim.validation()
-    pts, heads = measure_all(val, case.comp, scs, res.rob_H_scn, offset, bias)
+    cov = None if res.uncertainty is None else res.uncertainty.cov_rob_H_scn
+    pts, heads, sig = measure_all(val, case.comp, scs, res.rob_H_scn, offset, bias, cov)
     m = experiment_metrics(pts, heads, [o.direction for o in val.observations])
     err = pts[:, :2] - val.mark_abs[:2]
     e = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
     return {"enclosing_mm": m.enclosing_diameter_mm, "pairwise_mm": m.pairwise_mean_mm,
             "abs_rms_mm": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), "t_xy_mm": e["t_xy_mm"],
             "rotation_deg": e["rot_deg"], "uv": np.array([o.uv for o in val.observations]),
-            "err_mm": np.linalg.norm(err, axis=1), "size": sim.model.size}
+            "err_mm": np.linalg.norm(err, axis=1), "std_mm": sig[:, 0], "t_unit_mm2": sig[:, 1],
+            "lever_mm": sig[:, 2], "size": sim.model.size, "metrics": m}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:

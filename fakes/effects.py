@@ -159,6 +159,9 @@ class Effects:
         pattern = basis @ self.sys_coef.T  # (n, 3): range, hz, vt; unit variance over stations
         z = rng.standard_normal(flat.shape)
         d_r = k * t.range_a_mm * z[:, 0] + k * t.range_b_mm_per_m * D_m * pattern[:, 0]
+        if t.random_share_b > 0:  # part of the distance term random per reading (drawn only then: same streams)
+            share = t.random_share_b
+            pattern = math.sqrt(1.0 - share) * pattern + math.sqrt(share) * rng.standard_normal(pattern.shape)
         d_h = k * t.transverse_a_mm * z[:, 1] + k * t.transverse_b_mm_per_m * D_m * pattern[:, 1]
         d_v = k * t.transverse_a_mm * z[:, 2] + k * t.transverse_b_mm_per_m * D_m * pattern[:, 2]
         out = flat + d_r[:, None] * e_r + d_h[:, None] * e_hz + d_v[:, None] * e_vt
@@ -185,12 +188,26 @@ class Effects:
         return float(rng.normal(0.0, r.slip_sigma)) if r is not None and r.slip_sigma > 0 else 0.0
 
     def bend(self, dist_mm: float, rng: np.random.Generator) -> tuple[float, float]:
-        """(lateral mm at the end, heading change in degrees) of a straight move that bends on an arc."""
+        """(lateral mm at the end, heading change in degrees) of a straight move that bends (``path_shape``).
+
+        Both shapes end κd²/2 to the side; the arc turns the heading by κd, the S turns it back (0).
+        """
         r = self.model.robot
         if r is None:
             return 0.0, 0.0
         kappa = rng.normal(0.0, 2.0 * r.lateral_sigma_mm / r.lateral_ref_mm ** 2)
-        return float(kappa * dist_mm ** 2 / 2.0), float(math.degrees(kappa * dist_mm))
+        turn = 0.0 if r.path_shape == "s" else float(math.degrees(kappa * dist_mm))
+        return float(kappa * dist_mm ** 2 / 2.0), turn
+
+    def bend_profile(self, f: Any, lateral_mm: float, dist_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Along a bent move at fractions ``f``: the sideways offset from the chord (mm, left +, small angles)
+        and the heading's departure from an even turn (rad), for a move ending ``lateral_mm`` to the side."""
+        f = np.asarray(f, dtype=float)
+        r = self.model.robot
+        if r is not None and r.path_shape == "s":  # curvature +2κ then −2κ: y = 2f², then 1 − 2(1 − f)²
+            y = np.where(f <= 0.5, 2.0 * f * f, 1.0 - 2.0 * (1.0 - f) ** 2) * lateral_mm
+            return y - f * lateral_mm, 4.0 * lateral_mm / dist_mm * np.minimum(f, 1.0 - f)
+        return (f * f - f) * lateral_mm, np.zeros_like(f)  # one arc: y = f²
 
     def board_true(self, P_ref: np.ndarray) -> np.ndarray:
         """Where the printed board's nominal points (PCS) really are (scale and shear of the print)."""

@@ -20,10 +20,12 @@ AT_MPE = ("AT901 U_xyz MPE ±15 µm + 6 µm/m (calibration.md §4.2, emscon.md �
           "unverified for the AT901)")
 TYPICAL = "Leica: typical = ½ MPE (AT500 manual p. 39, via emscon.md §5); we take the typical value as 1σ"
 ADM = "ADM MPE ±10 µm + 0.3 µm/m (AT500 manual p. 39, via emscon.md §5)"
+#: RobotErrors.path_shape values
+PATH_SHAPES = ("arc", "s")
 CAL_44 = "calibration.md §4.4: 50 µm lateral path deviation between the heading positions 0.2 m apart"
 
 
-def sourced(value: float, source: str) -> Any:
+def sourced(value: Any, source: str) -> Any:
     """A dataclass field with a default and the source of its magnitude."""
     return field(default=value, metadata={"source": source})
 
@@ -40,6 +42,10 @@ class TrackerErrors:
     range_a_mm: float = sourced(0.010, ADM + ": random range part")
     range_b_mm_per_m: float = sourced(0.0003, ADM + ": systematic range part")
     mpe_to_sigma: float = sourced(0.5, TYPICAL)
+    random_share_b: float = sourced(0.0, "assumption: share of the transverse distance part's variance that is "
+                                         "random per reading instead of the station's smooth pattern (0 = all "
+                                         "systematic); "
+                                         "the MPE does not say how it splits; the sensitivity envelope takes 0.5")
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,9 @@ class RobotErrors:
     """
 
     lateral_sigma_mm: float = sourced(0.050, CAL_44)
+    path_shape: str = sourced("arc", "assumption: each move bends on one arc ('arc'); 's' bends left then right "
+                                     "(curvature ±2κ over the halves): the same lateral offset at the end and the "
+                                     "same chord-to-heading angle κd/2, but the heading turns back (envelope case)")
     lateral_ref_mm: float = sourced(200.0, CAL_44 + " (the move length the 50 µm refers to)")
     slip_sigma: float = sourced(0.002, "relative distance error per move from wheel slip; non-systematic odometry "
                                        "errors of 0.1–1 % of travel on smooth floors (Borenstein & Feng 1996, "
@@ -75,6 +84,10 @@ class RobotErrors:
                                            "not published, 0.4 m track assumed")
     caster_x_mm: float = sourced(350.0, "paper Fig. 1 (layout only); caster 0.35 m ahead of the drive axle "
                                         "assumed, the reflector above the axle centre")
+
+    def __post_init__(self) -> None:
+        if self.path_shape not in PATH_SHAPES:
+            raise ValueError(f"RobotErrors.path_shape={self.path_shape!r} (known: {', '.join(PATH_SHAPES)})")
 
 
 @dataclass(frozen=True)
@@ -137,6 +150,16 @@ class ErrorModel:
         return cls(TrackerErrors(), ReflectorErrors(), RobotErrors(), FloorErrors(), PlateErrors(),
                    TargetErrors(), None)
 
+    def tweaked(self, tweaks: tuple[tuple[str, str, Any], ...]) -> "ErrorModel":
+        """The same model with ``(group, field, value)`` changes (sensitivity cases); the group must be on."""
+        out = self
+        for group, name, value in tweaks:
+            g = getattr(out, group, None) if group in GROUPS else None
+            if g is None or name not in {f.name for f in fields(g)}:
+                raise ValueError(f"cannot set {group}.{name}: no such field in an active error group")
+            out = replace(out, **{group: replace(g, **{name: value})})
+        return out
+
     def without(self, *groups: str) -> "ErrorModel":
         """The same model with ``groups`` switched off (for one-effect-off budgets)."""
         unknown = sorted(set(groups) - set(GROUPS))
@@ -169,9 +192,10 @@ def sources_table() -> str:
     rows = ["| Group | Parameter | paper value | Source |", "|---|---|---:|---|"]
     for group, cls in zip(GROUPS, GROUP_CLASSES):
         for f in fields(cls):
-            rows.append(f"| {group} | `{f.name}` | {f.default:g} | {f.metadata['source']} |")
+            value = f.default if isinstance(f.default, str) else f"{f.default:g}"
+            rows.append(f"| {group} | `{f.name}` | {value} | {f.metadata['source']} |")
     return "\n".join(rows)
 
 
-__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PlateErrors", "ReflectorErrors", "RobotErrors",
-           "TargetErrors", "TrackerErrors", "sourced", "sources_table"]
+__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PATH_SHAPES", "PlateErrors", "ReflectorErrors",
+           "RobotErrors", "TargetErrors", "TrackerErrors", "sourced", "sources_table"]

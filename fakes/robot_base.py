@@ -56,7 +56,7 @@ class Motion:
     duration: float
     path: float  # commanded path length (mm, or deg for turns) for the battery model
     fault_at: float | None = None  # fraction at which a simulated stall strikes
-    bend_mm: float = 0.0  # sideways offset at the end from the arc the path bends on (error model)
+    bend_mm: float = 0.0  # sideways offset at the end of the bent path (error model: arc or S)
 
 
 def unit_interval(name: str, value: float) -> float:
@@ -325,10 +325,12 @@ class FakeBase:
             s, e = m.start, m.end
             pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
                            heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
-            if m.bend_mm:  # on the arc, not the chord: the sideways offset grows as f², not f
+            if m.bend_mm:  # on the bent path (arc or S), not the chord
                 a = math.radians(s.heading_deg)
-                side = (f * f - f) * m.bend_mm
-                pose = replace(pose, x_mm=pose.x_mm - side * math.sin(a), y_mm=pose.y_mm + side * math.cos(a))
+                side, dh = self.world.effects.bend_profile(f, m.bend_mm, max(m.path, 1e-9))
+                pose = replace(pose, x_mm=pose.x_mm - float(side) * math.sin(a),
+                               y_mm=pose.y_mm + float(side) * math.cos(a),
+                               heading_deg=pose.heading_deg + math.degrees(float(dh)))
             odo = tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))  # type: ignore[assignment]
             if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
                 pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))

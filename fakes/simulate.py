@@ -158,36 +158,39 @@ class Simulation:
     def _stop(self, pose: RobotPose, rng: np.random.Generator) -> tuple[RobotPose, np.ndarray, np.ndarray]:
         """With the world's error model: the robot settled on its wheels after a move of d to ``pose``.
 
-        The move bends on an arc (fakes/errors.py RobotErrors) that ends at ``pose`` with
-        the heading turned by δ, so the chord from the previous stop runs at heading − δ/2;
+        The move bends (fakes/errors.py RobotErrors: an arc, or an S) and ends at ``pose``
+        ``bend`` to the side with the heading turned by δ (the S: 0), so the chord from the
+        previous stop runs bend/d off the start heading (the arc: heading − δ/2);
         the config's ``path_sigma_mm`` adds an independent sideways offset of the previous
         stop. Returns the settled pose and the true reflector centres at both stops.
         """
         w, d = self.world, self.cfg.move_mm
-        _, turn = w.effects.bend(d, rng)
+        bend, turn = w.effects.bend(d, rng)
         head = pose.heading_deg + turn
-        a = math.radians(head - turn / 2.0)
+        a = math.radians(head - turn + math.degrees(math.atan2(bend, d)))  # the chord: bend/d off the start
         lateral = rng.normal(0.0, self.cfg.path_sigma_mm) if self.cfg.path_sigma_mm else 0.0
         prev = w.settle(RobotPose(pose.x_mm - d * math.cos(a) - lateral * math.sin(a),
                                   pose.y_mm - d * math.sin(a) + lateral * math.cos(a), head - turn))
         at = w.settle(RobotPose(pose.x_mm, pose.y_mm, head, pose.roll_rad, pose.pitch_rad))
-        self._last_path = self._path(prev, at, turn)
+        self._last_path = self._path(prev, at, turn, bend)
         return at, w.robot_reflector_abs(w.abs_H_rob(prev)), w.robot_reflector_abs(w.abs_H_rob(at))
 
-    def _path(self, prev: RobotPose, at: RobotPose, turn_deg: float) -> list[RobotPose]:
-        """Settled poses along the bent move prev → at (heading turning evenly), ends included.
+    def _path(self, prev: RobotPose, at: RobotPose, turn_deg: float, bend_mm: float) -> list[RobotPose]:
+        """Settled poses along the bent move prev → at, ends included (the shape: Effects.bend_profile).
 
-        A circular arc that turns by δ over the chord c lies ``(δ·|c|/2)·t·(1 − t)`` to the
+        A circular arc that ends ``bend_mm`` to the side lies ``bend_mm·t·(1 − t)`` to the
         right of the chord for a left turn (to second order), ``t`` the fraction travelled.
         """
         n = max(2, self.cfg.stream_points)
         c = np.array([at.x_mm - prev.x_mm, at.y_mm - prev.y_mm])
         left = np.array([-c[1], c[0]]) / max(float(np.linalg.norm(c)), 1e-9)
-        sag = math.radians(turn_deg) * float(np.linalg.norm(c)) / 2.0
+        ts = np.linspace(0.0, 1.0, n)
+        side, dh = self.world.effects.bend_profile(ts, bend_mm, self.cfg.move_mm)
         out = []
-        for t in np.linspace(0.0, 1.0, n):
-            x, y = np.array([prev.x_mm, prev.y_mm]) + t * c - sag * t * (1.0 - t) * left
-            out.append(self.world.settle(RobotPose(float(x), float(y), prev.heading_deg + turn_deg * t)))
+        for t, s, h in zip(ts, side, dh):
+            x, y = np.array([prev.x_mm, prev.y_mm]) + t * c + s * left
+            out.append(self.world.settle(RobotPose(float(x), float(y), prev.heading_deg + turn_deg * t
+                                                   + math.degrees(h))))
         out[0], out[-1] = prev, at
         return out
 

@@ -14,7 +14,7 @@ def _sim_cfg(tmp_path, profile: str) -> dict:
 
 def test_a_bad_profile_is_a_config_error_naming_it_and_listing_the_profiles(tmp_path):
     with pytest.raises(config.ConfigError, match=r"sim\.profile 'papr' is not a simulation profile "
-                                                 r"\(profiles: ideal, paper, paper\+imu\)"):
+                                                 r"\(profiles: ideal, paper, paper\+imu, paper-fit, paper-fit\+imu\)"):
         config.from_dict(_sim_cfg(tmp_path, "papr"))
     assert config.from_dict(_sim_cfg(tmp_path, "paper+imu")).sim.profile == "paper+imu"
     assert config.sim_config(tmp_path, profile="paper").sim.profile == "paper"
