@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(PY) -m daemon.demo
 
+# Two workers, whole files per worker: a module's shared daemon (the closed loops) is built once.
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
