@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(PY) -m fakes.demo
 
+# Two workers, whole files per worker: a module's shared daemon (the closed loops) is built once.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
