@@ -11,7 +11,8 @@ from daemon.bus.client import Client
 
 
 def run(make_client: Callable[[], Client], port: int, captures: Path, open_browser: bool = False,
-        say: Callable[[str], Any] = print, duration: float | None = None) -> int:
+        say: Callable[[str], Any] = print, duration: float | None = None, allow_hosts: tuple[str, ...] = (),
+        token: str | None = None) -> int:
     """Serve the console until Ctrl-C (or ``duration`` s); raises ClientTimeout/CommandError when the
     daemon cannot be used."""
     from daemon.console.bridge import Bridge
@@ -27,7 +28,7 @@ def run(make_client: Callable[[], Client], port: int, captures: Path, open_brows
             webbrowser.open(url)
 
     try:
-        asyncio.run(serve(bridge, port, captures, ready, duration))
+        asyncio.run(serve(bridge, port, captures, ready, duration, allow_hosts, token))
     finally:
         bridge.stop()
     return 0

@@ -30,6 +30,7 @@ from daemon.bus.procedure_params import schema as procedure_schema
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
+from daemon.console.gate import Gate, new_token
 from daemon.console.jobs import start_job
 from daemon.console.survey import Survey
 from daemon.bus.png_write import frame_png
@@ -66,16 +67,22 @@ class Tab:
 
 
 class Console:
-    def __init__(self, bridge: Bridge, captures: Path) -> None:
+    def __init__(self, bridge: Bridge, captures: Path, token: str | None = None,
+                 allow_hosts: tuple[str, ...] = ()) -> None:
         self.bridge = bridge
         self.captures = captures
         self.tabs: set[Tab] = set()
         self.frames_sent = 0
         self.survey = Survey()
+        self.gate = Gate(token or new_token(), allow_hosts)
+
+    @property
+    def token(self) -> str:
+        return self.gate.token
 
     # ------------------------------------------------------------------ http
     def app(self) -> web.Application:
-        app = web.Application(client_max_size=1 << 20)
+        app = web.Application(client_max_size=1 << 20, middlewares=[self.gate.middleware])
         app.router.add_get("/", self.index)
         app.router.add_get("/ws", self.websocket)
         app.router.add_get("/files/{path:.+}", self.download)
@@ -300,16 +307,18 @@ def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
 
 
 async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None,
-                duration: float | None = None) -> None:
-    """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one)."""
-    console = Console(bridge, captures)
+                duration: float | None = None, allow_hosts: tuple[str, ...] = (), token: str | None = None) -> None:
+    """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one).
+
+    The URL carries this launch's secret token (docs/operations.md, "Operator console": security)."""
+    console = Console(bridge, captures, token=token, allow_hosts=allow_hosts)
     runner = web.AppRunner(console.app(), access_log=None)
     await runner.setup()
     site = web.TCPSite(runner, "127.0.0.1", port)  # the laptop's own browser only
     await site.start()
     bound = runner.addresses[0][1]
     if on_ready is not None:
-        on_ready(f"http://127.0.0.1:{bound}/")
+        on_ready(f"http://127.0.0.1:{bound}/?token={console.token}")
     try:
         if duration is None:
             await asyncio.Event().wait()

@@ -34,7 +34,8 @@ def cmd_console(c: Client, a: argparse.Namespace) -> int:
         return Client(c.endpoint, timeout=c.timeout, curve=c.curve, key_id=c.key_id)
 
     try:
-        return run(make_client, a.port, Path(a.captures).expanduser(), a.open, duration=a.duration)
+        return run(make_client, a.port, Path(a.captures).expanduser(), a.open, duration=a.duration,
+                   allow_hosts=tuple(a.allow_host or ()), token=a.token)
     except OSError as exc:
         if exc.errno in (98, 10048):  # EADDRINUSE (Linux, Windows)
             raise CtlError(Exit.USAGE, "usage", f"port {a.port} on 127.0.0.1 is in use: choose another "
@@ -48,12 +49,18 @@ def add_parser(sub: Any) -> None:
     p = sub.add_parser("console", help="operator console in the browser (http://127.0.0.1:PORT)",
                        description="Serve the operator console on 127.0.0.1 for this computer's browser: live "
                                    "camera, tracker/robot/daemon panels, STOP, procedures, results. Runs until "
-                                   "Ctrl-C. Needs pip install 'rita[console]'.")
+                                   "Ctrl-C. The URL it prints carries this launch's secret token (needed by the "
+                                   "page). Needs pip install 'rita[console]'.")
     p.add_argument("--port", type=_port, default=8765, help="TCP port on 127.0.0.1 (default 8765; 0: any free)")
     p.add_argument("--captures", default="rita-captures", metavar="DIR",
                    help="folder for frames captured from the page (default ./rita-captures)")
     p.add_argument("--open", action="store_true", help="open the page in the default browser")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument("--token", help="use this token instead of a new one (a restarted console that open pages "
+                                   "reconnect to); the default is a new secret token per launch")
+    p.add_argument("--allow-host", action="append", metavar="NAME",
+                   help="a host name the page may be opened under besides 127.0.0.1/localhost (repeatable; "
+                        "anything else is refused with 403)")
     p.set_defaults(fn=cmd_console)
 
 

@@ -77,14 +77,16 @@ def start_robot(tmp: Path, camera: str = "sim:", worker: bool = True,
 class ConsoleProcess:
     """``ritactl ARGS console --port PORT`` as a process; ``url`` from its first line."""
 
-    def __init__(self, args: list[str], tmp: Path, timeout: float = 30.0, port: int = 0) -> None:
+    def __init__(self, args: list[str], tmp: Path, timeout: float = 30.0, port: int = 0,
+                 token: str | None = None) -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(ROOT), "RITA_CONFIG": str(tmp / "none.toml")}
         (tmp / "none.toml").write_text("")
         self.log = tmp / "console.log"
         with open(self.log, "ab") as log:
+            more = ["--token", token] if token else []
             self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", *args, "console", "--port", str(port),
-                                          "--captures", str(tmp / "captures")], cwd=ROOT, env=env,
+                                          "--captures", str(tmp / "captures"), *more], cwd=ROOT, env=env,
                                          stdout=subprocess.PIPE, stderr=log, text=True)
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
         line = self.proc.stdout.readline() if ready else ""
@@ -92,7 +94,12 @@ class ConsoleProcess:
             self.stop()
             raise RuntimeError(f"ritactl console did not start within {timeout:g} s: {line!r} "
                                f"{self.log.read_text(errors='replace')[-2000:]}")
-        self.url = line[line.index("http://"):].split()[0]
+        self.url = line[line.index("http://"):].split()[0]  # the page, with this launch's ?token=
+        self.base, self.token = self.url.split("?token=")
+
+    def at(self, path: str) -> str:
+        """``path`` on this console with the token (as the page's links get it from their cookie)."""
+        return f"{self.base}{path}{'&' if '?' in path else '?'}token={self.token}"
 
     def stop(self) -> None:
         if self.proc.poll() is None:

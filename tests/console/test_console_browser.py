@@ -54,6 +54,7 @@ def text(drv, element_id: str) -> str:
 
 def click(drv, element_id: str) -> None:
     el = wait_for(f"#{element_id} enabled", lambda: (e := drv.find_element("id", element_id)).is_enabled() and e, 10)
+    drv.execute_script("arguments[0].scrollIntoView({block: 'center'})", el)  # not under the sticky header
     el.click()
 
 
@@ -230,9 +231,9 @@ def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):
     path = Path(saved.split("saved ", 1)[1].split(" (", 1)[0])
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     assert img is not None and img.shape == (750, 1000) and img.std() > 10  # full resolution, not blank
-    listing = urllib.request.urlopen(con.url + "list/procedures", timeout=30).read().decode()
+    listing = urllib.request.urlopen(con.at("list/procedures"), timeout=30).read().decode()
     link = next(part.split('"')[0] for part in listing.split('href="/files/')[1:] if "result.json" in part)
-    result = json.loads(urllib.request.urlopen(con.url + "files/" + link.split("?")[0], timeout=30).read())
+    result = json.loads(urllib.request.urlopen(con.at("files/" + link.split("?")[0]), timeout=30).read())
     assert result["procedure"] in ("intrinsics", "referencing", "experiment")
 
 
@@ -265,6 +266,50 @@ def test_stop_during_a_move_stops_the_robot(page, robot):
     assert stopped_after < 2.0
 
 
+def _moving_with_the_dialog_open(page, c: Client) -> None:
+    """A confirmed slow move, then the Move dialog opened again over the page."""
+    if c.call("state")["latch"]["latched"]:
+        c.call("robot.release")
+    for el, v in (("move-mm", "300"), ("move-speed", "1")):
+        page.find_element("id", el).clear()
+        page.find_element("id", el).send_keys(v)
+    click(page, "robot-move")
+    assert "forwards 300 mm at 1 mm/s (about 300.0 s)" in text(page, "confirm-text")  # direction, distance, speed, time
+    click(page, "confirm-yes")
+    wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
+    click(page, "robot-move")
+    wait_for("the dialog open again", lambda: page.find_element("id", "confirm").is_displayed(), 5)
+
+
+def _stopped_within(c: Client, t0: float, limit_s: float = 0.5) -> None:
+    wait_for("the base idle", lambda: c.call("robot.status")["state"] == "IDLE", 3)
+    assert time.monotonic() - t0 <= limit_s, f"idle {time.monotonic() - t0:.2f} s after STOP"
+    assert c.call("state")["latch"]["latched"]
+
+
+@pytest.mark.parametrize("how", ["shortcut", "button"])
+def test_stop_works_with_the_confirmation_dialog_open(page, robot, how):
+    """STOP is never covered: its button sits above every dialog and Ctrl+Space works from anywhere."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    c: Client = robot["client"]
+    _moving_with_the_dialog_open(page, c)
+    t0 = time.monotonic()
+    if how == "shortcut":
+        ActionChains(page).key_down(Keys.CONTROL).send_keys(" ").key_up(Keys.CONTROL).perform()
+    else:
+        page.find_element("id", "stop").click()  # a real click at its place on the screen: nothing covers it
+    _stopped_within(c, t0)
+    wait_for("the latch shown", lambda: "STOPPED (latched by" in text(page, "latch"), 5)
+    ActionChains(page).send_keys(Keys.ESCAPE).perform()
+    wait_for("Esc closed the dialog", lambda: not page.find_element("id", "confirm").is_displayed(), 5)
+    assert c.call("robot.status")["state"] == "IDLE"  # closing the dialog moved nothing
+    click(page, "release")
+    wait_for("released", lambda: not c.call("state")["latch"]["latched"], 5)
+    wait_for("the banner gone", lambda: not page.find_element("id", "latch").is_displayed(), 5)
+
+
 def test_a_page_that_never_asks_gets_one_frame_but_all_telemetry(session, robot):
     """A slow browser loses frames, never state: the console pushes state to a tab that stopped pulling."""
     import asyncio
@@ -274,7 +319,7 @@ def test_a_page_that_never_asks_gets_one_frame_but_all_telemetry(session, robot)
     async def stalled_tab() -> tuple[int, int, set[str]]:
         frames, states, topics = 0, 0, set()
         async with aiohttp.ClientSession() as http:
-            async with http.ws_connect(session[0].url + "ws") as ws:
+            async with http.ws_connect(session[0].at("ws")) as ws:
                 await ws.send_json({"op": "view", "width": 64, "fps": 30})
                 end = time.monotonic() + 3.0
                 while time.monotonic() < end:
@@ -304,7 +349,7 @@ def test_another_site_may_not_open_the_websocket(session):
     import urllib.error
     import urllib.request
 
-    req = urllib.request.Request(session[0].url + "ws", headers={
+    req = urllib.request.Request(session[0].at("ws"), headers={
         "Origin": "http://evil.example", "Connection": "Upgrade", "Upgrade": "websocket",
         "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="})
     with pytest.raises(urllib.error.HTTPError) as exc:
@@ -316,7 +361,7 @@ def test_second_tab_works_and_a_page_reconnects_after_the_console_restarts(robot
     from tests.console.browser import ConsoleProcess
 
     first = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart")
-    port = first.url.rsplit(":", 1)[1].strip("/")
+    port = first.base.rsplit(":", 1)[1].strip("/")
     original = page.current_window_handle
     page.switch_to.new_window("tab")
     try:
@@ -324,7 +369,8 @@ def test_second_tab_works_and_a_page_reconnects_after_the_console_restarts(robot
         wait_for("the second tab connected", lambda: js(page, "return window.rita.connects") == 1, 20)
         first.stop()  # the link drops
         wait_for("the page saw it", lambda: "lost" in text(page, "link"), 10)
-        second = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart2", port=int(port))
+        second = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart2", port=int(port),
+                                token=first.token)  # the same token: the open page's cookie still fits
         try:
             wait_for("the page reconnected by itself", lambda: js(page, "return window.rita.connects") == 2, 20)
             wait_for("state flows again", lambda: text(page, "link") == "robot link up", 10)
@@ -342,6 +388,18 @@ def test_viewer_key_page_has_no_enabled_control(page, robot):
         assert drv.find_element("id", "viewer-note").is_displayed()
         enabled = js(drv, """return [...document.querySelectorAll('button, input, select, textarea')]
             .filter(e => !e.classList.contains('view') && !e.disabled).map(e => e.id || e.outerHTML.slice(0, 60));""")
-        assert enabled == []
+        assert enabled == ["stop"]  # stopping is never forbidden; every other control is
+        c: Client = robot["client"]
+        if c.call("state")["latch"]["latched"]:
+            c.call("robot.release")
+        c.call("robot.move", distance_mm=300.0, speed_mm_s=1.0, confirm=True, wait=False)
+        wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
+        t0 = time.monotonic()
+        drv.find_element("id", "stop").click()
+        _stopped_within(c, t0)
+        assert "vic (viewer)" in c.call("state")["latch"]["by"]
+        wait_for("the latch shown", lambda: drv.find_element("id", "latch").is_displayed(), 5)
+        assert not drv.find_element("id", "release").is_enabled()  # a viewer may stop, not release
+        c.call("robot.release")
         # it still sees everything: telemetry arrives
         wait_for("robot state shown", lambda: text(drv, "robot-state") not in ("", "?"), 10)

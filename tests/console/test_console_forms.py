@@ -35,7 +35,7 @@ async def console_ws(endpoint: str, tmp: Path) -> AsyncIterator[Any]:
     await runner.setup()
     site = web.TCPSite(runner, "127.0.0.1", 0)
     await site.start()
-    url = f"http://127.0.0.1:{runner.addresses[0][1]}/ws"
+    url = f"http://127.0.0.1:{runner.addresses[0][1]}/ws?token={console.token}"
     try:
         async with aiohttp.ClientSession() as http, http.ws_connect(url) as ws:
             hello = await ws.receive_json(timeout=10)

@@ -66,7 +66,8 @@ function applyRole() {
   const canOperate = allowed("robot.move");
   for (const el of document.querySelectorAll("input.ctl, select.ctl, textarea.ctl")) el.disabled = !canOperate;
   $("proc-cancel").disabled = $("proc-cancel").disabled || !S.job || !["queued", "running", "waiting"].includes(S.job.state);
-  $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled"].includes(S.job.state);
+  $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled", "stopped"].includes(S.job.state)
+    || (S.job.state === "stopped" && S.latch && S.latch.latched);
 }
 function onHello(m) {
   S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params;
@@ -83,6 +84,7 @@ function onState(m) {
   if (t["daemon.health"]) showHealth(t["daemon.health"].data);
   if (t["robot.state"]) showRobot(t["robot.state"].data);
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
+  if (t["robot.latch"]) showLatch(t["robot.latch"].data);
   for (const e of m.events) onEvent(e);
   if (m.survey) showSurvey(m.survey);   // survey.js: sent when it changed
   const c = m.console;
@@ -101,6 +103,23 @@ function showRobot(r) {
   $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
+}
+function showLatch(l) {  // the latched STOP, plainly: who, since when; Release for an operator
+  S.latch = l;
+  $("latch").hidden = !l.latched;
+  $("release").hidden = !l.latched;
+  if (l.latched) {
+    const since = l.since_ns ? new Date(l.since_ns / 1e6).toLocaleTimeString() : "?";
+    $("latch").textContent = `STOPPED (latched by ${l.by} at ${since}): no motion until Release`;
+  }
+  applyRole();
+}
+function stopNow() { act("robot.stop", {}, 10).then(() => toast("robot stopped and latched")).catch(() => {}); }
+function closeDialogs() { for (const d of document.querySelectorAll(".modal")) if (!d.hidden) d.querySelector(".view, button:last-child")?.click(); }
+function onKey(ev) {  // capture phase: before a focused button or field sees the key
+  const typing = ev.target instanceof HTMLElement && ev.target.matches("input, textarea, select");
+  if (ev.code === "Space" && (ev.ctrlKey || !typing)) { ev.preventDefault(); ev.stopPropagation(); if (ev.type === "keydown" && !ev.repeat) stopNow(); }
+  else if (ev.key === "Escape" && ev.type === "keydown") closeDialogs();
 }
 function showPoint(p, tNs) {
   const i = (p.n || 1) - 1;
@@ -186,14 +205,20 @@ function confirmMotion(text) {
 }
 async function move(kind) {
   const mm = Number($("move-mm").value), deg = Number($("turn-deg").value), speed = Number($("move-speed").value);
-  const text = kind === "move" ? `Drive ${mm} mm at ${speed} mm/s?` : `Turn ${deg}° on the spot?`;
+  const turnRate = 20;  // robot.turn's default rate (°/s)
+  const text = kind === "move"
+    ? `Drive ${mm < 0 ? "BACKWARDS" : "forwards"} ${Math.abs(mm)} mm at ${speed} mm/s (about ${fmt(Math.abs(mm) / speed, 1)} s)?`
+    : `Turn ${deg < 0 ? "clockwise" : "counter-clockwise"} ${Math.abs(deg)}° at ${turnRate}°/s (about ${fmt(Math.abs(deg) / turnRate, 1)} s)?`;
   if (!(await confirmMotion(text))) return;
   const args = kind === "move" ? { distance_mm: mm, speed_mm_s: speed, confirm: true, wait: false }
                                : { angle_deg: deg, confirm: true, wait: false };
   act(`robot.${kind}`, args).catch(() => {});
 }
 function bind() {
-  $("stop").onclick = () => act("robot.stop", {}, 10).then(() => toast("robot stopped")).catch(() => {});
+  $("stop").onclick = stopNow;
+  $("release").onclick = () => act("robot.release").then(() => toast("STOP released: motions allowed again")).catch(() => {});
+  window.addEventListener("keydown", onKey, true);
+  window.addEventListener("keyup", onKey, true);
   $("stream-start").onclick = () => act("camera.stream.start").catch(() => {});
   $("stream-stop").onclick = () => act("camera.stream.stop").catch(() => {});
   $("view-width").onchange = sendView;
