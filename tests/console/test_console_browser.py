@@ -403,3 +403,19 @@ def test_viewer_key_page_has_no_enabled_control(page, robot):
         c.call("robot.release")
         # it still sees everything: telemetry arrives
         wait_for("robot state shown", lambda: text(drv, "robot-state") not in ("", "?"), 10)
+
+
+def test_reload_shows_the_latest_result_with_working_links_and_stale_marks_need_a_silent_daemon(page, session):
+    """After a reload (or in a second tab) the links name data-dir paths (never `/files//tmp/...`) and answer."""
+    import urllib.request
+
+    con, _ = session
+    page.get(con.url)
+    wait_for("results listed", lambda: page.find_element("id", "history").find_elements("tag name", "a"), 20)
+    hrefs = [a.get_attribute("href") for a in page.find_element("id", "history").find_elements("tag name", "a")]
+    hrefs += [a.get_attribute("href") for a in page.find_element("id", "calib-active").find_elements("tag name", "a")]
+    assert hrefs and all("/files//" not in h and "/list//" not in h for h in hrefs), hrefs
+    for h in hrefs[:6]:
+        path = h.split("/", 3)[3]
+        assert urllib.request.urlopen(con.at(path), timeout=30).status == 200, h
+    assert not page.find_element("id", "robot-panel").get_attribute("class").count("stale")  # the daemon talks

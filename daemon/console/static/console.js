@@ -18,6 +18,7 @@ function connect() {
   ws.onopen = () => { S.backoff = 500; S.connects += 1; sendView(); slowPoll(); };
   ws.onclose = () => {
     setLink("page link lost: reconnecting", false);
+    if (!S.silentSince) S.silentSince = Date.now();
     for (const p of S.calls.values()) p.reject({ code: "link", message: "the link to the console dropped" });
     S.calls.clear();
     setTimeout(connect, S.backoff);          // reconnect by itself, backing off to 5 s
@@ -66,6 +67,8 @@ function applyRole() {
   const canOperate = allowed("robot.move");
   for (const el of document.querySelectorAll("input.ctl, select.ctl, textarea.ctl")) el.disabled = !canOperate;
   $("proc-cancel").disabled = $("proc-cancel").disabled || !S.job || !["queued", "running", "waiting"].includes(S.job.state);
+  const chosenRuns = (S.jobs || []).some((j) => j.procedure === $("proc").value && ["queued", "running", "waiting"].includes(j.state));
+  $("proc-start").disabled = $("proc-start").disabled || chosenRuns;   // one job of a procedure at a time
   $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled", "stopped"].includes(S.job.state)
     || (S.job.state === "stopped" && S.latch && S.latch.latched);
 }
@@ -80,6 +83,9 @@ function onHello(m) {
 function onState(m) {
   const up = m.link.bus === "up";
   setLink(up ? "robot link up" : `robot link ${m.link.bus}: ${m.link.error}`, up);
+  if (!up && !S.silentSince) S.silentSince = Date.now();
+  if (up) S.silentSince = 0;
+  markStale();
   const t = m.topics;
   if (t["daemon.health"]) showHealth(t["daemon.health"].data);
   if (t["robot.state"]) showRobot(t["robot.state"].data);
@@ -103,6 +109,13 @@ function showRobot(r) {
   $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
+}
+function markStale() {  // a silent daemon's last values are greyed with their age, never shown as current
+  const age = S.silentSince ? Math.round((Date.now() - S.silentSince) / 1000) + 5 : 0;  // 5 s of silence to notice
+  for (const id of ["tracker-panel", "robot-panel", "daemon-panel"]) {
+    $(id).classList.toggle("stale", age > 0);
+    $(id).querySelector("h2").dataset.age = age ? `stale: no data for ${age} s` : "";
+  }
 }
 function showLatch(l) {  // the latched STOP, plainly: who, since when; Release for an operator
   S.latch = l;
@@ -131,6 +144,7 @@ function showPoint(p, tNs) {
 function onEvent(e) {
   if (e.topic === "robot.event") toast(`robot: ${JSON.stringify(e.data).slice(0, 120)}`);
   if (e.topic.startsWith("calib.")) refreshJobs();
+  if (e.topic === "calib.result") refreshResults();   // whoever finished it: active calibration and history
 }
 async function slowPoll() {  // state that has no telemetry topic: polled, cheap, viewer-allowed commands
   if (!S.ws || S.ws.readyState !== 1) return;
@@ -175,7 +189,8 @@ async function drawFrame(meta, blob) {
     S.latencies.push(Date.now() - meta.host_time_ns / 1e6);   // acquisition → drawn, same host clock
     if (S.latencies.length > 5000) S.latencies.shift();
     const cs = S.cameraStatus || {};
-    const exp = meta.exposure_us ?? (cs.applied || {}).exposure_us, gain = meta.gain_db ?? (cs.applied || {}).gain_db;
+    const ap = cs.applied || {};  // the GenICam node values the camera took (SFNC names)
+    const exp = meta.exposure_us ?? ap.ExposureTime ?? ap.exposure_us, gain = meta.gain_db ?? ap.Gain ?? ap.gain_db;
     $("cam-info").textContent = `frame ${meta.frame_id} (${meta.full_w}×${meta.full_h}, shown 1:${meta.step}` +
       `${meta.step === 1 && meta.w < meta.full_w ? `, region ${meta.x},${meta.y}` : ""}); exposure ${fmt(exp, 0)} µs; gain ${fmt(gain, 1)} dB`;
   } finally {
@@ -235,8 +250,9 @@ function bind() {
                                                         z: Number($("aim-z").value) }).then(() => toast("aimed")).catch(() => {});
   $("tracker-find").onclick = () => act("tracker.find").then(() => { toast("found"); slowPoll(); }).catch(() => {});
   $("tracker-measure").onclick = () => act("tracker.measure").then((p) => {
-    $("tracker-point").textContent = `${fmt(p.x)}, ${fmt(p.y)}, ${fmt(p.z)} mm (measure, σ ${fmt(p.std, 4)})`;
-    $("tracker-env").textContent = JSON.stringify(p.environment || {}).replace(/[{}"]/g, "").replace(/,/g, ", ");
+    const sd = Array.isArray(p.std) ? Math.hypot(...p.std) : p.std;   // per-axis 1σ: their length
+    $("tracker-point").textContent = `${fmt(p.x)}, ${fmt(p.y)}, ${fmt(p.z)} mm (measure, σ ${fmt(sd, 4)} mm)`;
+    $("tracker-env").textContent = `${fmt(p.temperature_c, 1)} °C, ${fmt(p.pressure_mbar, 1)} mbar, ${fmt(p.humidity_rh, 0)} % RH`;
   }).catch(() => {});
   $("robot-move").onclick = () => move("move");
   $("robot-turn").onclick = () => move("turn");
@@ -244,4 +260,4 @@ function bind() {
   $("proc-cancel").onclick = () => S.job && act("calib.cancel", { job: S.job.job }).then(refreshJobs).catch(() => {});
   $("proc-resume").onclick = () => S.job && act("calib.resume", { job: S.job.job }).then(refreshJobs).catch(() => {});
 }
-document.addEventListener("DOMContentLoaded", () => { bind(); connect(); });
+document.addEventListener("DOMContentLoaded", () => { bind(); connect(); setInterval(markStale, 1000); });

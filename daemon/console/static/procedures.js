@@ -9,6 +9,10 @@ function fileLink(path, text) {
   const r = encodeURI(rel(path));
   return `<a href="/files/${r}?download=1" download>${text || r}</a>`;
 }
+async function ensureDataDir() {  // links name data-dir paths: know the data dir before drawing any (reload, 2nd tab)
+  if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
+}
+const ACTIVE = ["queued", "running", "waiting"];
 async function fetchJson(path) {
   const resp = await fetch(`/files/${encodeURI(rel(path))}`);
   if (!resp.ok) throw new Error(`${path}: HTTP ${resp.status}`);
@@ -17,9 +21,12 @@ async function fetchJson(path) {
 
 async function refreshJobs() {
   let r;
-  try { r = await call("calib.jobs", {}, 5); } catch (e) { return; }
+  try { await ensureDataDir(); r = await call("calib.jobs", {}, 5); } catch (e) { return; }
   S.jobs = r.jobs || [];
+  S.latch = r.latch || S.latch;
+  const running = S.jobs.filter((j) => ACTIVE.includes(j.state));
   if (!S.job && S.jobs.length) S.job = S.jobs[S.jobs.length - 1];   // a second tab follows the newest job
+  else if (running.length && !ACTIVE.includes(S.job.state)) S.job = running[running.length - 1];  // one started elsewhere
   const mine = S.job && S.jobs.find((j) => j.job === S.job.job);
   if (mine) { S.job = mine; showJob(mine); }
   $("jobs").innerHTML = "jobs: " + S.jobs.slice(-8).map((j) =>
@@ -116,7 +123,7 @@ async function plotResult(r) {
 
 async function refreshResults() {
   let r;
-  try { r = await call("calib.results", {}, 10); } catch (e) { return; }
+  try { await ensureDataDir(); r = await call("calib.results", {}, 10); } catch (e) { return; }
   const a = r.active;
   $("calib-active").innerHTML = a ? `active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, ${fileLink(`${a.dataset}/result.yaml`, "result.yaml")}`
                                   : "no active calibration";
