@@ -99,13 +99,14 @@ function onState(m) {
 }
 function showHealth(h) {
   const rows = Object.entries(h.devices || {}).map(([k, s]) =>
-    `<tr><th>${k}</th><td>${s.state}</td><td>reconnects ${s.reconnects}</td><td>${s.reason || ""}</td></tr>`);
+    `<tr><th>${k}</th><td><span class="st st-${s.state}">${s.state}</span></td><td>reconnects ${s.reconnects}</td><td>${s.reason || ""}</td></tr>`);
   const drops = Object.values((h.telemetry || {}).dropped || {}).reduce((a, b) => a + b, 0);
   $("daemon-health").innerHTML = `<div>up ${fmt(h.uptime_s, 0)} s, alive <b>${h.alive}</b></div><table>${rows.join("")}</table>` +
     `<div>telemetry dropped ${drops}; frames sent ${(h.frames || {}).sent}, dropped ${(h.frames || {}).dropped}</div>`;
 }
 function showRobot(r) {
   $("robot-state").textContent = r.state + (r.fault ? ` (${r.fault})` : "");
+  $("robot-state").className = `st st-${S.latch && S.latch.latched ? "LATCHED" : r.state}`;
   $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;

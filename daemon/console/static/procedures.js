@@ -77,11 +77,37 @@ function showResult(r) {
       `\n1σ rotation (°): ${(u.std_rot_deg || []).map((v) => fmt(v, 4)).join(", ")}`;
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
   $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
-  $("result-table").textContent = r.table_markdown || "";
+  $("result-table").innerHTML = markdownTable(r.table_markdown || "");
+  if (r.camera_model && r.procedure === "intrinsics") {   // f, principal point, RMS and σ at a glance
+    const K = r.camera_model.K, sd = r.std || (r.report || {}).std || {};
+    $("result-rob-H-cam").textContent = `f ${fmt(K[0][0], 2)} / ${fmt(K[1][1], 2)} px (σ ${fmt(sd.fx, 2)} / ${fmt(sd.fy, 2)}), ` +
+      `principal point ${fmt(K[0][2], 1)}, ${fmt(K[1][2], 1)} px (σ ${fmt(sd.cx, 2)}, ${fmt(sd.cy, 2)}), ` +
+      `RMS ${fmt(r.rms_px ?? (r.report || {}).rms_px, 3)} px`;
+  }
   $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
     ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
   plotResult(r);
   refreshResults();
+}
+
+function markdownTable(md) {  // the paper's table (a Markdown pipe table) as an HTML table; other lines as text
+  const esc = (t) => t.replace(/&/g, "&amp;").replace(/</g, "&lt;")
+    .replace(/\*\*(.+?)\*\*/g, "<b>$1</b>").replace(/\*(.+?)\*/g, "<i>$1</i>");
+  const out = [];
+  let rows = [];
+  const flush = () => {
+    if (!rows.length) return;
+    const cells = (l) => l.trim().replace(/^\||\|$/g, "").split("|").map((c) => esc(c.trim()));
+    const body = rows.filter((l) => !/^\s*\|?\s*:?-{2,}/.test(l)).map(cells);
+    out.push("<table class=\"paper\"><thead><tr>" + body[0].map((c) => `<th>${c}</th>`).join("") + "</tr></thead><tbody>" +
+      body.slice(1).map((r) => "<tr>" + r.map((c) => `<td>${c}</td>`).join("") + "</tr>").join("") + "</tbody></table>");
+    rows = [];
+  };
+  for (const line of md.split("\n")) {
+    if (line.trim().startsWith("|")) rows.push(line); else { flush(); if (line.trim()) out.push(`<p>${esc(line)}</p>`); }
+  }
+  flush();
+  return out.join("");
 }
 
 // ------------------------------------------------------------------ plots (plain canvas)
