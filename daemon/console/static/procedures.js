@@ -78,18 +78,21 @@ function showResult(r) {
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
   $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
   $("result-table").innerHTML = markdownTable(r.table_markdown || "");
-  if (r.camera_model && r.procedure === "intrinsics") {   // f, principal point, RMS and σ at a glance
-    const K = r.camera_model.K, sd = r.std || (r.report || {}).std || {};
-    $("result-rob-H-cam").textContent = `f ${fmt(K[0][0], 2)} / ${fmt(K[1][1], 2)} px (σ ${fmt(sd.fx, 2)} / ${fmt(sd.fy, 2)}), ` +
-      `principal point ${fmt(K[0][2], 1)}, ${fmt(K[1][2], 1)} px (σ ${fmt(sd.cx, 2)}, ${fmt(sd.cy, 2)}), ` +
-      `RMS ${fmt(r.rms_px ?? (r.report || {}).rms_px, 3)} px`;
-  }
+  if (r.procedure === "intrinsics" && r.dataset) showIntrinsics(r.dataset);
   $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
     ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
   plotResult(r);
   refreshResults();
 }
 
+async function showIntrinsics(dataset) {  // f, principal point, RMS and σ at a glance (from the stored result)
+  let m;
+  try { m = (await fetchJson(`${dataset}/result.json`)).camera_model; } catch (e) { toast(e.message); return; }
+  const K = m.K, sd = m.std || {}, cal = m.calibration || {};
+  $("result-rob-H-cam").textContent = `f ${fmt(K[0][0], 2)} / ${fmt(K[1][1], 2)} px (1σ ${fmt(sd.fx, 2)} / ${fmt(sd.fy, 2)}), ` +
+    `principal point ${fmt(K[0][2], 1)}, ${fmt(K[1][2], 1)} px (1σ ${fmt(sd.cx, 2)}, ${fmt(sd.cy, 2)}), ` +
+    `RMS ${fmt(cal.rms_px, 3)} px over ${cal.n_views ?? "?"} views`;
+}
 function markdownTable(md) {  // the paper's table (a Markdown pipe table) as an HTML table; other lines as text
   const esc = (t) => t.replace(/&/g, "&amp;").replace(/</g, "&lt;")
     .replace(/\*\*(.+?)\*\*/g, "<b>$1</b>").replace(/\*(.+?)\*/g, "<i>$1</i>");
