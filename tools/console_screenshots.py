@@ -24,6 +24,13 @@ from fakes.operator import lock_on_robot  # noqa: E402
 from tests.console.browser import console_session, start_robot, wait_for  # noqa: E402
 
 
+def press(drv, element_id: str) -> None:
+    """Click a control where a person would: scrolled to the middle, clear of the sticky header."""
+    el = drv.find_element("id", element_id)
+    drv.execute_script("arguments[0].scrollIntoView({block: 'center'})", el)
+    el.click()
+
+
 def set_value(drv, element_id: str, value: str) -> None:
     drv.execute_script("document.getElementById(arguments[0]).value = arguments[1];", element_id, value)
 
@@ -36,7 +43,7 @@ def run_procedure(drv, procedure: str, fields: dict, answer=None, timeout: float
         el = drv.find_element("id", element_id)
         el.clear()
         el.send_keys(value)
-    drv.find_element("id", "proc-start").click()
+    press(drv, "proc-start")
     if answer is not None:
         wait_for("the prompt", lambda: drv.find_element("id", "prompt").is_displayed(), 60)
         answer()
@@ -46,16 +53,16 @@ def run_procedure(drv, procedure: str, fields: dict, answer=None, timeout: float
 
 def operator_views(drv, c, data: Path, out: Path) -> None:
     sim = {n: json.loads((data / "sim" / f"{n}.json").read_text()) for n in ("plate", "board", "nests")}
-    drv.find_element("id", "stream-start").click()
+    press(drv, "stream-start")
     wait_for("frames", lambda: drv.execute_script("return window.rita.framesDrawn") >= 3, 20)
     x, y, z = sim["nests"]["red"]
     for axis, v in zip("xyz", (x, y, z)):
         set_value(drv, f"aim-{axis}", str(v))
-    drv.find_element("id", "tracker-aim").click()
+    press(drv, "tracker-aim")
     wait_for("aimed", lambda: "aimed" in drv.find_element("id", "toast").text, 30)
-    drv.find_element("id", "tracker-find").click()
+    press(drv, "tracker-find")
     wait_for("locked", lambda: drv.find_element("id", "tracker-locked").text == "locked", 30)
-    drv.find_element("id", "tracker-measure").click()
+    press(drv, "tracker-measure")
     time.sleep(1.5)
     drv.save_screenshot(str(out / "console-live.png"))
     c.call("camera.stream.stop")
@@ -73,7 +80,7 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
         drv.find_element("id", "prompt").location_once_scrolled_into_view
         drv.save_screenshot(str(out / "console-prompt.png"))
         lock_on_robot(c)
-        drv.find_element("id", "prompt-choice-ok").click()
+        press(drv, "prompt-choice-ok")
 
     run_procedure(drv, "referencing", fields, answer)
     drv.find_element("id", "proc-panel").location_once_scrolled_into_view
@@ -94,7 +101,7 @@ def survey_view(drv, c, data: Path, out: Path) -> None:
                               ("survey-plate", str(data / "sim" / "plate.json")),
                               ("survey-out", str(data.parent / "surveyed-plate.json"))):
         set_value(drv, element_id, value)
-    drv.find_element("id", "survey-start").click()
+    press(drv, "survey-start")
     wait_for("the survey", lambda: drv.execute_script("return (window.rita.survey || {}).state") == "done", 120)
     drv.find_element("id", "survey-panel").location_once_scrolled_into_view
     drv.save_screenshot(str(out / "console-survey.png"))
@@ -103,9 +110,9 @@ def survey_view(drv, c, data: Path, out: Path) -> None:
 def detect_view(drv, c, out: Path) -> None:
     """The robot still on the plate after referencing: the plate corners camera.detect finds, over the live view."""
     set_value(drv, "detect-plate", "sim/plate.json")  # the installer's plate file
-    drv.find_element("id", "stream-start").click()
+    press(drv, "stream-start")
     wait_for("frames", lambda: drv.execute_script("return window.rita.framesDrawn") >= 3, 20)
-    drv.find_element("id", "detect").click()
+    press(drv, "detect")
     wait_for("a detection", lambda: drv.execute_script("return window.rita.detections") >= 1, 60)
     time.sleep(1.0)
     drv.find_element("id", "camera-panel").location_once_scrolled_into_view
