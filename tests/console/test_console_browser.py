@@ -95,6 +95,21 @@ def test_camera_panel_shows_a_frame_within_5_s(page, robot):
     assert "frame" in text(page, "cam-info") and "exposure" in text(page, "cam-info")
 
 
+def test_at_1366x768_stop_the_live_view_and_the_procedure_controls_need_no_scrolling(page):
+    page.set_window_size(1366, 768)
+    try:
+        js(page, "window.scrollTo(0, 0)")
+        out = js(page, """const r = (id) => document.getElementById(id).getBoundingClientRect(), inside = (b) =>
+            b.top >= 0 && b.left >= 0 && b.bottom <= innerHeight && b.right <= innerWidth && b.width > 0;
+            const cam = r('cam'), panel = r('camera-panel');
+            return {stop: inside(r('stop')), start: inside(r('proc-start')), proc: inside(r('proc')),
+                    cam_top: cam.top < innerHeight - 200, cam_wide: cam.width >= panel.width - 40,
+                    no_hscroll: document.documentElement.scrollWidth <= innerWidth};""")
+    finally:
+        page.set_window_size(1400, 1100)
+    assert all(out.values()), out
+
+
 def test_tracker_panel_shows_locked_after_aim_and_find(page, robot):
     x, y, z = operator_file(robot, "nests.json")["red"]  # the operator's rough nest position
     for axis, v in zip("xyz", (x, y, z)):
@@ -147,11 +162,53 @@ def test_procedure_form_shows_defaults_and_refuses_bad_values_naming_the_field(p
     assert len(c.call("calib.jobs")["jobs"]) == posted, "a refused form posted a job"
 
 
-def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page, robot):
+def plot_pixels(drv) -> int:
+    """Pixels of the result plot that are not white: axes, ticks, labels and the points."""
+    return js(drv, """
+        const c = document.getElementById('result-plot'), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] < 200 || d[i + 1] < 200 || d[i + 2] < 200) n++;
+        return n;""")
+
+
+@pytest.fixture(scope="module")
+def camera_model(robot):
+    """The camera model from the product's own intrinsics, run once for the module (the second-tab test runs it)."""
+    if not robot.get("model_installed"):
+        install_camera_model(robot["client"], robot)
+        robot["model_installed"] = True
+    return True
+
+
+def test_a_second_tab_follows_a_job_run_from_the_bus_within_2_s(session, robot):
+    """A job started and finished by another client (ritactl, a script): the page follows it, its prompts
+    included, shows it done within 2 s of its end and refreshes the history."""
+    con, drv = session
+    original = drv.current_window_handle
+    drv.switch_to.new_window("tab")
+    try:
+        drv.get(con.base)  # the cookie the first tab got: no token in this URL
+        wait_for("the second tab connected", lambda: js(drv, "return window.rita.role") != "unknown", 20)
+        history0 = len(js(drv, "return [...document.querySelectorAll('#history tr')]") or [])
+        install_camera_model(robot["client"], robot)
+        robot["model_installed"] = True
+        done_at = time.monotonic()
+        job = robot["client"].call("calib.jobs")["jobs"][-1]
+        wait_for("the job shown done", lambda: text(drv, "job-id") == job["job"] and "done" in text(drv, "job-state"), 5)
+        assert time.monotonic() - done_at <= 2.0, f"shown {time.monotonic() - done_at:.2f} s after the job ended"
+        assert js(drv, "return window.rita.promptsSeen") >= 1  # the job's prompts were shown as it asked them
+        wait_for("the history refreshed",
+                 lambda: len(js(drv, "return [...document.querySelectorAll('#history tr')]")) > history0, 5)
+        wait_for("the intrinsics summary", lambda: "principal point" in text(drv, "result-rob-H-cam"), 10)
+        assert "NaN" not in text(drv, "result-rob-H-cam") and "RMS" in text(drv, "result-rob-H-cam")
+    finally:
+        drv.close()
+        drv.switch_to.window(original)
+
+
+def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page, robot, camera_model):
     from fakes.operator import lock_on_robot
 
     c: Client = robot["client"]
-    install_camera_model(c, robot)  # the camera model comes from the product's own intrinsics
     c.call("sim.place_robot_on_plate")  # the installer's hands: the robot stands on the plate
     choose_procedure(page, "referencing")  # the plate's design file and the rough nests, files on the robot;
     fill(page, "pp-plate", "sim/plate.json")  # the model: the installed one; no robot position: the worker asks
@@ -166,11 +223,7 @@ def test_referencing_from_the_ui_answers_a_prompt_and_shows_result_and_plot(page
     wait_for("the result", lambda: page.find_element("id", "result").is_displayed(), 120)
     assert text(page, "result-verdict") in ("ok", "warn")
     assert "rob_H_cam" in text(page, "result-rob-H-cam") and "1σ" in text(page, "result-rob-H-cam")
-    drawn = wait_for("the result plot", lambda: js(page, """
-        const c = document.getElementById('result-plot'), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-        let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] < 200 || d[i + 1] < 200 || d[i + 2] < 200) n++;
-        return n;"""), 10)
-    assert drawn > 200
+    assert wait_for("the result plot", lambda: plot_pixels(page) > 200, 10)
 
 
 def overlay_pixels(png: bytes) -> int:
@@ -411,6 +464,13 @@ def test_reload_shows_the_latest_result_with_working_links_and_stale_marks_need_
 
     con, _ = session
     page.get(con.url)
+    wait_for("the page connected again", lambda: js(page, "return window.rita.role") != "unknown", 20)
+    wait_for("the latest result", lambda: page.find_element("id", "result").is_displayed(), 20)
+    assert wait_for("its plot drawn", lambda: plot_pixels(page) > 200, 10)
+    results = js(page, "return [...document.querySelectorAll('#result-files a')].map(a => a.href)")
+    assert results and all("/files//" not in h and "/list//" not in h for h in results), results
+    for h in results:
+        assert urllib.request.urlopen(con.at(h.split("/", 3)[3]), timeout=30).status == 200, h
     wait_for("results listed", lambda: page.find_element("id", "history").find_elements("tag name", "a"), 20)
     hrefs = [a.get_attribute("href") for a in page.find_element("id", "history").find_elements("tag name", "a")]
     hrefs += [a.get_attribute("href") for a in page.find_element("id", "calib-active").find_elements("tag name", "a")]

@@ -7,6 +7,7 @@ const S = {
   ws: null, role: "unknown", commands: {}, calls: new Map(), nextId: 1, backoff: 500,
   view: { width: 640, fps: 5, roi: null }, meta: null, pendingMeta: null,
   framesDrawn: 0, latencies: [], job: null, jobs: [], dataDir: "", connects: 0, procedures: [],
+  fresh: {},   // source -> Date.now() of its last value: what markStale greys
 };
 window.rita = S;
 
@@ -18,7 +19,6 @@ function connect() {
   ws.onopen = () => { S.backoff = 500; S.connects += 1; sendView(); slowPoll(); };
   ws.onclose = () => {
     setLink("page link lost: reconnecting", false);
-    if (!S.silentSince) S.silentSince = Date.now();
     for (const p of S.calls.values()) p.reject({ code: "link", message: "the link to the console dropped" });
     S.calls.clear();
     setTimeout(connect, S.backoff);          // reconnect by itself, backing off to 5 s
@@ -52,7 +52,26 @@ function act(cmd, args = {}, timeout = 60) {  // a control's command: errors go 
 }
 function toast(text) { $("toast").textContent = text; clearTimeout(S.toastTimer); S.toastTimer = setTimeout(() => { $("toast").textContent = ""; }, 8000); }
 function setLink(text, ok) { $("link").textContent = text; $("link").className = "pill " + (ok ? "ok" : "bad"); }
-const fmt = (v, d = 3) => (v === null || v === undefined || Number.isNaN(v)) ? "–" : Number(v).toFixed(d);
+const fmt = (v, d = 3) => (v === null || v === undefined || typeof v === "object" || !Number.isFinite(Number(v))) ? "–" : Number(v).toFixed(d);
+function live(id, text) { const el = $(id); el.textContent = text; delete el.dataset.was; }  // a fresh value replaces a stale mark
+
+// ------------------------------------------------------------------ staleness
+// A panel whose source is silent (the daemon died, the link dropped) is greyed with its age, and its key values
+// say they are unknown instead of repeating the last one ("locked", IDLE, "alive true").
+const SOURCES = { "robot-panel": ["robot.state", 3000], "daemon-panel": ["daemon.health", 3500],
+                  "tracker-panel": ["tracker.status", 4000], "camera-panel": ["camera.status", 4000] };
+function markStale() {
+  const now = Date.now();
+  for (const [panel, [src, limit]] of Object.entries(SOURCES)) {
+    const seen = S.fresh[src], age = seen ? now - seen : Infinity, stale = age > limit, p = $(panel);
+    p.classList.toggle("stale", stale);
+    p.querySelector(".age").textContent = stale ? (seen ? `stale: nothing from ${src} for ${fmt(age / 1000, 0)} s` : "no data yet") : "";
+    if (!stale) continue;
+    for (const el of p.querySelectorAll("[data-live]")) {
+      if (el.dataset.was === undefined && el.textContent && el.textContent !== "?") { el.dataset.was = el.textContent; el.textContent = `unknown (was ${el.dataset.was})`; }
+    }
+  }
+}
 
 // ------------------------------------------------------------------ roles
 function allowed(cmd) {
@@ -83,10 +102,8 @@ function onHello(m) {
 function onState(m) {
   const up = m.link.bus === "up";
   setLink(up ? "robot link up" : `robot link ${m.link.bus}: ${m.link.error}`, up);
-  if (!up && !S.silentSince) S.silentSince = Date.now();
-  if (up) S.silentSince = 0;
-  markStale();
   const t = m.topics;
+  for (const k of Object.keys(t)) S.fresh[k] = Date.now();   // topics that changed since this page's last state
   if (t["daemon.health"]) showHealth(t["daemon.health"].data);
   if (t["robot.state"]) showRobot(t["robot.state"].data);
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
@@ -101,22 +118,15 @@ function showHealth(h) {
   const rows = Object.entries(h.devices || {}).map(([k, s]) =>
     `<tr><th>${k}</th><td><span class="st st-${s.state}">${s.state}</span></td><td>reconnects ${s.reconnects}</td><td>${s.reason || ""}</td></tr>`);
   const drops = Object.values((h.telemetry || {}).dropped || {}).reduce((a, b) => a + b, 0);
-  $("daemon-health").innerHTML = `<div>up ${fmt(h.uptime_s, 0)} s, alive <b>${h.alive}</b></div><table>${rows.join("")}</table>` +
+  $("daemon-health").innerHTML = `<div>up ${fmt(h.uptime_s, 0)} s, alive <b data-live>${h.alive}</b></div><table>${rows.join("")}</table>` +
     `<div>telemetry dropped ${drops}; frames sent ${(h.frames || {}).sent}, dropped ${(h.frames || {}).dropped}</div>`;
 }
 function showRobot(r) {
-  $("robot-state").textContent = r.state + (r.fault ? ` (${r.fault})` : "");
+  live("robot-state", r.state + (r.fault ? ` (${r.fault})` : ""));
   $("robot-state").className = `st st-${S.latch && S.latch.latched ? "LATCHED" : r.state}`;
   $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
-}
-function markStale() {  // a silent daemon's last values are greyed with their age, never shown as current
-  const age = S.silentSince ? Math.round((Date.now() - S.silentSince) / 1000) + 5 : 0;  // 5 s of silence to notice
-  for (const id of ["tracker-panel", "robot-panel", "daemon-panel"]) {
-    $(id).classList.toggle("stale", age > 0);
-    $(id).querySelector("h2").dataset.age = age ? `stale: no data for ${age} s` : "";
-  }
 }
 function showLatch(l) {  // the latched STOP, plainly: who, since when; Release for an operator
   S.latch = l;
@@ -143,7 +153,14 @@ function showPoint(p, tNs) {
   S.lastPointT = now;
 }
 function onEvent(e) {
-  if (e.topic === "robot.event") toast(`robot: ${JSON.stringify(e.data).slice(0, 120)}`);
+  if (e.topic === "robot.event") {   // a motion's end in words, not its whole record
+    const r = e.data || {};
+    toast(r.event ? `robot: ${r.event}${r.result ? " " + r.result : ""}${r.reason ? " (" + r.reason + ")" : ""}` : `robot: ${JSON.stringify(r).slice(0, 120)}`);
+  }
+  const d = e.data || {};
+  if (e.topic === "calib.prompt" && d.job && (!S.pinned || (S.job && S.job.job === d.job))) {
+    showPrompt({ job: d.job, state: "waiting", prompt: d });   // at once, even when another client answers quickly
+  }
   if (e.topic.startsWith("calib.")) refreshJobs();
   if (e.topic === "calib.result") refreshResults();   // whoever finished it: active calibration and history
 }
@@ -151,12 +168,14 @@ async function slowPoll() {  // state that has no telemetry topic: polled, cheap
   if (!S.ws || S.ws.readyState !== 1) return;
   try {
     const t = await call("tracker.status", {}, 5);
+    S.fresh["tracker.status"] = Date.now();
     const locked = t.tracker_status === "Ready";
-    $("tracker-locked").textContent = locked ? "locked" : "not locked";
+    live("tracker-locked", locked ? "locked" : "not locked");
     $("tracker-status").textContent = `(${t.tracker_status})`;
     if (!t.streaming) $("tracker-rate").textContent = "not streaming";
     const c = await call("camera.status", {}, 5);
     S.cameraStatus = c;
+    S.fresh["camera.status"] = Date.now();
     if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
     await refreshJobs();
   } catch (e) { /* the link or the daemon is down: the link pill says so */ }
@@ -261,4 +280,4 @@ function bind() {
   $("proc-cancel").onclick = () => S.job && act("calib.cancel", { job: S.job.job }).then(refreshJobs).catch(() => {});
   $("proc-resume").onclick = () => S.job && act("calib.resume", { job: S.job.job }).then(refreshJobs).catch(() => {});
 }
-document.addEventListener("DOMContentLoaded", () => { bind(); connect(); setInterval(markStale, 1000); });
+document.addEventListener("DOMContentLoaded", () => { bind(); connect(); setInterval(markStale, 500); });

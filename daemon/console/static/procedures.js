@@ -12,7 +12,6 @@ function fileLink(path, text) {
 async function ensureDataDir() {  // links name data-dir paths: know the data dir before drawing any (reload, 2nd tab)
   if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
 }
-const ACTIVE = ["queued", "running", "waiting"];
 async function fetchJson(path) {
   const resp = await fetch(`/files/${encodeURI(rel(path))}`);
   if (!resp.ok) throw new Error(`${path}: HTTP ${resp.status}`);
@@ -24,15 +23,14 @@ async function refreshJobs() {
   try { await ensureDataDir(); r = await call("calib.jobs", {}, 5); } catch (e) { return; }
   S.jobs = r.jobs || [];
   S.latch = r.latch || S.latch;
-  const running = S.jobs.filter((j) => ACTIVE.includes(j.state));
-  if (!S.job && S.jobs.length) S.job = S.jobs[S.jobs.length - 1];   // a second tab follows the newest job
-  else if (running.length && !ACTIVE.includes(S.job.state)) S.job = running[running.length - 1];  // one started elsewhere
+  // follow the newest job, wherever it was started (a second tab, ritactl), unless the operator picked one from the list
+  if (S.jobs.length && (!S.job || !S.pinned)) S.job = S.jobs[S.jobs.length - 1];
   const mine = S.job && S.jobs.find((j) => j.job === S.job.job);
   if (mine) { S.job = mine; showJob(mine); }
   $("jobs").innerHTML = "jobs: " + S.jobs.slice(-8).map((j) =>
     `<a href="#" data-job="${j.job}">${j.job}</a> ${j.procedure} ${j.state}`).join(" · ");
   for (const a of $("jobs").querySelectorAll("a[data-job]")) {
-    a.onclick = (ev) => { ev.preventDefault(); S.job = S.jobs.find((j) => j.job === a.dataset.job); S.shownResult = null; showJob(S.job); };
+    a.onclick = (ev) => { ev.preventDefault(); S.pinned = true; S.job = S.jobs.find((j) => j.job === a.dataset.job); S.shownResult = null; showJob(S.job); };
   }
 }
 
@@ -53,6 +51,7 @@ function showPrompt(j) {
   if (j.state !== "waiting" || !j.prompt) { box.hidden = true; box.dataset.job = ""; return; }
   if (box.dataset.job === j.job && box.dataset.q === j.prompt.question) return;
   box.dataset.job = j.job; box.dataset.q = j.prompt.question;
+  S.promptsSeen = (S.promptsSeen || 0) + 1;
   $("prompt-question").textContent = j.prompt.question;
   const choices = $("prompt-choices");
   choices.innerHTML = "";
@@ -113,16 +112,7 @@ function markdownTable(md) {  // the paper's table (a Markdown pipe table) as an
   return out.join("");
 }
 
-// ------------------------------------------------------------------ plots (plain canvas)
-function axes(ctx, w, h, xs, ys, label, xfmt = fmt) {
-  const pad = 40, x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
-  const sx = (w - 2 * pad) / ((x1 - x0) || 1), sy = (h - 2 * pad) / ((y1 - y0) || 1);
-  ctx.clearRect(0, 0, w, h); ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
-  ctx.strokeStyle = "#999"; ctx.strokeRect(pad, pad, w - 2 * pad, h - 2 * pad);
-  ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(label, pad, pad - 8);
-  ctx.fillText(`${xfmt(x0)} … ${xfmt(x1)}`, pad, h - pad + 16); ctx.fillText(`${fmt(y0)} … ${fmt(y1)}`, 2, h / 2);
-  return (x, y) => [pad + (x - x0) * sx, h - pad - (y - y0) * sy];
-}
+// ------------------------------------------------------------------ plots (plots.js draws the axes)
 async function plotResult(r) {
   const cv = $("result-plot"), ctx = cv.getContext("2d");
   if (r.procedure === "experiment" && r.dataset) {   // the cluster plot: every mark, coloured by approach heading
@@ -131,9 +121,13 @@ async function plotResult(r) {
     const pts = full.marks.map((m) => [m.abs_xyz[0], m.abs_xyz[1], m.heading_deg]);
     const mx = pts.reduce((a, p) => a + p[0], 0) / pts.length, my = pts.reduce((a, p) => a + p[1], 0) / pts.length;
     const xs = pts.map((p) => (p[0] - mx) * 1000), ys = pts.map((p) => (p[1] - my) * 1000);
-    const to = axes(ctx, cv.width, cv.height, xs, ys, "marks − mean (µm), colour: approach heading");
-    pts.forEach((p, i) => { const [X, Y] = to(xs[i], ys[i]); ctx.fillStyle = `hsl(${((p[2] % 360) + 360) % 360},80%,45%)`;
+    const to = axes(ctx, cv.width, cv.height, xs, ys, { title: "every mark around their mean (ACS)", equal: true,
+                                                         xlabel: "x − mean (µm)", ylabel: "y − mean (µm)" });
+    pts.forEach((p, i) => { const [X, Y] = to(xs[i], ys[i]); ctx.fillStyle = headingColour(p[2]);
       ctx.beginPath(); ctx.arc(X, Y, 4, 0, 7); ctx.fill(); });
+    const norm = (h) => ((Math.round(h / 5) * 5) % 360 + 360) % 360;   // a direction to the nearest 5°, 0–355
+    const headings = [...new Set(pts.map((p) => norm(p[2])))].sort((a, b) => a - b);
+    legend(ctx, cv.width, headings.map((h) => ({ label: `approach ${h}°`, colour: headingColour(h) })));
     return;
   }
   if (r.rob_H_cam) {   // referencing: the camera's position in the robot frame with its 1σ, x-y and z bars
@@ -141,12 +135,14 @@ async function plotResult(r) {
     const s = (r.uncertainty || {}).std_t_mm || [0, 0, 0];
     const k = 3;   // axes of ±3σ around the estimate
     const to = axes(ctx, cv.width, cv.height, [t[0] - k * s[0] - 1e-3, t[0] + k * s[0] + 1e-3],
-                    [t[1] - k * s[1] - 1e-3, t[1] + k * s[1] + 1e-3], "rob_H_cam translation x–y (mm) with the 1σ ellipse");
+                    [t[1] - k * s[1] - 1e-3, t[1] + k * s[1] + 1e-3],
+                    { title: "camera position in the robot frame, 1σ ellipse", equal: true, xlabel: "x (mm)", ylabel: "y (mm)" });
     const [X, Y] = to(t[0], t[1]), [X1, Y1] = to(t[0] + s[0], t[1] + s[1]);
     ctx.strokeStyle = "#1565c0"; ctx.lineWidth = 2; ctx.beginPath();
     ctx.ellipse(X, Y, Math.abs(X1 - X) || 2, Math.abs(Y1 - Y) || 2, 0, 0, 7); ctx.stroke();
     ctx.fillStyle = "#c62828"; ctx.beginPath(); ctx.arc(X, Y, 4, 0, 7); ctx.fill();
-    ctx.fillStyle = "#333"; ctx.fillText(`z ${fmt(t[2])} ± ${fmt(s[2], 4)} mm`, 50, cv.height - 8);
+    ctx.fillStyle = "#333"; ctx.textAlign = "right"; ctx.fillText(`z ${fmt(t[2])} ± ${fmt(s[2], 4)} mm`, cv.width - 16, 40);
+    ctx.textAlign = "left";
   }
 }
 
@@ -173,8 +169,9 @@ function drawDrift(series) {   // rob_H_cam translation over time: drift between
   const t = series.map((s) => Date.parse(s.created) / 1000);
   const d = ["#c62828", "#2e7d32", "#1565c0"].map((c, i) => ({ c, v: series.map((s) => (s.rob_H_cam[i][3] - series[0].rob_H_cam[i][3]) * 1000) }));
   const to = axes(ctx, cv.width, cv.height, t.length > 1 ? t : [t[0] - 1, t[0] + 1], d.flatMap((x) => x.v).concat([0]),
-                  "rob_H_cam translation − first (µm): x red, y green, z blue",
-                  (v) => new Date(v * 1000).toISOString().slice(0, 16).replace("T", " "));
+                  { title: "rob_H_cam translation relative to the first referencing", xlabel: "time (UTC)", ylabel: "µm",
+                    xfmt: (v) => new Date(v * 1000).toISOString().slice(5, 16).replace("T", " ") });
+  legend(ctx, cv.width, d.map(({ c }, i) => ({ label: "xyz"[i], colour: c })));
   for (const { c, v } of d) {
     ctx.strokeStyle = c; ctx.beginPath();
     v.forEach((y, i) => { const [X, Y] = to(t[i], y); i ? ctx.lineTo(X, Y) : ctx.moveTo(X, Y); ctx.fillStyle = c; ctx.fillRect(X - 2, Y - 2, 4, 4); });
