@@ -264,6 +264,11 @@ TABLE: tuple[Command, ...] = (
                 Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file"))),
     Command("calib.results", "active calibration and every stored result", verb="results",
             result="{active, history}"),
+    Command("calib.plate.upload", "store a plate definition (e.g. surveyed on the laptop) as calibration/NAME on the "
+            "robot, checked against plate.schema.json first; a file it replaces is kept in calibration/history/plates/",
+            "operator", verb="plate upload", result="{path, sha256, size, replaced, unchanged}: data-dir paths", args=(
+                Arg("plate", "map", "the plate definition (the object of a plate.json)", default=REQUIRED),
+                Arg("name", "str", "file name in the robot's calibration folder", default="plate.json"))),
     Command("calib.resume", "queue a failed, cancelled or stopped job again; the worker continues from its "
             "checkpoint (a stopped one only after robot.release)",
             "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
@@ -390,8 +395,6 @@ __all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES",
 
 if __name__ == "__main__":
     import sys
-
-    if sys.argv[1:] != ["--markdown"]:
-        sys.exit("usage: python -m daemon.bus.command_table --markdown")
+    sys.exit("usage: python -m daemon.bus.command_table --markdown") if sys.argv[1:] != ["--markdown"] else None
     sys.stdout.write(markdown_table())
 

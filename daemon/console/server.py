@@ -32,7 +32,7 @@ from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
 from daemon.console.gate import Gate, new_token
 from daemon.console.jobs import start_job
-from daemon.console.survey import Survey
+from daemon.console.survey import Survey, read_plate_file
 from daemon.bus.png_write import frame_png
 
 log = logging.getLogger(__name__)
@@ -219,16 +219,22 @@ class Console:
         await self._reply(tab, req, self.bridge.call, cmd, args, timeout, pool=pool)
 
     async def _survey(self, tab: Tab, req: dict[str, Any]) -> None:
-        """Start or cancel the plate survey (on this laptop; daemon/console/survey.py); an operator's control."""
+        """Start, cancel or upload the plate survey (on this laptop; daemon/console/survey.py); an operator's control."""
         try:
             role = self.bridge.role
             if role not in ROLES or ROLES.index(role) < ROLES.index("operator"):
                 raise CommandError(ErrorCode.FORBIDDEN, f"the plate survey is an operator's control; this console's "
                                                         f"key has the role {role!r}")
-            result = self.survey.cancel() if req.get("action") == "cancel" else await self.survey.start(req)
+            action = req.get("action")
+            if action == "upload":  # a plate file on this laptop to the robot's calibration folder (the daemon checks)
+                args = {"plate": read_plate_file(req.get("out")), "name": req.get("name") or "plate.json"}
+                result = await asyncio.get_running_loop().run_in_executor(self.bridge.pool, self.bridge.call,
+                                                                          "calib.plate.upload", args, 30.0)
+            else:
+                result = self.survey.cancel() if action == "cancel" else await self.survey.start(req)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
-        except (CommandError, OSError) as exc:
-            err = _error(exc) if isinstance(exc, CommandError) else {"code": "failed", "message": str(exc)}
+        except Exception as exc:  # noqa: BLE001 - every failure goes back to the page, the console keeps serving
+            err = _error(exc) if not isinstance(exc, OSError) else {"code": "failed", "message": str(exc)}
             msg = {"type": "reply", "id": req.get("id"), "ok": False, "error": err}
         if not tab.ws.closed:
             await tab.ws.send_json(msg)

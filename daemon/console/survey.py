@@ -32,6 +32,19 @@ def _path(value: Any, what: str) -> Path:
     return Path(value.strip()).expanduser().resolve()
 
 
+def read_plate_file(value: Any) -> dict[str, Any]:
+    """A plate definition on this laptop (the survey's output or any plate.json), for ``calib.plate.upload``."""
+    path = _path(value, "the plate file")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise CommandError(ErrorCode.BAD_ARGS, f"plate upload: cannot read {path}: {type(exc).__name__}: {exc}") from None
+    if not isinstance(doc, dict):
+        raise CommandError(ErrorCode.BAD_ARGS, f"plate upload: {path} holds a {type(doc).__name__}, not a plate "
+                                               f"definition (a JSON object)")
+    return doc
+
+
 class Survey:
     """The console's one survey: ``state`` is what the pages show (``version`` counts its changes)."""
 

@@ -13,6 +13,7 @@ Examples::
     ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
+    ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
 

@@ -1,4 +1,10 @@
-"""``ritactl plate survey FOLDER``: survey the nest seats from photographs, on this computer (offline).
+"""``ritactl plate survey FOLDER`` (offline, on this computer) and ``ritactl plate upload FILE`` (to the robot).
+
+``plate upload`` sends a plate definition, e.g. the surveyed one, to the robot's calibration
+folder over the bus (``calib.plate.upload``, an operator's command; the daemon checks it
+against the plate schema and keeps a file it replaces): referencing then names it as
+``calibration/NAME``. Exit codes: 0 stored, 5 an unreadable file, 4 refused by the daemon
+(the message names the bad field).
 
 Computes here (numpy + OpenCV needed), like ``ritactl recompute``: the photographs
 are on the laptop and the survey needs no robot (docs/operations.md, "Plate survey").
@@ -73,6 +79,28 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
     return for_verdict(plate["survey"]["verdict"])
 
 
+def cmd_upload(c: Any, a: argparse.Namespace) -> int:
+    try:
+        plate = _read_plate(a.file)
+    except ValueError as exc:
+        return fail(Exit.BAD_INPUT, "bad_input", str(exc), a.json)
+    if not isinstance(plate, dict):
+        return fail(Exit.BAD_INPUT, "bad_input", f"{a.file}: a plate definition is a JSON object, not "
+                                                 f"{type(plate).__name__}", a.json)
+    r = c.call("calib.plate.upload", plate=plate, name=a.name or Path(a.file).name)
+    if a.json:
+        print(json.dumps(r, indent=2))
+        return Exit.OK
+    kept = f"; the previous one is kept as {r['replaced']}" if r.get("replaced") else ""
+    what = "already there, unchanged" if r.get("unchanged") else "stored"
+    print(f"{a.file} {what} on the robot as {r['path']} (sha256 {r['sha256'][:12]}…){kept}")
+    if r["path"] == "calibration/plate.json":
+        print("referencing uses it by default (ritactl calibrate without --plate; the console's plate field empty)")
+    else:
+        print(f"the console's referencing form: plate {r['path']}")
+    return Exit.OK
+
+
 def add_parsers(sub: Any) -> None:
     grp = sub.add_parser("plate", help="plate definition tools (offline)")
     grp.set_defaults(fn=None, parser_=grp)
@@ -86,6 +114,14 @@ def add_parsers(sub: Any) -> None:
                    help="the plate's design plate.json (board, survey patches, smr_offset_mm)")
     p.add_argument("--out", default="plate.json", metavar="FILE", help="surveyed plate definition (default plate.json)")
     p.set_defaults(fn=cmd_survey, offline=True, parser_=p)
+    u = gsub.add_parser("upload", help="send a plate definition (e.g. the surveyed one) to the robot's calibration "
+                                       "folder (calib.plate.upload; operator)",
+                        description="Store a plate definition on the robot as calibration/NAME, checked against "
+                                    "the plate schema first; a file it replaces is kept in "
+                                    "calibration/history/plates/.")
+    u.add_argument("file", help="plate.json on this computer")
+    u.add_argument("--name", metavar="NAME", help="file name on the robot (default: the file's own name)")
+    u.set_defaults(fn=cmd_upload, parser_=u)
 
 
-__all__ = ["add_parsers", "cmd_survey"]
+__all__ = ["add_parsers", "cmd_survey", "cmd_upload"]

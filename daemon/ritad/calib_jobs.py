@@ -285,9 +285,12 @@ class CalibJobs:
             job.update(prompt=data, state="waiting")
             self._publish("calib.prompt", {"job": job_id, **data})
         else:
-            state = "done" if kind == "result" else ("cancelled" if data.get("cancelled") else "failed")
+            # a run the latched stop ended is "stopped" (resumable after release), also for a job adopted above
+            stopped = kind == "error" and bool(data.get("stopped"))
+            state = ("done" if kind == "result" else "cancelled" if data.get("cancelled") else
+                     "stopped" if stopped else "failed")
             payload = {"job": job_id, **data, "state": state, **({"failed": True} if kind == "error" else {})}
-            job.update(state=state, result=payload, prompt=None,
+            job.update(state=state, result=payload, prompt=None, run_ended=True if stopped else job.get("run_ended"),
                        error=str(data.get("message", "failed")) if kind == "error" else None)
             log.info("job %s %s", job_id, state)
             self._publish("calib.result", payload)

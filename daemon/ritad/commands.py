@@ -18,7 +18,7 @@ from typing import Any, Callable
 from daemon.bus.command_table import COMMANDS, TABLE, help_entry, validate
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
-from daemon.ritad import files, registry
+from daemon.ritad import files, plates, registry
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -175,6 +175,12 @@ def _files(s: Services) -> dict[str, Handler]:
                                                        private)}
 
 
+def _plates(s: Services) -> dict[str, Handler]:
+    """A plate surveyed on the laptop into the robot's calibration folder (checked, atomic, nothing lost)."""
+    return {"calib.plate.upload": lambda req: s.storage.submit(plates.store_plate, s.data_dir, req.args["plate"],
+                                                               req.args["name"], _who(req))}
+
+
 def _keys(s: Services) -> dict[str, Handler]:
     return key_handlers(s.auth_dir, lambda fn: s.storage.submit(fn))  # admin: the allow-list over the bus
 
@@ -237,7 +243,7 @@ def _detect(s: Services) -> dict[str, Handler]:
     return detect_handlers(s.latest_frame, s.data_dir, s.private_dirs)
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _keys, _sim, _preview, _detect)
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _plates, _keys, _sim, _preview, _detect)
 
 
 #: motions refused while the stop is latched (robot.move and robot.turn are also guarded in the runner)

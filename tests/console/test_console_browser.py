@@ -273,6 +273,19 @@ def test_plate_survey_from_the_page_shows_progress_and_the_per_nest_report(page,
     assert [r.find_elements("tag name", "td")[0].text for r in rows[1:]] == ["red", "green", "blue"]
     verdict = json.loads(out.read_text())["survey"]["verdict"]  # the file written is the one reported
     assert text(page, "survey-message").startswith(verdict) and "µm" in text(page, "survey-message")
+    # the surveyed plate to the robot's calibration folder, over the bus with the operator's key
+    fill(page, "survey-name", "surveyed.json")
+    choose_procedure(page, "referencing")
+    click(page, "survey-upload")
+    wait_for("stored on the robot", lambda: "stored on the robot as calibration/surveyed.json" in text(page, "survey-uploaded"), 30)
+    assert json.loads((data / "calibration" / "surveyed.json").read_text()) == json.loads(out.read_text())
+    assert page.find_element("id", "pp-plate").get_attribute("value") == "calibration/surveyed.json"
+    bad = robot["tmp"] / "bad-plate.json"
+    bad.write_text(json.dumps(dict(json.loads(out.read_text()), square_mm=-1)))
+    fill(page, "survey-out", str(bad))
+    click(page, "survey-upload")
+    wait_for("refused naming the field", lambda: "square_mm" in text(page, "survey-uploaded"), 30)
+    fill(page, "survey-out", str(out))
 
 
 def test_capture_saves_on_the_laptop_and_datasets_download(session, robot):

@@ -81,6 +81,21 @@ def test_resume_only_after_release_and_after_the_stopped_run_ended():
     assert bus("calib.inbox", job=job, timeout_s=0).result(1) is None  # the old stop does not hit the new run
 
 
+def test_a_job_adopted_after_a_restart_that_the_stop_ended_is_stopped_not_failed():
+    """ritad restarted (the latch persisted), its worker reports the run the stop ended: the job it adopts is
+    ``stopped`` and resumable after release, as it would have been without the restart."""
+    bus = Bus()
+    bus.latch.engage("ole (operator)")
+    bus("calib.report", job="exp-7", kind="error", procedure="experiment",
+        data={"message": "stopped by ole (operator)", "stopped": True})
+    assert bus.state("exp-7")["state"] == "stopped"
+    assert code(bus, "calib.resume", job="exp-7") == "stopped"  # latched
+    bus.latch.release("ole (operator)")
+    assert bus("calib.resume", job="exp-7")["job"] == "exp-7"  # its run has ended: no wait for it
+    failed = bus("calib.report", job="int-1", kind="error", procedure="intrinsics", data={"message": "no board"})
+    assert failed == {"ok": True} and bus.state("int-1")["state"] == "failed"
+
+
 def test_the_latch_survives_a_restart_and_refuses_with_who_and_how(tmp_path):
     got = []
     latch = StopLatch(lambda t, d: got.append((t, d)), tmp_path / LATCH_FILE)

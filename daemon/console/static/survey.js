@@ -36,9 +36,23 @@ function showSurvey(s) {
     if (running) { $("survey-nests").innerHTML = ""; $("survey-views").innerHTML = ""; }
   }
 }
+function uploadPlate() {   // the output file (on this laptop) to calibration/NAME on the robot; referencing then names it
+  $("survey-uploaded").textContent = "sending…";
+  request({ op: "survey", action: "upload", out: $("survey-out").value, name: $("survey-name").value }, "plate upload", 30)
+    .then((r) => {
+      const kept = r.replaced ? `; the previous one kept as ${r.replaced}` : "";
+      $("survey-uploaded").textContent = `${r.unchanged ? "already on the robot" : "stored on the robot"} as ${r.path}${kept}`;
+      S.robotFiles = null;   // the referencing form offers it from now on
+      fillRobotFiles();
+      if ($("proc").value === "referencing" && $("pp-plate")) $("pp-plate").value = r.path;
+      toast(`plate stored as ${r.path}`);
+    })
+    .catch((e) => { $("survey-uploaded").textContent = `plate upload: ${e.message}`; });
+}
 function esc(t) { return String(t ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;"); }
 
 document.addEventListener("DOMContentLoaded", () => {
   $("survey-start").onclick = startSurvey;
+  $("survey-upload").onclick = uploadPlate;
   $("survey-cancel").onclick = () => request({ op: "survey", action: "cancel" }, "plate survey", 10).catch((e) => toast(e.message));
 });
