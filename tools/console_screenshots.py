@@ -64,6 +64,7 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
     wait_for("locked", lambda: drv.find_element("id", "tracker-locked").text == "locked", 30)
     press(drv, "tracker-measure")
     time.sleep(1.5)
+    drv.execute_script("window.scrollTo(0, 0)")  # the page as it opens: STOP, live view and procedures
     drv.save_screenshot(str(out / "console-live.png"))
     c.call("camera.stream.stop")
 
@@ -83,13 +84,15 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
         press(drv, "prompt-choice-ok")
 
     run_procedure(drv, "referencing", fields, answer)
-    drv.find_element("id", "proc-panel").location_once_scrolled_into_view
+    time.sleep(1.0)
+    drv.execute_script("document.getElementById('result').scrollIntoView({block: 'center'})")
     drv.save_screenshot(str(out / "console-referencing.png"))
     detect_view(drv, c, out)
     mark = c.call("sim.truth")["marks"][0]  # where the simulated floor mark is: the operator can see it
     run_procedure(drv, "experiment", {"pp-mark_xy-0": f"{mark['x_mm']:.1f}", "pp-mark_xy-1": f"{mark['y_mm']:.1f}",
                                       "pp-repetitions": "2"})
-    drv.find_element("id", "proc-panel").location_once_scrolled_into_view
+    time.sleep(1.0)  # the plot reads the dataset's result.json
+    drv.execute_script("document.getElementById('result-plot').scrollIntoView({block: 'end'})")
     drv.save_screenshot(str(out / "console-experiment.png"))
     survey_view(drv, c, data, out)
 
@@ -131,11 +134,11 @@ def main() -> int:
     try:
         with r.client(timeout=60) as c:
             with console_session(["--endpoint", r.endpoint], tmp / "operator") as (_, drv):
-                drv.set_window_size(1400, 1250)
+                drv.set_window_size(1366, 768)  # the laptop screen the layout is made for
                 operator_views(drv, c, tmp / "data", out)
             viewer = ["--endpoint", r.endpoints[1], "--keys", str(laptop), "--key", "vic"]
             with console_session(viewer, tmp / "viewer") as (_, drv):
-                drv.set_window_size(1400, 900)
+                drv.set_window_size(1366, 768)
                 time.sleep(2)
                 drv.save_screenshot(str(out / "console-viewer.png"))
     finally:
