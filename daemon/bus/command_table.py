@@ -6,98 +6,21 @@ defaulted args), the ``help`` command (``help_entry``), ritactl's per-device sub
 docs/protocol.md (``python -m daemon.bus.command_table --markdown``; a test compares).
 Stdlib and msgpack only, so the laptop client imports it without numpy or OpenCV.
 
-An argument's ``cli`` says how it appears on the command line: ``POS`` (a positional
-value, shown as ``metavar``), ``--flag`` (an option; for a bool, the flag sets the
-opposite of the default), or None (bus only). Ranges are inclusive unless ``lo_open``.
+Arguments are :class:`daemon.bus.args.Arg` (type, range, unit, default, CLI shape); the
+procedures ``calib.start`` runs are declared in daemon/bus/procedures.py.
 """
 from __future__ import annotations
 
 import copy
 import json
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from daemon.bus.args import POS, REQUIRED, Arg, BadValue
+from daemon.bus.procedures import MOVING_PROCEDURES, PROCEDURES
 from daemon.bus.protocol import CommandError, ErrorCode
 
 ROLES = ("viewer", "operator", "admin")
-PROCEDURES = ("referencing", "intrinsics", "measure-mark", "experiment")
-#: the procedures that drive the robot: a STOP stops their jobs, and they cannot start while it is latched
-MOVING_PROCEDURES = ("referencing", "measure-mark", "experiment")
-POS = "POS"
-REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
-
-
-def _num(v: float) -> str:
-    """1048576, not 1.04858e+06: a limit is quoted exactly."""
-    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
-
-
-@dataclass(frozen=True)
-class Arg:
-    name: str                      # key in the request's ``args``
-    type: str                      # float | int | bool | str | map | any
-    help: str
-    unit: str = ""
-    default: Any = None            # None: optional, the daemon decides (``default_text`` says how)
-    default_text: str = ""
-    lo: float | None = None
-    hi: float | None = None
-    lo_open: bool = False
-    choices: tuple[str, ...] = ()
-    cli: str | None = None         # POS, "--flag" or None
-    metavar: str = ""
-
-    @property
-    def required(self) -> bool:
-        return self.default is REQUIRED
-
-    def range_text(self) -> str:
-        if self.lo is None and self.hi is None:
-            return ""
-        if self.hi is None:
-            return f"{'>' if self.lo_open else '≥'} {_num(self.lo)}"
-        if self.lo is None:
-            return f"≤ {_num(self.hi)}"
-        return f"{'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}]"
-
-    def check(self, value: float) -> str | None:
-        """Why ``value`` is out of range, or None."""
-        too_low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
-        if too_low or (self.hi is not None and value > self.hi):
-            word = "outside" if self.lo is not None and self.hi is not None else "not"
-            return f"{_num(value)} is {word} {self.range_text()}{' ' + self.unit if self.unit else ''}"
-        return None
-
-    def kind_text(self) -> str:
-        return self.type + (f" ({self.unit})" if self.unit else "")
-
-    def checked(self, value: Any, noun: str = "argument") -> Any:
-        """``value`` checked (type, finiteness, range, choices; ints become floats for float args): the one
-        check of the command table and of the procedures' parameters (``Param``); :class:`BadValue` says why."""
-        name = f"{noun} {self.name!r}"
-        if isinstance(value, bool) and self.type not in ("bool", "any") or not isinstance(value, _PY_TYPES[self.type]):
-            raise BadValue(f"{name} must be {self.kind_text()}: {_TYPE_WORDS[self.type]}, got {value!r:.80}")
-        if self.type == "float":
-            # msgpack ints beyond 2**63 still fit a float; a JSON int may not
-            value = float(value) if not isinstance(value, int) or abs(value) < 1e308 else math.inf
-            if not math.isfinite(value):
-                raise BadValue(f"{name} must be finite, got {value!r}")
-        if self.type in ("float", "int") and (why := self.check(value)):
-            raise BadValue(f"{name}: {why}")
-        if self.choices and value not in self.choices:
-            raise BadValue(f"{name}: {value!r:.80} is not one of {', '.join(self.choices)}")
-        return value
-
-
-class BadValue(ValueError):
-    """Why a value does not fit its :class:`Arg`; the caller adds the command or procedure."""
-
-
-_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
-                                          "map": (dict,), "any": (object,)}
-_TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
-               "map": "a JSON object", "any": "anything"}
 
 
 @dataclass(frozen=True)
@@ -395,6 +318,8 @@ __all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES",
 
 if __name__ == "__main__":
     import sys
-    sys.exit("usage: python -m daemon.bus.command_table --markdown") if sys.argv[1:] != ["--markdown"] else None
+
+    if sys.argv[1:] != ["--markdown"]:
+        sys.exit("usage: python -m daemon.bus.command_table --markdown")
     sys.stdout.write(markdown_table())
 

@@ -21,6 +21,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator
 
+from daemon.bus.procedures import BY_NAME
 from daemon.bus.obs_checks import stream_problems
 from daemon.bus.png_check import png_info
 
@@ -328,7 +329,8 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     if isinstance(scs, dict):
         problems += _model_problems(scs.get("model"), "state.json", ("obs", "calibration", "scs", "model"))
     # the images of a referencing are taken by obs.camera_model, those of a mark by the calibration's
-    model = obs.get("camera_model") if state.get("procedure") == "referencing" else \
+    proc = BY_NAME.get(str(state.get("procedure")))  # one whose own input is the camera model (referencing)
+    model = obs.get("camera_model") if proc is not None and proc.inputs.get("camera_model") == "camera_model" else \
         (scs.get("model") if isinstance(scs, dict) else None)
     size = model.get("size") if isinstance(model, dict) else None
     for parts, file, header in _obs_images(obs):

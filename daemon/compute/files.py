@@ -6,10 +6,11 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
+from daemon.bus.procedures import EXPERIMENT, Hooks
 from daemon.bus.storage import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 
@@ -44,23 +45,34 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
     atomic_write_bytes(path, data)
 
 
+def _experiment_report(root: Path, result: dict[str, Any]) -> None:
+    atomic_write_text(root / "report.md", result["table_markdown"])
+    atomic_write_text(root / "report.csv", result["table_csv"])
+    from daemon.compute.report import plot_clusters
+
+    atomic_write_bytes(root / "clusters.png", plot_clusters(result))
+
+
+#: a procedure's files besides result.json/.yaml: (their names, the writer)
+EXTRA_FILES: Hooks[Callable[[Path, dict[str, Any]], None]] = Hooks("result files", optional=True)
+EXTRA_FILES.on(EXPERIMENT)(_experiment_report)
+_NAMES = {EXPERIMENT.name: ["report.md", "report.csv", "clusters.png"]}
+
+
 def write_result_files(root: Path, result: dict[str, Any], dataset: Path | str | None = None) -> dict[str, Any]:
-    """result.json, result.yaml and, for an experiment, report.md/.csv and clusters.png in ``root``.
+    """result.json, result.yaml and the procedure's own files (an experiment: report.md/.csv, clusters.png).
 
     The same files for a live run and for ``ritactl recompute --out``; returns the
-    result as written (with ``created``, ``dataset`` and, for experiments, ``files``).
+    result as written (with ``created``, ``dataset`` and, with own files, ``files``).
     """
     root = Path(root)
     result = {**result, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
               "dataset": str(dataset if dataset is not None else root)}
-    if result["procedure"] == "experiment":
-        result["files"] = ["report.md", "report.csv", "clusters.png"]
+    extra = EXTRA_FILES.get(result["procedure"])
+    if extra is not None:
+        result["files"] = list(_NAMES[result["procedure"]])
     atomic_write_json(root / "result.json", result)
     write_yaml(root / "result.yaml", result)
-    if result["procedure"] == "experiment":
-        atomic_write_text(root / "report.md", result["table_markdown"])
-        atomic_write_text(root / "report.csv", result["table_csv"])
-        from daemon.compute.report import plot_clusters
-
-        atomic_write_bytes(root / "clusters.png", plot_clusters(result))
+    if extra is not None:
+        extra(root, result)
     return result

@@ -15,7 +15,7 @@ import numpy as np
 
 from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
 from calibration.imu_mount import imu_mount
-from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 
 #: the compensations a job applies when its parameters do not say
 DEFAULT_COMPENSATION: str = PARAM_DEFAULTS["compensation"]

@@ -24,6 +24,7 @@ from calibration.referencing import reference
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
+from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, parse_compensation,
                                          imu_yaw, plate_imu_offset, stop_of, stop_record)
 
@@ -72,7 +73,7 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
         runs.append(res)
     first = runs[0]
     scs0 = make_scs(model, first.cam_H_ref)
-    out: dict[str, Any] = {"schema": RESULT_SCHEMA, "procedure": "referencing", "software": calib_version,
+    out: dict[str, Any] = {"schema": RESULT_SCHEMA, "procedure": REFERENCING.name, "software": calib_version,
                            "plate_id": plate.plate_id, "camera_model": model.to_dict(),
                            "runs": [r.to_dict() for r in runs]}
     first_d = first.to_dict()
@@ -133,7 +134,7 @@ def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]
     comp = parse_compensation(obs.get("compensation"))
     r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
                      obs.get("mark_size_mm"), _sigma_t(obs), comp)
-    return {"schema": RESULT_SCHEMA, "procedure": "measure-mark", "software": calib_version,
+    return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,
             "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),
             "verdict": "ok", "messages": []}
@@ -151,7 +152,7 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     metrics = experiment_metrics(xy, headings, groups)
     check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm,
                              [m["std_mm"] for m in marks])
-    return {"schema": RESULT_SCHEMA, "procedure": "experiment", "software": calib_version,
+    return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
             "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
@@ -195,12 +196,16 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
                     "calibration": {"rms_px": report["rms_px"], "n_views": report["n_views_used"],
                                     "k3_fitted": report["k3"]["fitted"],
                                     "board_id": getattr(board, "board_id", getattr(board, "plate_id", None))}}
-    return {"schema": RESULT_SCHEMA, "procedure": "intrinsics", "software": calib_version,
+    return {"schema": RESULT_SCHEMA, "procedure": INTRINSICS.name, "software": calib_version,
             "camera_model": camera_model, "report": report, "verdict": verdict, "messages": messages}
 
 
-COMPUTE = {"referencing": compute_referencing, "measure-mark": compute_measure_mark,
-           "experiment": compute_experiment, "intrinsics": compute_intrinsics}
+#: the computation per declared procedure (the live worker and ``ritactl recompute`` alike)
+COMPUTE: Hooks[Callable[..., dict[str, Any]]] = Hooks("computation")
+for _proc, _fn in ((REFERENCING, compute_referencing), (INTRINSICS, compute_intrinsics),
+                   (MEASURE_MARK, compute_measure_mark), (EXPERIMENT, compute_experiment)):
+    COMPUTE.on(_proc)(_fn)
+COMPUTE.complete()
 
 
 def footprint_abs(calib: dict[str, Any], abs_H_rob: np.ndarray) -> np.ndarray:

@@ -13,15 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
+from daemon.bus.procedures import ALL, REFERENCING, get
 from daemon.compute.inputs import parse_compensation
 from daemon.compute.procedures import COMPUTE
 from daemon.compute.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
-#: which stored inputs each override replaces, per procedure (obs key)
-OVERRIDES = {"camera_model": {"referencing": "camera_model", "intrinsics": "initial_model"},
-             "plate": {"referencing": "plate", "intrinsics": "plate"},
-             "calibration": {"experiment": "calibration", "measure-mark": "calibration"}}
 #: the schema each override file must meet
 _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibration": "result"}
 
@@ -94,12 +91,13 @@ def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[
     for name, doc in overrides.items():
         if doc is None:
             continue
-        key = OVERRIDES[name].get(proc)
+        key = get(proc).inputs.get(name)  # which stored input it replaces: the procedure's declaration says
         if key is None:
+            takers = [p.name for p in ALL if name in p.inputs]
             raise ValueError(f"--{name.replace('_', '-')} does not apply to {_a(proc)} dataset "
-                             f"(it applies to {', '.join(OVERRIDES[name])})")
+                             f"(it applies to {', '.join(takers)})")
         problems = check_file(doc, _OVERRIDE_SCHEMA[name], f"--{name.replace('_', '-')}")
-        if name == "calibration" and not problems and doc.get("procedure") != "referencing":
+        if name == "calibration" and not problems and doc.get("procedure") != REFERENCING.name:
             raise ValueError(f"--calibration must be a referencing result, got procedure {doc.get('procedure')!r}")
         if problems:
             raise DatasetInvalid(root, problems)
@@ -111,8 +109,9 @@ def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None)
     """``obs`` with another set of issue #15 compensations (none, all, or names): a bad name is a ValueError."""
     if compensation is None:
         return obs
-    if proc not in ("experiment", "measure-mark"):
-        raise ValueError(f"--compensation does not apply to {_a(proc)} dataset (it applies to experiment, measure-mark)")
+    takers = [p.name for p in ALL if any(q.name == "compensation" for q in p.params)]
+    if proc not in takers:
+        raise ValueError(f"--compensation does not apply to {_a(proc)} dataset (it applies to {', '.join(takers)})")
     parse_compensation(compensation)
     return {**obs, "compensation": compensation}
 

@@ -1,6 +1,6 @@
 """Starting a procedure from the page: its form's values checked again here, files read on the robot.
 
-The page builds its form from ``daemon.bus.procedure_params.schema()`` and checks what it
+The page builds its form from ``daemon.bus.procedures.schema()`` and checks what it
 can, but the console never trusts it: every ``calib.start`` a page sends comes through
 ``start_job``, which checks the parameters against the same table, reads each chosen
 definition file (a data-dir path on the robot) with ``files.read`` and sends the parsed
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from daemon.bus.procedure_params import check_params, load_files
+from daemon.bus.procedures import check_params, load_files
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.console.bridge import Bridge
 

@@ -26,7 +26,7 @@ from aiohttp import WSMsgType, web
 
 from daemon import __version__
 from daemon.bus.command_table import COMMANDS, PROCEDURES, ROLES
-from daemon.bus.procedure_params import schema as procedure_schema
+from daemon.bus.procedures import describe as procedure_info, schema as procedure_schema
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
@@ -100,7 +100,7 @@ class Console:
     def info_payload(self) -> dict[str, Any]:
         b = self.bridge
         return {"console": __version__, "role": b.role, "roles": list(ROLES), "procedures": list(PROCEDURES),
-                "procedure_params": procedure_schema(),
+                "procedure_params": procedure_schema(), "procedure_info": procedure_info(),
                 "commands": {n: COMMANDS[n].role for n in PAGE_COMMANDS}, "daemon": b.hello,
                 "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
 

@@ -9,32 +9,20 @@ job from its last completed step. Procedure verbs exit with ``for_verdict``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from daemon.bus.client import Client
-from daemon.bus.command_table import COMMANDS, PROCEDURES
-from daemon.bus.procedure_params import DEFAULTS
+from daemon.bus.command_table import COMMANDS
+from daemon.bus.procedures import MOVING_PROCEDURES
 from daemon.ctl.device import add_table_args, table_args
+from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
-from daemon.ctl.exitcodes import Exit, bad_input, for_verdict
+from daemon.ctl.exitcodes import Exit, for_verdict
 from daemon.bus.protocol import CommandError, ErrorCode
 
-#: the procedures that move the robot (intrinsics does not: the operator moves the board)
-MOTION_PROCEDURES = tuple(p for p in PROCEDURES if p != "intrinsics")
 POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
-
-
-def _load_json(path: str | None, what: str) -> Any:
-    if not path:
-        return None
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise bad_input(f"cannot read {what} {path}: {exc}") from None
 
 
 def job_record(c: Client, job: str) -> dict[str, Any]:
@@ -116,7 +104,7 @@ def _follow(c: Client, sub: Any, j: dict[str, Any] | None, job: str, interactive
 def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> int:
     """Ctrl-C while following: detach, or stop the robot with a motion procedure (asked; a second Ctrl-C: yes)."""
     reattach = f"`ritactl follow {job}` re-attaches"
-    if procedure not in MOTION_PROCEDURES:
+    if procedure not in MOVING_PROCEDURES:
         say(f"\ndetached; job {job} goes on. {reattach}, `ritactl cancel {job}` stops it.", as_json)
         return Exit.INTERRUPTED
     if yes_after_ctrl_c(f"job {job} moves the robot. stop the robot (and the job)?", as_json):
@@ -202,36 +190,6 @@ def _start(c: Client, a: argparse.Namespace, procedure: str, params: dict[str, A
     return Exit.OK if a.detach else follow(c, job, as_json=a.json)
 
 
-def cmd_calibrate(c: Client, a: argparse.Namespace) -> int:
-    params = {"plate": _load_json(a.plate, "plate definition"),
-              "camera_model": _load_json(a.camera_model, "camera model"),
-              "nests_approx_trk": _load_json(a.nests_approx, "approximate nest positions"),
-              "robot_approx_trk": a.robot_approx, "reversal": a.reversal, "distance_mm": a.distance}
-    return _start(c, a, "referencing", params)
-
-
-def cmd_intrinsics(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "intrinsics", {"board": _load_json(a.board, "board definition")})
-
-
-def cmd_measure_mark(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "measure-mark", {"mark_xy": a.mark, "heading_deg": a.heading, "kind": a.kind,
-                                         **_compensation_params(a)})
-
-
-def _compensation_params(a: argparse.Namespace) -> dict[str, Any]:
-    """The issue #15 options a job gets only when given (the worker's defaults otherwise)."""
-    out: dict[str, Any] = {} if a.compensation is None else {"compensation": a.compensation}
-    if getattr(a, "store_bias", False):
-        out["store_bias"] = True
-    return out
-
-
-def cmd_experiment(c: Client, a: argparse.Namespace) -> int:
-    return _start(c, a, "experiment", {"mark_xy": a.mark, "directions": a.directions, "repetitions": a.reps,
-                                       "seed": a.seed, "kind": a.kind, "psi0_deg": a.psi0, **_compensation_params(a)})
-
-
 def cmd_results(c: Client, a: argparse.Namespace) -> int:
     r = c.call("calib.results")
     if a.json:
@@ -286,49 +244,11 @@ def cmd_follow(c: Client, a: argparse.Namespace) -> int:
     return follow(c, a.job_id, as_json=a.json)
 
 
-def _procedure_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
-    p = sub.add_parser("calibrate", parents=[common], help="referencing: rob_H_cam with the plate")
-    p.add_argument("--plate", help="plate definition JSON (default: the robot's installed one)")
-    p.add_argument("--camera-model", help="camera model JSON (default: the robot's installed one)")
-    p.add_argument("--nests-approx", help='JSON {"red": [x, y, z], ...}: approximate nests, tracker frame, mm')
-    p.add_argument("--robot-approx", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                   help="approximate robot reflector, tracker frame, mm")
-    p.add_argument("--reversal", action="store_true", help="second referencing turned 180° (instrument reversal)")
-    p.add_argument("--distance", type=float,
-                   help=f"straight drive between P0 and P1, mm (default {DEFAULTS['distance_mm']:g})")
-    p.set_defaults(fn=cmd_calibrate)
-    p = sub.add_parser("intrinsics", parents=[common],
-                       help="camera model from a hand-held board, view by view as the prompts say")
-    p.add_argument("--board", help="board definition JSON, board.json (default: the robot's installed one)")
-    p.set_defaults(fn=cmd_intrinsics)
-    for name, fn in (("measure-mark", cmd_measure_mark), ("experiment", cmd_experiment)):
-        p = sub.add_parser(name, parents=[common], help=f"{name} with the active calibration")
-        p.add_argument("--mark", nargs=2, type=float, required=True, metavar=("X", "Y"),
-                       help="approximate mark position, ACS mm")
-        p.add_argument("--kind", default=DEFAULTS["kind"], choices=["dot", "cross"],
-                       help=f"mark shape (default {DEFAULTS['kind']})")
-        p.add_argument("--compensation", metavar="NAMES", help="issue #15 compensations: none, all or "
-                                                              "a comma list of tilt,heading_fit,bias")
-        if name == "measure-mark":
-            p.add_argument("--heading", type=float, help="approach heading, ACS degrees")
-        else:
-            d = DEFAULTS  # the procedures' parameter table (daemon/bus/procedure_params.py)
-            p.add_argument("--directions", type=int, default=d["directions"],
-                           help=f"approach directions (default {d['directions']})")
-            p.add_argument("--reps", type=int, default=d["repetitions"],
-                           help=f"repetitions per direction (default {d['repetitions']})")
-            p.add_argument("--seed", type=int, default=d["seed"], help=f"seed of the approach order (default {d['seed']})")
-            p.add_argument("--psi0", type=float, default=d["psi0_deg"], help="heading of the first direction, deg")
-            p.add_argument("--store-bias", action="store_true",
-                           help="store the fitted robot-frame bias b in the active calibration (docs/operations.md)")
-        p.set_defaults(fn=fn)
-
-
 def add_parsers(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--detach", action="store_true", help="post the job and return (exit 0)")
     common.add_argument("--job", help="job id (default: generated)")
-    _procedure_parsers(sub, common)
+    add_procedure_parsers(sub, common, _start)  # one verb per declared procedure
     sub.add_parser("results", help="active calibration and history").set_defaults(fn=cmd_results)
     sub.add_parser("jobs", help="calibration jobs and their state").set_defaults(fn=cmd_jobs)
     for name, fn, what in (("follow", cmd_follow, "print a job's progress until it ends; exit with its verdict"),

@@ -56,7 +56,7 @@ def write_png(path: Path, pixels: bytes, width: int, height: int, channels: int 
     tmp.replace(path)
 
 
-def _number(arg: Arg) -> Callable[[str], float]:
+def number_type(arg: Arg) -> Callable[[str], float]:
     """argparse type for a numeric table argument: finite and inside the table's range."""
     def parse(text: str) -> float:
         try:
@@ -95,7 +95,7 @@ def add_table_args(p: argparse.ArgumentParser, cmd: Command) -> None:
             continue
         kind: dict[str, Any] = {"help": option_help(arg)}
         if arg.type in ("float", "int"):
-            kind["type"] = _number(arg)
+            kind["type"] = number_type(arg)
         if arg.choices:
             kind["choices"] = arg.choices
         if arg.cli == POS:

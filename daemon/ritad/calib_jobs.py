@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.command_table import COMMANDS, MOVING_PROCEDURES, PROCEDURES
-from daemon.bus.procedure_params import check_params
+from daemon.bus.procedures import check_params
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch

@@ -17,11 +17,11 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError
-from daemon.worker.compensations import store_bias
 from daemon.compute.procedures import COMPUTE
+from daemon.worker.finish import finish
 from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped
-from daemon.worker.procedures import RUNNERS
-from daemon.worker.store import add_message, install_camera_model, save_result
+from daemon.worker.procedures import RUN
+from daemon.worker.store import save_result
 from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.protocol import CommandError
 
@@ -85,19 +85,11 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                      + (f"; re-running the failed step ({failed})" if failed else ""))
     try:
         ctx.check_cancel()
-        RUNNERS[ctx.procedure](ctx)
+        RUN[ctx.procedure](ctx)
         result = _compute(ctx, previous)
         result.update(job=ctx.job_id, messages=_dedupe(result.get("messages")),
                       params={k: v for k, v in ctx.params.items() if k not in ("plate", "camera_model", "calibration")})
-        result = save_result(ctx.root, data_dir, result)
-        if ctx.procedure == "intrinsics":  # the stored result says whether it was installed
-            result = add_message(ctx.root, data_dir, result, install_camera_model(ctx, result))
-        if ctx.procedure == "experiment" and ctx.params.get("store_bias"):  # issue #15: b with the calibration
-            try:
-                note = store_bias(data_dir, result)
-            except ValueError as exc:
-                note = f"robot-frame bias NOT stored: {exc}"
-            result = add_message(ctx.root, data_dir, result, note)
+        result = finish(ctx, save_result(ctx.root, data_dir, result))  # activate, install, store the bias
     except Cancelled as exc:
         ctx.finish("cancelled")
         ctx.report("error", {"message": str(exc), "cancelled": True})

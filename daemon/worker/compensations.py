@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from calibration.compensation import apply_bias
-from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.storage import atomic_write_json, calibration_dir
 
 #: inclinometer readings averaged at a standstill (1 s at the base's 10 Hz)

@@ -76,7 +76,7 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
     raise StepFailed(f"no usable image in {MAX_TRIES} tries (last: {reason.strip()}); `ritactl resume` asks again")
 
 
-def intrinsics(ctx: JobContext) -> None:
+def guided_intrinsics(ctx: JobContext) -> None:
     """Set-up prompt, then one prompt + capture + check per recipe view."""
     board = _board(ctx)
     if not ctx.done("setup"):
@@ -101,4 +101,4 @@ def intrinsics(ctx: JobContext) -> None:
     ctx.progress("calibrate the camera", 92, "")
 
 
-__all__ = ["MIN_VIEW_CORNERS", "SETUP", "intrinsics"]
+__all__ = ["MIN_VIEW_CORNERS", "SETUP", "guided_intrinsics"]

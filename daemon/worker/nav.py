@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
 from daemon.worker.job import JobContext
 from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move

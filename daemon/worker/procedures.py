@@ -17,11 +17,11 @@ from calibration.plate import NEST_NAMES
 from daemon.compute.inputs import parse_compensation
 from daemon.worker.compensations import read_tilt
 from daemon.compute.procedures import footprint_abs
-from daemon.worker.guided_intrinsics import intrinsics
+from daemon.worker.guided_intrinsics import guided_intrinsics
 from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
-from daemon.bus.command_table import PROCEDURES
-from daemon.bus.procedure_params import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
 from daemon.bus.protocol import CommandError
 
 #: default parameters (mm, degrees): declared with the procedures' parameters in the bus library
@@ -201,8 +201,9 @@ def experiment(ctx: JobContext) -> None:
     ctx.progress("compute the metrics", 92, "")
 
 
-_RUNNERS = {"referencing": referencing, "measure-mark": measure_mark, "experiment": experiment,
-            "intrinsics": intrinsics}
-#: one runner per procedure the command table lists (the one list of procedures): a listed
-#: procedure without a runner fails here, at import, not when a job of it arrives
-RUNNERS: dict[str, Callable[[JobContext], None]] = {name: _RUNNERS[name] for name in PROCEDURES}
+#: the worker's run per declared procedure; a declared procedure without one fails here, at import
+RUN: Hooks[Callable[[JobContext], None]] = Hooks("worker run")
+for _proc, _fn in ((REFERENCING, referencing), (INTRINSICS, guided_intrinsics), (MEASURE_MARK, measure_mark),
+                   (EXPERIMENT, experiment)):
+    RUN.on(_proc)(_fn)
+RUN.complete()

@@ -9,15 +9,9 @@ from daemon.compute.files import write_result_files
 
 
 def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
-    """Write the result files into the dataset; keep history; activate good calibrations."""
+    """Write the result files into the dataset and keep the history copy (daemon/worker/finish.py does the rest)."""
     result = write_result_files(root, result)
-    cdir = calibration_dir(data_dir)
-    atomic_write_json(cdir / "history" / f"{result['job']}.json", result)
-    if result["procedure"] == "referencing" and result.get("verdict") != "fail":
-        atomic_write_json(cdir / "active.json", result)
-    if result["procedure"] == "intrinsics":
-        # kept with the dataset; installed for later jobs only by install_camera_model
-        atomic_write_json(root / "camera_model.json", result["camera_model"])
+    atomic_write_json(calibration_dir(data_dir) / "history" / f"{result['job']}.json", result)
     return result
 
 

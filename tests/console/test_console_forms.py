@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("aiohttp")
 
 from daemon.bus.client import Client  # noqa: E402
-from daemon.bus.procedure_params import DEFAULTS, PARAMS, check_params  # noqa: E402
+from daemon.bus.procedures import DEFAULTS, PARAMS, check_params  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 from tests.ritad_up import ritad_in_process  # noqa: E402
 
@@ -96,7 +96,7 @@ def test_bad_parameters_are_refused_naming_the_field(proc, params, field, words)
 
 
 def test_every_procedure_has_a_form_and_the_page_gets_it():
-    from daemon.bus.procedure_params import schema
+    from daemon.bus.procedures import schema
 
     s = schema()
     assert set(s) == set(PARAMS) and all(s[p] for p in s)

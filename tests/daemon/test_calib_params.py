@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from daemon.bus.command_table import Arg, BadValue
-from daemon.bus.procedure_params import PARAMS, Param, check_params
+from daemon.bus.procedure_params import Param
+from daemon.bus.procedures import PARAMS, check_params
 from daemon.bus.protocol import CommandError
 from tests.fuzzscale import cases
 from tests.ritad_up import ritad_in_process

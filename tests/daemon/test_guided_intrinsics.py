@@ -11,7 +11,7 @@ import pytest
 from calibration.board import DEFAULT_BOARD, Board
 from calibration.intrinsics_recipe import RECIPE
 from calibration.target import make_board
-from daemon.worker.guided_intrinsics import SETUP, intrinsics
+from daemon.worker.guided_intrinsics import SETUP, guided_intrinsics as intrinsics
 from daemon.worker.job import StepFailed
 
 SIZE = (640, 480)

@@ -92,7 +92,7 @@ function applyRole() {
     || (S.job.state === "stopped" && S.latch && S.latch.latched);
 }
 function onHello(m) {
-  S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params;
+  S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params; S.procInfo = m.procedure_info || {};
   const sel = $("proc");
   if (!sel.options.length) { for (const p of m.procedures) sel.add(new Option(p, p)); renderProcForm(); }
   applyRole();

@@ -9,6 +9,8 @@ function fileLink(path, text) {
   const r = encodeURI(rel(path));
   return `<a href="/files/${r}?download=1" download>${text || r}</a>`;
 }
+// what a procedure's result shows (daemon/bus/procedures.py: pose, camera_model, mark, clusters)
+const viewOf = (procedure) => ((S.procInfo || {})[procedure] || {}).view;
 async function ensureDataDir() {  // links name data-dir paths: know the data dir before drawing any (reload, 2nd tab)
   if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
 }
@@ -77,7 +79,7 @@ function showResult(r) {
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
   $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
   $("result-table").innerHTML = markdownTable(r.table_markdown || "");
-  if (r.procedure === "intrinsics" && r.dataset) showIntrinsics(r.dataset);
+  if (viewOf(r.procedure) === "camera_model" && r.dataset) showIntrinsics(r.dataset);
   $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
     ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
   plotResult(r);
@@ -115,7 +117,7 @@ function markdownTable(md) {  // the paper's table (a Markdown pipe table) as an
 // ------------------------------------------------------------------ plots (plots.js draws the axes)
 async function plotResult(r) {
   const cv = $("result-plot"), ctx = cv.getContext("2d");
-  if (r.procedure === "experiment" && r.dataset) {   // the cluster plot: every mark, coloured by approach heading
+  if (viewOf(r.procedure) === "clusters" && r.dataset) {   // the cluster plot: every mark, coloured by approach heading
     let full;
     try { full = await fetchJson(`${r.dataset}/result.json`); } catch (e) { toast(e.message); return; }
     const pts = full.marks.map((m) => [m.abs_xyz[0], m.abs_xyz[1], m.heading_deg]);
@@ -156,7 +158,7 @@ async function refreshResults() {
     `<tr><td>${h.created || ""}</td><td>${h.job}</td><td>${h.procedure}</td><td>${h.verdict}</td>` +
     `<td>${h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""}</td>` +
     `<td>${h.dataset ? `<a href="/list/${encodeURI(rel(h.dataset))}" target="_blank">dataset</a>` : ""}</td></tr>`).join("") + "</table>";
-  const refs = r.history.filter((h) => h.procedure === "referencing" && h.job).slice(0, 40).reverse();
+  const refs = r.history.filter((h) => viewOf(h.procedure) === "pose" && h.job).slice(0, 40).reverse();
   const series = [];
   for (const h of refs) {
     try { const full = await fetchJson(`calibration/history/${h.job}.json`); if (full.rob_H_cam) series.push(full); } catch (e) { /* skip */ }

@@ -1,5 +1,5 @@
 // The procedure's parameter form, built from the console's hello (`procedure_params`: the table in
-// daemon/bus/procedure_params.py, the one the worker takes its defaults from). The page checks what it can and
+// daemon/bus/procedures.py, the one the worker takes its defaults from). The page checks what it can and
 // names the field; the console checks again (it never trusts the page) and reads the chosen robot files.
 "use strict";
 

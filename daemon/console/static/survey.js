@@ -44,7 +44,7 @@ function uploadPlate() {   // the output file (on this laptop) to calibration/NA
       $("survey-uploaded").textContent = `${r.unchanged ? "already on the robot" : "stored on the robot"} as ${r.path}${kept}`;
       S.robotFiles = null;   // the referencing form offers it from now on
       fillRobotFiles();
-      if ($("proc").value === "referencing" && $("pp-plate")) $("pp-plate").value = r.path;
+      if ($("pp-plate")) $("pp-plate").value = r.path;   // the chosen procedure takes a plate
       toast(`plate stored as ${r.path}`);
     })
     .catch((e) => { $("survey-uploaded").textContent = `plate upload: ${e.message}`; });

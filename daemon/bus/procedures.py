@@ -1,0 +1,269 @@
+"""The guided procedures, each declared once: name, ritactl verb, help, parameters, whether it drives.
+
+Everything else is derived from these declarations: ``calib.start``'s choices and the daemon's
+check of a new job's ``params`` (``check_params``: ritad is the authority, the clients' checks
+only answer earlier), the worker's defaults (``DEFAULTS``), ritactl's procedure verbs and their
+options (daemon/ctl/procverbs.py; each parameter's ``--name`` plus its ``aliases``), the
+console's per-procedure form (``schema``), which jobs a STOP stops (``MOVING_PROCEDURES``), which
+stored inputs an offline recompute may replace (``inputs``), and the procedure table in
+docs/operations.md (``python -m daemon.bus.procedures --markdown``; a test compares).
+
+The programs attach their code to a declaration with :class:`Hooks` (the worker's ``run`` and
+``finish``, the computation's ``compute``): a declared procedure without its hook fails at
+import, not when a job of it arrives. A procedure's name is written here and nowhere else.
+Stdlib only, like the command table.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Callable, Generic, Iterator, TypeVar
+
+from daemon.bus.args import BadValue
+from daemon.bus.procedure_params import (APPROACH_SPEED, CALIBRATION, COMPENSATION, DISTANCE, IMU_INTERVAL,
+                                         IMU_READINGS, KIND, MARK_SIZE, MARK_XY, SIGMA_T, SPEED, STREAM_RATE,
+                                         Param, ParamError, xyz_map)
+from daemon.bus.protocol import CommandError
+
+#: what the result shows (ritactl, the console's panel and plot)
+VIEWS = ("pose", "camera_model", "mark", "clusters")
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """One guided procedure as every program sees it."""
+
+    name: str                    # calib.start's ``procedure``, the datasets' ``procedure``
+    verb: str                    # the ritactl verb that starts it
+    help: str
+    params: tuple[Param, ...]
+    moves: bool                  # drives the robot: a STOP stops its job; it cannot start while latched
+    view: str                    # one of VIEWS
+    inputs: dict[str, str] = field(default_factory=dict)  # replaceable definition → its key in the stored obs
+
+    def param(self, name: str) -> Param:
+        return next(p for p in self.params if p.name == name)
+
+
+#: the inputs of the compensations at mark stops (docs/accuracy.md, "Compensations")
+_COMPENSATIONS = (COMPENSATION, IMU_READINGS, IMU_INTERVAL, STREAM_RATE, APPROACH_SPEED)
+
+REFERENCING = Procedure(
+    "referencing", "calibrate", "referencing: rob_H_cam with the plate", moves=True, view="pose",
+    inputs={"camera_model": "camera_model", "plate": "plate"}, params=(
+        Param("plate", "file", "plate definition (plate.json)", installed="calibration/plate.json",
+              default_text="the installed plate"),
+        Param("camera_model", "file", "camera model (camera_model.json)", installed="calibration/camera_model.json",
+              default_text="the installed camera model"),
+        Param("nests_approx_trk", "file", "approximate nests {red|green|blue: [x, y, z]}, tracker frame, mm",
+              content="xyz_map", default_text="none: the worker asks for each nest", aliases=("--nests-approx",)),
+        Param("robot_approx_trk", "vec", "approximate robot reflector, tracker frame", unit="mm", length=3,
+              default_text="none: the worker asks", aliases=("--robot-approx",)),
+        Param("reversal", "bool", "second referencing turned 180° (instrument reversal)", default=False),
+        DISTANCE, SPEED, SIGMA_T, IMU_READINGS, IMU_INTERVAL))
+INTRINSICS = Procedure(
+    "intrinsics", "intrinsics", "camera model from a hand-held board, view by view as the prompts say",
+    moves=False, view="camera_model", inputs={"camera_model": "initial_model", "plate": "plate"}, params=(
+        Param("board", "file", "the hand-held board's definition (board.json)", installed="calibration/board.json",
+              default_text="the installed board"),))
+MEASURE_MARK = Procedure(
+    "measure-mark", "measure-mark", "one floor mark's ACS position with the active calibration", moves=True,
+    view="mark", inputs={"calibration": "calibration"}, params=(
+        MARK_XY, KIND,
+        Param("heading_deg", "float", "approach heading, ACS", unit="°", lo=-360, hi=360,
+              default_text="the robot's current heading", aliases=("--heading",)),
+        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, *_COMPENSATIONS))
+EXPERIMENT = Procedure(
+    "experiment", "experiment", "the paper's 8-direction experiment on one mark with the active calibration",
+    moves=True, view="clusters", inputs={"calibration": "calibration"}, params=(
+        MARK_XY, KIND,
+        Param("directions", "int", "approach directions", default=8, lo=1),
+        Param("repetitions", "int", "repetitions per direction", default=5, lo=1, aliases=("--reps",)),
+        Param("seed", "int", "seed of the approach order and offsets", default=1, lo=0),
+        Param("psi0_deg", "float", "heading of the first direction, ACS", unit="°", default=0.0, lo=-360, hi=360,
+              aliases=("--psi0",)),
+        Param("offset_mm", "float", "largest random offset of the mark from the image centre", unit="mm",
+              default=3.0, lo=0),
+        MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, *_COMPENSATIONS,
+        Param("store_bias", "bool", "store the fitted robot-frame bias b in the active calibration "
+              "(docs/operations.md)", default=False)))
+
+ALL: tuple[Procedure, ...] = (REFERENCING, INTRINSICS, MEASURE_MARK, EXPERIMENT)
+BY_NAME: dict[str, Procedure] = {p.name: p for p in ALL}
+PROCEDURES: tuple[str, ...] = tuple(BY_NAME)
+#: the procedures that drive the robot: a STOP stops their jobs, and they cannot start while it is latched
+MOVING_PROCEDURES: tuple[str, ...] = tuple(p.name for p in ALL if p.moves)
+PARAMS: dict[str, tuple[Param, ...]] = {p.name: p.params for p in ALL}
+assert all(p.view in VIEWS for p in ALL)
+
+
+def get(name: str) -> Procedure:
+    """The declaration of ``name``; ``bad_args`` naming the known ones otherwise."""
+    if name not in BY_NAME:
+        raise ParamError(f"{name!r}: no such procedure (one of {', '.join(PROCEDURES)})")
+    return BY_NAME[name]
+
+
+T = TypeVar("T", bound=Callable[..., Any])
+
+
+class Hooks(Generic[T]):
+    """One program's code per procedure (``run``, ``compute``, ``finish``), attached to the declarations.
+
+    ``@hooks.on(EXPERIMENT)`` registers; ``hooks[name]`` finds; ``complete()`` fails naming any
+    declared procedure left without one (unless ``optional``: then ``hooks.get(name)`` may be None).
+    """
+
+    def __init__(self, what: str, optional: bool = False) -> None:
+        self.what, self.optional = what, optional
+        self._fns: dict[str, T] = {}
+
+    def on(self, proc: Procedure) -> Callable[[T], T]:
+        def register(fn: T) -> T:
+            assert proc.name not in self._fns, f"two {self.what} hooks for {proc.name}"
+            self._fns[proc.name] = fn
+            return fn
+        return register
+
+    def __getitem__(self, name: str) -> T:
+        get(name)
+        if name not in self._fns:
+            raise KeyError(f"no {self.what} for procedure {name!r}")
+        return self._fns[name]
+
+    def get(self, name: str) -> T | None:
+        return self._fns.get(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._fns)
+
+    def complete(self) -> "Hooks[T]":
+        missing = [p.name for p in ALL if p.name not in self._fns]
+        if missing and not self.optional:
+            raise RuntimeError(f"declared procedure(s) without a {self.what}: {', '.join(missing)}")
+        return self
+
+
+def defaults() -> dict[str, Any]:
+    """Every parameter's default by name (a name means one thing in every procedure)."""
+    out: dict[str, Any] = {}
+    for params in PARAMS.values():
+        for p in params:
+            if p.default is not None and not p.required:
+                assert out.get(p.name, p.default) == p.default, f"{p.name}: two defaults"
+                out[p.name] = p.default
+    return out
+
+
+DEFAULTS = defaults()
+
+
+def check_params(procedure: str, params: Any, *, required: bool = True, paths: bool = True) -> dict[str, Any]:
+    """The parameters checked; null or absent means the worker's default.
+
+    ``bad_args`` names every bad parameter: wrong type, out of range, unknown, or (``required``)
+    missing. ``paths``: a file parameter may be a data-dir path (the console's form); on the bus
+    it is the file's JSON object, which is what the worker uses.
+    """
+    proc = get(procedure)
+    if not isinstance(params, dict):
+        raise ParamError(f"{procedure}: the parameters must be a JSON object, got {params!r:.80}")
+    known = {p.name: p for p in proc.params}
+    out: dict[str, Any] = {}
+    bad: list[tuple[str, str]] = [(str(n), f"unknown parameter {n!r}") for n in params if n not in known]
+    for name, p in known.items():
+        v = params.get(name)
+        try:
+            if v is None or (p.type == "file" and v == ""):
+                if p.required and required:
+                    raise BadValue(f"parameter {name!r} is required ({p.help})")
+                continue
+            out[name] = p.checked(v, paths=paths)
+        except BadValue as exc:
+            bad.append((name, str(exc)))
+    if bad:
+        text = "; ".join(why for _, why in bad)
+        if len(bad) > len([n for n, _ in bad if n in known]):
+            text += f" (known: {', '.join(known)})"
+        first = next((n for n, _ in bad if n in known), "")
+        raise ParamError(f"{procedure}: {text}", first, tuple(n for n, _ in bad))
+    return out
+
+
+def _file_object(procedure: str, p: Param, path: str, read: Callable[[str], bytes]) -> Any:
+    try:
+        obj = json.loads(read(path))
+    except (OSError, CommandError, ValueError) as exc:
+        why = exc.args[0] if exc.args else type(exc).__name__
+        raise ParamError(f"{procedure}: parameter {p.name!r}: cannot use {path}: {why}", p.name) from None
+    if p.content == "xyz_map":
+        try:
+            return xyz_map(f"parameter {p.name!r}", obj)
+        except BadValue as exc:
+            raise ParamError(f"{procedure}: {exc} (in {path})", p.name) from None
+    if not isinstance(obj, dict):
+        raise ParamError(f"{procedure}: parameter {p.name!r}: {path} is not a JSON object", p.name)
+    return obj
+
+
+def load_files(procedure: str, params: dict[str, Any], read: Callable[[str], bytes]) -> dict[str, Any]:
+    """``params`` (checked) with each file path replaced by the parsed JSON ``read(path)`` returns.
+
+    ``read`` raises OSError/CommandError for a missing file; either becomes ``bad_args`` naming the parameter.
+    """
+    out = dict(params)
+    for p in get(procedure).params:
+        if p.type == "file" and isinstance(out.get(p.name), str):
+            out[p.name] = _file_object(procedure, p, out[p.name], read)
+    return out
+
+
+def schema() -> dict[str, list[dict[str, Any]]]:
+    """The form description the console page renders: per procedure, its parameters in order."""
+    return {proc: [{"name": p.name, "kind": p.type, "help": p.help, "unit": p.unit, "required": p.required,
+                    "default": None if p.required else p.default, "default_text": p.default_text,
+                    "lo": p.lo, "hi": p.hi, "lo_open": p.lo_open, "range": p.range_text(),
+                    "choices": list(p.choices), "length": p.length, "installed": p.installed}
+                    for p in params] for proc, params in PARAMS.items()}
+
+
+def describe() -> dict[str, dict[str, Any]]:
+    """What a client shows of each procedure besides its form: verb, help, whether it drives, its view."""
+    return {p.name: {"verb": p.verb, "help": p.help, "moves": p.moves, "view": p.view, "inputs": sorted(p.inputs)}
+            for p in ALL}
+
+
+def cli_flags(p: Param) -> tuple[str, ...]:
+    """A parameter's ritactl options: ``--name-with-dashes`` first, then its aliases."""
+    return (f"--{p.name.replace('_', '-')}", *p.aliases)
+
+
+def _rows() -> Iterator[str]:
+    yield "| procedure | ritactl | drives | parameter | options | type, range | default | what |"
+    yield "|---|---|---|---|---|---|---|---|"
+    for proc in ALL:
+        for i, p in enumerate(proc.params):
+            head = (f"`{proc.name}`", f"`ritactl {proc.verb}`", "yes" if proc.moves else "no") if i == 0 else ("",) * 3
+            bar = "\\|"  # a bar inside a cell would split it
+            kind = p.type + (f", {p.unit}" if p.unit else "") + (f", {p.range_text()}" if p.range_text() else "")
+            kind += (", " + f" {bar} ".join(p.choices)) if p.choices else ""
+            default = "**required**" if p.required else (p.default_text or json.dumps(p.default))
+            flags = ", ".join(f"`{f}`" for f in cli_flags(p))
+            yield f"| {' | '.join(head)} | `{p.name}` | {flags} | {kind} | {default} | {p.help.replace('|', bar)} |"
+
+
+def markdown_table() -> str:
+    """The procedure table of docs/operations.md, generated from the declarations."""
+    return "\n".join(_rows()) + "\n"
+
+
+__all__ = ["ALL", "BY_NAME", "DEFAULTS", "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
+           "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "check_params", "cli_flags", "describe",
+           "get", "load_files", "markdown_table", "schema"]
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] != ["--markdown"]:
+        sys.exit("usage: python -m daemon.bus.procedures --markdown")
+    sys.stdout.write(markdown_table())
