@@ -6,8 +6,8 @@ reading) and ``sim/board.json`` (the hand-held intrinsics board, as its maker's 
 Nothing here is a measured result: the camera model comes from the guided intrinsics
 (``ritactl intrinsics``) and the surveyed seats from ``ritactl plate survey`` on the
 photographs of ``sim.survey_images``, as on a real robot. ``ritad --sim`` writes these files at
-start so README's "Using it" runs as written: ritad calls :func:`start` by name (config-driven,
-``daemon/ritad/registry.py``) with its ``[sim]`` section and data dir. The product never reads
+start so README's "Using it" runs as written: the simulator's plugin (fakes/plugin.py) calls
+:func:`start` with the ``[sim]`` section and data dir. The product never reads
 them by itself: the operator passes them (``ritactl fetch sim`` then ``ritactl ... --plate``).
 """
 from __future__ import annotations
@@ -37,25 +37,23 @@ def installed_files(world: World) -> dict[str, Any]:
     return {"plate.json": world.plate().to_dict(), "board.json": dict(DEFAULT_BOARD), "nests.json": nests}
 
 
-def install(world: World, data_dir: Path, camera_url: str = "") -> list[Path]:
-    """Write the installer's files into ``data_dir/sim`` (atomically) and return their paths.
-
-    ``camera_url`` is part of the factory's call (registry) and unused: no file depends on the camera."""
+def install(world: World, data_dir: Path) -> list[Path]:
+    """Write the installer's files into ``data_dir/sim`` (atomically) and return their paths."""
     from daemon.bus.storage import atomic_write_json
 
     files = installed_files(world)
     return [atomic_write_json(data_dir / FOLDER / name, obj) for name, obj in files.items()]
 
 
-def start(sim: Mapping[str, Any], data_dir: str, camera_url: str) -> tuple[str, World]:
-    """ritad's sim factory: a fresh world from ``[sim]``, installer files in ``data_dir``.
+def start(sim: Mapping[str, Any], data_dir: str) -> tuple[str, World]:
+    """A fresh world from ``[sim]``, installer files in ``data_dir``.
 
     The world is registered under the resolved data dir, which one ritad at a time owns
     (its instance lock), so two ritads in one process (tests) never share a world.
     """
     world = World(worlds.params_from(sim))
     data = Path(data_dir)
-    install(world, data, camera_url)
+    install(world, data)
     return worlds.register(world, str(data.resolve())), world
 
 

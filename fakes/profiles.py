@@ -1,8 +1,8 @@
 """Error profiles of the simulated world: ``ideal``, ``paper``, ``paper+imu``, ``paper-fit(+imu)``.
 
 Selected by ``ritad --sim --profile NAME`` or ``[sim] profile = "NAME"`` in the config
-(docs/operations.md); ritad checks the name against :data:`PROFILES` by name through
-its registry (``SIM_PROFILES``), so it never imports ``fakes``.
+(docs/operations.md); the simulator's plugin (fakes/plugin.py) checks the name against
+:data:`PROFILES` when ritad loads the config.
 
 * ``ideal``: today's world, every effect off (bit-identical to the world before
   profiles existed; calibration.md §7.3 thresholds rely on it).

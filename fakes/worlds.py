@@ -1,10 +1,10 @@
 """The world registry: how the ``sim:`` devices of one ritad come to share one world.
 
 ritad never imports fakes. Its registry resolves ``sim:`` device URLs to the fake
-adapters by name, and calls ``fakes.installer.start`` (also by name, see
-``SIM_WORLD_FACTORY`` in ``daemon/ritad/registry.py``) with the config's ``[sim]``
-section and data dir. That builds the world, plays the installer into the data dir
-and registers the world here under a name; ritad adds ``world=<name>`` to each ``sim:`` URL,
+adapters through entry points, and the simulator's plugin (fakes/plugin.py) calls
+``fakes.installer.start`` with the config's ``[sim]`` section and data dir. That builds
+the world, plays the installer into the data dir and registers the world here under a
+name; the plugin adds ``world=<name>`` to each ``sim:`` URL,
 and every fake adapter finds its world with :func:`world_for`. A ``sim:`` URL without
 ``world=`` (a fake used on its own in a test or script) gets a fresh world of its own.
 """

@@ -12,6 +12,7 @@ procedures ``calib.start`` runs are declared in daemon/bus/procedures.py.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,6 +34,13 @@ class Command:
     cli: tuple[str, ...] = ()      # words of a generated ritactl subcommand, e.g. ("tracker", "aim")
     verb: str = ""                 # or: the hand-written ritactl verb that sends it
     worker_only: bool = False
+    #: "moves": drives something physical (logged with the caller, refused while the stop is latched);
+    #: "stops": halts it (logged, never refused)
+    motion: str = ""
+    #: read that pages, ritactl and the worker poll: logged at DEBUG, not INFO
+    polled: bool = False
+    #: who declares it: "" for the product, else the plugin's name (daemon/ritad/plugins.py)
+    plugin: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -52,26 +60,26 @@ def _job(help_: str = "job id") -> Arg:
 _KEY_NAME = Arg("name", "str", "the key's name in the allow-list", default=REQUIRED)
 
 TABLE: tuple[Command, ...] = (
-    Command("ping", "liveness check", result="{pong, t_ns}"),
+    Command("ping", "liveness check", result="{pong, t_ns}", polled=True),
     Command("help", "list the commands", result="{commands: {name: {help, role, result, worker_only, args: "
-            "[{name, type, unit, range, choices, required, default, help}]}}}"),
+            "[{name, type, unit, range, choices, required, default, help}]}}}", polled=True),
     Command("hello", "who is this daemon: version, schema, endpoints",
-            result="name, version, schema, pid, sim, endpoints, device URLs"),
-    Command("status", "device states at a glance", verb="status", result="the daemon.health payload"),
-    Command("health", "same as status", result="the daemon.health payload"),
+            result="name, version, schema, pid, sim, endpoints, device URLs", polled=True),
+    Command("status", "device states at a glance", verb="status", result="the daemon.health payload", polled=True),
+    Command("health", "same as status", result="the daemon.health payload", polled=True),
     Command("state", "Clone snapshot for late joiners", verb="watch",
-            result="{seq, latest: {topic: {seq, t_ns, data}}, devices}"),
+            result="{seq, latest: {topic: {seq, t_ns, data}}, devices}", polled=True),
     Command("tracker.measure", "one stationary point of the locked reflector", "operator",
             cli=("tracker", "measure"),
             result="stationary point: x y z (mm, tracker frame), abs_xyz (ACS via tracker.abs_H_trk), "
-                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, host_monotonic_ns"),
+                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, host_monotonic_ns", polled=True),
     Command("tracker.aim", "turn the tracker head to a point", "operator", cli=("tracker", "aim"), args=tuple(
         Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
-            metavar=k.upper()) for k in "xyz"), result="{aimed}"),
+            metavar=k.upper()) for k in "xyz"), result="{aimed}", motion="moves"),
     Command("tracker.find", "search and lock the reflector near where the tracker points", "operator",
             cli=("tracker", "find"), result="{locked: true}; tracker_<Status> when nothing is found", args=(
                 Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
-                    lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),)),
+                    lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),), motion="moves"),
     Command("tracker.stream.start", "stream tracker points as tracker.point telemetry", "operator",
             cli=("tracker", "stream", "start"), result="{streaming, rate_hz}; points then flow as tracker.point", args=(
                 Arg("rate_hz", "float", "points per second", unit="Hz", lo=0, lo_open=True, hi=10000,
@@ -79,18 +87,18 @@ TABLE: tuple[Command, ...] = (
     Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),
             result="{streaming: false}"),
     Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status"),
-            result="adapter status and counters"),
+            result="adapter status and counters", polled=True),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),
                 Arg("save", "bool", "store the frame as a dataset entry on the robot", default_text="not pixels"),
-                Arg("label", "str", "name of the stored entry", default="frame", cli="--label"))),
+                Arg("label", "str", "name of the stored entry", default="frame", cli="--label")), polled=True),
     Command("camera.stream.start", "free-running frames on the frame socket", "operator",
             cli=("camera", "stream", "start"), result="{streaming: true}"),
     Command("camera.stream.stop", "stop the free run", "operator", cli=("camera", "stream", "stop"),
             result="{streaming: false}"),
     Command("camera.status", "applied camera settings, warnings, counters", cli=("camera", "status"),
-            result="applied settings, warnings, counters"),
+            result="applied settings, warnings, counters", polled=True),
     Command("camera.preview", "the newest streamed frame, small (or a full-resolution region), as one JPEG "
             "attachment: live views over a thin link", verb="console",
             result="{header, format: jpeg, x, y, w, h, step, out_w, out_h, full_w, full_h}: the region shown "
@@ -102,7 +110,7 @@ TABLE: tuple[Command, ...] = (
                 Arg("roi_w", "int", "region width", unit="px", lo=1, default_text="the whole frame"),
                 Arg("roi_h", "int", "region height", unit="px", lo=1, default_text="the whole frame"),
                 Arg("quality", "int", "JPEG quality", default=80, lo=10, hi=95),
-                Arg("after", "int", "frame id the client already shows", default=-1, lo=-1))),
+                Arg("after", "int", "frame id the client already shows", default=-1, lo=-1)), polled=True),
     Command("camera.detect", "the plate target's ChArUco corners or a floor mark in the newest streamed frame, "
             "on demand (one detection at a time)", cli=("camera", "detect"),
             result="{target, frame_id, full_w, full_h, searched_w, searched_h, found, n, uv: sensor px "
@@ -116,77 +124,50 @@ TABLE: tuple[Command, ...] = (
                     hi=16384, default_text="the full frame", cli="--width", metavar="PX"),
                 Arg("size_px", "float", "mark size (dot radius or cross half-size) in sensor px: searches "
                     "coarse to fine", unit="px", lo=0, lo_open=True, default_text="unknown: full-resolution search",
-                    cli="--size", metavar="PX"))),
+                    cli="--size", metavar="PX")), polled=True),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
                     unit="mm", default=REQUIRED, cli=POS, metavar="MM"),
                 Arg("speed_mm_s", "float", "speed (limit: config [robot] max_speed_mm_s)", unit="mm/s",
                     default=50.0, lo=0, lo_open=True, cli="--speed", metavar="MM_S"),
-                _CONFIRM, _WAIT, _motion_timeout("distance_mm", "speed_mm_s"))),
+                _CONFIRM, _WAIT, _motion_timeout("distance_mm", "speed_mm_s")), motion="moves"),
     Command("robot.turn", "turn on the spot (positive: counter-clockwise)", "operator", cli=("robot", "turn"),
             result="as robot.move", args=(
                 Arg("angle_deg", "float", "angle to turn", unit="°", default=REQUIRED, lo=-360, hi=360, cli=POS,
                     metavar="DEG"),
                 Arg("speed_deg_s", "float", "turn rate (limit: config [robot] max_turn_speed_deg_s)",
                     unit="°/s", default=20.0, lo=0, lo_open=True, cli="--speed", metavar="DEG_S"),
-                _CONFIRM, _WAIT, _motion_timeout("angle_deg", "speed_deg_s"))),
+                _CONFIRM, _WAIT, _motion_timeout("angle_deg", "speed_deg_s")), motion="moves"),
     Command("robot.stop", "stop the base now and latch: every job that drives is stopped, every motion refused "
             "until robot.release (any key may stop; no confirmation)", "viewer",
-            cli=("robot", "stop"), result="{stopped, latched, jobs_stopped}"),
+            cli=("robot", "stop"), result="{stopped, latched, jobs_stopped}", motion="stops"),
     Command("robot.release", "clear a latched stop: motions and robot jobs are allowed again (stopped jobs "
             "continue only on calib.resume)", "operator", cli=("robot", "release"),
             result="{released, was_latched}"),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
-                   "inclinometer), battery_v"),
+                   "inclinometer), battery_v", polled=True),
     Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
             verb="capture", result="{path, header, tracker, robot}", args=(
                 Arg("label", "str", "name of the entry", default="capture", cli="--label"),
                 Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),
-    Command("sim.truth", "simulated world only: ground truth",
-            result="rob_H_cam, abs_H_ref, abs_H_trk, abs_H_rob, nests, marks, camera_model, plate; not_found "
-            "without a simulated world"),
-    Command("sim.place_robot_on_plate", "simulated world only: put the robot on the plate, target in view",
-            "operator", result="{x_mm, y_mm, heading_deg}", args=(
-                Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
-                    default_text="plate yaw + 60"),)),
-    Command("sim.hold_board", "simulated world only: the operator holds the calibration board under the camera "
-            "(pose in the camera frame), or takes it away", "operator",
-            result="{held, board_id, cam_H_board}", args=(
-                Arg("z_mm", "float", "board centre's depth along the optical axis", unit="mm", lo=0, lo_open=True,
-                    default_text="the board is taken away"),
-                Arg("x_mm", "float", "board centre, camera x (image right)", unit="mm", default=0.0),
-                Arg("y_mm", "float", "board centre, camera y (image down)", unit="mm", default=0.0),
-                Arg("tilt_x_deg", "float", "tilt about the image x axis (+: top edge towards the camera)", unit="°",
-                    default=0.0, lo=-80, hi=80),
-                Arg("tilt_y_deg", "float", "tilt about the image y axis (+: right edge towards the camera)",
-                    unit="°", default=0.0, lo=-80, hi=80),
-                Arg("rot_deg", "float", "turn in the image plane (+: clockwise in the image)", unit="°",
-                    default=0.0, lo=-360, hi=360))),
-    Command("sim.survey_images", "simulated world only: photograph the whole plate with a survey camera "
-            "(PNG, RGB) into data_dir/sim/survey/, for `ritactl plate survey`", "operator",
-            result="{folder, files}: paths relative to the data dir; rendering takes ~2 s per view "
-            "(use --timeout)", args=(
-                Arg("views", "int", "number of photographs", default=8, lo=3, hi=12),
-                Arg("width_px", "int", "image width (height 2/3 of it; the 6000x4000 sensor resampled; the "
-                    "renderer peaks at ~0.7 GB at 2400)", unit="px", default=2400, lo=900, hi=3000))),
-    Command("data.dir", "the daemon's data folder", result="{data_dir}"),
+    Command("data.dir", "the daemon's data folder", result="{data_dir}", polled=True),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
             result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "
                    "20000 entries", args=(
-                Arg("path", "str", "folder or file relative to the data dir", default_text="the whole data dir"),)),
+                Arg("path", "str", "folder or file relative to the data dir", default_text="the whole data dir"),), polled=True),
     Command("files.read", "one chunk of a data-dir file; the bytes follow as an attachment", verb="fetch",
             result="{path, offset, length, size, mtime_ns, eof}; fewer than length bytes at the end of the file", args=(
                 Arg("path", "str", "file relative to the data dir", default=REQUIRED),
                 Arg("offset", "int", "first byte", unit="B", default=0, lo=0),
-                Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576))),
+                Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576)), polled=True),
     Command("files.hash", "sha256 of the first length bytes of a data-dir file", verb="fetch",
             result="{path, length, size, sha256}", args=(
                 Arg("path", "str", "file relative to the data dir", default=REQUIRED),
-                Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file"))),
+                Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file")), polled=True),
     Command("calib.results", "active calibration and every stored result", verb="results",
-            result="{active, history}"),
+            result="{active, history}", polled=True),
     Command("calib.plate.upload", "store a plate definition (e.g. surveyed on the laptop) as calibration/NAME on the "
             "robot, checked against plate.schema.json first; a file it replaces is kept in calibration/history/plates/",
             "operator", verb="plate upload", result="{path, sha256, size, replaced, unchanged}: data-dir paths", args=(
@@ -210,20 +191,20 @@ TABLE: tuple[Command, ...] = (
             args=(_job(),)),
     Command("calib.jobs", "calibration jobs and their state", verb="jobs",
             result="{jobs: [{job, procedure, state, progress, result, prompt, error, params, by, "
-            "posted_ns}], queued, worker_seen_s_ago}"),
+            "posted_ns}], queued, worker_seen_s_ago}", polled=True),
     Command("calib.next", "worker: long-poll for the next job", "operator", worker_only=True,
             result="the job, or null on timeout",
             args=(
-        Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),)),
+        Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),), polled=True),
     Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator", worker_only=True,
             result="{answer} or {cancel: true}, or null on timeout",
-            args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60))),
+            args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60)), polled=True),
     Command("calib.report", "worker: progress, prompt, result or error of a job", "operator", worker_only=True,
             result="{ok}; republished as calib.progress, calib.prompt or calib.result telemetry",
             args=(_job(), Arg("kind", "str", "report kind", default=REQUIRED,
                               choices=("progress", "result", "prompt", "error")),
                   Arg("data", "any", "the report", default_text="{}"),
-                  Arg("procedure", "str", "procedure of a resumed job", default_text="the posted job's"))),
+                  Arg("procedure", "str", "procedure of a resumed job", default_text="the posted job's")), polled=True),
     Command("keys.list", "the allow-list: names, roles and public keys of the CURVE keys", "admin", verb="keys",
             result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
     Command("keys.allow", "allow a CURVE key with a role (replaces an entry of that name)", "admin", verb="keys",
@@ -240,6 +221,32 @@ TABLE: tuple[Command, ...] = (
 COMMANDS: dict[str, Command] = {c.name: c for c in TABLE}
 assert len(COMMANDS) == len(TABLE), "duplicate command in TABLE"
 assert all(c.role in ROLES for c in TABLE)
+assert all(c.motion in ("", "moves", "stops") for c in TABLE)
+
+
+def register(plugin: str, commands: tuple[Command, ...]) -> None:
+    """Add a plugin's commands to ``COMMANDS`` (ritad, at start): same validation, roles and logging.
+
+    A name the product or another plugin already declares is refused, so a plugin can never
+    replace a product command; registering the same plugin's commands again is a no-op.
+    """
+    for c in commands:
+        if not c.name.startswith(f"{plugin}."):
+            raise ValueError(f"plugin {plugin!r}: command {c.name!r} must be named {plugin}.<verb>")
+        if c.role not in ROLES or c.motion not in ("", "moves", "stops"):
+            raise ValueError(f"plugin {plugin!r}: command {c.name!r}: bad role {c.role!r} or motion {c.motion!r}")
+        known = COMMANDS.get(c.name)
+        if known is not None and known.plugin != plugin:
+            raise ValueError(f"plugin {plugin!r}: command {c.name!r} is already declared "
+                             f"by {known.plugin or 'the product'}")
+    for c in commands:
+        COMMANDS[c.name] = c if c.plugin == plugin else dataclasses.replace(c, plugin=plugin)
+
+
+def moves(cmd: str) -> bool:
+    """``cmd`` drives something physical: refused while the stop is latched."""
+    c = COMMANDS.get(cmd)
+    return c is not None and c.motion == "moves"
 
 # ---------------------------------------------------------------------------- validation
 
@@ -302,10 +309,10 @@ def _arg_cell(arg: Arg) -> str:
     return f"`{arg.name}`{'' if arg.required else '?'} ({'; '.join(facts)})"
 
 
-def markdown_table() -> str:
-    """The command table of docs/protocol.md, generated from ``TABLE``."""
+def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
+    """The command table of docs/protocol.md, generated from ``TABLE`` (or a plugin's commands)."""
     rows = ["| command | role | args | result | what it does |", "|---|---|---|---|---|"]
-    for c in TABLE:
+    for c in commands:
         args = "<br>".join(_arg_cell(a) for a in c.args) or "–"
         what = c.help
         result = c.result.replace("|", "\\|") or "–"  # a bar inside a cell would split it
@@ -314,7 +321,7 @@ def markdown_table() -> str:
 
 
 __all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES",
-           "TABLE", "check_arg", "help_entry", "markdown_table", "validate"]
+           "TABLE", "check_arg", "help_entry", "markdown_table", "moves", "register", "validate"]
 
 if __name__ == "__main__":
     import sys

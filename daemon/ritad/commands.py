@@ -3,7 +3,7 @@
 Each handler group gets the narrow ``Services`` (daemon/ritad/services.py), never the
 daemon. ``build_handlers`` wraps every handler with the command table's validator, so a
 handler reads ``req.args`` already checked and defaulted (``bad_args`` names a bad one)
-and only checks what the table cannot: limits from the config, the world's presence.
+and only checks what the table cannot: limits from the config.
 A handler answers at once or returns a Future completed in a device runner or the
 storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent and latches
 (daemon/ritad/stop_latch.py): no motion until ``robot.release``.
@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 from typing import Any, Callable
 
-from daemon.bus.command_table import COMMANDS, TABLE, help_entry, validate
+from daemon.bus.command_table import COMMANDS, help_entry, moves, validate
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
-from daemon.ritad import files, plates, registry
+from daemon.ritad import files, plates
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -38,9 +37,8 @@ def _then(fut_of: Callable[[], Any], result: Any) -> Handler:
 
 
 def _daemon(s: Services) -> dict[str, Handler]:
-    help_ = {c.name: help_entry(c) for c in TABLE}
     return {"ping": lambda req: {"pong": True, "t_ns": time.time_ns()},
-            "help": lambda req: {"commands": help_},
+            "help": lambda req: {"commands": {c.name: help_entry(c) for c in COMMANDS.values()}},
             "hello": lambda req: s.hello(), "status": lambda req: s.health(), "health": lambda req: s.health(),
             "state": lambda req: s.state(), "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
             "calib.results": lambda req: read_results(s.data_dir)}
@@ -185,52 +183,6 @@ def _keys(s: Services) -> dict[str, Handler]:
     return key_handlers(s.auth_dir, lambda fn: s.storage.submit(fn))  # admin: the allow-list over the bus
 
 
-def _sim(s: Services) -> dict[str, Handler]:
-    def world(req: Request) -> Any:
-        if s.world is None:
-            raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: this daemon runs no simulated world")
-        return s.world
-
-    def truth(req: Request) -> Any:
-        w = world(req)
-        out = w.truth()
-        size = s.device_info("camera").get("size") or list(w.params.reduced_size)
-        out["camera_model"] = {"K": w.camera_matrix(tuple(size)).tolist(), "dist": w.dist_coeffs().tolist(),
-                               "size": list(size)}
-        out["plate"] = w.plate().to_dict()
-        return out
-
-    def place_robot_on_plate(req: Request) -> Any:
-        """Put the robot on the plate with the target in view (an operator's job on the real floor)."""
-        w = world(req)
-        heading = req.args["heading_deg"]
-        pose = w.pose_with_target_in_view(w.plate_yaw_deg + 60.0 if heading is None else heading)
-        w.set_robot(w.settle(pose))  # on its wheels: the tilt of the plate under them (error profiles)
-        return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
-
-    def hold_board(req: Request) -> Any:
-        """The operator holds the intrinsics board under the camera (an operator's hands on the real robot)."""
-        try:
-            return world(req).hold_board(**req.args)
-        except ValueError as exc:
-            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: {exc}") from None
-
-    def survey_images(req: Request) -> Any:
-        """Whole-plate photographs for the plate survey (an operator's camera on the real floor)."""
-        w, a = world(req), req.args
-        render = registry.sim_survey_renderer()
-        root = Path(s.data_dir)
-
-        def run() -> Any:
-            paths = render(w, root, a["views"], (a["width_px"], a["width_px"] * 2 // 3))
-            return {"folder": "sim/survey", "files": [p.relative_to(root).as_posix() for p in paths]}
-
-        return s.storage.submit(run)
-
-    return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board,
-            "sim.survey_images": survey_images}
-
-
 def _preview(s: Services) -> dict[str, Handler]:
     from daemon.ritad.preview import preview_handlers
 
@@ -243,29 +195,30 @@ def _detect(s: Services) -> dict[str, Handler]:
     return detect_handlers(s.latest_frame, s.data_dir, s.private_dirs)
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _plates, _keys, _sim, _preview, _detect)
-
-
-#: motions refused while the stop is latched (robot.move and robot.turn are also guarded in the runner)
-LATCHED = frozenset({"robot.move", "robot.turn", "tracker.aim", "tracker.find", "sim.place_robot_on_plate"})
+GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _plates, _keys, _preview, _detect)
 
 
 def validated(cmd: str, handler: Handler, s: Services) -> Handler:
     """``handler`` seeing ``req.args`` checked and defaulted by the command table; motions refused when latched."""
     def run(req: Request) -> Any:
         args = validate(cmd, req.args)
-        if cmd in LATCHED:
+        if moves(cmd):  # declared in the table (robot.move and robot.turn are also guarded in the runner)
             s.latch.guard(cmd, _who(req))
         return handler(dataclasses.replace(req, args=args))
 
     return run
 
 
-def build_handlers(s: Services) -> dict[str, Handler]:
-    """Every command of the table, validated; a table entry without a handler (or the reverse) is a bug."""
+def build_handlers(s: Services, plugins: dict[str, Handler] | None = None) -> dict[str, Handler]:
+    """Every command of the table (and of the plugins that registered theirs), validated; a table
+    entry without a handler (or the reverse) is a bug."""
     raw: dict[str, Handler] = {**s.calib.handlers()}
     for group in GROUPS:
         raw.update(group(s))
+    for name, handler in (plugins or {}).items():
+        if name in raw:
+            raise RuntimeError(f"plugin handler {name!r} would replace a product command")
+        raw[name] = handler
     if set(raw) != set(COMMANDS):
         raise RuntimeError(f"handlers and command table differ: {sorted(set(raw) ^ set(COMMANDS))}")
     return {name: validated(name, h, s) for name, h in raw.items()}

@@ -1,9 +1,10 @@
 """ritad configuration: one TOML file loaded into typed dataclasses.
 
 Unknown keys and bad values are errors that name the key and the file. Each device
-is chosen by a URL (see :mod:`daemon.ritad.registry`) and every one is required;
-``sim:`` selects the fake, and the ``[sim]`` section builds the one world the fakes share. ``sim_config()`` is the built-in simulation
-configuration used by ``ritad --sim``.
+is chosen by a URL (see :mod:`daemon.ritad.registry`) and every one is required.
+A top-level section named after an installed plugin (daemon/ritad/plugins.py; e.g. ``[sim]``
+of the simulator, whose ``sim:`` URLs select its fakes) is checked by that plugin.
+``sim_config()`` is the built-in simulation configuration used by ``ritad --sim``.
 """
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from daemon.bus.command_table import ROLES
-from daemon.ritad.registry import schemes, sim_profiles
+from daemon.bus import station
+from daemon.ritad.registry import schemes
 from drivers.base import CameraSettings, DeviceURL
 
 
@@ -73,9 +75,9 @@ class DevicesSection:
 @dataclass
 class TrackerSection:
     stream_rate_hz: float = 1000.0
-    #: ACS pose of the tracker frame (4x4 row-major); identity = tracker frame is ACS
-    abs_H_trk: list[list[float]] = field(default_factory=lambda: [[1.0, 0, 0, 0], [0, 1.0, 0, 0],
-                                                                  [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+    #: ACS pose of the tracker frame (4x4 row-major); unset: the station file the installer wrote
+    #: (calibration/tracker_station.json in the data dir, daemon/bus/station.py), else identity
+    abs_H_trk: list[list[float]] | None = None
 
 
 @dataclass
@@ -83,14 +85,6 @@ class RobotSection:
     max_distance_mm: float = 2000.0
     max_speed_mm_s: float = 200.0
     max_turn_speed_deg_s: float = 45.0
-
-
-@dataclass
-class SimSection:
-    seed: int = 1
-    tracker_sigma_mm: float = 0.010
-    #: error profile of the simulated world (fakes/profiles.py; docs/accuracy.md)
-    profile: str = "ideal"
 
 
 @dataclass
@@ -112,15 +106,13 @@ class Config:
     camera: CameraSettings = field(default_factory=CameraSettings)
     tracker: TrackerSection = field(default_factory=TrackerSection)
     robot: RobotSection = field(default_factory=RobotSection)
-    sim: SimSection = field(default_factory=SimSection)
     security: SecuritySection = field(default_factory=SecuritySection)
+    #: the sections of installed plugins, as each plugin's check_config returned them
+    plugins: dict[str, dict[str, Any]] = field(default_factory=dict)
     source: str = "<built-in>"
 
-    @property
-    def uses_sim(self) -> bool:
-        """Any device simulated (``sim:``, any case): then ritad builds the shared world."""
-        return any(getattr(self.devices, k) and DeviceURL.parse(getattr(self.devices, k)).scheme == "sim"
-                   for k in ("camera", "tracker", "robot"))
+    def device_urls(self) -> dict[str, str]:
+        return {k: getattr(self.devices, k) for k in ("camera", "tracker", "robot")}
 
 
 # --------------------------------------------------------------------------- loading
@@ -165,7 +157,7 @@ def _check_value(value: Any, hint: Any, where: str) -> Any:
 def _build(cls: type, data: dict[str, Any], src: str, prefix: str = "") -> Any:
     """Build dataclass ``cls`` from a TOML table; errors read ``file: section.key: ...``."""
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls) if f.name != "source"}
+    names = {f.name for f in dataclasses.fields(cls) if f.name not in ("source", "plugins")}
     for key in data:
         if prefix + key in REMOVED_KEYS:
             raise ConfigError(f"{src}: {prefix}{key} is no longer supported: {REMOVED_KEYS[prefix + key]}")
@@ -237,14 +229,11 @@ def _validate(cfg: Config) -> None:
         raise ConfigError(f"{src}: daemon.log_level {d.log_level!r} is not DEBUG/INFO/WARNING/ERROR")
     if cfg.camera.trigger not in ("software", "free"):
         raise ConfigError(f"{src}: camera.trigger {cfg.camera.trigger!r} must be 'software' or 'free'")
-    m = cfg.tracker.abs_H_trk
-    if len(m) != 4 or any(len(r) != 4 for r in m):
-        raise ConfigError(f"{src}: tracker.abs_H_trk must be a 4x4 matrix (list of 4 rows of 4)")
-    if cfg.sim.tracker_sigma_mm < 0:
-        raise ConfigError(f"{src}: sim.tracker_sigma_mm must be >= 0, got {cfg.sim.tracker_sigma_mm}")
-    if cfg.uses_sim and cfg.sim.profile not in (known := sim_profiles()):
-        raise ConfigError(f"{src}: sim.profile {cfg.sim.profile!r} is not a simulation profile "
-                          f"(profiles: {', '.join(known)})")
+    if cfg.tracker.abs_H_trk is not None:
+        try:
+            cfg.tracker.abs_H_trk = station.checked(cfg.tracker.abs_H_trk, "tracker.abs_H_trk")
+        except station.StationError as exc:
+            raise ConfigError(f"{src}: {exc}") from None
 
 
 def _validate_security(cfg: Config) -> None:
@@ -256,9 +245,34 @@ def _validate_security(cfg: Config) -> None:
                           f"calibration worker connects over ipc and needs operator")
 
 
+def _plugin_sections(data: dict[str, Any], source: str) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """``data`` without the installed plugins' sections, and those sections as their plugins checked them."""
+    from daemon.ritad.plugins import PluginError, installed  # imports the plugins: ritad only
+
+    product = {f.name for f in dataclasses.fields(Config)}
+    rest, sections = dict(data), {}
+    try:
+        found = installed()
+    except PluginError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    for name, plugin in found.items():
+        if name in product:
+            raise ConfigError(f"plugin {name!r} claims the product's config section [{name}]")
+        table = rest.pop(name, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"{source}: {name} must be a table [{name}], got {table!r}")
+        try:
+            sections[name] = plugin.check_config(table, f"[{name}]")
+        except ValueError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+    return rest, sections
+
+
 def from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
-    cfg = _build(Config, data, source)
+    rest, sections = _plugin_sections(data, source)
+    cfg = _build(Config, rest, source)
     cfg.source = source
+    cfg.plugins = sections
     _validate(cfg)
     _validate_security(cfg)
     return cfg

@@ -1,7 +1,7 @@
 """ritad: the acquisition daemon (entry point and supervisor).
 
 Start-up order: load config → lock the runtime and data directories (one instance
-each) → (sim) build the world → bind the bus → start the device runners → READY=1.
+each) → start the plugins (the simulator's world) → bind the bus → start the device runners → READY=1.
 Devices connect in the background (their state is in ``daemon.health``), so a missing
 tracker never blocks the bus. The main thread is the supervisor: it publishes health
 every second, pings the systemd watchdog only while every owner thread is responsive
@@ -10,7 +10,6 @@ every second, pings the systemd watchdog only while every owner thread is respon
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import enum
 import logging
 import os
@@ -41,7 +40,9 @@ from daemon.ritad.logs import setup_logging  # noqa: E402
 from daemon.ritad.notify import Notifier  # noqa: E402
 from daemon.bus.protocol import SCHEMA_VERSION  # noqa: E402
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
-from daemon.ritad.registry import in_world, is_sim, open_device, start_sim_world  # noqa: E402
+from daemon.ritad import plugins
+from daemon.bus import station  # noqa: E402
+from daemon.ritad.registry import open_device  # noqa: E402
 from daemon.ritad.motion import MotionWaiters  # noqa: E402
 from daemon.ritad.runner import DeviceRunner  # noqa: E402
 from daemon.ritad.server import CommandServer  # noqa: E402
@@ -69,8 +70,10 @@ class Daemon:
     def __init__(self, cfg: config_mod.Config) -> None:
         self.config = cfg
         self.started = time.monotonic()
-        self.world: Any = None  # opaque: only the sim.* commands look into it
-        self.device_urls = {k: getattr(cfg.devices, k) for k in KINDS}
+        self.plugins = plugins.installed()
+        self.running = plugins.Running()
+        self.device_urls = cfg.device_urls()
+        self.abs_H_trk: list[list[float]] = station.IDENTITY
         self.ctx = zmq.Context()
         self.telemetry: TelemetryPublisher
         self.frames: FramePublisher
@@ -103,20 +106,18 @@ class Daemon:
         settings = self.config.camera if kind == "camera" else None
         return lambda: open_device(kind, url, emit=self.emit, settings=settings)
 
-    def _start_sim(self, data: Path) -> None:
-        """Config-driven simulation: the fakes' factory builds the world and plays the installer."""
-        cfg = self.config
-        name, self.world = start_sim_world(dataclasses.asdict(cfg.sim), str(data), cfg.devices.camera)
-        self.device_urls = {k: in_world(url, name) for k, url in self.device_urls.items()}
-        if is_sim(cfg.devices.tracker):  # the simulated tracker stands somewhere in the world
-            cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()
+    def _start_plugins(self, data: Path) -> None:
+        """The plugins the config wants (the simulator for sim: URLs), then the tracker station they may install."""
+        self.running = plugins.start(self.plugins, self.config.plugins, data, self.device_urls)
+        self.device_urls = self.running.urls(self.device_urls)
+        self.abs_H_trk, source = station.abs_H_trk(self.config.tracker.abs_H_trk, data)
+        log.info("tracker station abs_H_trk from %s", source)
 
     def start(self) -> None:
         cfg = self.config.daemon
         data = Path(cfg.data_dir)
         data.mkdir(parents=True, exist_ok=True)
-        if self.config.uses_sim:
-            self._start_sim(data)
+        self._start_plugins(data)
         if self.config.security.curve:
             from daemon.bus.auth import Security
 
@@ -127,7 +128,9 @@ class Daemon:
         s = self.security
         self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
         self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
-        self.server = CommandServer(self.ctx, cfg.command_endpoints, build_handlers(self.services()),
+        services = self.services()
+        handlers = build_handlers(services, self.running.handlers(services, self.plugins))
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, handlers,
                                     cfg.max_message_bytes, security=s,
                                     plain_role=self.config.security.ipc_role)
         for t in (self.telemetry, self.frames, self.server):
@@ -158,7 +161,8 @@ class Daemon:
         if self.security is not None:
             self.security.stop()
         self.ctx.term()  # every socket was closed by its owner with LINGER 0
-        remove_socket_files(bound)  # libzmq leaves them; we hold the directory lock, so they are ours
+        remove_socket_files(bound)
+        self.running.close()  # libzmq leaves them; we hold the directory lock, so they are ours
 
     # ------------------------------------------------------------------ services for handlers
 
@@ -169,8 +173,8 @@ class Daemon:
         private = (*files.PRIVATE_DIRS, *(() if auth_top.is_absolute() else auth_top.parts[:1]))
         return Services(job=self.job, motion=self.motions.start, storage=self.storage,
                         data_dir=data, private_dirs=private, auth_dir=data / auth_top, save_capture=self.save_capture,
-                        abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
-                        robot=cfg.robot, calib=self.calib, world=self.world,
+                        abs_H_trk=self.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
+                        robot=cfg.robot, calib=self.calib,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
                         abort_motions=self.motions.abort)
@@ -188,15 +192,21 @@ class Daemon:
         from daemon.bus.storage import save_capture
 
         return save_capture(Path(self.config.daemon.data_dir), parts, label, dataset,
-                            meta={"daemon_version": __version__, "sim": self.world is not None,
-                                  "abs_H_trk": self.config.tracker.abs_H_trk})
+                            meta={"daemon_version": __version__, "sim": self.simulated,
+                                  "abs_H_trk": self.abs_H_trk})
 
     def hello(self) -> dict[str, Any]:
         return {"name": "ritad", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
-                "sim": self.world is not None, "command_endpoints": self.server.endpoints,
+                "sim": self.simulated, "command_endpoints": self.server.endpoints,
                 "telemetry_endpoints": self.telemetry.endpoints, "frame_endpoints": self.frames.endpoints,
                 "devices": {k: getattr(self.config.devices, k) for k in KINDS},
-                "curve_server_key": None if self.security is None else self.security.public.decode()}
+                "curve_server_key": None if self.security is None else self.security.public.decode(),
+                **self.running.hello()}
+
+    @property
+    def simulated(self) -> bool:
+        """A plugin simulates a device (its hello says so): datasets and hello carry it."""
+        return bool(self.running.hello().get("sim"))
 
     def health(self) -> dict[str, Any]:
         return {"uptime_s": round(time.monotonic() - self.started, 3), "version": __version__,
@@ -279,6 +289,11 @@ def check_config(cfg: config_mod.Config) -> int:
     from daemon.ritad.keycheck import key_problems
 
     errors, warnings = key_problems(cfg)
+    try:
+        _, where = station.abs_H_trk(cfg.tracker.abs_H_trk, Path(cfg.daemon.data_dir))
+    except station.StationError as exc:
+        print(f"ritad: {exc}", file=sys.stderr)
+        return RitadExit.CONFIG
     for e in errors:
         print(f"ritad: {cfg.source}: {e}", file=sys.stderr)
     if errors:
@@ -290,6 +305,9 @@ def check_config(cfg: config_mod.Config) -> int:
     for kind in KINDS:
         print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
     print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
+    if cfg.plugins:
+        print(f"  plugin sections: {', '.join(f'[{n}]' for n in sorted(cfg.plugins))}")
+    print(f"  tracker station abs_H_trk: {where}")
     for w in warnings:
         print(f"  WARNING: {w}")
     insecure = _insecure_tcp(cfg)
@@ -309,6 +327,10 @@ def serve(daemon: Daemon, notifier: Notifier) -> int:
     """Bind, run until SIGTERM/SIGINT, tear down."""
     try:
         daemon.start()
+    except station.StationError as exc:  # a surveyed pose that is not one: fix the file, a restart won't
+        log.error("cannot start: %s", exc)
+        daemon.stop()
+        return RitadExit.CONFIG
     except (zmq.ZMQError, OSError, ValueError) as exc:
         log.error("cannot start: %s", exc)  # on stderr (the journal) once: logging writes there
         d = daemon.config.daemon

@@ -26,7 +26,7 @@ log = logging.getLogger("ritad.plates")
 #: a file name in the calibration folder: no folders, no hidden files, .json
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}\.json$")
 #: names the worker owns in the calibration folder: never replaced by an upload
-RESERVED = frozenset({"active.json", "camera_model.json"})
+RESERVED = frozenset({"active.json", "camera_model.json", "tracker_station.json"})
 
 
 def _checked_name(name: str) -> str:

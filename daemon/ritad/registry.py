@@ -7,15 +7,15 @@ through the ``rita.adapters`` entry-point group (name ``kind.scheme``, value
 ``module:Class``).
 
 Simulation enters the same way, by name only: ``sim:`` resolves to the fakes'
-adapters, and :func:`start_sim_world` calls the fakes' world factory, so nothing in
-ritad imports ``fakes`` (tests/system/test_layers.py).
+adapters through the entry points the simulator's package declares (pyproject.toml),
+and its world is a plugin (daemon/ritad/plugins.py): nothing in ritad names or imports
+``fakes`` (tests/system/test_layers.py).
 """
 from __future__ import annotations
 
 import importlib
 from importlib.metadata import entry_points
 from typing import Any
-from urllib.parse import quote
 
 from drivers.base import Device, DeviceURL, Emit
 
@@ -23,27 +23,17 @@ from drivers.base import Device, DeviceURL, Emit
 ADAPTERS: dict[str, dict[str, str]] = {
     "camera": {
         "genicam": "drivers.genicam:GenICamCamera",
-        "sim": "fakes.camera:SimCamera",
     },
     "tracker": {
         "emscon": "drivers.emscon.adapter:EmsconTracker",
-        "sim": "fakes.tracker:SimTracker",
     },
     "robot": {
         "serial": "drivers.robot:SerialRobot",
         "socket": "drivers.robot:SerialRobot",
         "loop": "drivers.robot:SerialRobot",
         "rfc2217": "drivers.robot:SerialRobot",
-        "sim": "fakes.robot:SimRobot",
     },
 }
-
-#: builds the shared simulated world from the config's [sim] section and plays the installer (fakes/installer.py, fakes/worlds.py)
-SIM_WORLD_FACTORY = "fakes.installer:start"
-#: the simulated world's error profiles, name -> builder ([sim] profile; fakes/profiles.py)
-SIM_PROFILES = "fakes.profiles:PROFILES"
-SIM_SURVEY_FACTORY = "fakes.survey_views:install"  # sim.survey_images: (world, data_dir, views, size) -> paths
-SIM_SCHEME = "sim"
 
 #: top-level module -> what to install when it is missing
 INSTALL_HINTS = {
@@ -73,7 +63,7 @@ def schemes(kind: str) -> dict[str, str]:
     return table
 
 
-def _load(target: str, what: str) -> Any:
+def load_target(target: str, what: str) -> Any:
     """Import ``module:name`` lazily; a missing third-party package says what to install."""
     module_name, _, attr = target.partition(":")
     try:
@@ -97,7 +87,7 @@ def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
     if target is None:
         raise AdapterError(
             f"{kind} URL {url.raw!r}: unknown scheme {url.scheme!r} (known: {', '.join(sorted(table))})")
-    cls = _load(target, f"{kind} URL {url.raw!r}")
+    cls = load_target(target, f"{kind} URL {url.raw!r}")
     if not (isinstance(cls, type) and issubclass(cls, Device)):
         raise AdapterError(f"{target} is not a Device adapter")
     return cls
@@ -107,35 +97,3 @@ def open_device(kind: str, url: str, *, emit: Emit, settings: Any = None) -> Dev
     """Construct (not open) the adapter for ``url``."""
     parsed = DeviceURL.parse(url)
     return adapter_class(kind, parsed)(parsed, emit=emit, settings=settings)
-
-
-def is_sim(url: str) -> bool:
-    return DeviceURL.parse(url).scheme == SIM_SCHEME
-
-
-def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tuple[str, Any]:
-    """Build the simulated world the ``sim:`` devices share; returns (name, world).
-
-    The world is opaque to ritad: it is handed to the sim-only commands (``sim.truth``)
-    and named in each ``sim:`` URL (:func:`in_world`).
-    """
-    return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir, camera_url)
-
-
-def sim_profiles() -> list[str]:
-    """Names of the simulated world's error profiles (loaded by name: ritad never imports fakes)."""
-    return list(_load(SIM_PROFILES, "[sim] profile"))
-
-
-def sim_survey_renderer() -> Any:
-    """The simulated survey camera's writer (``sim.survey_images``), imported by name like the world."""
-    return _load(SIM_SURVEY_FACTORY, "sim.survey_images")
-
-
-def in_world(url: str, world: str) -> str:
-    """``url`` with ``world=<name>`` added when it is a ``sim:`` URL (others unchanged)."""
-    parsed = DeviceURL.parse(url)
-    if parsed.scheme != SIM_SCHEME or "world" in parsed.query:
-        return url
-    sep = "&" if "?" in url else "?"
-    return f"{url}{sep}world={quote(world, safe='')}"

@@ -26,6 +26,7 @@ from typing import Any, Callable, NamedTuple
 
 import zmq
 
+from daemon.bus.command_table import COMMANDS
 from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
                              parse_request)
 from daemon.bus.repeatlog import RepeatGate, times
@@ -62,17 +63,6 @@ class Caller(NamedTuple):
     key: str | None
 
 
-#: commands that move something physical (or the simulated robot): logged with the caller's key
-MOTION_COMMANDS = frozenset({"robot.move", "robot.turn", "robot.stop", "tracker.aim", "tracker.find",
-                             "sim.place_robot_on_plate"})
-#: reads that pages, ritactl and the worker poll (state, statuses, pictures, file chunks, job mailboxes):
-#: logged at DEBUG, else one open console page alone writes several INFO lines a second
-READ_COMMANDS = frozenset({"ping", "help", "hello", "state", "status", "health", "data.dir", "sim.truth",
-                           "tracker.status", "camera.status", "robot.status", "tracker.measure",
-                           "camera.preview", "camera.capture", "camera.detect", "files.list", "files.read",
-                           "files.hash", "calib.jobs", "calib.results", "calib.next", "calib.inbox",
-                           "calib.report"})
-QUIET_COMMANDS = READ_COMMANDS  # the older name
 #: a refusal repeated by a client in a loop is logged once per window with its count
 REFUSAL_WINDOW_S = 60.0
 _ARGS = reprlib.Repr()  # motion args in the log, bounded whatever a client sends
@@ -206,11 +196,13 @@ class CommandServer(threading.Thread):
         if caller is None:
             return
         request = Request(req_id, cmd, msg["args"], caller.peer, caller.role, caller.key)
-        if cmd in MOTION_COMMANDS:
+        declared = COMMANDS.get(cmd)
+        if declared is not None and declared.motion:  # moves and stops: logged with the caller
             log.info("motion %s id=%s from %s (role %s): %s", cmd, req_id, caller.peer, caller.role,
                      _ARGS.repr(msg["args"]))
         else:
-            log.log(logging.DEBUG if cmd in READ_COMMANDS else logging.INFO, "command %s id=%s from %s", cmd, req_id,
+            # polled reads at DEBUG, else one open console page alone writes several INFO lines a second
+            log.log(logging.DEBUG if declared is not None and declared.polled else logging.INFO, "command %s id=%s from %s", cmd, req_id,
                     request.peer)
         try:
             result = self.handlers[cmd](request)

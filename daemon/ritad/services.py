@@ -2,7 +2,7 @@
 
 ``Daemon.services()`` fills it in; tests build one with fakes. Each field says what a
 handler group needs: device jobs, robot motions, the storage thread, the data dir, the
-few config values handlers read, the calibration mailbox, the stop latch and the simulated world.
+few config values handlers read, the calibration mailbox and the stop latch.
 """
 from __future__ import annotations
 
@@ -32,11 +32,10 @@ class Services:
     private_dirs: tuple[str, ...]        # top-level data-dir folders files.* never serve
     auth_dir: Path                       # the CURVE allow-list folder (keys.* commands, admin)
     save_capture: Callable[..., Path]    # (parts, label, dataset=None) -> entry path; call in ``storage``
-    abs_H_trk: list[list[float]]         # tracker frame -> ACS (config [tracker])
+    abs_H_trk: list[list[float]]         # tracker frame -> ACS (daemon/bus/station.py)
     stream_rate_hz: float                # default tracker stream rate (config [tracker])
     robot: RobotSection                  # motion limits (config [robot])
     calib: CalibJobs
-    world: Any                           # the simulated world, or None
     device_info: Callable[[str], dict[str, Any]]
     hello: Callable[[], dict[str, Any]]
     health: Callable[[], dict[str, Any]]

@@ -15,7 +15,7 @@ from tests.ritad_up import ritad_in_process
 
 
 def _paper_imu(cfg) -> None:
-    cfg.sim.profile = "paper+imu"
+    cfg.plugins["sim"]["profile"] = "paper+imu"
 
 
 def test_recorded_approach_holds_stream_and_tilt(tmp_path):

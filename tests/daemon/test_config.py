@@ -1,4 +1,5 @@
 """Config loading: the robot's example file, built-in sim config, and errors that name key and file."""
+import json
 from pathlib import Path
 
 import pytest
@@ -17,12 +18,13 @@ def test_example_config_loads():
     url = DeviceURL.parse(cfg.devices.camera)
     assert url.scheme == "genicam" and url.path.endswith("GenTL_LUCID.cti") and url.query["serial"]
     assert DeviceURL.parse(cfg.devices.robot).option("baudrate", 9600, int) == 115200
-    assert not cfg.uses_sim
+    assert all(DeviceURL.parse(u).scheme != "sim" for u in cfg.device_urls().values())
 
 
 def test_sim_config(tmp_path):
     cfg = config.sim_config(tmp_path)
-    assert cfg.uses_sim and cfg.daemon.command_endpoints == [f"ipc://{tmp_path}/cmd"]
+    assert set(cfg.device_urls().values()) == {"sim:"} and cfg.plugins["sim"]["seed"] == 1
+    assert cfg.daemon.command_endpoints == [f"ipc://{tmp_path}/cmd"]
 
 
 @pytest.mark.parametrize("text, needle", [
@@ -35,6 +37,10 @@ def test_sim_config(tmp_path):
     (SIM_DEVICES.replace("tracker = 'sim:'", "tracker = 'emscon://h:notaport'"), "bad port"),
     ("[daemon]\ncommand_endpoints = ['http://x']\n", "daemon.command_endpoints"),
     ("[tracker]\nabs_H_trk = [[1.0]]\n", "tracker.abs_H_trk"),
+    ("[tracker]\nabs_H_trk = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]]\n", "det R = -1"),
+    ("[sim]\nseed = 'x'\n", "sim.seed: expected an integer, got str 'x'"),
+    ("[sim]\nbogus = 1\n", "unknown key(s) sim.bogus in [sim]"),
+    ("[sim]\ntracker_sigma_mm = -1\n", "sim.tracker_sigma_mm must be >= 0"),
     ("[daemon]\nheartbeat_timeout_s = 0.3\n", "daemon.heartbeat_timeout_s must be >= 1.0"),
     ("[daemon]\nopen_timeout_s = -1\n", "daemon.open_timeout_s must be > 0"),
     ("bogus = 1\n", "bogus"),
@@ -74,18 +80,21 @@ def test_example_config_documents_every_key():
     import re
 
     text = (ROOT / "systemd" / "ritad.toml").read_text()
-    sections = {f.name: f.type for f in dataclasses.fields(config.Config) if f.name != "source"}
+    from daemon.ritad.plugins import installed
+
+    keys = {f.name: [k.name for k in dataclasses.fields(getattr(config.Config(), f.name))]
+            for f in dataclasses.fields(config.Config) if f.name not in ("source", "plugins")}
+    keys.update({name: list(p.check_config({}, f"[{name}]")) for name, p in installed().items()})  # [sim]
     missing = []
-    for name in sections:
-        section = getattr(config.Config(), name)
+    for name, names in keys.items():
         header = re.search(rf"^\[{name}\]$", text, re.M)
         if header is None:
             missing.append(f"[{name}]")
             continue
         body = text[header.start():].split("\n[", 1)[0]
-        for f in dataclasses.fields(section):
-            if not re.search(rf"^#? ?{f.name} = ", body, re.M) and f"{f.name}," not in body:
-                missing.append(f"{name}.{f.name}")
+        for key in names:
+            if not re.search(rf"^#? ?{key} = ", body, re.M) and f"{key}," not in body:
+                missing.append(f"{name}.{key}")
     assert missing == []
 
 
@@ -149,18 +158,25 @@ def test_empty_device_url_is_refused(tmp_path):
 
 
 def test_sim_section_reaches_the_world_through_config(tmp_path):
-    """ritad builds the world by name from [sim]; every sim: URL then names that one world."""
-    from daemon.ritad.registry import in_world, start_sim_world
+    """The simulator's plugin builds the world from [sim]; every sim: URL then names that one world."""
+    from daemon.ritad import plugins
+    from daemon.bus.station import STATION_FILE
     from fakes import worlds
 
     cfg = config.sim_config(tmp_path / "rt", tmp_path / "data", seed=7)
-    name, world = start_sim_world({"seed": 7, "tracker_sigma_mm": 0.02}, cfg.daemon.data_dir, "sim:?size=64x48")
+    cfg.plugins["sim"]["tracker_sigma_mm"] = 0.02
+    urls = {"camera": "sim:?size=64x48", "tracker": "sim:", "robot": "emscon://127.0.0.1:700"}
+    running = plugins.start(plugins.installed(), cfg.plugins, Path(cfg.daemon.data_dir), urls)
+    world = running.sessions["sim"].world
     assert world.params.seed == 7 and world.params.tracker_sigma_mm == 0.02
     assert sorted(p.name for p in (tmp_path / "data" / "sim").iterdir()) == \
         ["board.json", "nests.json", "plate.json"]
-    url = DeviceURL.parse(in_world("sim:?size=64x48", name))
+    station = json.loads((tmp_path / "data" / STATION_FILE).read_text())
+    assert station["abs_H_trk"] == world.abs_H_trk.tolist()  # the installer's, not a change to the config
+    got = running.urls(urls)
+    url = DeviceURL.parse(got["camera"])
     assert worlds.world_for(url) is world and url.option("size", "") == "64x48"
-    assert in_world("emscon://127.0.0.1:700", name) == "emscon://127.0.0.1:700"
+    assert got["robot"] == "emscon://127.0.0.1:700"
     assert worlds.world_for(DeviceURL.parse("sim:")) is not world  # no world= : a private one
     with pytest.raises(ValueError, match="no simulated world named 'nope'"):
         worlds.world_for(DeviceURL.parse("sim:?world=nope"))

@@ -16,8 +16,8 @@ def test_a_bad_profile_is_a_config_error_naming_it_and_listing_the_profiles(tmp_
     with pytest.raises(config.ConfigError, match=r"sim\.profile 'papr' is not a simulation profile "
                                                  r"\(profiles: ideal, paper, paper\+imu, paper-fit, paper-fit\+imu\)"):
         config.from_dict(_sim_cfg(tmp_path, "papr"))
-    assert config.from_dict(_sim_cfg(tmp_path, "paper+imu")).sim.profile == "paper+imu"
-    assert config.sim_config(tmp_path, profile="paper").sim.profile == "paper"
+    assert config.from_dict(_sim_cfg(tmp_path, "paper+imu")).plugins["sim"]["profile"] == "paper+imu"
+    assert config.sim_config(tmp_path, profile="paper").plugins["sim"]["profile"] == "paper"
     with pytest.raises(config.ConfigError, match="'nope'"):
         config.sim_config(tmp_path, profile="nope")
 
@@ -30,8 +30,7 @@ def test_ritad_profile_option_is_for_sim_only(capsys):
 
 
 def test_the_profile_reaches_the_world(tmp_path):
-    from daemon.ritad.registry import start_sim_world
+    from fakes import installer
 
-    _, world = start_sim_world({"seed": 2, "tracker_sigma_mm": 0.01, "profile": "paper+imu"},
-                               str(tmp_path), "sim:?size=64x48")
+    _, world = installer.start({"seed": 2, "tracker_sigma_mm": 0.01, "profile": "paper+imu"}, str(tmp_path))
     assert world.effects.model.imu is not None and world.params.base_has_inclinometer

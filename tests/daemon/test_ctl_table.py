@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from daemon.ritad import config
+from daemon.ritad import config, plugins
 from daemon.ritad.calib_jobs import CalibJobs
 from daemon.ritad.services import Services
 from daemon.bus.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
@@ -25,9 +25,9 @@ def registered_commands(tmp_path) -> set[str]:
     unused: Any = None  # building the handlers calls no service
     s = Services(job=unused, motion=unused, storage=unused, data_dir=tmp_path, private_dirs=(),
                  auth_dir=tmp_path / "authorized_keys", save_capture=unused, abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=1.0, robot=cfg.robot,
-                 calib=CalibJobs(lambda topic, data: None), world=None, device_info=unused, hello=unused,
+                 calib=CalibJobs(lambda topic, data: None), device_info=unused, hello=unused,
                  health=unused, state=unused)
-    return set(build_handlers(s))
+    return set(build_handlers(s, plugins.Running().handlers(s, plugins.installed())))
 
 
 def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
@@ -131,6 +131,6 @@ def test_a_table_entry_without_handler_stops_ritad(tmp_path, monkeypatch):
     """build_handlers refuses to run when the handlers and the table differ (ritad would not start)."""
     from daemon.ritad import commands
 
-    monkeypatch.setattr(commands, "GROUPS", tuple(g for g in commands.GROUPS if g is not commands._sim))
-    with pytest.raises(RuntimeError, match="sim.place_robot_on_plate"):
+    monkeypatch.setattr(commands, "GROUPS", tuple(g for g in commands.GROUPS if g is not commands._plates))
+    with pytest.raises(RuntimeError, match="calib.plate.upload"):
         registered_commands(tmp_path)

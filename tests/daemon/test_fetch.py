@@ -86,7 +86,8 @@ def test_list_serves_data_but_never_secrets_or_escapes(served) -> None:
     d, data, _ = served
     with client(d) as c:
         listed = {f["path"]: f["size"] for f in c.call("files.list")["files"]
-                  if not f["path"].startswith("sim/")}  # the sim installer's files: test_messages.py
+                  if not f["path"].startswith("sim/")  # the sim installer's files: test_messages.py
+                  and f["path"] != "calibration/tracker_station.json"}  # and its tracker station
         sub = c.call("files.list", path="datasets")["files"]
     assert listed == {"calibration/active.json": 18, "datasets/run1/0000-a.json": 15,
                       "datasets/run1/0000-a.png": BIG, "datasets/run1/dataset.json": 3, "empty.txt": 0,
@@ -148,7 +149,7 @@ def test_fetch_copies_everything_then_skips(served, capsys) -> None:
     import json
 
     r = json.loads(capsys.readouterr().out)
-    assert r["fetched"] == [] and len(r["skipped"]) == 7 + 3 and r["errors"] == {}  # + sim/*.json
+    assert r["fetched"] == [] and len(r["skipped"]) == 7 + 3 + 1 and r["errors"] == {}  # + sim/*.json + the station
 
 
 def test_interrupted_fetch_resumes_where_it_stopped(served) -> None:

@@ -310,8 +310,10 @@ def test_random_messages_each_get_one_reply(daemon: Daemon) -> None:
     assert codes["ok"] > 0 and codes[ErrorCode.BAD_ARGS] > 0 and codes[ErrorCode.CONFIRM_REQUIRED] > 0
     # random labels and dataset names ("..", ".", "a/b", 300 characters) stay inside datasets/
     data = Path(daemon.config.daemon.data_dir)
-    # sim: the installer's files; the stop latch's file once a random robot.stop came by
-    assert sorted(p.name for p in data.iterdir() if p.name != LATCH_FILE) == ["datasets", "sim"]
+    # sim: the installer's files, calibration: its tracker station; the stop latch's file once a random
+    # robot.stop came by
+    assert sorted(p.name for p in data.iterdir() if p.name != LATCH_FILE) == ["calibration", "datasets", "sim"]
+    assert [p.name for p in (data / "calibration").iterdir()] == ["tracker_station.json"]
     folders = list((data / "datasets").iterdir())
     assert folders and all(p.is_dir() and not p.name.startswith(".") for p in folders), folders
 
@@ -347,8 +349,10 @@ def test_capture_names_stay_inside_datasets(daemon: Daemon) -> None:
 
         run()
     assert len(saved) >= scaled(100, *NAMES)
-    # sim: the installer's files; the stop latch's file once a random robot.stop came by
-    assert sorted(p.name for p in data.iterdir() if p.name != LATCH_FILE) == ["datasets", "sim"]
+    # sim: the installer's files, calibration: its tracker station; the stop latch's file once a random
+    # robot.stop came by
+    assert sorted(p.name for p in data.iterdir() if p.name != LATCH_FILE) == ["calibration", "datasets", "sim"]
+    assert [p.name for p in (data / "calibration").iterdir()] == ["tracker_station.json"]
 
 
 @pytest.mark.parametrize("cmd,args,code,words", [

@@ -35,8 +35,9 @@ def server_lines(caplog: pytest.LogCaptureFixture, level: int) -> list[str]:
 
 
 def test_read_commands_are_reads():
-    assert server.READ_COMMANDS <= set(COMMANDS) and not server.READ_COMMANDS & server.MOTION_COMMANDS
-    assert set(POLLS) <= server.READ_COMMANDS
+    polled = {n for n, c in COMMANDS.items() if c.polled}
+    assert not any(COMMANDS[n].motion for n in polled)
+    assert set(POLLS) <= polled
 
 
 def test_polled_commands_log_at_debug_not_info(tmp_path, caplog):

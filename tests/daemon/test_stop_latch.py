@@ -145,7 +145,7 @@ def test_a_motion_queued_before_the_stop_is_refused_when_its_turn_comes(tmp_path
     s = Services(job=lambda kind, fn, urgent=False, timeout=60.0: _done(None), motion=lambda fn, wait, t: queued.append(fn),
                  storage=None, data_dir=tmp_path, private_dirs=(), auth_dir=tmp_path, save_capture=None,
                  abs_H_trk=[], stream_rate_hz=100.0, robot=RobotSection(),
-                 calib=CalibJobs(lambda t, d: None, latch=latch), world=None, device_info=None, hello=None,
+                 calib=CalibJobs(lambda t, d: None, latch=latch), device_info=None, hello=None,
                  health=None, state=None, latch=latch)
     handlers = _robot(s)
     args = validate("robot.move", {"distance_mm": 10.0, "confirm": True})

@@ -9,6 +9,7 @@ scheme the registry imports by name). Every import counts, also one inside a fun
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,7 +28,7 @@ ALLOWED: dict[str, set[str]] = {
                    "daemon.console"},  # ritactl console starts the console program
     "daemon.console": {"daemon", "daemon.bus"},
     "daemon.worker": {"daemon", "daemon.bus", "daemon.compute", "calibration"},
-    "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},
+    "fakes": {"daemon", "daemon.bus", "drivers", "calibration"},  # fakes/plugin.py: Command, the station file
     # the demo composes the simulator with the product: it drives ritactl, and its second part recomputes
     # a dataset without compensations as ritactl recompute does; no product module imports it
     "fakes.demo": {"daemon", "daemon.bus", "daemon.ctl", "fakes", "fakes.demo_floor"},
@@ -164,3 +165,20 @@ def test_no_product_module_imports_the_simulator():
            if mod.split(".")[0] in ("daemon", "drivers", "calibration")
            for imp in sorted(project_imports(src, mod, is_pkg)) if imp.split(".")[0] == "fakes"]
     assert bad == []
+
+
+def test_no_product_module_names_a_simulator_command_or_holds_its_world():
+    """The sim.* commands live in the simulator's plugin (fakes/plugin.py): the product names none."""
+    from fakes.plugin import COMMANDS
+
+    names = [c.name for c in COMMANDS]
+    hits = []
+    for top in ("daemon", "drivers", "calibration"):
+        for path in sorted((ROOT / top).rglob("*")):
+            if path.suffix not in (".py", ".js", ".html") or "__pycache__" in path.parts:
+                continue
+            text = path.read_text(encoding="utf-8")
+            hits += [f"{path.relative_to(ROOT)}: {n}" for n in names if n in text]
+            if re.search(r"\bworld\b\s*[:=]", text) or "start_sim_world" in text:
+                hits.append(f"{path.relative_to(ROOT)}: holds a world")
+    assert hits == []

@@ -33,7 +33,7 @@ def fetched(tmp_path_factory) -> tuple[Path, dict]:
     """(laptop folder with sim/plate.json and sim/survey/*.png, sim.truth)."""
     rt = tmp_path_factory.mktemp("rt")
     laptop = tmp_path_factory.mktemp("laptop")
-    with ritad_in_process(rt, configure=lambda cfg: setattr(cfg.sim, "seed", SEED)) as (d, c):
+    with ritad_in_process(rt, configure=lambda cfg: cfg.plugins["sim"].update(seed=SEED)) as (d, c):
         made = c.call("sim.survey_images", views=VIEWS, width_px=1800, timeout=300)
         assert len(made["files"]) == VIEWS and made["folder"] == "sim/survey"
         assert ritactl(["--endpoint", d.server.endpoints[0], "fetch", "sim", "--to", str(laptop)]) == 0
