@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.bus.command_table import ROLES
-from daemon.ritad.registry import schemes, sim_profiles
+from daemon.ritad.registry import AdapterError, build_device, schemes, sim_profiles
 from drivers.base import CameraSettings, DeviceURL
 
 
@@ -245,6 +245,27 @@ def _validate(cfg: Config) -> None:
     if cfg.uses_sim and cfg.sim.profile not in (known := sim_profiles()):
         raise ConfigError(f"{src}: sim.profile {cfg.sim.profile!r} is not a simulation profile "
                           f"(profiles: {', '.join(known)})")
+
+
+def check_devices(cfg: Config) -> list[str]:
+    """``--check-config``: build each device's adapter from its URL, opening nothing.
+
+    A misspelt or bad URL option is a ConfigError naming it. Not part of :func:`load`: a start
+    imports each adapter in its own device thread, so a robot without the camera SDK still
+    starts; here a missing package is a warning (the list returned), as it does not stop ritad.
+    """
+    warnings = []
+    for kind in ("camera", "tracker", "robot"):
+        url = getattr(cfg.devices, kind)
+        try:
+            build_device(kind, url)
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.source}: devices.{kind}: {exc}") from None
+        except AdapterError as exc:
+            if not isinstance(exc.__cause__, ModuleNotFoundError):
+                raise ConfigError(f"{cfg.source}: devices.{kind}: {exc}") from None
+            warnings.append(f"devices.{kind}: URL options not checked: {exc}")
+    return warnings
 
 
 def _validate_security(cfg: Config) -> None:

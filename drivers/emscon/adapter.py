@@ -64,6 +64,9 @@ _flag.__name__ = "flag (0/1)"
 class EmsconTracker(Tracker):
     """A Leica laser tracker reached through the emScon TPI."""
 
+    OPTIONS = frozenset({"timeout", "init_timeout", "connect_timeout", "meas_time_ms", "use_adm", "reflector",
+                         "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
+
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
