@@ -37,17 +37,15 @@ def installed_files(world: World) -> dict[str, Any]:
     return {"plate.json": world.plate().to_dict(), "board.json": dict(DEFAULT_BOARD), "nests.json": nests}
 
 
-def install(world: World, data_dir: Path, camera_url: str = "") -> list[Path]:
-    """Write the installer's files into ``data_dir/sim`` (atomically) and return their paths.
-
-    ``camera_url`` is part of the factory's call (registry) and unused: no file depends on the camera."""
+def install(world: World, data_dir: Path) -> list[Path]:
+    """Write the installer's files into ``data_dir/sim`` (atomically) and return their paths."""
     from daemon.bus.storage import atomic_write_json
 
     files = installed_files(world)
     return [atomic_write_json(data_dir / FOLDER / name, obj) for name, obj in files.items()]
 
 
-def start(sim: Mapping[str, Any], data_dir: str, camera_url: str) -> tuple[str, World]:
+def start(sim: Mapping[str, Any], data_dir: str) -> tuple[str, World]:
     """ritad's sim factory: a fresh world from ``[sim]``, installer files in ``data_dir``.
 
     The world is registered under the resolved data dir, which one ritad at a time owns
@@ -55,7 +53,7 @@ def start(sim: Mapping[str, Any], data_dir: str, camera_url: str) -> tuple[str, 
     """
     world = World(worlds.params_from(sim))
     data = Path(data_dir)
-    install(world, data, camera_url)
+    install(world, data)
     return worlds.register(world, str(data.resolve())), world
 
 

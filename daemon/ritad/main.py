@@ -106,7 +106,7 @@ class Daemon:
     def _start_sim(self, data: Path) -> None:
         """Config-driven simulation: the fakes' factory builds the world and plays the installer."""
         cfg = self.config
-        name, self.world = start_sim_world(dataclasses.asdict(cfg.sim), str(data), cfg.devices.camera)
+        name, self.world = start_sim_world(dataclasses.asdict(cfg.sim), str(data))
         self.device_urls = {k: in_world(url, name) for k, url in self.device_urls.items()}
         if is_sim(cfg.devices.tracker):  # the simulated tracker stands somewhere in the world
             cfg.tracker.abs_H_trk = self.world.abs_H_trk.tolist()

@@ -119,13 +119,13 @@ def is_sim(url: str) -> bool:
     return DeviceURL.parse(url).scheme == SIM_SCHEME
 
 
-def start_sim_world(sim: dict[str, Any], data_dir: str, camera_url: str) -> tuple[str, Any]:
+def start_sim_world(sim: dict[str, Any], data_dir: str) -> tuple[str, Any]:
     """Build the simulated world the ``sim:`` devices share; returns (name, world).
 
     The world is opaque to ritad: it is handed to the sim-only commands (``sim.truth``)
     and named in each ``sim:`` URL (:func:`in_world`).
     """
-    return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir, camera_url)
+    return _load(SIM_WORLD_FACTORY, "a sim: device")(sim, data_dir)
 
 
 def sim_profiles() -> list[str]:

@@ -72,7 +72,6 @@ READ_COMMANDS = frozenset({"ping", "help", "hello", "state", "status", "health",
                            "camera.preview", "camera.capture", "camera.detect", "files.list", "files.read",
                            "files.hash", "calib.jobs", "calib.results", "calib.next", "calib.inbox",
                            "calib.report"})
-QUIET_COMMANDS = READ_COMMANDS  # the older name
 #: a refusal repeated by a client in a loop is logged once per window with its count
 REFUSAL_WINDOW_S = 60.0
 _ARGS = reprlib.Repr()  # motion args in the log, bounded whatever a client sends

@@ -154,7 +154,7 @@ def test_sim_section_reaches_the_world_through_config(tmp_path):
     from fakes import worlds
 
     cfg = config.sim_config(tmp_path / "rt", tmp_path / "data", seed=7)
-    name, world = start_sim_world({"seed": 7, "tracker_sigma_mm": 0.02}, cfg.daemon.data_dir, "sim:?size=64x48")
+    name, world = start_sim_world({"seed": 7, "tracker_sigma_mm": 0.02}, cfg.daemon.data_dir)
     assert world.params.seed == 7 and world.params.tracker_sigma_mm == 0.02
     assert sorted(p.name for p in (tmp_path / "data" / "sim").iterdir()) == \
         ["board.json", "nests.json", "plate.json"]

@@ -32,6 +32,5 @@ def test_ritad_profile_option_is_for_sim_only(capsys):
 def test_the_profile_reaches_the_world(tmp_path):
     from daemon.ritad.registry import start_sim_world
 
-    _, world = start_sim_world({"seed": 2, "tracker_sigma_mm": 0.01, "profile": "paper+imu"},
-                               str(tmp_path), "sim:?size=64x48")
+    _, world = start_sim_world({"seed": 2, "tracker_sigma_mm": 0.01, "profile": "paper+imu"}, str(tmp_path))
     assert world.effects.model.imu is not None and world.params.base_has_inclinometer
