@@ -3,7 +3,7 @@
 Straight drives (an informative stream and a poor one), one arc, a bigger arc, an arc over
 the second half only, an S-curve, and two periods of a wiggle the fit cannot model. Noise:
 the standstill anchors 10 µm per coordinate, the stream 10 µm (200 points) or 30 µm (40).
-The rule (issue: never more than 5 % worse on straight drives, better on bent ones) is
+The rule (the fit may cost little where it is not needed: never more than 5 % worse on straight drives, better on bent ones) is
 checked on the heading's RMS error over seeded trials.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Plate and camera-model files: a bad or missing key is named with its file (issue #12, bug 5)."""
+"""Plate and camera-model files: a bad or missing key is named with its file."""
 from __future__ import annotations
 
 import copy

@@ -1,4 +1,4 @@
-"""calibration/compensation.py: each compensation's geometry, its refusals, and what it buys (issue #15)."""
+"""calibration/compensation.py: each compensation's geometry, its refusals, and what it buys."""
 from __future__ import annotations
 
 import math
@@ -102,7 +102,7 @@ def test_compensate_says_why_it_skips():
 
 
 def test_compensations_beat_the_paper_on_the_simulated_robot():
-    """paper+imu world, rendering-free: each seed meets issue #15's bounds with every compensation on."""
+    """paper+imu world, rendering-free: each seed meets the goals' bounds with every compensation on."""
     from fakes.accuracy import Case, run
 
     for seed in (100, 101):

@@ -278,7 +278,7 @@ def test_cancel_then_resume(daemon):
 
 
 def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_path):
-    """Issue #15 through ritad and the worker: the module's camera model and surveyed plate on a
+    """The compensations through ritad and the worker: the module's camera model and surveyed plate on a
     realistic floor (``--profile paper+imu``, same seed: same camera, plate and robot). Referencing
     with reversal calibrates the inclinometer's offset; a short learning experiment on mark M2
     stores the robot-frame bias; the 8 × 5 experiment on M1 then runs with the compensations.
