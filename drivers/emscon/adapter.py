@@ -120,7 +120,8 @@ class EmsconTracker(Tracker):
         self.counters["opens"] += 1
 
     def _init_sequence(self, c: EmsconClient) -> None:
-        """emscon.md §4: units, initialise if needed, modes, coordinates, settings."""
+        """Bring the tracker to a known state after every connect: units, initialise if needed, modes,
+        coordinates, settings."""
         c.request(ES_Command.SetUnits, length_unit=ES_LengthUnit.Millimeter,
                   angle_unit=ES_AngleUnit.Degree, temperature_unit=ES_TemperatureUnit.Celsius,
                   pressure_unit=ES_PressureUnit.Mbar, humidity_unit=ES_HumidityUnit.RH)

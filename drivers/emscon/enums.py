@@ -1,4 +1,4 @@
-"""emScon TPI enumerations (values from Leica's ES_C_API_Def.h V3.6, via emscon.md §3.2).
+"""emScon TPI enumerations (values from Leica's ES_C_API_Def.h, TPI/SDK V3.6).
 
 Every enum travels as a signed little-endian int32. Decoders keep unknown values as
 plain ints (a newer server may send values this table does not know); use

@@ -1,4 +1,5 @@
-"""Referencing from a BayerRG8 rendering meets the §7.3 thresholds like Mono8 (issue #14).
+"""Referencing from a BayerRG8 rendering meets the acceptance thresholds like Mono8
+(docs/accuracy.md).
 
 The Mono8 case is tests/calibration/test_calibration_sim.py's rendered fixture: the same
 world, seed, pose and noise stream, so the only difference here is the sensor, the RGGB

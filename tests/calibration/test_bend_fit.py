@@ -17,7 +17,7 @@ from calibration.bend_fit import bend_fit
 from calibration.compensation import Compensation, Stop, compensate
 
 L = 200.0
-K = 2.5e-6  # 50 µm sideways at the end of 200 mm (calibration.md §4.4)
+K = 2.5e-6  # 50 µm sideways at the end of 200 mm (the assumed path deviation, docs/accuracy.md)
 SHAPES = {
     "straight": lambda s: 0.0 * s,
     "arc": lambda s: K * s * (s - L) / 2,

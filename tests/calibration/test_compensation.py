@@ -69,7 +69,7 @@ def arc(kappa: float, d: float, n: int, heading: float = 0.0) -> np.ndarray:
 
 
 def test_fit_heading_finds_the_end_tangent_of_a_bent_move():
-    kappa, d = 2.5e-6, 200.0  # 50 µm sideways at the end of 200 mm (calibration.md §4.4)
+    kappa, d = 2.5e-6, 200.0  # 50 µm sideways at the end of 200 mm (the assumed path deviation, docs/accuracy.md)
     P = arc(kappa, d, 41, heading=25.0)
     truth = math.radians(25.0) + kappa * d
     u = fit_heading(P, P[0], P[-1])

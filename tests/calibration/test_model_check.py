@@ -1,6 +1,6 @@
 """The camera-model check inside the referencing verdict.
 
-Rendered images at the CI size (1000x750, calibration.md §3.1). The correct model and
+Rendered images at the CI size (1000x750). The correct model and
 the bad ones are the test's *inputs*: the bad models are the world's lens with fx, fy
 scaled and the distortion kept (a focal length that does not match its distortion),
 which is the mistake a model check must catch; truth is otherwise only
