@@ -265,6 +265,8 @@ def check_devices(cfg: Config) -> list[str]:
             if not isinstance(exc.__cause__, ModuleNotFoundError):
                 raise ConfigError(f"{cfg.source}: devices.{kind}: {exc}") from None
             warnings.append(f"devices.{kind}: URL options not checked: {exc}")
+        except Exception as exc:  # an adapter that cannot even be built: name it, no traceback
+            raise ConfigError(f"{cfg.source}: devices.{kind}: {url!r}: {type(exc).__name__}: {exc}") from None
     return warnings
 
 
