@@ -1,7 +1,7 @@
 """The error-budget bar plot of bench_accuracy.py, drawn with OpenCV (no plotting dependency).
 
 Three panels (enclosing diameter, pairwise cluster means, absolute error RMS), one horizontal
-bar per case at its median with a whisker to its p95, the issue's goal as a red line and the
+bar per case at its median with a whisker to its p95, the goal as a red line and the
 paper's figure as a blue line.
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ def budget_png(summary: dict[str, dict], goals: dict[str, float], paper: dict[st
         cv2.putText(img, label, (8, TOP + i * ROW_H + 16), FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for j, (key, title) in enumerate(PANELS):
         _panel(img, LABEL_W + j * PANEL_W, key, title, summary, goals.get(key), paper.get(key))
-    cv2.putText(img, "bar: median over seeds, whisker: p95; red: issue #15 goal (paper+imu, all compensations); "
+    cv2.putText(img, "bar: median over seeds, whisker: p95; red: goal (paper+imu, all compensations); "
                 "blue: the paper's glass plate", (8, h - 14), FONT, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
     ok, buf = cv2.imencode(".png", img)
     if not ok:

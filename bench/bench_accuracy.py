@@ -1,4 +1,4 @@
-"""Error budget on a realistic robot (issue #15): profile × compensation, and each effect's share.
+"""Error budget on a realistic robot: profile × compensation, and each effect's share.
 
 Rendering-free simulation protocol (fakes/accuracy.py: referencing on the plate with PnP on
 projected corners + 0.05 px; with the bias compensation an 8 × 5 learning experiment over mark

@@ -4,7 +4,7 @@ Times one referencing from a full-size 4024×3036 rendered image (the image is
 rendered in a child process, so neither its time nor its memory counts), one mark
 measurement, and reports the peak RSS of this process. Then it runs the simulation
 protocol rendering-free over several seeds for the nominal and the stress cases of
-calibration.md §4.5 (the realism check: tracker noise alone versus path deviation and
+the realism check (docs/accuracy.md, "Acceptance thresholds": tracker noise alone versus path deviation and
 robot tilt) and prints median / p95 of the paper's metrics.
 
 Run: ``.venv/bin/python bench/bench_calibration.py [--seeds N]``

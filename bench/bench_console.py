@@ -1,6 +1,6 @@
 """The operator console's cost: daemon CPU rise at 5 fps full-size live view, console CPU, page latency.
 
-Goal (issue #16): with the console showing a 5 fps live view of full-size frames, the
+Goal: with the console showing a 5 fps live view of full-size frames, the
 daemon's CPU rises by ≤ 5 % of a core; the console process's CPU and the browser-side
 frame latency p99 are reported.
 

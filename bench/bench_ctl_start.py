@@ -1,4 +1,4 @@
-"""`ritactl status` on the laptop: wall time of the whole process against a local ritad (issue #22).
+"""`ritactl status` on the laptop: wall time of the whole process against a local ritad.
 
 The goal is an answer within 0.3 s of starting the process: interpreter, imports (the bus
 client only: no numpy, no OpenCV) and one round trip. Prints the import time of

@@ -1,6 +1,6 @@
 """Daemon basics: start-up time to READY=1 (simulated world) and command round-trip latency.
 
-Goals (issue: foundation): READY ≤ 3 s; `ping` round trip p99 ≤ 5 ms on loopback.
+Goals: READY ≤ 3 s; `ping` round trip p99 ≤ 5 ms on loopback.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """`ritactl fetch` throughput: copying the robot's files over the bus (ipc, 1 MiB chunks).
 
-Goal (issue #11, fetch): the copy is not the bottleneck of a gigabit link, i.e. ≥ 100 MB/s
+Goal: the copy is not the bottleneck of a gigabit link, i.e. ≥ 100 MB/s
 on the same machine; a re-run that finds everything already here costs two sha256 passes.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Full-size camera frames through the daemon to a subscriber in another process.
 
-Goals (issue: camera): ≥ 60 frames/s sustained of 4024×3036 Mono8; 0 frames dropped
+Goals: ≥ 60 frames/s sustained of 4024×3036 Mono8; 0 frames dropped
 at 10 fps; acquisition → subscriber latency p99 ≤ 30 ms. Also reported: daemon CPU
 time per frame (utime+stime from /proc/<pid>/stat over the run) and peak RSS (VmHWM).
 

@@ -1,4 +1,4 @@
-"""Benchmark of the guided intrinsics (issue #14 acceptance) on rendered recipe views.
+"""Benchmark of the guided intrinsics against its acceptance line, on rendered recipe views.
 
 For each case (image size, the lens's k3, seed) it renders the 12 recipe views as the
 simulated operator holds them (fakes/board.py), calibrates with no initial guess and

@@ -1,6 +1,6 @@
 """ritad under load: tracker at 1 kHz + full-size frames at 10 fps + three subscribers, one stalled.
 
-Goals (issue: security/robustness): command round trip p99 ≤ 50 ms under load; daemon
+Goals: command round trip p99 ≤ 50 ms under load; daemon
 RSS bounded over the run; 0 tracker results lost for the on-robot ipc subscriber;
 drops counted per subscriber.
 

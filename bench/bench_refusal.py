@@ -1,6 +1,6 @@
 """How fast a refused client is told so, against a CURVE ritad on loopback.
 
-Goal (issue #11): a key the daemon does not allow is reported as refused "within a
+Goal: a key the daemon does not allow is reported as refused "within a
 second" instead of after the 5 s no-answer timeout; the same for a client without keys.
 Each sample is a fresh Client (new connection and handshake), as one ritactl run is.
 """

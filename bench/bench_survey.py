@@ -3,7 +3,7 @@
 Per seed: render ``--views`` photographs (fakes/survey_views.py) of a world whose plate
 design has its nests 0.2–0.36 mm off, survey them (calibration.plate_survey.run_survey)
 and score the seats against the fake's truth: 3-D error, the largest |error|/σ over
-the 9 coordinates, the 3-D 1σ. Goal (issue #14): every seat ≤ 50 µm from truth and
+the 9 coordinates, the 3-D 1σ. Goal: every seat ≤ 50 µm from truth and
 within 3σ. Prints a Markdown table.
 
 Run: ``.venv/bin/python bench/bench_survey.py [--seeds 2,3,4,5] [--views 8] [--width 2400]``

@@ -1,6 +1,6 @@
 """Tracker results through the daemon: records/s to a subscriber process, and losses at 1 kHz.
 
-Goals (issue: tracker): ≥ 20,000 continuous records decoded and published per second
+Goals: ≥ 20,000 continuous records decoded and published per second
 through ritad to a subscriber in another process; 0 results lost at 1 kHz over 60 s.
 
 Method: ritad runs with a simulated world whose tracker fake lives in the daemon

@@ -20,7 +20,7 @@ BOARD_SCHEMA = 1
 #: the board the recipe is written for: 12 x 9 squares of 4 mm (48 x 36 mm), 4x4-bit markers
 #: (not the plate's 5x5 dictionary, so plate markers behind it are never taken for board markers).
 #: It fills about half of the nadir camera's field at 35 mm (the field is ~75 x 55 mm there:
-#: f = 470 px at 1000 px width, calibration.md §1) and is small enough to hold and tilt
+#: f = 470 px at 1000 px width) and is small enough to hold and tilt
 #: by 45° between the camera (30 mm above the support) and a raised stand.
 DEFAULT_BOARD = {"schema": BOARD_SCHEMA, "board_id": "RITA-INTRINSICS-1", "board_cols": 12, "board_rows": 9,
                  "square_mm": 4.0, "marker_mm": 3.0, "aruco_dict": "DICT_4X4_100",

@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-#: undistortPoints criteria: 100 iterations or 1e-12 change (calibration.md §2.3)
+#: undistortPoints criteria: 100 iterations or 1e-12 change (the default's error: docs/accuracy.md, "Image side")
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MODEL_SCHEMA = 1
 

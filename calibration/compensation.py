@@ -1,4 +1,4 @@
-"""Compensations of a real robot's error sources at use (issue #15; docs/accuracy.md).
+"""Compensations of a real robot's error sources at use (docs/accuracy.md).
 
 Each compensation is switchable (:class:`Compensation`) and every result names the ones
 applied. None of them changes the paper's equations; they change their inputs:

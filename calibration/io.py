@@ -1,14 +1,12 @@
-"""The calibration's only file I/O: plate and camera-model files (JSON, OpenCV FileStorage YAML).
+"""The calibration's only file I/O: reading plate and camera-model files (JSON, OpenCV FileStorage YAML).
 
-Everything else in ``calibration/`` works on arrays and dicts; the worker and the tools
-read and write files through here. Writes are atomic (temp file + fsync + rename), so a
-crash never leaves half a file.
+Everything else in ``calibration/`` works on arrays and dicts. It writes no files: callers
+serialise with ``to_dict()`` and write through the project's one atomic write
+(daemon/bus/storage.py), which calibration, importing nothing of ours, cannot use itself.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -18,25 +16,6 @@ from calibration.camera_model import CameraModel
 from calibration.plate import Plate
 
 
-def _write_atomic(path: Path, write: Any, suffix: str) -> None:
-    """``write(tmp_path)`` fills a temp file beside ``path``; it is fsynced, then renamed over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _write_json(path: Path, obj: Any) -> None:
-    _write_atomic(path, lambda tmp: Path(tmp).write_text(json.dumps(obj, indent=2)), ".tmp")
-
-
 def _read_json(path: Path, what: str) -> Any:
     try:
         return json.loads(path.read_text())
@@ -44,33 +23,9 @@ def _read_json(path: Path, what: str) -> Any:
         raise ValueError(f"{path}: not a JSON {what} ({exc})") from None
 
 
-def save_plate(plate: Plate, path: str | Path) -> None:
-    _write_json(Path(path), plate.to_dict())
-
-
 def load_plate(path: str | Path) -> Plate:
     """Read a plate file (OSError if unreadable, ValueError naming the file and key if bad)."""
     return Plate.from_dict(_read_json(Path(path), "plate definition"), source=str(path))
-
-
-def save_camera_model(model: CameraModel, path: str | Path) -> None:
-    """JSON (``.json``) or OpenCV FileStorage YAML (``.yaml``/``.yml``), by the file's suffix."""
-    path = Path(path)
-    if path.suffix not in (".yaml", ".yml"):
-        _write_json(path, model.to_dict())
-        return
-
-    def write_yaml(tmp: str) -> None:
-        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
-        try:
-            fs.write("image_width", int(model.size[0]))
-            fs.write("image_height", int(model.size[1]))
-            fs.write("camera_matrix", model.K)
-            fs.write("dist_coeffs", model.dist.reshape(1, -1))
-        finally:
-            fs.release()
-
-    _write_atomic(path, write_yaml, path.suffix)
 
 
 def load_camera_model(path: str | Path) -> CameraModel:
@@ -91,4 +46,4 @@ def load_camera_model(path: str | Path) -> CameraModel:
     return CameraModel(K, dist.reshape(-1), (int(w), int(h)))
 
 
-__all__ = ["load_camera_model", "load_plate", "save_camera_model", "save_plate"]
+__all__ = ["load_camera_model", "load_plate"]

@@ -1,6 +1,6 @@
 """Sub-pixel localisation of floor marks in the original (distorted) image.
 
-Two mark kinds (calibration.md §5):
+Two mark kinds (localisation accuracy: docs/accuracy.md, "Image side"):
 
 * ``dot``: a dark disc on a lighter floor. Normalised cross-correlation
   (``TM_CCOEFF_NORMED``, robust to gain and offset) with a disc template rendered

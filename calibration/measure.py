@@ -6,7 +6,7 @@ position on the straight approach (P_prev): x = the approach direction projected
 onto the floor, z = the floor normal (default ACS z), origin P_at. When the base
 reports roll and pitch, the frame is rotated by them about its own axes
 (``R = [v⊥ c n] · R_y(pitch) · R_x(roll)``, the world's convention), which removes
-the tilt × reflector-height error of calibration.md §4.4.
+the tilt × reflector-height error (docs/accuracy.md, "Error magnitudes").
 
 The uncertainty is first order: a numerical Jacobian of the whole mapping with
 respect to the two tracker points (σ_t each), the mark's pixel position (σ_px),

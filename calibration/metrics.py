@@ -5,11 +5,11 @@ minimum enclosing circle radius and the approach-angle range; the same for all p
 ("All" row); the mean L2 distance between cluster means in both readings (mean over
 pairs, mean distance to their centroid); and the least-squares fit of the cluster
 means ``M_k = M + R(ψ_k)·b`` giving the mark M and the robot-frame bias b
-(calibration.md §6.2, §7.2).
+(the 8 directions as a multi-step error separation: Evans, Hocken and Estler 1996).
 
 The enclosing circle is Welzl's algorithm in float64 on coordinates centred and
 scaled to µm: ``cv2.minEnclosingCircle`` works in float32 and pads the radius by
-about 1e-4 input units (calibration.md §2.3).
+about 1e-4 input units (measured).
 """
 from __future__ import annotations
 

@@ -48,10 +48,10 @@ class ModelCheckGates:
     """Limits of the camera-model checks (derivations in docs/architecture.md)."""
 
     min_significance: float = 5.0  # |Δf|/σ_f of the refit; two-sided Gaussian false alarm 6e-7
-    warn_height_mm: float = 0.015  # implied camera-height change: 1/3 of the §7.3 t_z limit
-    fail_height_mm: float = 0.045  # the §7.3 nominal t_z limit
+    warn_height_mm: float = 0.015  # implied camera-height change: 1/3 of the nominal t_z limit (docs/accuracy.md)
+    fail_height_mm: float = 0.045  # the nominal t_z limit (docs/accuracy.md, "Acceptance thresholds")
     radial_min_f_ratio: float = 10.0  # F(3, N) above 10: chance ~1e-6 under corner noise alone
-    radial_warn_plate_mm: float = 0.005  # peak radial pattern on the plate: the §7.3 noise-free footprint limit
+    radial_warn_plate_mm: float = 0.005  # peak radial pattern on the plate: the noise-free footprint limit (docs/accuracy.md)
     model_k_sigma: float = 3.0  # the model's own 3σ focal error, as a height error, against the t_z limit
 
 

@@ -102,7 +102,7 @@ class Gates:
     warn_nest_rms_sigma: float = 2.0  # nest RMS in units of the expected σ (3σ raises)
     min_corners: int = 30
     warn_corners: int = 100
-    min_ambiguity: float = 5.0  # IPPE best/second reprojection ratio (calibration.md §2.2)
+    min_ambiguity: float = 5.0  # IPPE best/second reprojection ratio (docs/accuracy.md, "Image side")
     max_rms_px: float = 0.5
     min_move_mm: float = 50.0  # P0 → P1 baseline: heading σ = √2·σ_t/d
     warn_move_mm: float = 150.0

@@ -2,7 +2,7 @@
 
 The tracker measures the three mounted SMRs in ACS (``abs_P_i``); the plate definition
 and the image give the same centres in SCS (``scn_P_i = scn_H_ref · ref_P_smr,i``).
-Kabsch's SVD solution with the reflection fix (calibration.md §4.1) gives
+Kabsch's SVD solution with the reflection fix (Kabsch 1976; Umeyama 1991) gives
 ``abs_H_scn``. No scale is fitted: tracker and plate are both metric, and a scale from
 three points would only absorb errors.
 

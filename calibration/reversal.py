@@ -1,4 +1,5 @@
-"""Instrument reversal of referencings (Evans, Hocken and Estler 1996; calibration.md §6).
+"""Instrument reversal of referencings (Evans, Hocken and Estler, "Self-calibration:
+reversal, redundancy, error separation, and absolute testing", CIRP Annals 45(2), 1996).
 
 Referencing twice with the robot turned 180° on the plate flips the sign of every
 plate-fixed error (nest coordinates, target-to-nest offset, tracker systematics) as

@@ -1,6 +1,6 @@
 """The scene coordinate system (SCS, ``scn``): the rectified image on the floor.
 
-Convention (paper, "Scene (SCS, scn)"; calibration.md §4.1 pitfall), all in mm:
+Convention (paper, "Scene (SCS, scn)"), all in mm:
 
 * The SCS xy-plane is the PCS xy-plane, i.e. the plate surface the robot stands on
   (its support plane). SCS z is the plane normal pointing *up*, toward the camera

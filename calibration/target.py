@@ -4,7 +4,7 @@ PCS (``ref``) is the OpenCV board frame (origin at the board's outer first corne
 x along columns, y along rows, z into the plate), so the board's object points are
 ``ref_P`` directly. ``estimate_cam_H_ref`` solves the planar PnP with IPPE, which
 returns both mirror solutions; it keeps the better one only when its reprojection
-RMS beats the other by ``min_ambiguity_ratio`` (calibration.md §2.2), then polishes
+RMS beats the other by ``min_ambiguity_ratio`` (docs/accuracy.md, "Image side"), then polishes
 it with Levenberg–Marquardt.
 
 Markers are found by OpenCV (square candidates) but identified here: OpenCV 5

@@ -119,9 +119,27 @@ class Device(ABC):
     """
 
     kind: ClassVar[str] = "device"
+    #: the URL options this adapter reads; any other is refused by name, as a misspelt one
+    #: would otherwise leave its default silently in force
+    OPTIONS: ClassVar[frozenset[str]] = frozenset()
+
+    @classmethod
+    def url_options(cls, url: DeviceURL) -> frozenset[str]:
+        """The options ``url`` may carry (an adapter that hands some to a library adds the library's)."""
+        return cls.OPTIONS
+
+    @classmethod
+    def check_url(cls, url: DeviceURL) -> None:
+        """ValueError naming every option of ``url`` this adapter does not know, and the known ones."""
+        known = cls.url_options(url)
+        unknown = sorted(set(url.query) - known)
+        if unknown:
+            raise ValueError(f"{cls.kind} URL {url.raw!r}: unknown option{'s' if len(unknown) > 1 else ''} "
+                             f"{', '.join(map(repr, unknown))} (known: {', '.join(sorted(known)) or 'none'})")
 
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
+        self.check_url(url)
         self.url = url
         self.emit = emit
         self.settings = settings

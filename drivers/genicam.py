@@ -43,7 +43,6 @@ from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, 
 
 log = logging.getLogger(__name__)
 
-OPTIONS = ("serial", "name", "index", "num_buffers", "timeout")
 _OPEN_STATUSES = (5, 6)  # DEVICE_ACCESS_STATUS_OPEN_READWRITE / _OPEN_READONLY
 _STATUS_POLL_S = 1.0
 
@@ -62,13 +61,11 @@ class _Counter(Callback):
 class GenICamCamera(Camera):
     """A GenICam camera through harvesters; see the module docstring for the URL."""
 
+    OPTIONS = frozenset({"serial", "name", "index", "num_buffers", "timeout"})
+
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
-        unknown = sorted(set(url.query) - set(OPTIONS))
-        if unknown:
-            raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
-                             f"(known: {', '.join(OPTIONS)})")
         if not url.path.endswith(".cti"):
             raise ValueError(f"camera URL {url.raw!r} must name a GenTL producer .cti file, e.g. "
                              "genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=...")

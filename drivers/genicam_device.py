@@ -61,8 +61,8 @@ def _info(buf: Any, name: str, default: int | None = None) -> int:
 def decode_buffer(buf: Any) -> tuple[np.ndarray, str]:
     """(pixels, PFNC name) of a raw GenTL buffer, decoded by :mod:`drivers.pixel_formats` (a copy).
 
-    harvesters' own component decoding is bypassed: it keeps line padding (see
-    genicam.md) and unpacks 12-bit formats slowly. An unsupported format or a buffer
+    harvesters' own component decoding is bypassed: it keeps line padding
+    and unpacks 12-bit formats slowly. An unsupported format or a buffer
     shorter than its image raises DeviceError code ``bad_buffer`` naming both.
     """
     try:

@@ -37,7 +37,15 @@ class SerialRobot(Robot):
     """A differential-drive base speaking the Rita line protocol over pyserial."""
 
     #: options this adapter reads itself (removed before pyserial sees the URL)
-    OWN_OPTIONS: frozenset[str] = frozenset({"baudrate", "timeout", "retries", "state_hz"})
+    OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz"})
+    #: pyserial's own URL options per scheme (pyserial/urlhandler), passed on to it as given
+    PYSERIAL_OPTIONS: dict[str, frozenset[str]] = {
+        "socket": frozenset({"logging"}), "loop": frozenset({"logging"}),
+        "rfc2217": frozenset({"logging", "ign_set_control", "poll_modem"})}
+
+    @classmethod
+    def url_options(cls, url: DeviceURL) -> frozenset[str]:
+        return cls.OPTIONS | cls.PYSERIAL_OPTIONS.get(url.scheme, frozenset())
 
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
@@ -52,13 +60,8 @@ class SerialRobot(Robot):
                                 ("state_hz", self.state_hz, 0 <= self.state_hz <= 100)):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
-        if url.scheme == "serial":
-            if not url.path:
-                raise ValueError(f"robot URL {url.raw!r} names no device path (serial:///dev/ttyUSB0)")
-            unknown = sorted(set(url.query) - self.OWN_OPTIONS)
-            if unknown:
-                raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
-                                 f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
+        if url.scheme == "serial" and not url.path:
+            raise ValueError(f"robot URL {url.raw!r} names no device path (serial:///dev/ttyUSB0)")
         self._port: Any = None
         self._target = ""
         self._splitter = rp.LineSplitter()
@@ -78,7 +81,7 @@ class SerialRobot(Robot):
             return self.url.path
         # cut the query off by hand: urlunsplit would turn "loop://" into "loop:"
         base = self.url.raw.split("?", 1)[0].split("#", 1)[0]
-        rest = {k: v for k, v in self.url.query.items() if k not in self.OWN_OPTIONS}
+        rest = {k: v for k, v in self.url.query.items() if k not in self.OPTIONS}
         return f"{base}?{urlencode(rest)}" if rest else base
 
     def open(self) -> None:

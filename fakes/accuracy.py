@@ -1,4 +1,4 @@
-"""Accuracy runs on the rendering-free simulation (issue #15): the product's compensations scored by truth.
+"""Accuracy runs on the rendering-free simulation: the product's compensations scored by truth.
 
 One *case* is a profile, a set of compensations and a set of error groups switched off.
 One run of a case on one seed does what the robot would do:
@@ -30,7 +30,7 @@ from fakes import profiles
 from fakes.simulate import MarkObs, SimConfig, Simulation
 from fakes.world import World, WorldParams
 
-#: the paper's glass-plate figures (Table target_direction_metrics) and issue #15's goals for
+#: the paper's glass-plate figures (Table target_direction_metrics) and the goals for
 #: ``paper+imu`` with the compensations (mm), by metric key
 PAPER_MM = {"enclosing_mm": 0.747, "pairwise_mm": 0.215}
 GOALS_MM = {"enclosing_mm": 0.25, "pairwise_mm": 0.07, "abs_rms_mm": 0.10}

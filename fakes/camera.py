@@ -56,8 +56,6 @@ from fakes.world import World
 
 log = logging.getLogger(__name__)
 
-OPTIONS = ("size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
-           "disconnect_after", worlds.OPTION)
 #: PixelFormat values the simulated camera offers (PHX122S mono and colour models)
 PIXEL_FORMATS = ("Mono8", "Mono12p", "Mono12Packed", "Mono16", "BayerRG8", "BayerRG12p", "RGB8")
 #: exposure at which the renderer's black/white levels hold; other exposures scale linearly
@@ -105,14 +103,13 @@ def _count(url: DeviceURL, key: str) -> int:
 class SimCamera(Camera):
     """Renders the simulated world at the robot's pose; see the module docstring."""
 
+    OPTIONS = frozenset({"size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
+                         "disconnect_after", worlds.OPTION})
+
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
-        unknown = sorted(set(url.query) - set(OPTIONS))
-        if unknown:
-            raise ValueError(f"camera URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
-                             f"(known: {', '.join(OPTIONS)})")
         self.size = parse_size(url, self.world)
         self.fps: float | None = url.option("fps", None, float)
         if self.fps is not None and not (0 < self.fps < math.inf):

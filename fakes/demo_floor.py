@@ -1,4 +1,4 @@
-"""`make demo`, second part: the same camera and plate on a realistic floor (issue #15).
+"""`make demo`, second part: the same camera and plate on a realistic floor.
 
 A second ``ritad --sim --profile paper+imu`` (same seed: the same camera, plate and
 robot; now with the AT901's distance-dependent error, an uneven floor, drives that bend,

@@ -16,13 +16,13 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 #: sources quoted more than once
-AT_MPE = ("AT901 U_xyz MPE ±15 µm + 6 µm/m (calibration.md §4.2, emscon.md §5: published for the AT500, "
+AT_MPE = ("AT901 U_xyz MPE ±15 µm + 6 µm/m (Leica AT500 manual p. 39: published for the AT500, "
           "unverified for the AT901)")
-TYPICAL = "Leica: typical = ½ MPE (AT500 manual p. 39, via emscon.md §5); we take the typical value as 1σ"
-ADM = "ADM MPE ±10 µm + 0.3 µm/m (AT500 manual p. 39, via emscon.md §5)"
+TYPICAL = "Leica: typical = ½ MPE (AT500 manual p. 39); we take the typical value as 1σ"
+ADM = "ADM MPE ±10 µm + 0.3 µm/m (AT500 manual p. 39)"
 #: RobotErrors.path_shape values
 PATH_SHAPES = ("arc", "s")
-CAL_44 = "calibration.md §4.4: 50 µm lateral path deviation between the heading positions 0.2 m apart"
+CAL_44 = "assumed: 50 µm lateral path deviation between the heading positions 0.2 m apart"
 
 
 def sourced(value: Any, source: str) -> Any:
@@ -68,7 +68,7 @@ class RobotErrors:
     The arc's curvature κ is drawn per move so that the lateral offset at the end of a
     move of ``lateral_ref_mm`` has σ = ``lateral_sigma_mm``: the end is κd²/2 to the side,
     the heading turns by κd, and the chord P_prev→P_at is off the final heading by κd/2
-    (250 µrad for 50 µm over 0.2 m, calibration.md §4.4). These add to WorldParams.drive_*.
+    (250 µrad for 50 µm over 0.2 m). These add to WorldParams.drive_*.
     """
 
     lateral_sigma_mm: float = sourced(0.050, CAL_44)
@@ -96,7 +96,7 @@ class FloorErrors:
 
     slope_sigma_mrad: float = sourced(1.0, "assumption: 1 mm/m per axis; well inside DIN 18202 Table 3 row 3 "
                                            "(4 mm over 1 m); ACS z is the levelled tracker's vertical")
-    rms_slope_mrad: float = sourced(0.5, "calibration.md §4.4: robot tilt at use from floor unevenness ≈ 0.5 mrad "
+    rms_slope_mrad: float = sourced(0.5, "assumed: robot tilt at use from floor unevenness ≈ 0.5 mrad "
                                          "(rms slope of the waviness per axis)")
     correlation_mm: float = sourced(400.0, "assumption: of the order of the wheel base; gives 0.2 mm rms height, "
                                            "inside DIN 18202 Table 3 row 4 (3 mm over 1 m)")

@@ -5,7 +5,7 @@ Selected by ``ritad --sim --profile NAME`` or ``[sim] profile = "NAME"`` in the 
 :data:`PROFILES` when ritad loads the config.
 
 * ``ideal``: today's world, every effect off (bit-identical to the world before
-  profiles existed; calibration.md §7.3 thresholds rely on it).
+  profiles existed; the acceptance thresholds, docs/accuracy.md, rely on it).
 * ``paper``: every effect of fakes/errors.py at its sourced magnitude, sized to the
   paper's hardware (AT901, 19 mm glass plate, Rita's base without an IMU).
 * ``paper+imu``: the same world; the base also reports roll/pitch from an

@@ -1,6 +1,6 @@
 """Synthetic images of what Rita's nadir camera sees in the simulated world.
 
-Per-pixel ray casting (calibration.md §3): every pixel is sampled SS×SS times; each
+Per-pixel ray casting (exact for any distortion model): every pixel is sampled SS×SS times; each
 sub-sample's viewing ray comes from the exact inverse of the distortion model
 (``cv2.undistortPoints`` with tight criteria), is intersected with the plate's top
 face (ACS z = plate thickness, inside the plate square) or else with the floor

@@ -187,15 +187,10 @@ class SimRobot(SerialRobot):
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
-    OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
-                                             worlds.OPTION}
+    OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate", worlds.OPTION}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
-        unknown = sorted(set(url.query) - self.OWN_OPTIONS)
-        if unknown:
-            raise ValueError(f"robot URL {url.raw!r}: unknown option(s) {', '.join(unknown)} "
-                             f"(known: {', '.join(sorted(self.OWN_OPTIONS))})")
         self.world = worlds.world_for(url)
         self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),
                              fault_rate=url.option("fault_rate", 0.0, float))

@@ -286,16 +286,6 @@ class FakeBase:
         with self._lock:
             self._advance()
 
-    def inject_fault(self, reason: str = "STALL") -> None:
-        """Fault now: stop where the robot is, latch FAULT and send a FAULT event."""
-        with self._lock:
-            self._advance()
-            if self.motion is not None:
-                self._finish(self._fraction(), "FAULT", reason)
-            else:
-                self.state, self.fault = "FAULT", reason
-                self._send("FAULT", None, rp.text_field(reason), "injected while idle")
-
     def _fraction(self) -> float:
         m = self.motion
         assert m is not None

@@ -10,7 +10,7 @@ import numpy as np
 
 from calibration.referencing import rob_H_cam_error
 
-#: the scale the principal point goal of issue #14 is stated at (WorldParams.full_size width)
+#: the scale the principal point goal (1.5 px) is stated at (WorldParams.full_size width)
 FULL_WIDTH_PX = 4024
 
 

@@ -1,4 +1,4 @@
-"""Simulation protocol harness (calibration.md §7.1) on the shared simulated world.
+"""Simulation protocol harness (docs/accuracy.md, "Reference figures") on the shared simulated world.
 
 Generates what the real procedure would observe, plus the truth to score it:
 

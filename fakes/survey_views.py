@@ -7,19 +7,19 @@ calibrates the camera from the same photographs (the plate's ChArUco patches).
 Camera (:class:`SurveyCamera`): a 24 MP APS-C DSLR with a 35 mm prime: 6000×4000 px of
 3.9 µm (23.5 mm / 6000, the usual APS-C width), so f = 35 / 0.0039 ≈ 8970 px; the
 principal point a few pixels off centre; a modest barrel distortion (k1 = −0.06, below
-the robot lens's −0.12 of calibration.md §7.1). Renders are made at a reduced size
+the robot lens's −0.12). Renders are made at a reduced size
 (same field of view, focal length scaled), which makes every feature fewer pixels
 wide than on the real sensor: the detection has it harder, not easier.
 
 Scene: the plate top face (PCS z = 0) as a plane, ray cast per sub-sample as in
-fakes/render.py (calibration.md §3): a neutral grey plate, the main target (averaged
+fakes/render.py: a neutral grey plate, the main target (averaged
 to 4 texels/mm: its 2 mm squares are below the survey resolution), the survey
 patches (exactly where the plate definition puts them: one print), and the three
 nests: a coloured ring (red, green, blue; inner/outer radius 9/14 mm, the radii of
 fakes/render.py) around a dark seat, centred on the *true* seats (the plate
 definition's nests may be biased). Beyond the plate the floor is a flat grey.
 Imaging: box filter, Gaussian PSF, vignetting, black/white levels and shot + read
-noise per channel with the ranges of calibration.md §3.1; no Bayer mosaic (a DSLR
+noise per channel with the ranges of the robot camera's (docs/accuracy.md, "The nominal world"); no Bayer mosaic (a DSLR
 delivers demosaiced RGB), no chromatic aberration, depth of field or JPEG.
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ BLOCK_SAMPLES = 2_000_000  # sub-samples per row block of a render (bounds the w
 
 @dataclass(frozen=True)
 class SurveyCamera:
-    """The survey camera's truth (full sensor) and the imaging constants (calibration.md §3.1)."""
+    """The survey camera's truth (full sensor) and the imaging constants."""
 
     full_size: tuple[int, int] = (6000, 4000)
     focal_px: float = 35.0 / 0.0039

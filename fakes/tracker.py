@@ -137,6 +137,9 @@ class SimTracker(EmsconTracker):
     ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``search_radius_mm``.
     """
 
+    OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
+                                       "delay_ms", "split", "garbage_after", "result_first", "fail", worlds.OPTION}
+
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)

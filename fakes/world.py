@@ -53,7 +53,7 @@ class FloorMark:
 
 @dataclass
 class WorldParams:
-    """Every knob of the simulated world. Defaults follow calibration.md §7.1."""
+    """Every knob of the simulated world. Defaults: docs/accuracy.md, "The nominal world"."""
 
     seed: int = 1
 
@@ -88,7 +88,7 @@ class WorldParams:
     principal_offset_px: tuple[float, float] = (1.6 * 4.024, -1.0 * 4.024)
     distortion: tuple[float, float, float, float, float] = (-0.12, 0.03, 4e-4, -3e-4, 0.0)
 
-    # --- imaging (calibration.md §3) ---
+    # --- imaging (fakes/render.py) ---
     psf_sigma_px: float = 0.7  # at the reduced size; scales with resolution
     read_noise_dn: float = 1.5
     shot_gain: float = 0.05

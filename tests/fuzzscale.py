@@ -1,7 +1,7 @@
 """How many cases a fuzz test draws.
 
 ``make test`` runs a seeded sample that keeps the suite within its time budget; the
-counts quoted in docs/benchmarks.md and the issues' notes come from the full run,
+counts quoted in docs/benchmarks.md come from the full run,
 ``RITA_FUZZ=full make test`` (or ``RITA_FUZZ=full .venv/bin/python -m pytest tests/daemon -k fuzz``).
 Both are deterministic (seeded generators, derandomized hypothesis); the sample is just smaller.
 """

@@ -20,10 +20,6 @@ import msgpack
 
 SCHEMA_VERSION = 1
 
-#: telemetry topics (the first frame of every PUB message)
-TOPICS = ("daemon.health", "daemon.state", "tracker.point", "tracker.event", "robot.state", "robot.event",
-          "camera.state", "camera.frame", "calib.progress", "calib.result", "calib.prompt", "log")
-
 
 class ErrorCode:
     """Stable error codes of command replies (never renamed; add new ones only)."""

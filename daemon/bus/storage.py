@@ -20,10 +20,11 @@ DATASET_SCHEMA = 1
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
+    """Make a rename in ``path`` durable; the file's own fsync does not cover its directory entry."""
     try:
         fd = os.open(path, os.O_RDONLY)
-    except OSError:  # e.g. Windows: directories cannot be opened
+    except OSError:  # Windows cannot open a directory; its renames need no separate flush
         return
     try:
         os.fsync(fd)
@@ -32,9 +33,10 @@ def _fsync_dir(path: Path) -> None:
 
 
 def atomic_write_bytes(path: Path, data: bytes | memoryview, mode: int | None = None) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file + fsync + rename).
+    """Write ``data`` to ``path`` atomically: temp file beside it, fsync, rename, fsync the folder.
 
-    The file is private (0600, from mkstemp) unless ``mode`` says otherwise, e.g. 0644 for
+    The project's one atomic write: every program, the simulator and the benchmarks use it
+    (calibration/ writes no files). The file is private (0600, from mkstemp) unless ``mode`` says otherwise, e.g. 0644 for
     a public key that root writes and the daemon's user must read.
     """
     path = Path(path)
@@ -54,7 +56,7 @@ def atomic_write_bytes(path: Path, data: bytes | memoryview, mode: int | None = 
         except FileNotFoundError:
             pass
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return path
 
 

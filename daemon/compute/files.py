@@ -2,8 +2,6 @@
 its report and plot; the same for a live run and for ``ritactl recompute --out``."""
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -18,9 +16,8 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
     """OpenCV FileStorage YAML with the matrices a C++/HALCON user would want, written atomically."""
     import cv2
 
-    fd, tmp = tempfile.mkstemp(suffix=".yaml", dir=path.parent)
-    os.close(fd)
-    fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+    # built in memory, so the file itself goes through the one atomic write
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
     try:
         for key in ("job", "procedure", "software", "plate_id", "verdict", "created"):
             if result.get(key) is not None:
@@ -38,11 +35,10 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
         mark = result.get("mark")
         if mark:
             fs.write("mark_abs_xyz", np.array(mark["abs_xyz"], dtype=np.float64).reshape(1, 3))
-    finally:
+    except BaseException:
         fs.release()
-    data = Path(tmp).read_bytes()
-    os.unlink(tmp)
-    atomic_write_bytes(path, data)
+        raise
+    atomic_write_text(path, fs.releaseAndGetString())
 
 
 def _experiment_report(root: Path, result: dict[str, Any]) -> None:

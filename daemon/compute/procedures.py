@@ -159,7 +159,8 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
             "verdict": "ok" if check["ok"] else "warn", "messages": [] if check["ok"] else [check["message"]]}
 
 
-#: the focal length's 1σ above which an intrinsics model is only a warn (issue #14's 0.1 % goal)
+#: the focal length's 1σ above which an intrinsics model is only a warn (the
+#: intrinsics' goal |Δf|/f ≤ 0.1 %, docs/accuracy.md "The closed loop without ground truth")
 MAX_F_STD_FRACTION = 0.001
 
 

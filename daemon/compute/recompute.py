@@ -106,7 +106,7 @@ def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[
 
 
 def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None) -> dict[str, Any]:
-    """``obs`` with another set of issue #15 compensations (none, all, or names): a bad name is a ValueError."""
+    """``obs`` with another set of compensations (none, all, or names): a bad name is a ValueError."""
     if compensation is None:
         return obs
     takers = [p.name for p in ALL if any(q.name == "compensation" for q in p.params)]

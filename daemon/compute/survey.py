@@ -18,7 +18,7 @@ from calibration.plate import NEST_NAMES, Plate
 from calibration.plate_survey import Progress, run_survey
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-#: verdict "ok" needs every surveyed seat's 3-D 1σ within this (the issue-14 acceptance: 50 µm)
+#: verdict "ok" needs every surveyed seat's 3-D 1σ within this (the survey's acceptance: 50 µm)
 SIGMA_OK_MM = 0.05
 
 

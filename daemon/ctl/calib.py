@@ -163,7 +163,7 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     if d.get("table_markdown"):
         print("\n" + d["table_markdown"])
     comp = d.get("compensation")
-    if comp:  # issue #15: which compensations took effect, and why not
+    if comp:  # which compensations took effect, and why not
         done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"
         print(f"  compensations (stops applied): {done}")
         for n, why in (comp.get("skipped") or {}).items():

@@ -8,7 +8,6 @@ sets them appended, so the operator knows what to type.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import re
 from pathlib import Path
@@ -18,8 +17,9 @@ from daemon.bus.client import Client, ClientTimeout
 from daemon.bus.command_table import COMMANDS, POS, TABLE, Arg, Command
 from daemon.ctl.io import print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import CtlError, Exit
-from daemon.bus.png_write import frame_png, png_bytes
+from daemon.bus.png_write import frame_png
 from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.bus.storage import atomic_write_bytes, atomic_write_json
 
 # options that act on this computer only, not sent to the daemon
 LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
@@ -47,13 +47,6 @@ def _detect_text(r: dict[str, Any]) -> tuple[str, Exit]:
 
 #: results a generated subcommand shows in words (with --json: the result, same exit code)
 RESULT_TEXT: dict[str, Callable[[dict[str, Any]], tuple[str, Exit]]] = {"camera.detect": _detect_text}
-
-
-def write_png(path: Path, pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8) -> None:
-    """Lossless PNG (greyscale or RGB) written through a temp file (daemon/bus/png_write.py)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(png_bytes(pixels, width, height, channels, bit_depth))
-    tmp.replace(path)
 
 
 def number_type(arg: Arg) -> Callable[[str], float]:
@@ -158,10 +151,8 @@ def _check_out(out: str) -> None:
 def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
     h = result["header"]
     try:
-        tmp = Path(out).with_name(Path(out).name + ".tmp")
-        tmp.write_bytes(frame_png(h, extra[0].buffer))
-        tmp.replace(Path(out))
-        Path(out).with_suffix(".json").write_text(json.dumps(h, indent=2))
+        atomic_write_bytes(Path(out), frame_png(h, extra[0].buffer))
+        atomic_write_json(Path(out).with_suffix(".json"), h)
     except OSError as exc:
         raise CtlError(Exit.BAD_INPUT, "bad_input", f"cannot write {out}: {exc.strerror or exc}") from None
 
@@ -207,4 +198,4 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
     return Exit.OK
 
 
-__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "option_help", "table_args", "write_png"]
+__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "option_help", "table_args"]

@@ -4,7 +4,8 @@ The files are 0600 on the robot and the bus is the only channel, so this pulls t
 with ``files.list`` / ``files.read`` / ``files.hash`` (docs/protocol.md), in chunks.
 Each file goes to a hidden ``.NAME.part`` next to its target, is fsynced, checked
 against the robot's sha256 and renamed into place, so an interrupted fetch never
-leaves a half file under the real name. Running the same fetch again resumes: a
+leaves a half file under the real name. (Not daemon/bus/storage.py's atomic_write_bytes:
+the ``.part`` keeps its name across runs so a large copy resumes; the folder fsync is shared.) Running the same fetch again resumes: a
 file already here with the robot's size and sha256 is skipped, a ``.part`` whose
 bytes match the start of the robot's file is continued from where it stopped.
 """
@@ -23,7 +24,7 @@ from typing import Any, Callable
 from daemon.bus.client import Client, ClientTimeout
 from daemon.ctl.exitcodes import Exit
 from daemon.bus.protocol import CommandError
-from daemon.bus.storage import _fsync_dir
+from daemon.bus.storage import fsync_dir
 
 CHUNK = 1 << 20  # bytes per files.read (the daemon's cap)
 ATTEMPTS = 2  # a file that changes while it is copied is copied once more, then reported
@@ -129,7 +130,7 @@ def fetch_file(c: Client, rel: str, size: int, dest: Path, chunk: int = CHUNK, t
         if whole or c.call("files.hash", timeout=timeout, path=rel)["sha256"] == _sha256(part):
             os.replace(part, target)
             if renamed_in is None:
-                _fsync_dir(target.parent)
+                fsync_dir(target.parent)
             else:
                 renamed_in.add(target.parent)
             return how
@@ -167,7 +168,7 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
     finally:
         progress.end()
         for folder in renamed_in:  # also after Ctrl-C: what was renamed stays renamed
-            _fsync_dir(folder)
+            fsync_dir(folder)
     return out
 
 

@@ -38,7 +38,7 @@ from daemon.ctl import fetch as ctl_fetch
 from daemon.ctl import watch as ctl_watch
 from daemon.bus.client import Client, ClientTimeout, default_endpoint
 from daemon.bus.command_table import COMMANDS
-from daemon.ctl.device import add_device_parsers, add_table_args, table_args, write_png
+from daemon.ctl.device import add_device_parsers, add_table_args, table_args
 from daemon.ctl.io import fail, print_result, quiet_stdout, subparsers_of
 from daemon.ctl.exitcodes import CtlError, Exit
 from daemon.bus.protocol import CommandError
@@ -272,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail(Exit.INTERRUPTED, "interrupted", "interrupted (Ctrl-C)", as_json)
 
 
-__all__ = ["GLOBAL_OPTIONS", "build_parser", "check_endpoint", "main", "print_result", "subparsers_of", "write_png"]
+__all__ = ["GLOBAL_OPTIONS", "build_parser", "check_endpoint", "main", "print_result", "subparsers_of"]
 
 
 if __name__ == "__main__":

@@ -21,13 +21,12 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable
 
-from daemon.bus.command_table import COMMANDS, MOVING_PROCEDURES, PROCEDURES
+from daemon.bus.command_table import MOVING_PROCEDURES, PROCEDURES
 from daemon.bus.procedures import check_params
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch
 
-REPORT_KINDS = next(a.choices for a in COMMANDS["calib.report"].args if a.name == "kind")
 #: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
 FINAL_STATES = ("done", "failed", "cancelled")
 RESUMABLE = ("failed", "cancelled", "stopped")

@@ -19,7 +19,7 @@ from typing import Any
 
 from daemon.bus.command_table import ROLES
 from daemon.bus import station
-from daemon.ritad.registry import schemes
+from daemon.ritad.registry import AdapterError, build_device, schemes
 from drivers.base import CameraSettings, DeviceURL
 
 
@@ -234,6 +234,29 @@ def _validate(cfg: Config) -> None:
             cfg.tracker.abs_H_trk = station.checked(cfg.tracker.abs_H_trk, "tracker.abs_H_trk")
         except station.StationError as exc:
             raise ConfigError(f"{src}: {exc}") from None
+
+
+def check_devices(cfg: Config) -> list[str]:
+    """``--check-config``: build each device's adapter from its URL, opening nothing.
+
+    A misspelt or bad URL option is a ConfigError naming it. Not part of :func:`load`: a start
+    imports each adapter in its own device thread, so a robot without the camera SDK still
+    starts; here a missing package is a warning (the list returned), as it does not stop ritad.
+    """
+    warnings = []
+    for kind in ("camera", "tracker", "robot"):
+        url = getattr(cfg.devices, kind)
+        try:
+            build_device(kind, url)
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.source}: devices.{kind}: {exc}") from None
+        except AdapterError as exc:
+            if not isinstance(exc.__cause__, ModuleNotFoundError):
+                raise ConfigError(f"{cfg.source}: devices.{kind}: {exc}") from None
+            warnings.append(f"devices.{kind}: URL options not checked: {exc}")
+        except Exception as exc:  # an adapter that cannot even be built: name it, no traceback
+            raise ConfigError(f"{cfg.source}: devices.{kind}: {url!r}: {type(exc).__name__}: {exc}") from None
+    return warnings
 
 
 def _validate_security(cfg: Config) -> None:

@@ -258,8 +258,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     src.add_argument("--config", help="TOML config file (see systemd/ritad.toml)")
     src.add_argument("--sim", action="store_true", help="run on the simulated world (built-in config)")
     src.add_argument("--check-config", metavar="FILE",
-                     help="validate FILE (keys, values, endpoints, device URL schemes) and exit; binds nothing, "
-                          "opens no device, safe beside a running ritad")
+                     help="validate FILE (keys, values, endpoints, device URLs and their options) and exit; binds "
+                          "nothing, opens no device, safe beside a running ritad")
     ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
     ap.add_argument("--data-dir", help="override daemon.data_dir")
     ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
@@ -285,15 +285,22 @@ def load_config(args: argparse.Namespace) -> config_mod.Config:
 
 
 def check_config(cfg: config_mod.Config) -> int:
-    """``--check-config``: the file passed every check ritad makes before it binds; the key files exist."""
+    """``--check-config``: the file passed every check ritad makes before it binds, each device's
+    adapter accepts its URL; the key files exist."""
     from daemon.ritad.keycheck import key_problems
 
+    try:
+        device_warnings = config_mod.check_devices(cfg)
+    except config_mod.ConfigError as exc:
+        print(f"ritad: configuration error: {exc}", file=sys.stderr)
+        return RitadExit.CONFIG
     errors, warnings = key_problems(cfg)
     try:
         _, where = station.abs_H_trk(cfg.tracker.abs_H_trk, Path(cfg.daemon.data_dir))
     except station.StationError as exc:
         print(f"ritad: {exc}", file=sys.stderr)
         return RitadExit.CONFIG
+    warnings = device_warnings + warnings
     for e in errors:
         print(f"ritad: {cfg.source}: {e}", file=sys.stderr)
     if errors:

@@ -97,3 +97,9 @@ def open_device(kind: str, url: str, *, emit: Emit, settings: Any = None) -> Dev
     """Construct (not open) the adapter for ``url``."""
     parsed = DeviceURL.parse(url)
     return adapter_class(kind, parsed)(parsed, emit=emit, settings=settings)
+
+
+def build_device(kind: str, url: str) -> Device:
+    """The adapter for ``url`` built as ritad builds it, never opened: ``--check-config``'s test of the
+    URL's options (a misspelt one, a bad value). ValueError names the URL; AdapterError a missing package."""
+    return open_device(kind, url, emit=lambda topic, payload: None)

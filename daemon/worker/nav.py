@@ -39,7 +39,7 @@ class Navigator:
         if ctx.resumed:  # a run stopped (or killed) mid-turn leaves the robot off the checkpointed heading
             self.nav["heading_deg"] = None
         self.last_points: tuple[dict[str, Any], dict[str, Any]] | None = None
-        #: issue #15 inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
+        #: compensation inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
         self.last_record: dict[str, Any] = {}
         self.imu_readings = int(ctx.params.get("imu_readings", DEFAULT_IMU_READINGS))
         self.imu_interval_s = float(ctx.params.get("imu_interval_s", PARAM_DEFAULTS["imu_interval_s"]))
@@ -85,7 +85,7 @@ class Navigator:
         """Move and update the heading from the measured displacement; returns (before, after).
 
         ``record``: the inclinometer at the start (``imu_readings`` averaged) and the
-        tracker's stream along the move go to ``last_record`` (issue #15 compensations).
+        tracker's stream along the move go to ``last_record`` (the compensations' inputs).
         """
         a, pa = self.where()
         if record:

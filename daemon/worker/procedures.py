@@ -127,7 +127,7 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
-    # issue #15: the inclinometer at both stops and the stream between them, when the base/tracker give them
+    # the compensations' inputs: the inclinometer at both stops and the stream between them, when the base/tracker give them
     rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s")), **nav.last_record}
     return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
             "offset_mm": offset.tolist(), "move_mm": float(param(ctx, "distance_mm")),

@@ -1,4 +1,5 @@
-"""The tracker's stream (and the inclinometer) along the final straight move of an approach (issue #15).
+"""The tracker's stream (and the inclinometer) along the final straight move of an approach:
+the inputs of the tilt and heading-fit compensations (docs/accuracy.md).
 
 The heading-fit compensation (calibration/compensation.py ``fit_heading``) needs the
 reflector's path between the two standstill points; the tilt compensation wants the

@@ -64,6 +64,9 @@ _flag.__name__ = "flag (0/1)"
 class EmsconTracker(Tracker):
     """A Leica laser tracker reached through the emScon TPI."""
 
+    OPTIONS = frozenset({"timeout", "init_timeout", "connect_timeout", "meas_time_ms", "use_adm", "reflector",
+                         "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
+
     def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
                  settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
@@ -117,7 +120,8 @@ class EmsconTracker(Tracker):
         self.counters["opens"] += 1
 
     def _init_sequence(self, c: EmsconClient) -> None:
-        """emscon.md §4: units, initialise if needed, modes, coordinates, settings."""
+        """Bring the tracker to a known state after every connect: units, initialise if needed, modes,
+        coordinates, settings."""
         c.request(ES_Command.SetUnits, length_unit=ES_LengthUnit.Millimeter,
                   angle_unit=ES_AngleUnit.Degree, temperature_unit=ES_TemperatureUnit.Celsius,
                   pressure_unit=ES_PressureUnit.Mbar, humidity_unit=ES_HumidityUnit.RH)

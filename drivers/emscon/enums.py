@@ -1,8 +1,10 @@
-"""emScon TPI enumerations (values from Leica's ES_C_API_Def.h V3.6, via emscon.md §3.2).
+"""emScon TPI enumerations (values from Leica's ES_C_API_Def.h, TPI/SDK V3.6).
 
 Every enum travels as a signed little-endian int32. Decoders keep unknown values as
 plain ints (a newer server may send values this table does not know); use
-:func:`enum_name` to print any of them.
+:func:`enum_name` to print any of them. docs/emscon.md's enum table is generated from
+these classes and their docstrings (``python -m drivers.emscon.enum_table --markdown``; a test
+compares), so a value or a name is written here only.
 """
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from enum import IntEnum
 
 
 class ES_DataType(IntEnum):
+    """Packet type, the second int32 of every packet"""
     Command = 0
     Error = 1
     SingleMeasResult = 2
@@ -25,6 +28,7 @@ class ES_DataType(IntEnum):
 
 
 class ES_Command(IntEnum):
+    """Command of a request, its answer and an error packet; `tracker.event` `command_name`"""
     ExitApplication = 0
     GetSystemStatus = 1
     GetTrackerStatus = 2
@@ -89,6 +93,7 @@ class ES_Command(IntEnum):
 
 
 class ES_ResultStatus(IntEnum):
+    """A command's result; a refused command is the bus error `tracker_<name>`, also `tracker.event` `status_name`"""
     AllOK = 0
     ServerBusy = 1
     NotImplemented = 2
@@ -173,6 +178,7 @@ class ES_ResultStatus(IntEnum):
 
 
 class ES_MeasMode(IntEnum):
+    """Measurement mode (SetMeasurementMode)"""
     Stationary = 0
     ContinuousTime = 1
     ContinuousDistance = 2
@@ -182,6 +188,7 @@ class ES_MeasMode(IntEnum):
 
 
 class ES_TrackerStatus(IntEnum):
+    """Tracker state (GetTrackerStatus); `tracker.status` `tracker_status`"""
     NotReady = 0
     Busy = 1
     Ready = 2
@@ -189,6 +196,7 @@ class ES_TrackerStatus(IntEnum):
 
 
 class ES_SystemStatusChange(IntEnum):
+    """What an unsolicited status-change packet reports; `tracker.event` `change_name`"""
     DistanceSet = 0
     LaserWarmedUp = 1
     EnvironmentParamsChanged = 2
@@ -233,6 +241,7 @@ class ES_SystemStatusChange(IntEnum):
 
 
 class ES_LengthUnit(IntEnum):
+    """Length unit (SetUnits; the driver sets Millimeter)"""
     Meter = 0
     Millimeter = 1
     Micron = 2
@@ -242,17 +251,20 @@ class ES_LengthUnit(IntEnum):
 
 
 class ES_AngleUnit(IntEnum):
+    """Angle unit (SetUnits; the driver sets Degree)"""
     Radian = 0
     Degree = 1
     Gon = 2
 
 
 class ES_TemperatureUnit(IntEnum):
+    """Temperature unit (SetUnits; the driver sets Celsius)"""
     Celsius = 0
     Fahrenheit = 1
 
 
 class ES_PressureUnit(IntEnum):
+    """Pressure unit (SetUnits; the driver sets Mbar)"""
     Mbar = 0
     HPascal = 1
     KPascal = 2
@@ -263,10 +275,12 @@ class ES_PressureUnit(IntEnum):
 
 
 class ES_HumidityUnit(IntEnum):
+    """Humidity unit (SetUnits)"""
     RH = 0
 
 
 class ES_CoordinateSystemType(IntEnum):
+    """Coordinate system handedness and axes (the driver sets RHR)"""
     RHR = 0
     LHRX = 1
     LHRY = 2
@@ -278,6 +292,7 @@ class ES_CoordinateSystemType(IntEnum):
 
 
 class ES_TrackerProcessorStatus(IntEnum):
+    """GetSystemStatus: the tracker processor (Initialize runs unless Initialized)"""
     NoTPFound = 0
     TPFound = 1
     NBOpen = 2
@@ -287,6 +302,7 @@ class ES_TrackerProcessorStatus(IntEnum):
 
 
 class ES_LaserProcessorStatus(IntEnum):
+    """GetSystemStatus: the laser"""
     LCPCommFailed = 0
     LCPNotAvail = 1
     LaserHeatingUp = 2
@@ -296,6 +312,7 @@ class ES_LaserProcessorStatus(IntEnum):
 
 
 class ES_ADMStatus(IntEnum):
+    """GetSystemStatus: the absolute distance meter"""
     NoADM = 0
     ADMCommFailed = 1
     ADMReady = 2
@@ -306,12 +323,14 @@ class ES_ADMStatus(IntEnum):
 
 
 class ES_WeatherMonitorStatus(IntEnum):
+    """GetSystemStatus: the weather monitor"""
     NotConnected = 0
     ReadOnly = 1
     ReadAndCalculateRefractions = 2
 
 
 class ES_MeasurementStatus(IntEnum):
+    """Status of one continuous measurement record"""
     AllOK = 0
     SpeedWarning = 1
     SpeedExeeded = 2
@@ -320,6 +339,7 @@ class ES_MeasurementStatus(IntEnum):
 
 
 class ES_TargetType(IntEnum):
+    """Reflector type (GetReflectors)"""
     Unknown = 0
     CornerCube = 1
     CatsEye = 2
@@ -333,6 +353,7 @@ class ES_TargetType(IntEnum):
 
 
 class ES_LTSensorType(IntEnum):
+    """Tracker model (GetTrackerInfo); `tracker.status` `info.tracker_type`"""
     AT901_B = 13
     AT901_MR = 14
     AT901_LR = 15
@@ -340,6 +361,7 @@ class ES_LTSensorType(IntEnum):
 
 
 class ES_RegionType(IntEnum):
+    """Measurement region shape"""
     Sphere = 0
     Box = 1
 
@@ -358,3 +380,4 @@ def as_enum(enum_cls: type[IntEnum], value: int) -> int:
         return enum_cls(value)
     except ValueError:
         return int(value)
+

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import struct
-from typing import Iterable
 
 from drivers.emscon.codec import MAX_PACKET, MIN_PACKET, TO_CLIENT, TO_SERVER, Packet, ProtocolError, decode
 
@@ -54,10 +53,3 @@ class Framer:
         finally:
             del buf[:pos]
         return out
-
-
-def iter_packets(chunks: Iterable[bytes], direction: str) -> Iterable[Packet]:
-    """Frame an iterable of byte chunks (convenience for tests and tools)."""
-    framer = Framer(direction)
-    for chunk in chunks:
-        yield from framer.feed(chunk)

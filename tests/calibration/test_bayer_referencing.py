@@ -1,11 +1,12 @@
-"""Referencing from a BayerRG8 rendering meets the §7.3 thresholds like Mono8 (issue #14).
+"""Referencing from a BayerRG8 rendering meets the acceptance thresholds like Mono8
+(docs/accuracy.md).
 
 The Mono8 case is tests/calibration/test_calibration_sim.py's rendered fixture: the same
 world, seed, pose and noise stream, so the only difference here is the sensor, the RGGB
 colour filter (fakes.colour) and the demosaicing to grey (calibration.image.to_grey) before
 corner detection; the thresholds asserted are the same. Like that test (whose helpers this
 reuses), the referencing is given the world's camera model and plate definition: replacing
-them by estimated ones is issue #14 items 1 and 5, not this comparison.
+them by estimated ones is tested elsewhere (test_worker_e2e.py, test_plate_survey.py), not here.
 """
 from __future__ import annotations
 

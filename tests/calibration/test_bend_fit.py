@@ -3,7 +3,7 @@
 Straight drives (an informative stream and a poor one), one arc, a bigger arc, an arc over
 the second half only, an S-curve, and two periods of a wiggle the fit cannot model. Noise:
 the standstill anchors 10 µm per coordinate, the stream 10 µm (200 points) or 30 µm (40).
-The rule (issue: never more than 5 % worse on straight drives, better on bent ones) is
+The rule (the fit may cost little where it is not needed: never more than 5 % worse on straight drives, better on bent ones) is
 checked on the heading's RMS error over seeded trials.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from calibration.bend_fit import bend_fit
 from calibration.compensation import Compensation, Stop, compensate
 
 L = 200.0
-K = 2.5e-6  # 50 µm sideways at the end of 200 mm (calibration.md §4.4)
+K = 2.5e-6  # 50 µm sideways at the end of 200 mm (the assumed path deviation, docs/accuracy.md)
 SHAPES = {
     "straight": lambda s: 0.0 * s,
     "arc": lambda s: K * s * (s - L) / 2,

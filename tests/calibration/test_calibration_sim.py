@@ -1,4 +1,4 @@
-"""End-to-end simulation protocol (calibration.md §7) scored against the world's truth.
+"""End-to-end simulation protocol (docs/accuracy.md, "Reference figures") scored against the world's truth.
 
 Rendered: one referencing image at 1000×750 (with and without tracker noise on the
 same image) and, when the mark locator is available, one rendered 8×5 validation
@@ -104,7 +104,7 @@ def test_rendered_validation_without_tracker_noise(rendered, rendered_validation
     world, sim, obs, cam_ref = rendered
     res = run_reference(sim, replace(obs, image=None, cam_ref=cam_ref), sigma_t=0.0, mc_samples=0)
     m, _, val = validate(sim, res, make_scs(sim.model, res.cam_H_ref), rendered_validation)
-    # calibration.md §7.3: all 8-direction metrics < 10 µm without tracker noise
+    # the acceptance thresholds: all 8-direction metrics < 10 µm without tracker noise
     assert m.enclosing_diameter_mm < 0.010, m.enclosing_diameter_mm
     assert m.pairwise_mean_mm < 0.010 and max(c.max_from_mean_mm for c in m.clusters) < 0.010
     assert np.linalg.norm(np.array(m.all.mean) - val.mark_abs[:2]) < 0.010

@@ -1,4 +1,4 @@
-"""calibration/compensation.py: each compensation's geometry, its refusals, and what it buys (issue #15)."""
+"""calibration/compensation.py: each compensation's geometry, its refusals, and what it buys."""
 from __future__ import annotations
 
 import math
@@ -69,7 +69,7 @@ def arc(kappa: float, d: float, n: int, heading: float = 0.0) -> np.ndarray:
 
 
 def test_fit_heading_finds_the_end_tangent_of_a_bent_move():
-    kappa, d = 2.5e-6, 200.0  # 50 µm sideways at the end of 200 mm (calibration.md §4.4)
+    kappa, d = 2.5e-6, 200.0  # 50 µm sideways at the end of 200 mm (the assumed path deviation, docs/accuracy.md)
     P = arc(kappa, d, 41, heading=25.0)
     truth = math.radians(25.0) + kappa * d
     u = fit_heading(P, P[0], P[-1])
@@ -102,7 +102,7 @@ def test_compensate_says_why_it_skips():
 
 
 def test_compensations_beat_the_paper_on_the_simulated_robot():
-    """paper+imu world, rendering-free: each seed meets issue #15's bounds with every compensation on."""
+    """paper+imu world, rendering-free: each seed meets the goals' bounds with every compensation on."""
     from fakes.accuracy import Case, run
 
     for seed in (100, 101):

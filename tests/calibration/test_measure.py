@@ -82,7 +82,7 @@ def test_uncertainty_matches_scatter_of_the_inputs():
         pts.append(mark_to_abs(o.uv + rng.normal(0, s_px, 2), scs, res.rob_H_scn, H)[0][:2])
     emp = np.cov(np.array(pts).T)
     assert 0.75 < m.std_mm / np.sqrt(np.trace(emp)) < 1.33
-    # calibration.md §4.3: reflector σ_t plus heading × lever arm, ~10-25 µm
+    # docs/accuracy.md, "Error magnitudes": reflector σ_t plus heading × lever arm, ~10-25 µm
     assert 0.008 < m.std_mm < 0.04
     with_cal = measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at,
                             cov_rob_H_scn=np.diag([1e-4, 1e-4, 1e-4, 1e-8, 1e-8, 1e-8]))

@@ -1,9 +1,9 @@
-"""The camera-model check inside the referencing verdict (issue 14, build item 2).
+"""The camera-model check inside the referencing verdict.
 
-Rendered images at the CI size (1000x750, calibration.md §3.1). The correct model and
+Rendered images at the CI size (1000x750). The correct model and
 the bad ones are the test's *inputs*: the bad models are the world's lens with fx, fy
 scaled and the distortion kept (a focal length that does not match its distortion),
-which is what the acceptance line of issue 14 asks about; truth is otherwise only
+which is the mistake a model check must catch; truth is otherwise only
 used to score.
 """
 from __future__ import annotations
@@ -132,7 +132,7 @@ def test_model_std_flags_an_uncertain_focal_length(visits):
 @pytest.mark.parametrize("s", [0.95, 0.99, 1.01, 1.05])
 @pytest.mark.parametrize("with_std", [False, True])
 def test_a_self_consistent_wrong_focal_length_never_gives_an_uncovered_camera_height(visits, s, with_std):
-    """f × s with the distortion rescaled to give the same pixels (issue 20): rob_H_cam's t_z is off by
+    """f × s with the distortion rescaled to give the same pixels: rob_H_cam's t_z is off by
     (s − 1) × the camera height, which no image of the plate shows. The result is either `warn`, or its
     stated t_z σ covers the error within 3σ. With a std in the model, it is an honest one for this
     model: an intrinsics calibration that ended 1 % off states about 1 %, not 0.02 %."""

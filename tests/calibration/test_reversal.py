@@ -69,7 +69,7 @@ def test_reversal_with_tracker_noise_returns_to_noise_floor():
         a, scs_a = referencing(sim, 10.0 * seed, "a")
         b, _ = referencing(sim, 10.0 * seed + 180.0, "b")
         errs.append(np.linalg.norm(sim.true_bias(combine([a, b]).rob_H_scn, scs_a)))
-    # calibration.md §7.3: median 14, p95 28 µm at σ_t = 10 µm
+    # docs/accuracy.md, "Acceptance thresholds": median 14, p95 28 µm at σ_t = 10 µm
     assert np.median(errs) < 0.03 and max(errs) < 0.05, errs
 
 

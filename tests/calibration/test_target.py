@@ -96,7 +96,7 @@ def test_fast_marker_path_agrees_with_opencv(scene) -> None:
 
 @pytest.fixture(scope="module")
 def oblique_4x4():
-    """A DICT_4X4_1000 board seen 35° off its normal from 40 mm (issue #12, bug 3)."""
+    """A DICT_4X4_1000 board seen 35° off its normal from 40 mm (a hand-held board, close and tilted)."""
     world = World(WorldParams(aruco_dict="DICT_4X4_1000", seed=3))
     size = world.params.reduced_size
     centre = apply_H(world.abs_H_ref, world.board_centre_ref())

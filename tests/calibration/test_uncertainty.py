@@ -55,7 +55,7 @@ def test_monte_carlo_matches_empirical_scatter():
     assert np.all((ratio_r > 1 / 1.6) & (ratio_r < 1.6)), (unc.std_rot_deg, np.degrees(emp_r))
     emp_f = np.std(np.array(foot), axis=0)
     assert 1 / 1.6 < unc.footprint_std_mm / np.hypot(*emp_f) < 1.6
-    # calibration.md §4.3: tens of µm at σ_t = 10 µm
+    # docs/accuracy.md, "Error magnitudes": tens of µm at σ_t = 10 µm
     assert 0.005 < unc.footprint_std_mm < 0.05
 
 

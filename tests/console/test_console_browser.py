@@ -1,4 +1,4 @@
-"""The operator console in a real headless chromium against a simulated ritad (issue #16 acceptance).
+"""The operator console in a real headless chromium against a simulated ritad.
 
 One ritad (worker, CURVE tcp for the viewer key), one ``ritactl console`` for the local
 operator and one browser serve the module; the viewer test points the same browser at

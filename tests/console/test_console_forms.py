@@ -1,5 +1,5 @@
 """The console server without a browser: procedure parameters checked again and files read on the robot,
-and the plate survey's start and errors (issue #16's closing gaps)."""
+and the plate survey's start and errors."""
 from __future__ import annotations
 
 import asyncio

@@ -1,6 +1,8 @@
 """The console's pieces without a browser: frame pictures and `ritactl console` errors."""
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -126,7 +128,6 @@ def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
 
 def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_path):
     """Directly on the handler: a second request while one runs is busy; a downscaled search answers sensor px."""
-    from calibration.io import save_plate
     from calibration.target import detect_corners, make_board
     from daemon.bus.protocol import CommandError
     from daemon.ritad.detect import Detections
@@ -135,7 +136,7 @@ def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_p
     from fakes.world import World
 
     plate = World().plate()  # the design the simulated installer hands over
-    save_plate(plate, tmp_path / "plate.json")
+    (tmp_path / "plate.json").write_text(json.dumps(plate.to_dict()))
     img = make_board(plate).generateImage((2000, 1500), marginSize=0)[300:750, 400:1000].copy()  # a camera-sized part
     det = Detections(lambda: Frame(img, 7, "sim", "Mono8"), tmp_path)
 

@@ -1,4 +1,4 @@
-"""STOP means stop, from the console page: a latched stop during a running experiment (issue 19's acceptance).
+"""STOP means stop, from the console page: a latched stop during a running experiment.
 
 One simulated ritad with its worker, a referencing through the bus (the world's own camera
 model and the plate's design file: this is about stopping, not accuracy), then an

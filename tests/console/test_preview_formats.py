@@ -1,4 +1,4 @@
-"""The live view and the detector see every pixel format the camera may stream (review of #14/#16)."""
+"""The live view and the detector see every pixel format the camera may stream."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,5 @@
 """A colour sim camera through ritad: the pixel format travels in the frame header, the capture
-and the dataset, and the folder validates (issue #14)."""
+and the dataset, and the folder validates."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -180,3 +180,24 @@ def test_sim_section_reaches_the_world_through_config(tmp_path):
     assert worlds.world_for(DeviceURL.parse("sim:")) is not world  # no world= : a private one
     with pytest.raises(ValueError, match="no simulated world named 'nope'"):
         worlds.world_for(DeviceURL.parse("sim:?world=nope"))
+
+
+def test_check_devices_builds_each_adapter_and_names_a_bad_option(tmp_path, monkeypatch):
+    """--check-config's device check: a typo is an error naming it, a missing package only a warning
+    (ritad starts without it), an adapter module that cannot be imported an error without a traceback."""
+    from daemon.ritad import registry
+
+    f = tmp_path / "c.toml"
+    f.write_text(SIM_DEVICES.replace("tracker = 'sim:'", "tracker = 'emscon://127.0.0.1:700?timout=3'"))
+    cfg = config.load(f)  # a start does not build the adapters: the typo passes here
+    with pytest.raises(config.ConfigError, match=r"devices.tracker: tracker URL .*unknown option 'timout'"):
+        config.check_devices(cfg)
+    f.write_text(SIM_DEVICES.replace("camera = 'sim:'", "camera = 'genicam:///x.cti'"))
+    monkeypatch.setitem(registry.ADAPTERS, "camera", {**registry.ADAPTERS["camera"], "genicam": "rita_no_pkg:Cam"})
+    monkeypatch.setitem(registry.INSTALL_HINTS, "rita_no_pkg", "pip install rita-no-pkg")
+    warnings = config.check_devices(config.load(f))
+    assert len(warnings) == 1 and "devices.camera: URL options not checked" in warnings[0]
+    assert "pip install rita-no-pkg" in warnings[0]
+    monkeypatch.delitem(registry.INSTALL_HINTS, "rita_no_pkg")
+    with pytest.raises(config.ConfigError, match="devices.camera: 'genicam:///x.cti': ModuleNotFoundError"):
+        config.check_devices(config.load(f))

@@ -4,6 +4,7 @@ import sys
 
 import numpy as np
 
+from daemon.bus.png_write import png_bytes
 from daemon.ctl import main as ctl
 
 
@@ -33,10 +34,10 @@ def test_png_writer_roundtrip(tmp_path):
     import cv2
 
     img = (np.arange(37 * 23) % 256).astype(np.uint8).reshape(23, 37)
-    ctl.write_png(tmp_path / "a.png", img.tobytes(), 37, 23)
+    (tmp_path / "a.png").write_bytes(png_bytes(img.tobytes(), 37, 23))
     assert np.array_equal(cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED), img)
     img16 = (np.arange(37 * 23, dtype=np.uint16) * 61).reshape(23, 37)
-    ctl.write_png(tmp_path / "b.png", img16.astype(">u2").tobytes(), 37, 23, bit_depth=16)
+    (tmp_path / "b.png").write_bytes(png_bytes(img16.astype(">u2").tobytes(), 37, 23, bit_depth=16))
     assert np.array_equal(cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_UNCHANGED), img16)
 
 

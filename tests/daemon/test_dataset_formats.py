@@ -1,4 +1,4 @@
-"""Datasets with colour and packed pixel formats: stored losslessly, validated, recomputed (issue #14).
+"""Datasets with colour and packed pixel formats: stored losslessly, validated, recomputed.
 
 The folders come from the independent writer (tests/dataset_writer.py), which makes its
 Bayer mosaics and RGB images itself, from docs/datasets.md ("Images") alone.

@@ -118,7 +118,7 @@ def test_tracker_server_killed_mid_measurement(make_daemon) -> None:
     assert not_ready.value.code == "not_ready"
     fake.start()  # same port, like the controller coming back
     up = states(sub, "tracker", "READY", 40, since_loss=False)
-    # every attempt after the loss is a reconnect, the failed ones included (issue #11: retries count)
+    # every attempt after the loss is a reconnect, the failed ones included (the count shows the retries)
     attempts = [s["reconnects"] for s in down + up if s["state"] == "CONNECTING"]
     assert len(attempts) >= 2 and attempts == list(range(1, len(attempts) + 1)), down + up
     assert up[-1]["reconnects"] == len(attempts)

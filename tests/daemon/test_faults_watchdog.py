@@ -117,7 +117,7 @@ def ping_times(sock: socket.socket, duration: float) -> list[float]:
 
 def test_runner_stays_alive_while_it_waits_in_backoff() -> None:
     """A device that never answers: the owner thread keeps beating through backoffs longer than the
-    heartbeat limit, and every retry counts in ``reconnects`` (issue #11, blocker 3)."""
+    heartbeat limit, and every retry counts in ``reconnects`` (an operator reads the retries there)."""
     from daemon.ritad.runner import DeviceRunner
     from drivers.base import DeviceState
 

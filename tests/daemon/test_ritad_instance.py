@@ -104,6 +104,22 @@ def test_check_config_binds_nothing_and_names_bad_keys(tmp_path: Path) -> None:
     assert list((tmp_path / "rt").iterdir()) == []
 
 
+def test_check_config_builds_the_adapters_and_names_a_misspelt_url_option(tmp_path: Path) -> None:
+    """emscon://...?timout=3 would run with the default 30 s timeout: the check names the option."""
+    cfg, _ = write_config(tmp_path, tmp_path / "data")
+    bad = tmp_path / "typo.toml"
+    bad.write_text(cfg.read_text().replace('tracker = "sim:"', 'tracker = "emscon://127.0.0.1:700?timout=3"'))
+    res = ritad("--check-config", str(bad))
+    assert res.returncode == RitadExit.CONFIG, res.stderr
+    assert (f"{bad}: devices.tracker: tracker URL 'emscon://127.0.0.1:700?timout=3': unknown option 'timout' "
+            f"(known: connect_timeout, ") in res.stderr
+    assert "Traceback" not in res.stderr and res.stdout == ""
+    bad.write_text(bad.read_text().replace("timout", "timeout"))
+    ok = ritad("--check-config", str(bad))
+    assert ok.returncode == RitadExit.OK, ok.stderr  # builds, connects to nothing
+    assert list((tmp_path / "rt").iterdir()) == [] and not (tmp_path / "data").exists()
+
+
 def test_clean_sigterm_stop_logs_no_warning(tmp_path: Path) -> None:
     cfg, endpoint = write_config(tmp_path, tmp_path / "data")
     cfg.write_text(cfg.read_text().replace("start_worker = false", "start_worker = true"))  # stop it too

@@ -1,4 +1,4 @@
-"""Issue #15 compensations in the worker's compute path, on small written datasets (no daemon).
+"""The compensations in the worker's compute path, on small written datasets (no daemon).
 
 The datasets come from tests/dataset_writer.py (the robot upright on a level floor, exact
 approach points); the compensation inputs are added to their stop records the way the

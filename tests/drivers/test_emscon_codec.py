@@ -1,8 +1,7 @@
 """Golden layout tests and round trips for the emScon codec and framer.
 
-The expected sizes and offsets are typed in from the tables of
-``/work/shared/reference/emscon.md`` (measured there with gcc and pack(4)), not
-computed from the codec.
+The expected sizes and offsets are typed in from Leica's ES_C_API_Def.h (V3.6) as gcc lays
+it out under ``#pragma pack(4)`` (measured with a small C program), not computed from the codec.
 """
 from __future__ import annotations
 
@@ -19,7 +18,7 @@ from drivers.emscon.enums import ES_Command as Cmd
 from drivers.emscon.enums import ES_DataType, ES_ResultStatus, ES_SystemStatusChange
 from drivers.emscon.framer import Framer
 
-# command -> (CT size, RT size) from emscon.md §3
+# command -> (CT size, RT size), gcc with pack(4)
 SIZES = {
     Cmd.GetSystemStatus: (12, 56), Cmd.GetTrackerStatus: (12, 20), Cmd.SetUnits: (32, 16),
     Cmd.GetUnits: (12, 36), Cmd.Initialize: (12, 16), Cmd.SetEnvironmentParams: (36, 16),

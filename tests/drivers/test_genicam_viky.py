@@ -141,7 +141,7 @@ def test_duplicate_serials_are_ambiguous() -> None:
 
 
 @pytest.mark.parametrize("query, needle", [
-    ("serial=1&colour=red", "unknown option(s) colour"),
+    ("serial=1&colour=red", "unknown option 'colour'"),
     ("num_buffers=0", "num_buffers=0"),
     ("timeout=abc", "timeout='abc'"),
     ("index=-1", "index=-1"),

@@ -1,4 +1,4 @@
-"""drivers.pixel_formats against deliberately simple bit-by-bit reference packers (issue #14).
+"""drivers.pixel_formats against deliberately simple bit-by-bit reference packers.
 
 The reference writes every pixel's bits one at a time into the byte positions the
 specifications give, so it shares no arithmetic with the vectorised decoder:

@@ -1,5 +1,5 @@
 """The simulated world's error model, effect by effect: mean, σ and dependence on distance
-and position (issue #15), and the profiles that select it (fakes/profiles.py)."""
+and position, and the profiles that select it (fakes/profiles.py)."""
 import math
 
 import numpy as np

@@ -1,5 +1,5 @@
 """Floor and plate surfaces, the tilt they give the robot, and the drive's path errors
-(fakes/floor.py, fakes/errors.py; issue #15): statistics and repeatability."""
+(fakes/floor.py, fakes/errors.py): statistics and repeatability."""
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The simulated camera's colour (RGGB Bayer) sensor and its pixel formats (issue #14).
+"""The simulated camera's colour (RGGB Bayer) sensor and its pixel formats.
 
 Small images (same field of view) keep this fast: one ray cache per size, shared.
 """

@@ -2,7 +2,7 @@
 
 No initial guess and no truth goes in: the board file is the installer's ``sim/board.json``,
 the poses come from the prompts (fakes/board.py). ``sim.truth`` only scores the result
-against issue #14's acceptance line (|Δf|/f ≤ 0.1 %, principal point ≤ 1.5 px at full size,
+against the acceptance line (|Δf|/f ≤ 0.1 %, principal point ≤ 1.5 px at full size,
 every parameter within 3σ). One job also sees a bad view retried and a cancel + resume.
 """
 import json

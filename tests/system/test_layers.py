@@ -1,4 +1,4 @@
-"""Import directions (issue #13): each layer imports only what is below it, and nothing imports in a cycle.
+"""Import directions: each layer imports only what is below it, and nothing imports in a cycle.
 
 Layers, bottom up: ``calibration`` (pure numpy/OpenCV) and ``drivers`` are leaves;
 ``daemon.bus`` is the library every program shares; the programs ``daemon.ritad``,

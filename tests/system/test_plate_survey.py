@@ -1,4 +1,4 @@
-"""Plate survey end to end (issue #14, part 3): ritad --sim photographs → fetch → ritactl plate survey.
+"""Plate survey end to end: ritad --sim photographs → fetch → ritactl plate survey.
 
 The survey gets only the photographs and the plate's design as an operator would
 (``sim.survey_images``, ``ritactl fetch sim``); the survey camera's model, its poses

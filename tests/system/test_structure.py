@@ -1,4 +1,4 @@
-"""Size and repetition limits of the product packages (issue #13).
+"""Size and repetition limits of the product packages.
 
 No module over 400 lines, no function over 60, and no block of six or more near-identical
 lines standing twice: the same code with at most other string or number literals (comments,

@@ -126,7 +126,7 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     err = rob_H_cam_error(np.array(ref["rob_H_cam"]), np.array(truth["rob_H_cam"]))
     print(f"\nclosed loop rob_H_cam vs truth: {err}")
     assert err["t_xy_mm"] < 0.06 and err["t_z_mm"] < 0.045, err
-    # §7.3: rotation < 0.015° (measured 0.0047° here; the demo's seed 1 still misses it, 0.016°:
+    # the acceptance threshold: rotation < 0.015° (measured 0.0047° here; the demo's seed 1 still misses it, 0.016°:
     # docs/accuracy.md, "The closed loop without ground truth")
     assert err["rot_deg"] < 0.015, err
     active = c.call("calib.results")["active"]
@@ -238,7 +238,7 @@ def test_prompt_when_the_tracker_cannot_find_a_nest(daemon):
     assert answered and result is not None and not result.get("failed"), result
     truth = c.call("sim.truth")
     err = rob_H_cam_error(np.array(result["rob_H_cam"]), np.array(truth["rob_H_cam"]))
-    assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.015, err  # §7.3
+    assert err["t_xy_mm"] < 0.06 and err["rot_deg"] < 0.015, err  # the acceptance thresholds
 
 
 def test_cancel_then_resume(daemon):
@@ -278,7 +278,7 @@ def test_cancel_then_resume(daemon):
 
 
 def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_path):
-    """Issue #15 through ritad and the worker: the module's camera model and surveyed plate on a
+    """The compensations through ritad and the worker: the module's camera model and surveyed plate on a
     realistic floor (``--profile paper+imu``, same seed: same camera, plate and robot). Referencing
     with reversal calibrates the inclinometer's offset; a short learning experiment on mark M2
     stores the robot-frame bias; the 8 × 5 experiment on M1 then runs with the compensations.
