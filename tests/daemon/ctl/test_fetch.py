@@ -255,7 +255,7 @@ def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
     import sys
 
     from daemon.bus.auth import create_keypair, load_keypair, load_public
-    from tests.daemon.test_curve import CONFIG, ROOT
+    from tests.daemon.bus.test_curve import CONFIG, ROOT
 
     data = tmp_path / "data"
     create_keypair(data / "keys", "server")

@@ -15,7 +15,7 @@ from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientRefused, ClientTimeout
 from daemon.bus.protocol import CommandError
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 CONFIG = """
 [daemon]
