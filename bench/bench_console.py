@@ -28,9 +28,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_frames import cpu_seconds  # noqa: E402
-from bench.common import machine, pct  # noqa: E402
-from tests.console.browser import console_session, start_robot, wait_for  # noqa: E402
+from bench.common import cpu_seconds, machine, pct  # noqa: E402
+from tools.harness.browser import console_session, start_robot, wait_for  # noqa: E402
 
 CAMERA = "sim:?size=full&prerender=2&fps=5"
 

@@ -10,19 +10,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import machine, pct, start_ritad  # noqa: E402
+from bench.common import machine, pct, ritad_toml, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 
-TCP_CONFIG = """
-devices = { camera = "sim:", tracker = "sim:", robot = "sim:" }
-[daemon]
-command_endpoints = ["tcp://127.0.0.1:0"]
-telemetry_endpoints = ["tcp://127.0.0.1:0"]
-frame_endpoints = ["tcp://127.0.0.1:0"]
-data_dir = "@TMP@/data"
-[security]
-insecure_tcp = true  # loopback only: the benchmark measures the plain bus
-"""
+TCP_CONFIG = ritad_toml(ipc_dir=None, tcp=True, insecure_tcp=True)  # loopback only: the plain bus
 
 
 def round_trips(endpoint: str, n: int = 3000, cmd: str = "ping") -> list[float]:

@@ -19,8 +19,6 @@ Also ``--sub ENDPOINT`` runs the subscriber side (used by this and bench_load.py
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -28,26 +26,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_tracker_daemon import CONFIG, finish, spawn  # noqa: E402
-from bench.common import machine, pct, start_ritad  # noqa: E402
+from bench.common import (cpu_seconds, finish, machine, pct, ritad_toml, serve_subscriber, spawn,  # noqa: E402
+                          start_ritad, vm_kib)
 from daemon.bus.client import Client  # noqa: E402
-
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    """utime + stime of a process (all its threads), in seconds."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # fields 14 and 15 of stat(5)
-
-
-def vm_kib(pid: int, key: str) -> int:
-    """A ``Vm*`` line of /proc/<pid>/status (VmRSS, VmHWM) in KiB."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(key + ":"):
-            return int(line.split()[1])
-    raise KeyError(key)
-
 
 # --------------------------------------------------------------------------- subscriber process
 
@@ -108,34 +89,12 @@ class FrameStats:
 
 def subscriber_main(endpoint: str, hwm: int, stalled: bool, linger_s: float = 1.0) -> None:
     """Subscribe to frames, print ``subscribed``, count until stdin closes, print JSON."""
-    import zmq
-
     from daemon.bus.client import Subscriber
     from daemon.bus.protocol import unpack
 
-    sub = Subscriber(endpoint, ["camera.frame"], hwm=hwm)
-    print("subscribed", flush=True)
-    poller = zmq.Poller()
-    poller.register(sub.sock, zmq.POLLIN)
-    poller.register(sys.stdin.fileno(), zmq.POLLIN)
     stats = FrameStats()
-    stop_at = None
-    while stop_at is None or time.monotonic() < stop_at:
-        events = dict(poller.poll(200))
-        if sys.stdin.fileno() in events and stop_at is None:
-            os.read(sys.stdin.fileno(), 4096)
-            stop_at = time.monotonic() + linger_s
-            poller.unregister(sys.stdin.fileno())
-        if sub.sock in events and not stalled:
-            while True:
-                try:
-                    frames = sub.sock.recv_multipart(zmq.NOBLOCK, copy=False)
-                except zmq.Again:
-                    break
-                rx = time.monotonic_ns()
-                stats.add(unpack(frames[1].buffer), frames[2].buffer, rx)
-    print(json.dumps(stats.result()), flush=True)
-    sub.close()
+    serve_subscriber(Subscriber(endpoint, ["camera.frame"], hwm=hwm),
+                     lambda f, rx: stats.add(unpack(f[1].buffer), f[2].buffer, rx), stats.result, stalled, linger_s)
 
 
 # --------------------------------------------------------------------------- daemon side
@@ -144,7 +103,7 @@ def subscriber_main(endpoint: str, hwm: int, stalled: bool, linger_s: float = 1.
 def run(fps: float, seconds: float) -> dict[str, Any]:
     """One daemon with a full-size prerendered camera at ``fps``; one frame subscriber process."""
     cam = f"sim:?size=full&prerender=2&fps={fps:g}"
-    r = start_ritad(CONFIG.format(tracker="sim:", camera=cam), timeout=120)
+    r = start_ritad(ritad_toml(devices={"camera": cam}), timeout=120)
     proc, ep = r.proc, r.endpoint
     try:
         with Client(ep, timeout=30) as c:

@@ -33,25 +33,12 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import machine, start_ritad  # noqa: E402
+from bench.common import machine, ritad_toml, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 from fakes.board import run_intrinsics  # noqa: E402
 from fakes.operator import lock_on_robot, rough_mark  # noqa: E402
 
-CONFIG = """
-[daemon]
-command_endpoints = ["ipc://@TMP@/rt/cmd"]
-telemetry_endpoints = ["ipc://@TMP@/rt/telemetry"]
-frame_endpoints = ["ipc://@TMP@/rt/frames"]
-data_dir = "@TMP@/data"
-start_worker = true
-log_level = "DEBUG"  # every line, so the DEBUG ones can be counted too; INFO+ is what the default writes
-[devices]
-camera = "sim:?fps=5"
-tracker = "sim:"
-robot = "sim:?time_scale=@SCALE@"
-"""
 LINE = re.compile(r"^\S+ \S+ (DEBUG|INFO|WARNING|ERROR|CRITICAL) (\S+): (.*)$")
 
 
@@ -146,7 +133,10 @@ def count_lines(text: str) -> tuple[collections.Counter[str], collections.Counte
 
 def measure(seconds: float, scale: float) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="bench-journal-"))
-    r = start_ritad(CONFIG.replace("@SCALE@", f"{scale:g}"), tmp=tmp)
+    # DEBUG: every line, so the DEBUG ones can be counted too; INFO+ is what the default writes
+    config = ritad_toml(worker=True, log_level="DEBUG",
+                        devices={"camera": "sim:?fps=5", "robot": f"sim:?time_scale={scale:g}"})
+    r = start_ritad(config, tmp=tmp)
     try:
         r.wait_ready(timeout=120, worker=True)
         with r.client(timeout=60) as c:

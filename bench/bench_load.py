@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -26,29 +25,16 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_frames import FrameStats, cpu_seconds, vm_kib  # noqa: E402
-from bench.bench_tracker_daemon import TelemetryStats, finish, lock_and_stream, spawn  # noqa: E402
-from bench.common import ROOT, machine, pct, start_ritad  # noqa: E402
+from bench.bench_frames import FrameStats  # noqa: E402
+from bench.bench_tracker_daemon import TelemetryStats, lock_and_stream  # noqa: E402
+from bench.common import (cpu_seconds, finish, machine, pct, pick, ritad_toml, spawn, start_ritad,  # noqa: E402
+                          vm_kib)
 from daemon.bus.client import Client  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 
-CONFIG = """
-[daemon]
-command_endpoints = ["ipc://@TMP@/rt/cmd", "tcp://127.0.0.1:0"]
-telemetry_endpoints = ["ipc://@TMP@/rt/telemetry", "tcp://127.0.0.1:0"]
-frame_endpoints = ["ipc://@TMP@/rt/frames", "tcp://127.0.0.1:0"]
-data_dir = "@TMP@/data"
-[devices]
-tracker = "sim:?packet_rate_hz=100&sigma_mm=0.01"
-camera = "sim:?size=full&prerender=2&fps=10"
-robot = "sim:"
-[security]
-insecure_tcp = true  # loopback only: the benchmark measures the plain bus
-"""
-
-
-def pick(endpoints: list[str], scheme: str) -> str:
-    return next(e for e in endpoints if e.startswith(scheme))
+CONFIG = ritad_toml(tcp=True, insecure_tcp=True,  # loopback only: the benchmark measures the plain bus
+                    devices={"tracker": "sim:?packet_rate_hz=100&sigma_mm=0.01",
+                             "camera": "sim:?size=full&prerender=2&fps=10"})
 
 
 # --------------------------------------------------------------------------- helper processes
@@ -114,17 +100,6 @@ def stalled_main(tel_ep: str, frame_ep: str) -> None:
     print(json.dumps({"telemetry": ts.result(), "frames": fs.result()}), flush=True)
 
 
-def spawn_self(*args: str) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), *args], cwd=ROOT,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    line = proc.stdout.readline().strip()
-    if line != "subscribed":
-        proc.kill()
-        raise RuntimeError(f"helper {args} did not start: {line!r}")
-    time.sleep(0.5)
-    return proc
-
-
 # --------------------------------------------------------------------------- the run
 
 
@@ -138,10 +113,10 @@ def run(duration: float, sample_s: float = 5.0) -> dict[str, Any]:
             tel, frm, cmd = hello["telemetry_endpoints"], hello["frame_endpoints"], hello["command_endpoints"]
             worker = spawn("bench_tracker_daemon.py", "--sub", pick(tel, "ipc://"))
             viewer = spawn("bench_frames.py", "--sub", pick(frm, "tcp://"))
-            stalled = spawn_self("--stalled", pick(tel, "tcp://"), pick(frm, "tcp://"))
+            stalled = spawn("bench_load.py", "--stalled", pick(tel, "tcp://"), pick(frm, "tcp://"))
             lock_and_stream(c, 1000.0)
             c.call("camera.stream.start")
-            operator = spawn_self("--operator", pick(cmd, "tcp://"))
+            operator = spawn("bench_load.py", "--operator", pick(cmd, "tcp://"))
             t0, cpu0 = time.monotonic(), cpu_seconds(proc.pid)
             rss: list[tuple[float, float]] = []
             while (t := time.monotonic() - t0) < duration:

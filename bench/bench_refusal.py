@@ -13,25 +13,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import machine, pct, start_ritad  # noqa: E402
+from bench.common import NO_DEVICES, machine, pct, ritad_toml, start_ritad  # noqa: E402
 from daemon.bus.auth import create_keypair, load_keypair, load_public  # noqa: E402
 from daemon.bus.client import Client, ClientRefused  # noqa: E402
 
-CONFIG = """
-[daemon]
-command_endpoints = ["tcp://127.0.0.1:0"]
-telemetry_endpoints = ["tcp://127.0.0.1:0"]
-frame_endpoints = ["tcp://127.0.0.1:0"]
-data_dir = "{data}"
-
-[devices]
-camera = "genicam:///nonexistent/producer.cti"
-tracker = "emscon://127.0.0.1:1"
-robot = "loop://"
-
-[security]
-curve = true
-"""
+CONFIG = ritad_toml(ipc_dir=None, tcp=True, devices=NO_DEVICES, curve=True)  # the bus alone, CURVE on tcp
 
 
 def first_answer(endpoint: str, curve: dict | None, n: int) -> tuple[list[float], int]:
@@ -61,7 +47,7 @@ def main(n: int = 50) -> None:
     for name in ("alice", "mallory"):
         public, secret = load_keypair(base / "laptop" / f"{name}.key_secret")
         keys[name] = {"public": public, "secret": secret, "server": server}
-    r = start_ritad(CONFIG.format(data=base / "data"))
+    r = start_ritad(CONFIG, tmp=base)  # data in base/data, where the keys are
     ep = r.endpoint
     try:
         time.sleep(2)

@@ -18,8 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import zmq  # noqa: E402
 
-from bench.bench_refusal import CONFIG  # noqa: E402
-from bench.common import machine, pct, start_ritad, stop_ritad  # noqa: E402
+from bench.common import NO_DEVICES, machine, pct, ritad_toml, start_ritad  # noqa: E402
 from daemon.bus import roles  # noqa: E402
 from daemon.bus.auth import create_keypair, load_keypair, load_public  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
@@ -48,7 +47,8 @@ def main(n: int = 3000) -> None:
     roles.write_entry(auth, "vic", load_public(public), "viewer")
     pub, sec = load_keypair(base / "laptop" / "vic.key_secret")
     curve = {"public": pub, "secret": sec, "server": load_public(base / "data" / "keys" / "server.key")}
-    proc, ep, _, _ = start_ritad(CONFIG.format(data=base / "data"), extra=[])
+    r = start_ritad(ritad_toml(ipc_dir=None, tcp=True, devices=NO_DEVICES, curve=True), tmp=base)  # data: base/data
+    ep = r.endpoint
     print("| allowed keys | command | round trip, one open connection | goal |\n|---|---|---|---|")
     try:
         time.sleep(2)
@@ -66,7 +66,7 @@ def main(n: int = 3000) -> None:
                     print(f"| {target} | {what}, n={n} | p50 {pct(t, 50):.3f} ms, p99 {pct(t, 99):.3f} ms, max {max(t):.1f} ms | "
                           f"p99 ≤ 5 ms |")
     finally:
-        stop_ritad(proc)
+        r.stop()
 
 
 if __name__ == "__main__":

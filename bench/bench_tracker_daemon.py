@@ -17,8 +17,6 @@ Also ``--sub ENDPOINT`` runs the subscriber side (used by this and bench_load.py
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -26,21 +24,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import ROOT, machine, pct, start_ritad  # noqa: E402
+from bench.common import finish, machine, pct, ritad_toml, serve_subscriber, spawn, start_ritad  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
-
-CONFIG = """
-[daemon]
-command_endpoints = ["ipc://@TMP@/rt/cmd"]
-telemetry_endpoints = ["ipc://@TMP@/rt/telemetry"]
-frame_endpoints = ["ipc://@TMP@/rt/frames"]
-data_dir = "@TMP@/data"
-[devices]
-tracker = "{tracker}"
-camera = "{camera}"
-robot = "sim:"
-"""
-
 
 # --------------------------------------------------------------------------- subscriber process
 
@@ -113,56 +98,13 @@ class TelemetryStats:
 
 def subscriber_main(endpoint: str, topics: list[str], hwm: int, stalled: bool, linger_s: float) -> None:
     """Subscribe, print ``subscribed``, count until stdin closes (plus ``linger_s``), print JSON."""
-    import os
-
-    import zmq
-
     from daemon.bus.client import Subscriber
     from daemon.bus.protocol import unpack
 
-    sub = Subscriber(endpoint, topics or None, hwm=hwm)
-    print("subscribed", flush=True)
-    poller = zmq.Poller()
-    poller.register(sub.sock, zmq.POLLIN)
-    poller.register(sys.stdin.fileno(), zmq.POLLIN)
     stats = TelemetryStats()
-    stop_at = None
-    while stop_at is None or time.monotonic() < stop_at:
-        events = dict(poller.poll(200))
-        if sys.stdin.fileno() in events and stop_at is None:
-            os.read(sys.stdin.fileno(), 4096)  # parent closed stdin or wrote: finish soon
-            stop_at = time.monotonic() + linger_s
-            poller.unregister(sys.stdin.fileno())
-        if sub.sock in events and not stalled:
-            for _ in range(1000):  # drain what is there before polling stdin again
-                try:
-                    frames = sub.sock.recv_multipart(zmq.NOBLOCK, copy=False)
-                except zmq.Again:
-                    break
-                stats.add(frames[0].bytes.decode(), unpack(frames[1].buffer), time.monotonic_ns())
-    print(json.dumps(stats.result()), flush=True)
-    sub.close()
-
-
-def spawn(script: str, *args: str) -> subprocess.Popen:
-    """Start a subscriber process (``bench/<script> --sub ...``) and wait until it has subscribed."""
-    proc = subprocess.Popen([sys.executable, str(ROOT / "bench" / script), *args], cwd=ROOT,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    line = proc.stdout.readline().strip()
-    if line != "subscribed":
-        proc.kill()
-        raise RuntimeError(f"subscriber {script} {args} did not start: {line!r}")
-    time.sleep(0.5)  # let the subscription reach the daemon's PUB socket
-    return proc
-
-
-def finish(proc: subprocess.Popen, timeout: float = 60) -> dict[str, Any]:
-    """Tell a subscriber to stop and return its JSON result."""
-    out, _ = proc.communicate("stop\n", timeout=timeout)
-    lines = out.strip().splitlines()
-    if proc.returncode or not lines:
-        raise RuntimeError(f"subscriber exited with {proc.returncode}: {out[-500:]!r}")
-    return json.loads(lines[-1])
+    serve_subscriber(Subscriber(endpoint, topics or None, hwm=hwm),
+                     lambda f, rx: stats.add(f[0].bytes.decode(), unpack(f[1].buffer), rx), stats.result,
+                     stalled, linger_s)
 
 
 # --------------------------------------------------------------------------- daemon side
@@ -177,7 +119,7 @@ def lock_and_stream(c: Client, rate_hz: float = 1000.0) -> None:
 
 def run(tracker_url: str, seconds: float, camera_url: str = "sim:?size=40x30") -> dict[str, Any]:
     """One daemon, one tracker subscriber process, streaming at 1 kHz for ``seconds``."""
-    r = start_ritad(CONFIG.format(tracker=tracker_url, camera=camera_url))
+    r = start_ritad(ritad_toml(devices={"tracker": tracker_url, "camera": camera_url}))
     ep = r.endpoint
     try:
         with Client(ep, timeout=10) as c:

@@ -2,7 +2,7 @@
 
 ``make test`` runs a seeded sample that keeps the suite within its time budget; the
 counts quoted in docs/benchmarks.md come from the full run,
-``RITA_FUZZ=full make test`` (or ``RITA_FUZZ=full .venv/bin/python -m pytest tests/daemon -k fuzz``).
+``RITA_FUZZ=full make test`` (or ``RITA_FUZZ=full .venv/bin/python -m pytest tests/daemon tests/drivers -k fuzz``).
 Both are deterministic (seeded generators, derandomized hypothesis); the sample is just smaller.
 """
 from __future__ import annotations

@@ -21,7 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fakes.operator import lock_on_robot  # noqa: E402
-from tests.console.browser import console_session, start_robot, wait_for  # noqa: E402
+from tools.harness.browser import console_session, start_robot, wait_for  # noqa: E402
 
 
 def press(drv, element_id: str) -> None:

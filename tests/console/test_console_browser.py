@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from daemon.bus.client import Client
-from tests.console.browser import browser_available, console_session, start_robot, wait_for
+from tools.harness.browser import browser_available, console_session, start_robot, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
                                                    reason=browser_available() or "")]
@@ -424,7 +424,7 @@ def test_another_site_may_not_open_the_websocket(session):
 
 
 def test_second_tab_works_and_a_page_reconnects_after_the_console_restarts(robot, page):
-    from tests.console.browser import ConsoleProcess
+    from tools.harness.browser import ConsoleProcess
 
     first = ConsoleProcess(["--endpoint", robot["ritad"].endpoint], robot["tmp"] / "restart")
     port = first.base.rsplit(":", 1)[1].strip("/")

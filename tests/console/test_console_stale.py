@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.console.browser import CONFIG, browser_available, console_session, start_robot, wait_for
+from tools.harness.browser import browser_available, console_session, robot_config, start_robot, wait_for
 from fakes.launch import start_ritad
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
@@ -35,8 +35,7 @@ def test_values_turn_stale_when_ritad_dies_and_live_again_when_it_returns(tmp_pa
             assert text("robot-state").startswith("unknown (was IDLE")  # not IDLE any more
             assert text("tracker-locked").startswith("unknown")
             assert "alive true" not in text("daemon-health")
-            ritad = start_ritad(CONFIG.replace("{camera}", "sim:").replace("{worker}", "false"), tmp=tmp_path,
-                                timeout=90)
+            ritad = start_ritad(robot_config(worker=False), tmp=tmp_path, timeout=90)
             ritad.wait_ready(timeout=90, worker=False)
             wait_for("fresh again by itself", lambda: not any(_stale(drv).values()), 30)
             assert text("robot-state") == "IDLE"

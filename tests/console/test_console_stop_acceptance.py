@@ -18,7 +18,7 @@ import pytest
 
 from daemon.bus.client import Client
 from fakes.operator import lock_on_robot, rough_mark
-from tests.console.browser import browser_available, console_session, start_robot, wait_for
+from tools.harness.browser import browser_available, console_session, start_robot, wait_for
 from tests.system.test_stop_latch import _jobs, assert_still, code_of, wait_end
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,

@@ -17,9 +17,9 @@ from pathlib import Path
 from daemon.bus.client import Client, Subscriber
 from daemon.ritad.main import RitadExit
 from fakes.launch import RitadProcess
-from tests.daemon.test_faults_process import Ritad, write_config
+from tests.daemon.ritad.test_faults_process import Ritad, write_config
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def ritad(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:

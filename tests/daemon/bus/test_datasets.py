@@ -17,7 +17,7 @@ from daemon.ctl import main as ctl
 from daemon.bus.datasets import check_file, png_info, validate_folder
 from tests.dataset_writer import ABS_H_TRK, write_experiment, write_referencing
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

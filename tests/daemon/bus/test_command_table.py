@@ -15,7 +15,7 @@ from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.motion import MotionWaiters
 from daemon.ritad.worker_supervisor import WorkerSupervisor
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def bad(cmd: str, **args) -> str:

@@ -14,7 +14,7 @@ from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad import plugins
 from tests.ritad_up import ritad_in_process
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_the_simulator_is_an_installed_plugin_with_its_commands_in_the_table():

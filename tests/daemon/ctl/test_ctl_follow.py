@@ -21,7 +21,7 @@ from daemon.bus.client import Client
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 RESULT = {"procedure": "referencing", "verdict": "ok", "messages": ["fine"], "dataset": "d1", "files": []}
 
 

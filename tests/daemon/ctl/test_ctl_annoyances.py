@@ -18,7 +18,7 @@ from daemon.ctl.exitcodes import Exit
 from daemon.ritad.main import RitadExit
 from tests.ritad_up import ritad_in_process
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def python(code: str, *, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -24,6 +24,7 @@ from daemon.bus.client import Client
 from fakes.operator import lock_on_robot
 from daemon.bus.protocol import CommandError
 from fakes.launch import RitadProcess, spawn_ritad
+from tools.harness.config import ipc_command, ritad_toml
 
 CAMERA_SIZE = (160, 120)
 
@@ -33,23 +34,9 @@ def write_config(tmp: Path, data: Path) -> tuple[Path, str]:
     rt = tmp / "rt"
     rt.mkdir(exist_ok=True)
     path = tmp / "ritad.toml"
-    path.write_text(f"""
-[daemon]
-command_endpoints = ["ipc://{rt}/cmd"]
-telemetry_endpoints = ["ipc://{rt}/telemetry"]
-frame_endpoints = ["ipc://{rt}/frames"]
-data_dir = "{data}"
-start_worker = false
-
-[devices]
-camera = "sim:?size={CAMERA_SIZE[0]}x{CAMERA_SIZE[1]}"
-tracker = "sim:"
-robot = "sim:"
-
-[sim]
-seed = 5
-""")
-    return path, f"ipc://{rt}/cmd"
+    path.write_text(ritad_toml(ipc_dir=rt, data=data, devices={"camera": f"sim:?size={CAMERA_SIZE[0]}x{CAMERA_SIZE[1]}"},
+                               seed=5))
+    return path, ipc_command(rt)
 
 
 def Ritad(tmp: Path, config: Path, watchdog_usec: int | None = None) -> RitadProcess:  # noqa: N802

@@ -21,8 +21,8 @@ from daemon.ritad import config
 from daemon.bus.client import Client
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
-from tests.daemon.test_faults import SMALL_CAMERA, wait_for
-from tests.daemon.test_faults_process import Ritad, write_config
+from tests.daemon.ritad.test_faults import SMALL_CAMERA, wait_for
+from tests.daemon.ritad.test_faults_process import Ritad, write_config
 
 
 def count_pings(sock: socket.socket, duration: float) -> int:

@@ -23,7 +23,7 @@ from daemon.ctl.procverbs import add_procedure_parsers, params_of
 from daemon.worker.finish import FINISH
 from daemon.worker.procedures import RUN
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_a_procedure_name_is_a_literal_in_the_declarations_only():

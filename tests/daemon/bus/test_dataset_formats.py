@@ -15,7 +15,7 @@ from daemon.bus import storage
 from daemon.bus.datasets import png_info, validate_folder
 from daemon.ctl import main as ctl
 from daemon.compute.images import read_image
-from tests.daemon.test_datasets import rob_H_cam_error
+from tests.daemon.bus.test_datasets import rob_H_cam_error
 from tests.dataset_writer import write_referencing
 
 

@@ -13,7 +13,7 @@ from daemon import __version__
 from daemon.ctl import main as ctl
 from daemon.ctl.exitcodes import Exit
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def run(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:

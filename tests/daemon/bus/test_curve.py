@@ -14,24 +14,14 @@ import pytest
 from daemon.bus.auth import create_keypair, load_keypair, load_public
 from daemon.bus.client import Client, ClientRefused, ClientTimeout
 from daemon.bus.protocol import CommandError
+from tools.harness.config import NO_DEVICES, ipc_command, ritad_toml
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
-CONFIG = """
-[daemon]
-command_endpoints = ["ipc://{tmp}/cmd", "tcp://127.0.0.1:0"]
-telemetry_endpoints = ["ipc://{tmp}/tel", "tcp://127.0.0.1:0"]
-frame_endpoints = ["ipc://{tmp}/frm", "tcp://127.0.0.1:0"]
-data_dir = "{tmp}/data"
 
-[devices]
-camera = "genicam:///nonexistent/producer.cti"
-tracker = "emscon://127.0.0.1:1"
-robot = "loop://"
-
-[security]
-curve = true
-"""
+def curve_config(tmp: Path) -> str:
+    """ritad without devices, CURVE on tcp, plain ipc in ``tmp``."""
+    return ritad_toml(ipc_dir=tmp, data=tmp / "data", devices=NO_DEVICES, tcp=True, curve=True)
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +34,7 @@ def secured(tmp_path_factory):
         create_keypair(keys, name)
     (data / "authorized_keys").mkdir(parents=True)
     (data / "authorized_keys" / "alice.key").write_bytes((keys / "alice.key").read_bytes())
-    (tmp / "ritad.toml").write_text(CONFIG.format(tmp=tmp))
+    (tmp / "ritad.toml").write_text(curve_config(tmp))
     log = open(tmp / "ritad.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=log,
@@ -54,7 +44,7 @@ def secured(tmp_path_factory):
     eps = line.split(": ", 1)[1].split()
     tcp = next(e for e in eps if e.startswith("tcp://"))
     server = load_public(data / "keys" / "server.key")
-    yield {"tcp": tcp, "ipc": f"ipc://{tmp}/cmd", "keys": keys, "server": server, "data": data, "log": tmp / "ritad.log"}
+    yield {"tcp": tcp, "ipc": ipc_command(tmp), "keys": keys, "server": server, "data": data, "log": tmp / "ritad.log"}
     proc.send_signal(signal.SIGTERM)
     proc.wait(10)
 
@@ -206,7 +196,7 @@ def test_telemetry_over_curve(secured):
 
 
 def test_missing_server_key_is_a_clear_error(tmp_path):
-    (tmp_path / "ritad.toml").write_text(CONFIG.format(tmp=tmp_path))
+    (tmp_path / "ritad.toml").write_text(curve_config(tmp_path))
     r = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
                        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "ritactl keys init --server" in r.stderr

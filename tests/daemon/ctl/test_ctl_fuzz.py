@@ -26,7 +26,7 @@ from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
-from tests.daemon.test_ctl_table import walk
+from tests.daemon.ctl.test_ctl_table import walk
 from tests.fuzzscale import cases, scaled
 
 SIZES = (1200, 400)  # full run, make-test sample

@@ -1,7 +1,7 @@
 """Hostile bytes injected into a running daemon's device links: it resyncs and keeps serving.
 
 emScon: a TCP proxy between the daemon's real ``EmsconTracker`` and the fake tracker
-injects 220 random streams (from ``tests/test_fuzz_devices``: valid packets,
+injects 220 random streams (from ``tests/drivers/test_fuzz_devices``: valid packets,
 truncated, oversized, mutated, random bytes, sent whole or split) into the tracker's
 byte stream. Every command gets one clear answer (never ``internal``), a broken
 stream makes the runner reconnect, the tracker answers again afterwards and the
@@ -30,7 +30,7 @@ from daemon.ritad.main import Daemon
 from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
-from tests.daemon.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
+from tests.drivers.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
 from tests.fuzzscale import cases
 
 

@@ -7,7 +7,7 @@ import pytest
 from daemon.ritad import config
 from drivers.base import DeviceURL
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 #: every device URL is required; the tests of other keys use the simulated ones
 SIM_DEVICES = "[devices]\ncamera = 'sim:'\ntracker = 'sim:'\nrobot = 'sim:'\n"
 

@@ -14,7 +14,7 @@ from tests.ritad_up import ritad_in_process
 pytestmark = pytest.mark.timeout(120)
 
 
-@pytest.mark.parametrize("fmt,dtype", [("BayerRG12p", "<u2")])  # RGB8: tests/daemon/test_dataset_formats.py
+@pytest.mark.parametrize("fmt,dtype", [("BayerRG12p", "<u2")])  # RGB8: tests/daemon/bus/test_dataset_formats.py
 def test_capture_keeps_the_pixel_format_end_to_end(tmp_path: Path, fmt: str, dtype: str) -> None:
     def colour(cfg) -> None:
         cfg.camera.pixel_format = fmt

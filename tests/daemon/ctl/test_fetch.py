@@ -256,7 +256,7 @@ def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
     import sys
 
     from daemon.bus.auth import create_keypair, load_keypair, load_public
-    from tests.daemon.test_curve import CONFIG, ROOT
+    from tests.daemon.bus.test_curve import ROOT, curve_config
 
     data = tmp_path / "data"
     create_keypair(data / "keys", "server")
@@ -266,7 +266,7 @@ def test_fetch_over_curve_tcp_never_carries_the_keys(tmp_path: Path) -> None:
     (data / "datasets" / "d").mkdir(parents=True)
     body = np.random.default_rng(5).bytes(3 * CHUNK_MAX + 123)
     (data / "datasets" / "d" / "x.png").write_bytes(body)
-    (tmp_path / "ritad.toml").write_text(CONFIG.format(tmp=tmp_path))
+    (tmp_path / "ritad.toml").write_text(curve_config(tmp_path))
     proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")],
                             cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
                             stderr=open(tmp_path / "ritad.log", "w"), text=True)

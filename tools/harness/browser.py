@@ -1,4 +1,4 @@
-"""Shared pieces of the console's browser tests and of bench/bench_console.py and tools/console_screenshots.py.
+"""The console's browser harness: tests/console, bench/bench_console.py and tools/console_screenshots.py.
 
 One simulated ritad (ipc for the local operator and the worker, CURVE tcp for a viewer
 key), ``ritactl console`` as a real process on port 0, and Debian's headless chromium
@@ -19,27 +19,16 @@ from typing import Any, Callable, Iterator
 from daemon.bus import roles
 from daemon.bus.auth import create_keypair, load_public
 from fakes.launch import RitadProcess, start_ritad
+from tools.harness.config import ritad_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
 
-CONFIG = """
-[daemon]
-command_endpoints = ["ipc://@TMP@/rt/cmd", "tcp://127.0.0.1:0"]
-telemetry_endpoints = ["ipc://@TMP@/rt/telemetry", "tcp://127.0.0.1:0"]
-frame_endpoints = ["ipc://@TMP@/rt/frames", "tcp://127.0.0.1:0"]
-data_dir = "@TMP@/data"
-start_worker = {worker}
-[devices]
-tracker = "sim:"
-camera = "{camera}"
-robot = "sim:"
-[sim]
-seed = 3
-[security]
-curve = true
-"""
+
+def robot_config(camera: str = "sim:", worker: bool = True) -> str:
+    """The console's robot: ipc for the local operator and the worker, CURVE tcp for laptop keys."""
+    return ritad_toml(tcp=True, devices={"camera": camera}, worker=worker, seed=3, curve=True)
 
 
 def browser_available() -> str | None:
@@ -64,8 +53,7 @@ def start_robot(tmp: Path, camera: str = "sim:", worker: bool = True,
         public, _ = create_keypair(laptop, name)
         roles.write_entry(data / "authorized_keys", name, load_public(public), role)
     (laptop / "server.key").write_bytes((data / "keys" / "server.key").read_bytes())
-    config = CONFIG.replace("{camera}", camera).replace("{worker}", "true" if worker else "false")
-    r = start_ritad(config, tmp=tmp, timeout=90)
+    r = start_ritad(robot_config(camera, worker), tmp=tmp, timeout=90)
     try:
         r.wait_ready(timeout=90, worker=worker)
     except BaseException:
@@ -160,4 +148,5 @@ def console_session(args: list[str], tmp: Path) -> Iterator[tuple[ConsoleProcess
         con.stop()
 
 
-__all__ = ["ConsoleProcess", "browser", "browser_available", "console_session", "start_robot", "wait_for"]
+__all__ = ["ConsoleProcess", "browser", "browser_available", "console_session", "robot_config", "start_robot",
+           "wait_for"]
