@@ -29,7 +29,7 @@ import numpy as np
 Emit = Callable[[str, Any], None]
 
 
-def _no_emit(topic: str, payload: Any) -> None:
+def no_emit(topic: str, payload: Any) -> None:
     """Default sink used when a device runs outside the daemon (tests, scripts)."""
 
 
@@ -120,7 +120,7 @@ class Device(ABC):
 
     kind: ClassVar[str] = "device"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: Any = None) -> None:
         self.url = url
         self.emit = emit
@@ -276,7 +276,7 @@ class Camera(StreamingDevice):
 
     kind = "camera"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self._want_stream = False
         self._streaming = False

@@ -37,7 +37,7 @@ from genicam import gentl
 from harvesters.core import Callback, Harvester, ImageAcquirer
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
-                          DeviceURL, Emit, Frame, _no_emit)
+                          DeviceURL, Emit, Frame, no_emit)
 from drivers.genicam_device import decode_buffer, select_device
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, set_trigger_mode
 
@@ -62,7 +62,7 @@ class _Counter(Callback):
 class GenICamCamera(Camera):
     """A GenICam camera through harvesters; see the module docstring for the URL."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - set(OPTIONS))

@@ -24,7 +24,7 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, _no_emit
+from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
 
 #: longest single blocking read; keeps every loop responsive to its deadline
 READ_SLICE_S = 0.02
@@ -39,7 +39,7 @@ class SerialRobot(Robot):
     #: options this adapter reads itself (removed before pyserial sees the URL)
     OWN_OPTIONS: frozenset[str] = frozenset({"baudrate", "timeout", "retries", "state_hz"})
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.baudrate: int = url.option("baudrate", 115200, int)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
-                          Emit, Frame, _no_emit)
+                          Emit, Frame, no_emit)
 from drivers import pixel_formats
 from fakes.colour import ColourRenderer, sensor_image
 from fakes.render import Renderer
@@ -105,7 +105,7 @@ def _count(url: DeviceURL, key: str) -> int:
 class SimCamera(Camera):
     """Renders the simulated world at the robot's pose; see the module docstring."""
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)

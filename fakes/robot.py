@@ -39,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceURL, Emit, _no_emit
+from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase, unit_interval
 from fakes import worlds
@@ -190,7 +190,7 @@ class SimRobot(SerialRobot):
     OWN_OPTIONS = SerialRobot.OWN_OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
                                              worlds.OPTION}
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         unknown = sorted(set(url.query) - self.OWN_OPTIONS)
         if unknown:

@@ -21,8 +21,6 @@ import msgpack
 SCHEMA_VERSION = 1
 
 #: telemetry topics (the first frame of every PUB message)
-TOPICS = ("daemon.health", "daemon.state", "tracker.point", "tracker.event", "robot.state", "robot.event",
-          "camera.state", "camera.frame", "calib.progress", "calib.result", "calib.prompt", "log")
 
 
 class ErrorCode:
