@@ -23,11 +23,11 @@ ROLES: tuple[str, ...] = tuple(r.value for r in Role)
 
 
 class Kind(StrEnum):
-    """The robot's devices, one owner thread and one ``[devices]`` URL each."""
+    """The robot's devices, one owner thread and one ``[devices]`` URL each (in the config's order)."""
 
+    CAMERA = "camera"
     TRACKER = "tracker"
     ROBOT = "robot"
-    CAMERA = "camera"
 
 
 KINDS: tuple[str, ...] = tuple(k.value for k in Kind)
