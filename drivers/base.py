@@ -29,7 +29,7 @@ import numpy as np
 Emit = Callable[[str, Any], None]
 
 
-def _no_emit(topic: str, payload: Any) -> None:
+def no_emit(topic: str, payload: Any) -> None:
     """Default sink used when a device runs outside the daemon (tests, scripts)."""
 
 
@@ -137,7 +137,7 @@ class Device(ABC):
             raise ValueError(f"{cls.kind} URL {url.raw!r}: unknown option{'s' if len(unknown) > 1 else ''} "
                              f"{', '.join(map(repr, unknown))} (known: {', '.join(sorted(known)) or 'none'})")
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: Any = None) -> None:
         self.check_url(url)
         self.url = url
@@ -294,7 +294,7 @@ class Camera(StreamingDevice):
 
     kind = "camera"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self._want_stream = False
         self._streaming = False

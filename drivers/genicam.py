@@ -37,7 +37,7 @@ from genicam import gentl
 from harvesters.core import Callback, Harvester, ImageAcquirer
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
-                          DeviceURL, Emit, Frame, _no_emit)
+                          DeviceURL, Emit, Frame, no_emit)
 from drivers.genicam_device import decode_buffer, select_device
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, set_trigger_mode
 
@@ -63,7 +63,7 @@ class GenICamCamera(Camera):
 
     OPTIONS = frozenset({"serial", "name", "index", "num_buffers", "timeout"})
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         if not url.path.endswith(".cti"):

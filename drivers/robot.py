@@ -24,7 +24,7 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, _no_emit
+from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
 
 #: longest single blocking read; keeps every loop responsive to its deadline
 READ_SLICE_S = 0.02
@@ -47,7 +47,7 @@ class SerialRobot(Robot):
     def url_options(cls, url: DeviceURL) -> frozenset[str]:
         return cls.OPTIONS | cls.PYSERIAL_OPTIONS.get(url.scheme, frozenset())
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.baudrate: int = url.option("baudrate", 115200, int)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
-                          Emit, Frame, _no_emit)
+                          Emit, Frame, no_emit)
 from drivers import pixel_formats
 from fakes.colour import ColourRenderer, sensor_image
 from fakes.render import Renderer
@@ -106,7 +106,7 @@ class SimCamera(Camera):
     OPTIONS = frozenset({"size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
                          "disconnect_after", worlds.OPTION})
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)

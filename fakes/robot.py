@@ -39,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceURL, Emit, _no_emit
+from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase, unit_interval
 from fakes import worlds
@@ -189,7 +189,7 @@ class SimRobot(SerialRobot):
 
     OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate", worlds.OPTION}
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
         self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),

@@ -36,8 +36,8 @@ import sys
 import threading
 from typing import Any
 
-from drivers.base import DeviceURL, Emit, _no_emit
-from drivers.emscon.adapter import EmsconTracker, _flag
+from drivers.base import DeviceURL, Emit, no_emit
+from drivers.emscon.adapter import EmsconTracker, flag
 from drivers.emscon.enums import ES_Command, ES_ResultStatus
 from fakes.tracker_server import Faults, FakeTrackerServer
 from fakes import worlds
@@ -140,7 +140,7 @@ class SimTracker(EmsconTracker):
     OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
                                        "delay_ms", "split", "garbage_after", "result_first", "fail", worlds.OPTION}
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
         o = url.option
@@ -151,8 +151,8 @@ class SimTracker(EmsconTracker):
             raise ValueError(f"tracker URL {url.raw!r}: flood_batch={self.sim_options['flood_batch']} "
                              "must be >= 0")
         self.sim_faults = Faults(drop_after=o("drop_after", 0, int), delay_ms=o("delay_ms", 0.0, float),
-                                 split=o("split", False, _flag), garbage_after=o("garbage_after", 0, int),
-                                 result_first=o("result_first", False, _flag), fail=o("fail", {}, _fail_map))
+                                 split=o("split", False, flag), garbage_after=o("garbage_after", 0, int),
+                                 result_first=o("result_first", False, flag), fail=o("fail", {}, _fail_map))
         self.server: FakeTrackerThread | None = None
 
     def endpoint(self) -> tuple[str, int]:

@@ -20,8 +20,8 @@ from typing import Any
 from daemon.bus.args import POS, REQUIRED, Arg, BadValue
 from daemon.bus.procedures import MOVING_PROCEDURES, PROCEDURES
 from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.bus.names import ROLES
 
-ROLES = ("viewer", "operator", "admin")
 
 
 @dataclass(frozen=True)

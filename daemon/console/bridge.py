@@ -18,9 +18,10 @@ from typing import Any, Callable
 
 from daemon.bus.client import Client, ClientTimeout, Subscriber
 from daemon.bus.protocol import CommandError
+from daemon.bus.names import Topic
 
 #: topics whose every message matters to the page (prompts, results, motion ends), not just the last
-EVENT_TOPICS = ("calib.prompt", "calib.result", "robot.event", "tracker.event", "log")
+EVENT_TOPICS = (Topic.CALIB_PROMPT, Topic.CALIB_RESULT, Topic.ROBOT_EVENT, Topic.TRACKER_EVENT, Topic.LOG)
 EVENT_RING = 200
 
 

@@ -26,6 +26,7 @@ from daemon.bus.procedures import check_params
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch
+from daemon.bus.names import Topic
 
 #: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
 FINAL_STATES = ("done", "failed", "cancelled")
@@ -137,7 +138,7 @@ class CalibJobs:
         job.update(state="queued", progress=None, result=None, prompt=None, error=None)
         self._inboxes.pop(job["job"], None)  # a stale answer or cancel must not hit the new run
         self._queue.put({k: job[k] for k in ("job", "procedure", "params")})
-        self._publish("calib.progress", {"job": job["job"], "step": step, "percent": 0.0,
+        self._publish(Topic.CALIB_PROGRESS, {"job": job["job"], "step": step, "percent": 0.0,
                                          "waiting_for": "the calibration worker"})
         return {"job": job["job"], "worker_seen_s_ago": self.worker_age()}
 
@@ -242,7 +243,7 @@ class CalibJobs:
                        "failed": True, "message": msg}
             job.update(state="stopped", prompt=None, run_ended=never_ran, result=payload, error=msg)
             log.warning("job %s stopped by %s", job_id, by)
-            self._publish("calib.result", payload)
+            self._publish(Topic.CALIB_RESULT, payload)
             out.append(job_id)
         return out
 
@@ -279,10 +280,10 @@ class CalibJobs:
             return {"ok": True, "ignored": f"job {job_id} is already {job['state']}"}
         if kind == "progress":
             job.update(progress=data, state="running")
-            self._publish("calib.progress", {"job": job_id, **data})
+            self._publish(Topic.CALIB_PROGRESS, {"job": job_id, **data})
         elif kind == "prompt":
             job.update(prompt=data, state="waiting")
-            self._publish("calib.prompt", {"job": job_id, **data})
+            self._publish(Topic.CALIB_PROMPT, {"job": job_id, **data})
         else:
             # a run the latched stop ended is "stopped" (resumable after release), also for a job adopted above
             stopped = kind == "error" and bool(data.get("stopped"))
@@ -292,7 +293,7 @@ class CalibJobs:
             job.update(state=state, result=payload, prompt=None, run_ended=True if stopped else job.get("run_ended"),
                        error=str(data.get("message", "failed")) if kind == "error" else None)
             log.info("job %s %s", job_id, state)
-            self._publish("calib.result", payload)
+            self._publish(Topic.CALIB_RESULT, payload)
         return {"ok": True}
 
     def handlers(self) -> dict[str, Callable[[Request], Any]]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.bus.command_table import ROLES
+from daemon.bus.names import KINDS, ROLES
 from daemon.bus import station
 from daemon.ritad.registry import AdapterError, build_device, schemes
 from drivers.base import CameraSettings, DeviceURL
@@ -112,7 +112,7 @@ class Config:
     source: str = "<built-in>"
 
     def device_urls(self) -> dict[str, str]:
-        return {k: getattr(self.devices, k) for k in ("camera", "tracker", "robot")}
+        return {k: getattr(self.devices, k) for k in KINDS}
 
 
 # --------------------------------------------------------------------------- loading
@@ -183,7 +183,7 @@ def _build(cls: type, data: dict[str, Any], src: str, prefix: str = "") -> Any:
 
 def _validate(cfg: Config) -> None:
     src = cfg.source
-    for kind in ("camera", "tracker", "robot"):
+    for kind in KINDS:
         url = getattr(cfg.devices, kind)
         if not url:
             raise ConfigError(f"{src}: devices.{kind} is missing: every device needs a URL in [devices] "

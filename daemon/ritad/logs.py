@@ -6,6 +6,8 @@ import os
 import sys
 from typing import Any, Callable
 
+from daemon.bus.names import Topic
+
 _PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3, logging.CRITICAL: 2}
 
 
@@ -36,7 +38,7 @@ class BusLogHandler(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
-            self._publish("log", {"level": record.levelname, "logger": record.name, "message": record.getMessage(),
+            self._publish(Topic.LOG, {"level": record.levelname, "logger": record.name, "message": record.getMessage(),
                                   "t": record.created})
         except Exception:  # logging must never raise into the caller
             pass

@@ -50,9 +50,9 @@ from daemon.ritad.services import Services  # noqa: E402
 from daemon.ritad.stop_latch import LATCH_FILE, StopLatch  # noqa: E402
 from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
 from drivers.base import Device, Frame  # noqa: E402
+from daemon.bus.names import KINDS, Topic  # noqa: E402
 
 log = logging.getLogger("ritad")
-KINDS = ("tracker", "robot", "camera")
 
 
 class RitadExit(enum.IntEnum):
@@ -97,7 +97,7 @@ class Daemon:
         if isinstance(payload, Frame):
             self.frames.publish(payload)
             return
-        if topic == "robot.event":
+        if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
         self.telemetry.publish(topic, payload)
 
@@ -135,7 +135,7 @@ class Daemon:
                                     plain_role=self.config.security.ipc_role)
         for t in (self.telemetry, self.frames, self.server):
             t.start()
-        self.telemetry.publish("robot.latch", self.latch.snapshot())  # late joiners' snapshot holds it too
+        self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())  # late joiners' snapshot holds it too
         for kind in KINDS:
             runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
@@ -235,7 +235,7 @@ class Daemon:
             if now >= next_health:
                 self.worker.tend()
                 h = self.health()
-                self.telemetry.publish("daemon.health", h)
+                self.telemetry.publish(Topic.DAEMON_HEALTH, h)
                 status = ", ".join(f"{k} {v['state']}" for k, v in h["devices"].items())
                 if status != last_status:
                     notifier.status(status)

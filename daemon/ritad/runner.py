@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceTimeout
+from daemon.bus.names import Topic
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,7 @@ class DeviceRunner(threading.Thread):
             if state is DeviceState.READY:
                 self._last_fault = ""
             log.debug("%s %s", self.kind, state.value)
-        self._publish("daemon.state", {"device": self.kind, "state": state.value, "reason": reason,
+        self._publish(Topic.DAEMON_STATE, {"device": self.kind, "state": state.value, "reason": reason,
                                        "reconnects": self.reconnects})
 
     def _fail_queued(self, why: str) -> None:

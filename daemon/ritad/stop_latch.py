@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_json
+from daemon.bus.names import Topic
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ class StopLatch:
                 atomic_write_json(self._path, snap)
             except OSError as exc:  # the latch still holds in memory
                 log.error("cannot persist the stop latch to %s: %s", self._path, exc)
-        self._publish("robot.latch", snap)
+        self._publish(Topic.ROBOT_LATCH, snap)
 
     def engage(self, by: str, reason: str = "robot.stop") -> None:
         """Latch (again): a second STOP re-stamps who and when, and still halts the base."""
@@ -97,5 +98,5 @@ class StopLatch:
         msg = self.message(cmd)
         with self._lock:
             self.refused += 1
-        self._publish("robot.refused", {"cmd": cmd, "by": by, "message": msg})
+        self._publish(Topic.ROBOT_REFUSED, {"cmd": cmd, "by": by, "message": msg})
         raise CommandError(ErrorCode.STOPPED, msg)

@@ -18,7 +18,7 @@ import math
 import time
 from typing import Any
 
-from drivers.base import DeviceError, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, _no_emit
+from drivers.base import DeviceError, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import Packet
 from drivers.emscon.enums import (
@@ -50,7 +50,7 @@ def _actionable(exc: DeviceError) -> DeviceError:
     return exc
 
 
-def _flag(text: str) -> bool:
+def flag(text: str) -> bool:
     if text.lower() in ("1", "true", "yes", "on"):
         return True
     if text.lower() in ("0", "false", "no", "off"):
@@ -58,7 +58,7 @@ def _flag(text: str) -> bool:
     raise ValueError(text)
 
 
-_flag.__name__ = "flag (0/1)"
+flag.__name__ = "flag (0/1)"
 
 
 class EmsconTracker(Tracker):
@@ -67,7 +67,7 @@ class EmsconTracker(Tracker):
     OPTIONS = frozenset({"timeout", "init_timeout", "connect_timeout", "meas_time_ms", "use_adm", "reflector",
                          "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = _no_emit,
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         o = url.option
@@ -75,7 +75,7 @@ class EmsconTracker(Tracker):
         self.init_timeout: float = o("init_timeout", 90.0, float)
         self.connect_timeout: float = o("connect_timeout", 5.0, float)
         self.meas_time_ms: int = o("meas_time_ms", 1000, int)
-        self.use_adm: bool = o("use_adm", False, _flag)
+        self.use_adm: bool = o("use_adm", False, flag)
         self.reflector: str | None = o("reflector", None, str)
         self.search_radius_mm: float | None = o("search_radius_mm", None, float)
         env = [o(k, None, float) for k in ("temperature_c", "pressure_mbar", "humidity_rh")]
