@@ -1,44 +1,25 @@
-"""Camera-to-robot calibration (the paper's referencing method), pure numpy/OpenCV."""
+"""Camera-to-robot calibration (the paper's referencing method), pure numpy/OpenCV.
+
+Its public names are imported here at once: every user of this package needs numpy and OpenCV
+anyway (the laptop client never imports it), and a leaf that imports nothing of ours cannot share
+the lazy face of daemon/face.py.
+"""
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from calibration.referencing import ReferencingResult, reference, robot_pose
+from calibration.measure import MarkMeasurement, mark_to_abs, measure_image, measure_mark
+from calibration.metrics import ExperimentMetrics, experiment_metrics, fit_bias, min_enclosing_circle
+from calibration.reversal import ReversalResult, combine
+from calibration.intrinsics import calibrate_intrinsics
+from calibration.plate_survey import SurveyResult, run_survey
+from calibration.compensation import Compensation, compensate
+from calibration.camera_model import CameraModel
+from calibration.plate import Plate
+from calibration.frames import apply_H, assert_rotation, check_H, inv_H, make_H
 
 __version__ = "0.1.0"
 
-#: the package's public names -> the module that defines them; imported on first use, so
-#: importing one submodule (or this face) never loads the rest
-_FACE = {
-    "reference": "referencing",
-    "ReferencingResult": "referencing",
-    "robot_pose": "referencing",
-    "measure_mark": "measure",
-    "measure_image": "measure",
-    "MarkMeasurement": "measure",
-    "mark_to_abs": "measure",
-    "experiment_metrics": "metrics",
-    "ExperimentMetrics": "metrics",
-    "fit_bias": "metrics",
-    "min_enclosing_circle": "metrics",
-    "combine": "reversal",
-    "ReversalResult": "reversal",
-    "calibrate_intrinsics": "intrinsics",
-    "run_survey": "plate_survey",
-    "SurveyResult": "plate_survey",
-    "compensate": "compensation",
-    "Compensation": "compensation",
-    "CameraModel": "camera_model",
-    "Plate": "plate",
-    "make_H": "frames",
-    "inv_H": "frames",
-    "apply_H": "frames",
-    "check_H": "frames",
-    "assert_rotation": "frames",
-}
-__all__ = sorted(_FACE)
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _FACE:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_FACE[name]}"), name)
+__all__ = ["CameraModel", "Compensation", "ExperimentMetrics", "MarkMeasurement", "Plate", "ReferencingResult",
+           "ReversalResult", "SurveyResult", "apply_H", "assert_rotation", "calibrate_intrinsics", "check_H",
+           "combine", "compensate", "experiment_metrics", "fit_bias", "inv_H", "make_H", "mark_to_abs",
+           "measure_image", "measure_mark", "min_enclosing_circle", "reference", "robot_pose", "run_survey"]

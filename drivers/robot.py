@@ -242,7 +242,8 @@ class SerialRobot(Robot):
             deadline = time.monotonic() + self.reply_timeout
             resend = False
             while not resend and time.monotonic() < deadline:
-                for msg in self._receive(deadline):
+                got = self._receive(deadline)
+                for i, msg in enumerate(got):
                     reply_seq = msg.seq() if msg.kind in rp.REPLIES else -1
                     if reply_seq is None and msg.fields[1:2] == ("CHECKSUM",):
                         resend = True  # the base got a corrupted line, most likely ours
@@ -257,6 +258,8 @@ class SerialRobot(Robot):
                     elif msg.kind != expect:
                         self.counters["unexpected"] += 1
                     else:
+                        for rest in got[i + 1:]:  # read in the same chunk after our reply: strays, counted
+                            self._count_stray(rest)
                         return msg
         raise DeviceLost(f"robot base did not answer {kind} (seq {seq}) in "
                          f"{self.retries + 1} tries of {self.reply_timeout:.3g} s")

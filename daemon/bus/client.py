@@ -160,9 +160,16 @@ class Client:
             self._check_socket(cmd)
         req_id = f"{self._prefix}-{next(self._ids)}"
         sock = self._socket()
-        sock.send(make_request(req_id, cmd, args))
         wait = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + wait
+        # a DEALER without a pipe (a key just refused, the reconnect not yet made) blocks in send: bound it
+        sock.setsockopt(zmq.SNDTIMEO, max(0, int(wait * 1000)))
+        try:
+            sock.send(make_request(req_id, cmd, args))
+        except zmq.Again:
+            refused = self._refusal() if self._monitor is not None else None
+            self._reset()
+            raise refused or self._no_answer(cmd, wait) from None
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
         if self._monitor is not None:

@@ -396,3 +396,22 @@ def test_socket_url_reaches_a_base_over_tcp() -> None:
         stop.set()
         thread.join(timeout=5)
         listener.close()
+
+
+def test_stray_replies_read_with_the_awaited_reply_are_counted_not_lost():
+    """The awaited reply and a stale one arrive in one read: the stale one is counted at once."""
+    from fakes.world import World
+    from fakes.worlds import sim_url
+
+    world = World()
+    robot = SimRobot(sim_url(world, "state_hz=0&timeout=0.3"))
+    robot.open()
+    try:
+        seq = rp.next_seq(robot._seq)  # the STATUS the next status() sends
+        chunk = rp.encode("STATUS", seq, "IDLE", 0.0, 0.0, 0.0) + rp.encode("ACK", 4242)
+        os.write(robot.server.master, chunk)
+        before = robot.counters["stale"]
+        assert robot.status().state == "IDLE"
+        assert robot.counters["stale"] - before >= 1  # before the fix the ACK was dropped uncounted
+    finally:
+        robot.shutdown()

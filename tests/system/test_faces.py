@@ -30,7 +30,7 @@ def test_every_public_name_of_a_package_resolves(package):
 
 def test_the_faces_load_nothing_heavy():
     """ritactl's packages keep starting without numpy or OpenCV: a face imports on first use."""
-    code = ("import sys, daemon.bus, daemon.ctl, daemon.console, drivers, calibration; "
+    code = ("import sys, daemon.bus, daemon.ctl, daemon.console, drivers; "
             "from daemon.bus import Client, Topic; "
             "print(sorted(m for m in ('numpy', 'cv2', 'harvesters', 'serial') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, check=True)

@@ -111,6 +111,21 @@ def test_unreachable_daemon_times_out(tmp_path):
     assert time.monotonic() - t0 < 2.0
 
 
+def test_a_send_that_cannot_go_out_still_ends_at_the_timeout():
+    """A DEALER with no pipe (here: IMMEDIATE to a port nothing listens on; on a robot, a key the
+    daemon just refused before the reconnect) blocks in send; the client's timeout must bound it."""
+    with zmq.Context() as ctx, Client("tcp://127.0.0.1:9", ctx=ctx, timeout=0.3) as c:
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.IMMEDIATE, 1)  # before connect: no pipe until a connection completes
+        sock.connect("tcp://127.0.0.1:9")
+        c.sock = sock
+        t0 = time.monotonic()
+        with pytest.raises(ClientTimeout):
+            c.call("ping")
+        assert time.monotonic() - t0 < 5.0
+
+
 def test_telemetry_snapshot_and_frames(tmp_path):
     ctx = zmq.Context()
     tel = TelemetryPublisher(ctx, [f"ipc://{tmp_path}/tel"])
