@@ -318,5 +318,5 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
 
 
 __all__ = ["Applied", "Compensation", "LEAN_NOT_COMPENSATED", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias",
-           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord", "ground_point", "imu_offset_deg",
-           "reflector_height_mm", "tilt_of_pose"]
+           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord", "ground_point",
+           "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]
