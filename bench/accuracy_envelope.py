@@ -3,9 +3,11 @@
 Each envelope case is ``paper+imu`` with the product's default compensation and one
 assumption of fakes/errors.py moved to a plausible other value (``Case.tweak``). Per case:
 median / p95 over seeds of the three goal metrics, whether each p95 meets its goal, and the
-coverage of the marks' stated σ: |error| / std_mm over every stop of every seed. With an
-honest isotropic Gaussian σ that ratio has median 0.83 and p95 1.73 (χ² with 2 degrees of
-freedom), so a p95 above 1.73 means the stated σ does not cover the error.
+coverage of the marks' stated σ: |error| / std_mm over every stop of every seed, for the σ
+the product states (issue #20: the tracker's MPE at its distance and the heading term) and the
+one it stated before (10 µm, no heading term). With an honest isotropic Gaussian σ that ratio
+has median 0.83 and p95 1.73 (χ² with 2 degrees of freedom), so a p95 above 1.73 means the
+stated σ does not cover the error.
 """
 from __future__ import annotations
 
@@ -16,18 +18,18 @@ import numpy as np
 
 from calibration.compensation import Compensation
 from daemon.bus.procedure_params import COMPENSATION
-from calibration.measure import DEFAULT_SIGMA_T_MM
+from calibration.measure import CHORD_HEADING_SIGMA_RAD, DEFAULT_SIGMA_T_MM
 from fakes.accuracy import GOALS_MM, Case, run
-from fakes.errors import CAL_44, TrackerErrors
 
 #: the product's default (daemon/bus/procedure_params.py)
 DEFAULT = Compensation.parse(COMPENSATION.default)
 #: |error| / σ of a correct isotropic 2-D Gaussian σ (radial std): median, p95
 HONEST_RATIO = (0.833, 1.731)
 GOAL_KEYS = ("enclosing_mm", "pairwise_mm", "abs_rms_mm")
-#: the chord's heading error from the drive's path deviation: 50 µm lateral over 0.2 m
-HEADING_RAD = 0.050 / 200.0
-HEADING_SOURCE = CAL_44
+#: the chord's heading error from the path deviation: 50 µm lateral over 0.2 m (docs/accuracy.md, "Error magnitudes")
+HEADING_RAD = CHORD_HEADING_SIGMA_RAD
+#: the coverage table's columns: (heading, the per-stop σ key of fakes.accuracy.run)
+COVERAGE = (("before #20 (10 µm, no heading term)", "std_old_mm"), ("as stated (new)", "std_mm"))
 
 
 def _case(name: str, *tweak: tuple[str, str, Any], profile: str = "paper+imu") -> Case:
@@ -44,6 +46,7 @@ CASES = (
     _case("floor correlation 150 mm", ("floor", "correlation_mm", 150.0)),
     _case("path deviation 35 µm (instead of 50) per 0.2 m", ("robot", "lateral_sigma_mm", 0.035)),
     _case("paper-fit+imu (mount eccentricity 0.18 mm)", profile="paper-fit+imu"),
+    Case("paper+imu", Compensation.parse("tilt,heading_fit,bias"), name="tilt,heading_fit,bias (the fit's σ)"),
 )
 
 
@@ -70,45 +73,42 @@ def goal_cells(rows: list[dict[str, Any]]) -> tuple[list[str], list[bool]]:
 
 
 def restated(row: dict[str, Any], sigma_t_mm: float | None = None, heading_rad: float = 0.0) -> np.ndarray:
-    """The stops' σ as the product would state it with tracker σ ``sigma_t_mm`` (None: as stated) and a
-    heading term ``heading_rad`` × the mark's lever arm from the reflector."""
-    var = row["std_mm"] ** 2 + (heading_rad * row["lever_mm"]) ** 2
+    """What-if: the stops' σ as the product stated it before issue #20 (10 µm, no heading term), restated
+    with tracker σ ``sigma_t_mm`` (None: 10 µm) and a heading term ``heading_rad`` × the mark's lever arm."""
+    var = row["std_old_mm"] ** 2 + (heading_rad * row["lever_mm"]) ** 2
     if sigma_t_mm is not None:
         var = var + (sigma_t_mm ** 2 - DEFAULT_SIGMA_T_MM ** 2) * row["t_unit_mm2"]
     return np.sqrt(var)
 
 
-def coverage(rows: list[dict[str, Any]], **restate: Any) -> tuple[float, float]:
-    """p50, p95 of |error| / σ over every stop (σ :func:`restated` with ``restate``)."""
-    r = np.concatenate([row["err_mm"] / restated(row, **restate) for row in rows])
+def coverage(rows: list[dict[str, Any]], key: str = "std_mm") -> tuple[float, float]:
+    """p50, p95 of |error| / σ over every stop, σ the per-stop figure ``key`` of the rows."""
+    r = np.concatenate([row["err_mm"] / row[key] for row in rows])
     return float(np.percentile(r, 50)), float(np.percentile(r, 95))
 
 
-def proposals(world_mark_distance_m: float) -> list[tuple[str, dict[str, Any]]]:
-    """The restatements of σ the coverage table tries (the second and third are proposals)."""
-    t = TrackerErrors()
-    sigma_t = t.mpe_to_sigma * (t.transverse_a_mm + t.transverse_b_mm_per_m * world_mark_distance_m)
-    return [("as stated", {}), ("+ heading term", {"heading_rad": HEADING_RAD}),
-            (f"+ heading, σ_t {sigma_t * 1000:.0f} µm", {"heading_rad": HEADING_RAD, "sigma_t_mm": sigma_t})]
-
-
-def _cover_head(names: list[str]) -> list[str]:
-    return ["| Case | stated σ (median) | " + " | ".join(f"\\|e\\|/σ p50 / p95, {n}" for n in names) + " |",
-            "|---|---:|" + "---:|" * len(names)]
+def _cover_head() -> list[str]:
+    return ["| Case | σ_t (median, µm) | stated σ (median, mm), before / new | "
+            + " | ".join(f"\\|e\\|/σ p50 / p95, {n}" for n, _ in COVERAGE) + " |",
+            "|---|---:|---:|" + "---:|" * len(COVERAGE)]
 
 
 def _mark(p: tuple[float, float]) -> str:
-    return f"{p[0]:.2f} / {p[1]:.2f}" + ("" if p[1] <= HONEST_RATIO[1] else " **not covered**")
+    return f"{p[0]:.2f} / {p[1]:.2f}" + (" covered" if p[1] <= HONEST_RATIO[1] else " **not covered**")
 
 
-def envelope(seeds: list[int], cases: tuple[Case, ...] = CASES, distance_m: float = 4.85) -> str:
-    """The goals table and the coverage table of ``cases`` (markdown; progress on stderr);
-    ``distance_m``: the tracker's distance to the marks (for the σ_t proposal)."""
+def _cover_row(label: str, rows: list[dict[str, Any]]) -> str:
+    med = {k: float(np.median(np.concatenate([r[k] for r in rows]))) for k in ("sigma_t_mm", "std_old_mm", "std_mm")}
+    return (f"| {label} | {med['sigma_t_mm'] * 1000:.1f} | {med['std_old_mm']:.3f} / {med['std_mm']:.3f} | "
+            + " | ".join(_mark(coverage(rows, k)) for _, k in COVERAGE) + " |")
+
+
+def envelope(seeds: list[int], cases: tuple[Case, ...] = CASES) -> str:
+    """The goals table and the coverage table of ``cases`` (markdown; progress on stderr)."""
     g = GOALS_MM
     goals = ["| Case | enclosing ≤ %.2f | pairwise ≤ %.2f | abs. RMS ≤ %.2f | goals at p95 | seeds meeting all |"
              % (g["enclosing_mm"], g["pairwise_mm"], g["abs_rms_mm"]), "|---|---:|---:|---:|---|---:|"]
-    props = proposals(distance_m)
-    cover = _cover_head([n for n, _ in props])
+    cover = _cover_head()
     for case in cases:
         rows = run_case(case, seeds)
         cells, met = goal_cells(rows)
@@ -116,11 +116,9 @@ def envelope(seeds: list[int], cases: tuple[Case, ...] = CASES, distance_m: floa
                                                                       zip(GOAL_KEYS, met) if not m)
         n_ok = sum(all(r[k] <= GOALS_MM[k] for k in GOAL_KEYS) for r in rows)
         goals.append(f"| {case.label} | " + " | ".join(cells) + f" | {verdict} | {n_ok}/{len(rows)} |")
-        sigma = float(np.median(np.concatenate([r["std_mm"] for r in rows])))
-        cover.append(f"| {case.label} | {sigma:.3f} | " + " | ".join(_mark(coverage(rows, **kw)) for _, kw in props)
-                     + " |")
+        cover.append(_cover_row(case.label, rows))
     return "\n".join(goals) + "\n\n" + "\n".join(cover)
 
 
-__all__ = ["CASES", "DEFAULT", "HEADING_RAD", "HONEST_RATIO", "coverage", "envelope", "goal_cells", "proposals",
+__all__ = ["CASES", "COVERAGE", "DEFAULT", "HEADING_RAD", "HONEST_RATIO", "coverage", "envelope", "goal_cells",
            "restated", "run_case"]

@@ -110,11 +110,8 @@ def main() -> None:
     t0 = time.perf_counter()
     print(f"# Accuracy budget, {len(seeds)} seeds ({seeds[0]}…), median / p95, mm\n\n{machine()}\n")
     if args.envelope:
-        w = World(WorldParams())
-        mark = next(m for m in w.params.marks if m.name == "M1")
-        dist_m = float(np.linalg.norm(w.abs_H_trk[:3, 3] - [mark.x_mm, mark.y_mm, 0.0])) / 1000.0
         print("## The default compensation at p95, and its sensitivity envelope (progress on stderr)\n")
-        print(envelope(seeds, distance_m=dist_m))
+        print(envelope(seeds))
         print(f"\n({time.perf_counter() - t0:.0f} s)")
         return
     print("## Profile × compensation\n")

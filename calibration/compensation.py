@@ -13,6 +13,10 @@ applied. None of them changes the paper's equations; they change their inputs:
 * **heading_fit** — the heading is the end tangent of a curve fitted to the tracker's
   stream along the last part of the approach (:func:`fit_heading`), not the chord
   P_prev→P_at, which is off the final heading by half the path's turn.
+
+Each result also says how well its heading is known beyond the two tracker points
+(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`): the chord's
+250 µrad from the path deviation, or the fit's own σ when the fit was applied.
 * **bias** — the robot-frame bias b of an earlier 8-direction experiment
   (calibration/metrics.py ``fit_bias``: cluster means M_k = M + R(ψ_k)·b) is removed
   from ``rob_H_scn`` (:func:`apply_bias`). Right for what is fixed in the robot frame
@@ -34,6 +38,7 @@ from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.imu_mount import body_tilt, rot2
+from calibration.measure import CHORD_HEADING_SIGMA_RAD
 from calibration.registration import as_points
 
 #: the compensation names, in the order results list them
@@ -177,6 +182,16 @@ class Applied:
     rob_H_scn: np.ndarray
     applied: list[str]
     skipped: dict[str, str]
+    #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
+    sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
+    heading_source: str = "chord"
+
+
+def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: float) -> float:
+    """The heading fit's σ less the chord's tracker part 2σ_a²/L², which measure_mark's Jacobian already
+    carries through the two tracker points (the fit's σ counts its anchors' noise too)."""
+    chord_var = 2.0 * (anchor_sigma_mm / length_mm) ** 2
+    return float(np.sqrt(max(fit_sigma_rad ** 2 - chord_var, 0.0)))
 
 
 def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -239,8 +254,10 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     if not fit.significant:
         out.skipped["heading_fit"] = fit.why
         return
-    out.abs_P_prev = P_at - sign * float(np.linalg.norm((P_at - out.abs_P_prev)[:2])) * fit.direction
+    length = float(np.linalg.norm((P_at - out.abs_P_prev)[:2]))
+    out.abs_P_prev = P_at - sign * length * fit.direction
     out.applied.append("heading_fit")
+    out.sigma_heading_rad, out.heading_source = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length), "heading_fit"
 
 
 def _lean_change_um(stop: Stop, height: float) -> float | None:
@@ -301,5 +318,5 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
 
 
 __all__ = ["Applied", "Compensation", "LEAN_NOT_COMPENSATED", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias",
-           "body_z", "compensate", "fit_heading", "forward_prev", "ground_chord", "ground_point", "imu_offset_deg",
-           "reflector_height_mm", "tilt_of_pose"]
+           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord", "ground_point",
+           "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]

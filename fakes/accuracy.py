@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from calibration.compensation import Compensation, Stop, compensate, imu_offset_deg
-from calibration.measure import measure_mark
+from calibration.measure import DEFAULT_SIGMA_T_MM, measure_mark, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
 from calibration.referencing import reference, rob_H_cam_error
 from calibration.scs import make_scs
@@ -62,24 +62,37 @@ def _stop(o: MarkObs) -> Stop:
     return Stop(o.abs_P_prev, o.abs_P_at, tilt_prev, tilt_at, o.stream, o.stream_tilt_deg)
 
 
-def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
-                bias: Any, cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ACS marks of every stop, their approach headings (deg) and (N, 3) σ figures, with ``comp`` applied.
+def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
+    """The tracker's distance to the stop's two points, as the product takes it (the larger)."""
+    if abs_t_trk is None:
+        return None
+    return max(float(np.linalg.norm(P - abs_t_trk)) for P in (o.abs_P_prev, o.abs_P_at))
 
-    σ figures per stop: the stated std_mm as the worker reports it (daemon/worker/compute.py: the
-    tracker's 10 µm default, 0.05 px, the calibration's ``cov_rob_H_scn``), the mark variance per
-    unit tracker variance (mm²/mm², to restate σ with another σ_t) and the mark's lever arm from
-    the reflector (mm, to add a heading term).
+
+def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
+                bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
+
+    σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
+    from its MPE at its distance (``abs_t_trk``: the tracker's ACS position; None: the 10 µm
+    default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``. Per stop:
+    that std_mm; the mark variance per unit tracker variance (mm²/mm², to restate σ with another
+    σ_t); the mark's lever arm from the reflector (mm); the std_mm the product stated before issue
+    #20 (10 µm, no heading term); the heading term's share (mm); the tracker σ used (mm).
     """
     pts, heads, sig = [], [], []
     for o in val.observations:
         a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias)
+        s_t = stated_tracker_sigma(None, _distance_mm(o, abs_t_trk))[0]
         m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
-                         pitch_deg=a.pitch_deg, cov_rob_H_scn=cov)
-        unit = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
-                            pitch_deg=a.pitch_deg, sigma_t_mm=1.0, sigma_px=0.0).std_mm ** 2
+                         pitch_deg=a.pitch_deg, cov_rob_H_scn=cov, sigma_t_mm=s_t,
+                         sigma_heading_rad=a.sigma_heading_rad)
+        parts = m.std_parts_mm
+        unit = (parts["tracker"] / s_t) ** 2
+        old = np.sqrt(m.std_mm ** 2 - parts["heading"] ** 2 + (DEFAULT_SIGMA_T_MM ** 2 - s_t ** 2) * unit)
         pts.append(m.abs_P)
-        sig.append((m.std_mm, unit, float(np.linalg.norm(m.rob_P[:2]))))
+        sig.append((m.std_mm, unit, float(np.linalg.norm(m.rob_P[:2])), old, parts["heading"], s_t))
         v = o.abs_P_at - a.abs_P_prev
         heads.append(np.degrees(np.arctan2(v[1], v[0])))
     return np.array(pts), np.array(heads), np.array(sig)
@@ -87,7 +100,8 @@ def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, i
 
 def run(case: Case, seed: int) -> dict[str, Any]:
     """One seed of ``case``: the metrics of :data:`METRICS`, per-stop image positions, errors and σ figures
-    (:func:`measure_all`), and the experiment's full metrics (``metrics``)."""
+    (:func:`measure_all`; ``std_mm`` as the product states it, ``std_old_mm`` as it did before issue
+    #20), and the experiment's full metrics (``metrics``)."""
     p = profiles.apply(case.profile, WorldParams(seed=seed))
     world = World(p.with_(errors=p.errors.without(*case.off).tweaked(case.tweak)))
     imu = world.params.base_has_inclinometer
@@ -98,16 +112,16 @@ def run(case: Case, seed: int) -> dict[str, Any]:
                     mc_samples=MC_SAMPLES)
     scs = make_scs(sim.model, res.cam_H_ref)
     offset = imu_offset_deg(res.abs_H_rob, *obs.imu_deg) if obs.imu_deg is not None else None
-    bias = None
+    bias, trk = None, world.abs_H_trk[:3, 3]
     if case.comp.bias:  # learn b on another mark, as a later job would find it in the calibration
         learn = Simulation(world, SimConfig(**{**cfg.__dict__, "mark": "M2"})).validation("learn-bias")
         base = Compensation(case.comp.tilt, case.comp.heading_fit, False)
-        lp, lh, _ = measure_all(learn, base, scs, res.rob_H_scn, offset, None)
+        lp, lh, _ = measure_all(learn, base, scs, res.rob_H_scn, offset, None, abs_t_trk=trk)
         fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
         bias = None if fit is None else fit.b
     val = sim.validation()
     cov = None if res.uncertainty is None else res.uncertainty.cov_rob_H_scn
-    pts, heads, sig = measure_all(val, case.comp, scs, res.rob_H_scn, offset, bias, cov)
+    pts, heads, sig = measure_all(val, case.comp, scs, res.rob_H_scn, offset, bias, cov, abs_t_trk=trk)
     m = experiment_metrics(pts, heads, [o.direction for o in val.observations])
     err = pts[:, :2] - val.mark_abs[:2]
     e = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
@@ -115,7 +129,8 @@ def run(case: Case, seed: int) -> dict[str, Any]:
             "abs_rms_mm": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), "t_xy_mm": e["t_xy_mm"],
             "rotation_deg": e["rot_deg"], "uv": np.array([o.uv for o in val.observations]),
             "err_mm": np.linalg.norm(err, axis=1), "std_mm": sig[:, 0], "t_unit_mm2": sig[:, 1],
-            "lever_mm": sig[:, 2], "size": sim.model.size, "metrics": m}
+            "lever_mm": sig[:, 2], "std_old_mm": sig[:, 3], "heading_mm": sig[:, 4], "sigma_t_mm": sig[:, 5],
+            "size": sim.model.size, "metrics": m}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:

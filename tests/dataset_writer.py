@@ -182,7 +182,7 @@ def render_dot(cam_H_abs: np.ndarray, mark_abs: np.ndarray, radius_mm: float, pp
 
 
 def write_experiment(root: Path, calibration: dict[str, Any], rob_H_cam: np.ndarray, mark_abs: Any, *,
-                     headings=(0.0, 180.0), reps: int = 2, bits: int = 8, sigma_t_mm: float = 0.010) -> None:
+                     headings=(0.0, 180.0), reps: int = 2, bits: int = 8, sigma_t_mm: float | None = 0.010) -> None:
     """An experiment folder: the robot upright on a level floor (ACS z), stops around ``mark_abs``.
 
     ``calibration`` is the referencing result.json the stops are measured with;
@@ -208,6 +208,6 @@ def write_experiment(root: Path, calibration: dict[str, Any], rob_H_cam: np.ndar
             stops.append({"image": name, "k": k, "rep": r, "P_prev": point(P_prev), "P_at": point(P_at),
                           "header": {"shape": [SIZE[1], SIZE[0]], "dtype": "|u1" if bits == 8 else "<u2"}})
     state = {"schema": 1, "procedure": "experiment",
-             "obs": {"calibration": calibration, "kind": "dot", "mark_size_mm": 0.4, "sigma_t_mm": sigma_t_mm,
-                     "stops": stops}}
+             "obs": {"calibration": calibration, "kind": "dot", "mark_size_mm": 0.4, "stops": stops,
+                     **({} if sigma_t_mm is None else {"sigma_t_mm": sigma_t_mm})}}
     (root / "state.json").write_text(json.dumps(state, indent=1))

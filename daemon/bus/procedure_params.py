@@ -68,8 +68,10 @@ DISTANCE = Param("distance_mm", _FLOAT, "straight drive of each approach (refere
                  unit="mm", default=200.0, lo=0, lo_open=True, aliases=("--distance",))
 SPEED = Param("speed_mm_s", _FLOAT, "drive speed of the procedure's motions", unit="mm/s", default=100.0,
               lo=0, lo_open=True)
-SIGMA_T = Param("sigma_t_mm", _FLOAT, "tracker 1σ per coordinate (nest-fit limit and uncertainty)", unit="mm",
-                default=0.010, lo=0, lo_open=True)
+# no default: the computation states its own (referencing 10 µm; marks the tracker's MPE at its distance, issue #20)
+SIGMA_T = Param("sigma_t_mm", _FLOAT, "tracker 1σ per coordinate (referencing: nest-fit limit and uncertainty; "
+                "marks: their stated σ)", unit="mm", lo=0, lo_open=True,
+                default_text="referencing 0.01; marks: ½ the tracker's MPE at its distance (docs/accuracy.md)")
 KIND = Param("kind", "str", "mark shape", default="dot", choices=("dot", "cross"))
 MARK_XY = Param("mark_xy", "vec", "approximate mark position, ACS x and y", unit="mm", default=REQUIRED, length=2,
                 aliases=("--mark",))

@@ -3,7 +3,8 @@
 * :func:`parse_compensation` — a job's ``compensation`` parameter (default ``tilt,bias``);
 * :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
 * :func:`plate_imu_offset` — the inclinometer's offset and yaw from the on-plate runs (referencing);
-* :func:`compensation_summary` — which compensations were requested, applied, skipped.
+* :func:`compensation_summary` — which compensations were requested, applied, skipped;
+* :func:`tracker_distance_mm` — how far the tracker stood from a stop's points (its σ grows with it).
 
 docs/datasets.md ("Compensations") documents every field read here.
 """
@@ -77,6 +78,15 @@ def imu_yaw(calib: dict[str, Any]) -> float:
     return float(calib.get("imu_yaw_deg") or 0.0)
 
 
+def tracker_distance_mm(stop: dict[str, Any]) -> float | None:
+    """The larger distance from the tracker to P_prev and P_at (mm): the norm of their tracker-frame x y z
+    (docs/datasets.md, "Tracker points"); None when a point does not carry them."""
+    pts = [stop.get(k) or {} for k in ("P_prev", "P_at")]
+    if not all(all(c in p for c in ("x", "y", "z")) for p in pts):
+        return None
+    return max(float(np.linalg.norm([float(p["x"]), float(p["y"]), float(p["z"])])) for p in pts)
+
+
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
     """The per-stop compensation record of a mark."""
     return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
@@ -98,4 +108,4 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
 
 
 __all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "imu_yaw", "parse_compensation",
-           "plate_imu_offset", "stop_of", "stop_record"]
+           "plate_imu_offset", "stop_of", "stop_record", "tracker_distance_mm"]

@@ -17,7 +17,7 @@ from calibration.camera_model import CameraModel
 from calibration.checks import bias_model_check
 from calibration.frames import apply_H
 from calibration.image import to_grey
-from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
+from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
@@ -26,7 +26,7 @@ from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, parse_compensation,
-                                         imu_yaw, plate_imu_offset, stop_of, stop_record)
+                                         imu_yaw, plate_imu_offset, stop_of, stop_record, tracker_distance_mm)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -110,30 +110,45 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
 MARK_SIZE_MM = {"dot": 0.4, "cross": 0.6}
 
 
+#: the marks' pixel 1σ (the locator's, calibration.measure.measure_mark's default)
+MARK_SIGMA_PX = 0.05
+
+
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
-                 size_mm: float | None, sigma_t_mm: float, comp: Compensation) -> dict[str, Any]:
-    """One stop's mark in ACS with ``comp`` applied (calibration/compensation.py does the math)."""
+                 size_mm: float | None, sigma_t_mm: float | None, comp: Compensation) -> dict[str, Any]:
+    """One stop's mark in ACS with ``comp`` applied (calibration/compensation.py does the math).
+
+    Its σ (docs/accuracy.md, "Coverage of the stated σ"): the tracker's σ as the dataset states it, else
+    the MPE at the tracker's distance to the stop; the heading's σ beyond the two points (the chord's path
+    deviation, or heading_fit's own); ``sigma`` in the mark records which, and each one's share.
+    """
     scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     offset, bias = calibration_inputs(calib)
+    anchor = DEFAULT_SIGMA_T_MM if sigma_t_mm is None else sigma_t_mm  # heading_fit's anchors: unchanged by issue #20
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias, anchor_sigma_mm=sigma_t_mm, imu_yaw_deg=imu_yaw(calib))
+                   bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib))
+    distance = tracker_distance_mm(stop)
+    s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = _abs(stop["P_at"])
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
-                      sigma_t_mm=sigma_t_mm,
+                      sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
                       cov_rob_H_scn=None if cov is None else np.array(cov))
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
+    sigma = {"tracker_mm": s_t, "tracker_source": t_source, "tracker_distance_mm": distance,
+             "heading_rad": a.sigma_heading_rad, "heading_source": a.heading_source, "pixel_px": MARK_SIGMA_PX,
+             "calibration": cov is not None, "parts_mm": m.std_parts_mm}
     return {"abs_xyz": m.abs_P.tolist(), "uv": m.uv.tolist(), "std_mm": float(m.std_mm), "heading_deg": heading,
-            **({"k": stop["k"]} if "k" in stop else {}), "compensation": stop_record(comp, a)}
+            **({"k": stop["k"]} if "k" in stop else {}), "sigma": sigma, "compensation": stop_record(comp, a)}
 
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """One floor mark in ACS from one stop (image + approach positions)."""
     comp = parse_compensation(obs.get("compensation"))
     r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
-                     obs.get("mark_size_mm"), _sigma_t(obs), comp)
+                     obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp)
     return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,
             "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),
@@ -144,7 +159,7 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
     kind, load = obs.get("kind", "dot"), _eight_bit(load)
     comp = parse_compensation(obs.get("compensation"))
-    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), _sigma_t(obs), comp)
+    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp)
              for s in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
     headings = np.array([m["heading_deg"] for m in marks])

@@ -32,6 +32,13 @@ def param(ctx: JobContext, key: str) -> Any:
     return ctx.params.get(key, DEFAULTS.get(key))
 
 
+def _record_sigma_t(ctx: JobContext) -> None:
+    """The job's tracker σ in the observations, only when given: without it the computation states its own
+    (daemon/compute/procedures.py: 10 µm for the referencing, the MPE at the tracker's distance for marks)."""
+    if param(ctx, "sigma_t_mm") is not None:
+        ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+
+
 def _measure_reflector(ctx: JobContext, name: str, approx_trk: list[float] | None, pct: float) -> dict[str, Any]:
     """Aim + find + measure; when the tracker cannot find it, ask the operator to help."""
     ctx.progress(f"measure {name}", pct, f"tracker: find the reflector at {name}")
@@ -85,7 +92,7 @@ def referencing(ctx: JobContext) -> None:
     for key in ("plate", "camera_model"):
         if key not in ctx.obs:
             ctx.obs[key] = ctx.params.get(key) or _installed(ctx, f"{key}.json")
-    ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    _record_sigma_t(ctx)
     nests = ctx.obs.setdefault("nests", {})
     approx = ctx.params.get("nests_approx_trk", {})
     for i, name in enumerate(NEST_NAMES):
@@ -160,8 +167,8 @@ def _mark_xy(ctx: JobContext) -> np.ndarray:
 
 def _mark_setup(ctx: JobContext) -> tuple[dict[str, Any], Navigator]:
     """The active calibration, a navigator, and the mark's parameters recorded in the observations."""
-    for key in ("kind", "sigma_t_mm"):
-        ctx.obs.setdefault(key, param(ctx, key))
+    ctx.obs.setdefault("kind", param(ctx, "kind"))
+    _record_sigma_t(ctx)
     parse_compensation(ctx.params.get("compensation"))  # a bad name fails before the robot moves
     ctx.obs.setdefault("compensation", param(ctx, "compensation"))
     ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))

@@ -69,9 +69,14 @@ async def survey_state(ws: Any, want: tuple[str, ...], timeout: float = 30.0) ->
 
 def test_parameter_table_keeps_the_worker_defaults():
     """The defaults the worker used before the table existed, unchanged (same values and types)."""
-    old = {"distance_mm": 200.0, "sigma_t_mm": 0.010, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
+    old = {"distance_mm": 200.0, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
            "offset_mm": 3.0, "seed": 1, "kind": "dot"}
     assert {k: (DEFAULTS[k], type(DEFAULTS[k])) for k in old} == {k: (v, type(v)) for k, v in old.items()}
+    # issue #20: sigma_t_mm (0.010 before) has no worker default; the computation states it (the referencing
+    # still 0.010, calibration.measure.DEFAULT_SIGMA_T_MM; marks the tracker's MPE at its distance)
+    from calibration.measure import DEFAULT_SIGMA_T_MM
+
+    assert "sigma_t_mm" not in DEFAULTS and DEFAULT_SIGMA_T_MM == 0.010
     from daemon.worker.procedures import DEFAULTS as worker
 
     assert worker is DEFAULTS

@@ -211,13 +211,47 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
 def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):
     from daemon.compute.recompute import recompute
 
-    stds = []
+    marks = []
     for sigma in (0.005, 0.050):
         write_experiment(tmp_path / f"s{sigma}", calibration, written[1], [1500.0, 200.0, 3.0], reps=1,
                          sigma_t_mm=sigma)
-        stds.append(recompute(tmp_path / f"s{sigma}")[0]["marks"][0]["std_mm"])
-    # the tracker term (two points, ~1.7σ each in xy) dominates at 50 µm
-    assert stds[1] > stds[0] + 0.05, stds
+        marks.append(recompute(tmp_path / f"s{sigma}")[0]["marks"][0])
+    # the tracker term (two points, ~1.7σ each in xy) scales with σ_t; the heading term (250 µrad × the
+    # ~0.2 m lever arm, issue #20) does not
+    assert [m["sigma"]["tracker_mm"] for m in marks] == [0.005, 0.050]
+    assert all(m["sigma"]["tracker_source"] == "dataset" for m in marks)
+    tracker = [m["sigma"]["parts_mm"]["tracker"] for m in marks]
+    assert tracker[1] == pytest.approx(10 * tracker[0], rel=1e-6) and tracker[1] > 0.05, tracker
+    assert marks[0]["sigma"]["parts_mm"]["heading"] == pytest.approx(marks[1]["sigma"]["parts_mm"]["heading"])
+    assert marks[1]["std_mm"] > marks[0]["std_mm"] + 0.04, marks
+
+
+def test_without_a_stated_sigma_the_tracker_sigma_is_the_mpe_at_its_distance(written, calibration, tmp_path):
+    """Issue #20: no obs.sigma_t_mm: ½·(15 µm + 6 µm/m·D), D the larger tracker-frame norm of P_prev, P_at; a
+    stop whose points carry no tracker-frame x y z falls back to 10 µm; either way the state validates."""
+    from calibration.measure import tracker_sigma_mm
+    from daemon.compute.recompute import recompute
+
+    folder = tmp_path / "exp"
+    write_experiment(folder, calibration, written[1], [1500.0, 200.0, 3.0], reps=1, sigma_t_mm=None)
+    state = json.loads((folder / "state.json").read_text())
+    assert "sigma_t_mm" not in state["obs"] and validate_folder(folder) == []
+    result = recompute(folder)[0]
+    for mark, stop in zip(result["marks"], state["obs"]["stops"]):
+        d = max(np.linalg.norm([stop[k]["x"], stop[k]["y"], stop[k]["z"]]) for k in ("P_prev", "P_at"))
+        sig = mark["sigma"]
+        assert sig["tracker_source"] == "distance" and sig["tracker_distance_mm"] == pytest.approx(d)
+        assert sig["tracker_mm"] == pytest.approx(tracker_sigma_mm(d))
+        assert sig["heading_source"] == "chord" and sig["heading_rad"] == pytest.approx(250e-6)
+        assert np.sqrt(sum(v ** 2 for v in sig["parts_mm"].values())) == pytest.approx(mark["std_mm"])
+    assert check_file(result, "result", "result.json") == []
+    for stop in state["obs"]["stops"]:
+        for k in ("P_prev", "P_at"):
+            stop[k] = {"abs_xyz": stop[k]["abs_xyz"]}
+    (folder / "state.json").write_text(json.dumps(state))
+    assert validate_folder(folder) == []
+    sig = recompute(folder)[0]["marks"][0]["sigma"]
+    assert (sig["tracker_mm"], sig["tracker_source"], sig["tracker_distance_mm"]) == (0.010, "default", None)
 
 
 def test_recompute_an_experiment_with_another_calibration(written, calibration, tmp_path, capsys):
