@@ -120,10 +120,12 @@ def _uncertainty(fit: dict[str, Any], jack: np.ndarray) -> dict[str, Any]:
     held at 0); both sources are kept under ``covariance`` and ``jackknife``."""
     cov = {n: float(v) for n, v in zip(PARAM_NAMES, fit["std"])}
     jk = {n: float(v) for n, v in zip(PARAM_NAMES, jack)}
-    out: dict[str, Any] = {n: max(cov[n], jk[n]) for n in PARAM_NAMES}
+    out: dict[str, float | None] = {n: max(cov[n], jk[n]) for n in PARAM_NAMES}
+    covariance: dict[str, float | None] = {**cov}
+    jackknife: dict[str, float | None] = {**jk}
     if not fit["k3"]:
-        out["k3"] = cov["k3"] = jk["k3"] = None
-    return {**out, "covariance": cov, "jackknife": jk}
+        out["k3"] = covariance["k3"] = jackknife["k3"] = None
+    return {**out, "covariance": covariance, "jackknife": jackknife}
 
 
 def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple[int, int],

@@ -40,7 +40,7 @@ def robot_pose_at(abs_P_prev: Any, abs_P_at: Any, abs_n: Any = None, roll_deg: f
     H = robot_pose(P_at, P_at - P_prev, n)
     if (roll_deg is None) != (pitch_deg is None):
         raise ValueError(f"robot_pose_at: give both roll and pitch or neither (roll={roll_deg}, pitch={pitch_deg})")
-    if roll_deg is not None:
+    if roll_deg is not None and pitch_deg is not None:
         for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
             if not np.isfinite(a) or abs(a) > 10:
                 raise ValueError(f"robot_pose_at: {name}={a} is not a plausible tilt (|a| <= 10°)")

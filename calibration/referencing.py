@@ -44,7 +44,7 @@ def plate_normal(abs_P_nests: Any, abs_P_rob0: Any) -> np.ndarray:
     Pr, Pg, Pb = P
     n = np.cross(Pb - Pr, Pg - Pr)
     norm = float(np.linalg.norm(n))
-    if norm < 1e-6 * max(np.linalg.norm(Pb - Pr), 1.0) ** 2:
+    if norm < 1e-6 * max(float(np.linalg.norm(Pb - Pr)), 1.0) ** 2:
         raise CalibrationError(f"plate normal undefined: nests are collinear ({P.tolist()})")
     n = n / norm
     if float(n @ (P0 - P.mean(axis=0))) < 0:
