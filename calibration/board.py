@@ -79,8 +79,9 @@ class Board:
         schema = d.get("schema", BOARD_SCHEMA)
         if schema != BOARD_SCHEMA or isinstance(schema, bool):
             raise ValueError(f"{source}: board schema {schema!r} is not supported (expected {BOARD_SCHEMA})")
-        kinds: dict[str, type | tuple[type, ...]] = {"board_id": str, "board_cols": int, "board_rows": int, "square_mm": (int, float),
-                 "marker_mm": (int, float), "aruco_dict": str, "notes": str}
+        kinds: dict[str, type | tuple[type, ...]] = {
+            "board_id": str, "board_cols": int, "board_rows": int, "square_mm": (int, float),
+            "marker_mm": (int, float), "aruco_dict": str, "notes": str}
         missing = [k for k in kinds if k not in d and k != "notes"]
         if missing:
             raise ValueError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")

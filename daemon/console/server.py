@@ -19,7 +19,7 @@ import logging
 import mimetypes
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Coroutine, TypedDict
 from urllib.parse import quote
 
 from aiohttp import WSMsgType, web
@@ -39,7 +39,17 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 STATE_PERIOD_S = 0.2          # telemetry push period: 5 updates/s is smooth for numbers and cheap
 MAX_FPS = 30.0                # the page may ask for fewer; never more than a browser can show usefully
-DEFAULT_VIEW = {"width": 640, "fps": 5.0, "roi": None}
+
+
+class View(TypedDict):
+    """What a tab asked to see: picture width (px), frames per second, region (x, y, w, h) or the whole."""
+
+    width: int
+    fps: float
+    roi: tuple[int, ...] | None
+
+
+DEFAULT_VIEW: View = {"width": 640, "fps": 5.0, "roi": None}
 #: commands a page may send: everything an operator or viewer uses, never the worker's own
 PAGE_COMMANDS = sorted(n for n, c in COMMANDS.items() if not c.worker_only)
 
@@ -55,7 +65,7 @@ class Tab:
 
     def __init__(self, ws: web.WebSocketResponse) -> None:
         self.ws = ws
-        self.view = dict(DEFAULT_VIEW)
+        self.view: View = {**DEFAULT_VIEW}
         self.credit = asyncio.Event()
         self.credit.set()
         self.seen: dict[str, int] = {}
@@ -75,6 +85,13 @@ class Console:
         self.frames_sent = 0
         self.survey = Survey()
         self.gate = Gate(token or new_token(), allow_hosts)
+        self._tasks: set[asyncio.Task[None]] = set()  # the page's commands in flight
+
+    def _spawn(self, work: Coroutine[Any, Any, None]) -> None:
+        """Run ``work`` as a task, holding it until it ends (the event loop keeps only weak references)."""
+        task = asyncio.create_task(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     @property
     def token(self) -> str:
@@ -189,11 +206,11 @@ class Console:
             tab.view = _checked_view(req)
             tab.frame_id = -1  # a new size or region: send the current picture again
         elif op == "call":
-            asyncio.create_task(self._call(tab, req))
+            self._spawn(self._call(tab, req))
         elif op == "capture":
-            asyncio.create_task(self._capture(tab, req))
+            self._spawn(self._capture(tab, req))
         elif op == "survey":
-            asyncio.create_task(self._survey(tab, req))
+            self._spawn(self._survey(tab, req))
 
     async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any, pool: Any = None) -> None:
         try:
@@ -299,9 +316,9 @@ class Console:
             self.frames_sent += 1
 
 
-def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
+def _checked_view(req: dict[str, Any]) -> View:
     """The page's view request, clamped to what the console serves."""
-    out = dict(DEFAULT_VIEW)
+    out: View = {**DEFAULT_VIEW}
     w, fps, roi = req.get("width"), req.get("fps"), req.get("roi")
     if isinstance(w, (int, float)) and w > 0:
         out["width"] = int(min(max(w, 16), 4096))

@@ -168,7 +168,7 @@ class FramePublisher(_Publisher):
         for sock in self.socks:
             try:
                 # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
-                sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
+                sock.send_multipart([b"camera.frame", packed, pixels.data], copy=False, flags=zmq.NOBLOCK)
             except zmq.Again:
                 self.dropped += 1
         self.sent += 1

@@ -14,6 +14,7 @@ logged with the key that asked for them.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import queue
@@ -147,9 +148,10 @@ class CommandServer(threading.Thread):
         if sock not in self._curve_socks:
             return Caller(f"local peer-{bytes(frames[0].bytes).hex()[:10]}", "local client", self.plain_role, None)
         try:
-            key = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
+            user_id = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
         except (zmq.ZMQError, AttributeError):
-            key = None
+            user_id = None
+        key = user_id if isinstance(user_id, str) else None
         entry = self.keyring.lookup(key.encode()) if key and self.keyring is not None else None
         if entry is None:
             return None
@@ -215,7 +217,7 @@ class CommandServer(threading.Thread):
             return
         if isinstance(result, Future):
             self.pending += 1
-            result.add_done_callback(lambda f, e=envelope, i=req_id, c=cmd: self._complete(e, i, c, f))
+            result.add_done_callback(functools.partial(self._complete, envelope, req_id, cmd))
         else:
             self._reply(envelope, req_id, cmd, result)
 

@@ -47,8 +47,9 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.n
     """
     if not msgs:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    devs = [_device_ns(m) for m in msgs]
-    if any(d is None for d in devs):  # no device clock: each packet's records at its arrival
+    clocks = [_device_ns(m) for m in msgs]
+    devs = [d for d in clocks if d is not None]
+    if len(devs) < len(clocks):  # no device clock: each packet's records at its arrival
         devs = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
     offset = min(int(m["host_time_ns"]) - int(d[-1]) for m, d in zip(msgs, devs))
     P = np.concatenate([np.column_stack([m["x"], m["y"], m["z"]]).astype(float) for m in msgs])

@@ -31,9 +31,10 @@ DEFAULT_PORT = 700
 MAX_RATE_HZ = 1000.0
 MIN_RATE_HZ = 0.001  # one point per 1000 s: the time separation (ms) must fit an int32
 MAX_AIM_MM = 1e6  # 1 km, far beyond any tracker's range: larger is a typo, not a target
-_MEAS_STATUS = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
-                ES_SystemStatusChange.MeasStatus_Busy: "Busy",
-                ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
+#: keyed by int: a packet's change is the plain int it carried (an IntEnum hashes as its value)
+_MEAS_STATUS: dict[int, str] = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
+                                ES_SystemStatusChange.MeasStatus_Busy: "Busy",
+                                ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
 
 
 #: statuses that mean "no reflector locked": the operator must aim and find first
