@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from calibration.frames import apply_H, check_H, make_H, rot_x, rot_y
 from calibration.referencing import robot_pose
 from calibration.registration import as_points
 from calibration.uncertainty import perturb_pose
+
+if TYPE_CHECKING:  # imported by the caller that builds one: measuring needs no cv2 of its own
+    from calibration.scs import Scs
 
 #: tracker 1σ per coordinate when a dataset does not state one (mm); datasets carry ``sigma_t_mm``
 DEFAULT_SIGMA_T_MM = 0.010
@@ -77,7 +80,7 @@ class MarkMeasurement:
                 "cov_xy_mm2": self.cov_xy_mm2.tolist(), "std_xy_mm": self.std_xy_mm.tolist(), "std_mm": self.std_mm}
 
 
-def mark_to_abs(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
+def mark_to_abs(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map one pixel position to (abs_P, rob_P, scn_xy) with the paper's two equations."""
     scn_xy = scs.image_to_scn(np.asarray(uv, dtype=float).reshape(1, 2))[0]
@@ -85,7 +88,7 @@ def mark_to_abs(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
     return apply_H(abs_H_rob, rob_P), rob_P, scn_xy
 
 
-def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                  abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
                  sigma_t_mm: float = DEFAULT_SIGMA_T_MM, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
                  cov_rob_H_scn: np.ndarray | None = None) -> MarkMeasurement:
@@ -129,7 +132,7 @@ def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
     return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, J @ S @ J.T)
 
 
-def measure_image(image: np.ndarray, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+def measure_image(image: np.ndarray, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                   kind: str = "dot", approx_uv: Any = None, mark_size_mm: float | None = None,
                   **kw: Any) -> MarkMeasurement:
     """Locate the mark in ``image`` (:func:`calibration.marks.locate_mark`) and measure it.

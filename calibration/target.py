@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -51,7 +52,23 @@ def _board(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: 
     return cv2.aruco.CharucoBoard((cols, rows), square_mm, marker_mm, board_dict)
 
 
-def make_board(plate: Plate) -> cv2.aruco.CharucoBoard:
+class BoardLayout(Protocol):
+    """What a ChArUco board is made from: the plate's target (:class:`Plate`) or a printed intrinsics
+    board (:class:`calibration.board.Board`)."""
+
+    @property
+    def board_cols(self) -> int: ...
+    @property
+    def board_rows(self) -> int: ...
+    @property
+    def square_mm(self) -> float: ...
+    @property
+    def marker_mm(self) -> float: ...
+    @property
+    def aruco_dict(self) -> str: ...
+
+
+def make_board(plate: BoardLayout) -> cv2.aruco.CharucoBoard:
     """The OpenCV ChArUco board described by ``plate`` (cached)."""
     return _board(plate.board_cols, plate.board_rows, float(plate.square_mm), float(plate.marker_mm),
                   plate.aruco_dict)
@@ -206,7 +223,7 @@ def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray, m_corners: li
     return corners, ids
 
 
-def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = None,
+def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | None = None,
                    fast: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Detect ChArUco inner corners: ``(ids (N,), uv (N, 2))``, empty when none are found.
 

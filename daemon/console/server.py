@@ -19,7 +19,8 @@ import logging
 import mimetypes
 import time
 from pathlib import Path
-from typing import Any, Coroutine, TypedDict
+from concurrent.futures import Executor
+from typing import Any, Callable, Coroutine, TypedDict
 from urllib.parse import quote
 
 from aiohttp import WSMsgType, web
@@ -212,7 +213,8 @@ class Console:
         elif op == "survey":
             self._spawn(self._survey(tab, req))
 
-    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any, pool: Any = None) -> None:
+    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Callable[..., Any], *args: Any,
+                     pool: Executor | None = None) -> None:
         try:
             result = await asyncio.get_running_loop().run_in_executor(pool or self.bridge.pool, fn, *args)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
@@ -329,7 +331,7 @@ def _checked_view(req: dict[str, Any]) -> View:
     return out
 
 
-async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None,
+async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Callable[[str], object] | None = None,
                 duration: float | None = None, allow_hosts: tuple[str, ...] = (), token: str | None = None) -> None:
     """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one).
 

@@ -23,7 +23,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import zmq
 
@@ -33,6 +33,9 @@ from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_r
 from daemon.bus.repeatlog import RepeatGate, times
 from daemon.bus.roles import refusal
 from daemon.ritad.publisher import open_sockets
+
+if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
+    from daemon.bus.auth import Security
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +79,8 @@ class CommandServer(threading.Thread):
     """Owner of the ROUTER socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
-                 max_message_bytes: int = 1 << 20, security: Any = None, plain_role: str = "operator") -> None:
+                 max_message_bytes: int = 1 << 20, security: Security | None = None,
+                 plain_role: str = "operator") -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
         self.max_bytes = max_message_bytes

@@ -18,7 +18,7 @@ import math
 import time
 from typing import Any
 
-from drivers.base import DeviceError, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
+from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import Packet
 from drivers.emscon.enums import (
@@ -69,7 +69,7 @@ class EmsconTracker(Tracker):
                          "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
-                 settings: Any = None) -> None:
+                 settings: DeviceSettings = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         o = url.option
         self.timeout: float = o("timeout", 30.0, float)
