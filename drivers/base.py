@@ -249,6 +249,7 @@ class CameraSettings:
 #: what ritad hands an adapter to apply on open: a camera's desired settings; the other kinds get None
 DeviceSettings = CameraSettings | None
 
+
 @dataclass
 class Frame:
     """A frame whose pixels the daemon owns (copied out of any driver buffer)."""

@@ -18,8 +18,8 @@ import json
 import logging
 import mimetypes
 import time
-from pathlib import Path
 from concurrent.futures import Executor
+from pathlib import Path
 from typing import Any, Callable, Coroutine, TypedDict
 from urllib.parse import quote
 
