@@ -218,8 +218,7 @@ class Daemon:
                 "commands": {"requests": self.server.requests, "errors": self.server.errors,
                              "pending": self.server.pending},
                 "worker": {"pid": self.worker.pid, "seen_s_ago": self.calib.worker_age()},
-                "latch": self.latch.snapshot(),
-                "alive": self.alive()}
+                "latch": self.latch.snapshot(), "alive": self.alive()}
 
     def alive(self) -> bool:
         now = time.monotonic()
