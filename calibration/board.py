@@ -11,9 +11,12 @@ take a Board wherever they take a Plate. Schema: ``daemon/bus/schemas/board.sche
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # imported where used: OpenCV loads at the first detection
+    from calibration.target import BoardLayout
 
 BOARD_SCHEMA = 1
 
@@ -79,8 +82,9 @@ class Board:
         schema = d.get("schema", BOARD_SCHEMA)
         if schema != BOARD_SCHEMA or isinstance(schema, bool):
             raise ValueError(f"{source}: board schema {schema!r} is not supported (expected {BOARD_SCHEMA})")
-        kinds = {"board_id": str, "board_cols": int, "board_rows": int, "square_mm": (int, float),
-                 "marker_mm": (int, float), "aruco_dict": str, "notes": str}
+        kinds: dict[str, type | tuple[type, ...]] = {
+            "board_id": str, "board_cols": int, "board_rows": int, "square_mm": (int, float),
+            "marker_mm": (int, float), "aruco_dict": str, "notes": str}
         missing = [k for k in kinds if k not in d and k != "notes"]
         if missing:
             raise ValueError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")
@@ -93,7 +97,7 @@ class Board:
             raise ValueError(f"{source}: {exc}") from None
 
 
-def detect_board_corners(image: np.ndarray, board: Any) -> tuple[np.ndarray, np.ndarray]:
+def detect_board_corners(image: np.ndarray, board: BoardLayout) -> tuple[np.ndarray, np.ndarray]:
     """ChArUco corners of ``board`` in ``image``: ``(ids (N,), uv (N, 2))``.
 
     Uses OpenCV's own marker detection (``fast=False``): for a board's small dictionary it

@@ -194,8 +194,16 @@ def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: f
     return float(np.sqrt(max(fit_sigma_rad ** 2 - chord_var, 0.0)))
 
 
+def _standstill_tilts(stop: Stop) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``(tilt_prev, tilt_at)`` of a stop whose tilt is compensated (:func:`compensate` checked both are there)."""
+    if stop.tilt_prev is None or stop.tilt_at is None:
+        raise ValueError("the tilt is compensated at a stop without both inclinometer readings (tilt_prev, tilt_at)")
+    return stop.tilt_prev, stop.tilt_at
+
+
 def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0) -> np.ndarray:
     """The stream's points moved down the tilted z axis, with the inclinometer read along the stream."""
+    tilt_prev, tilt_at = _standstill_tilts(stop)
     P = as_points(stop.stream, "stream")
     s = np.linalg.norm(P[:, :2] - P[0, :2], axis=1)
     t = (np.asarray(stop.stream_tilt, dtype=float) - np.asarray(offset)) @ rot2(yaw_deg).T
@@ -204,8 +212,8 @@ def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, ya
     # the floor's tilt changes smoothly along a 0.2 m move, the inclinometer's noise is white: the
     # tilt is the line between the two standstill means (10 readings each) plus one quadratic bump
     # fitted to the readings taken while moving, which keeps the shape and averages the noise
-    t0 = np.asarray(body_tilt(stop.tilt_prev, offset, yaw_deg))
-    t1 = np.asarray(body_tilt(stop.tilt_at, offset, yaw_deg))
+    t0 = np.asarray(body_tilt(tilt_prev, offset, yaw_deg))
+    t1 = np.asarray(body_tilt(tilt_at, offset, yaw_deg))
     L = max(float(s[-1]), 1e-9)
     line = t0 + np.outer(s / L, t1 - t0)
     g = s * (s - L)
@@ -229,7 +237,8 @@ LEAN_NOT_COMPENSATED = ("the tilt is not compensated and the reflector's lean ch
 
 def _tilt_applied(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
                   height: float, yaw: float) -> None:
-    at, prev = body_tilt(stop.tilt_at, offset, yaw), body_tilt(stop.tilt_prev, offset, yaw)
+    tilt_prev, tilt_at = _standstill_tilts(stop)
+    at, prev = body_tilt(tilt_at, offset, yaw), body_tilt(tilt_prev, offset, yaw)
     out.roll_deg, out.pitch_deg = at
     out.abs_P_prev = ground_chord(P_prev, P_at, prev, at, height, stop.reverse)
     out.applied.append("tilt")
@@ -243,7 +252,7 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     sign = -1.0 if stop.reverse else 1.0
     if use_tilt:  # into the frame of the equivalent chord: the ground point at the stop sits at P_at
         v = sign * (P_at - P_prev)
-        at = body_tilt(stop.tilt_at, offset, yaw)
+        at = body_tilt(_standstill_tilts(stop)[1], offset, yaw)
         pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
     start = P_at - sign * (P_at - out.abs_P_prev)  # the travel's start of the (ground) chord
     try:
@@ -260,12 +269,21 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     out.sigma_heading_rad, out.heading_source = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length), "heading_fit"
 
 
-def _lean_change_um(stop: Stop, height: float) -> float | None:
-    """How far the reflector's lean moves it sideways across the move, from the two standstill readings."""
+def _lean_change_um(stop: Stop, height: float) -> tuple[float, float] | None:
+    """How far the reflector's lean moves it sideways across the move (µm), from the two standstill readings,
+    and the change of roll (deg) that leans it; None without both readings."""
     if stop.tilt_prev is None or stop.tilt_at is None:
         return None
     d = abs(stop.tilt_at[0] - stop.tilt_prev[0])  # roll leans the reflector across the travel
-    return math.radians(d) * height * 1000.0
+    return math.radians(d) * height * 1000.0, d
+
+
+def _stream_tilt_why(stop: Stop) -> str | None:
+    """Why the tilt along the stream cannot be used for the bend fit (None: it can)."""
+    if stop.stream_tilt is None:
+        return NO_STREAM_TILT
+    tilt_prev, tilt_at = _standstill_tilts(stop)
+    return stream_tilt_check(stop.stream_tilt, tilt_prev, tilt_at, 0.0)
 
 
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
@@ -295,14 +313,10 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                                           f"(the fit needs >= {MIN_FIT_POINTS})")
         elif (why := stream_ends_check(stop.stream, P_prev, P_at, anchor_sigma_mm)) is not None:
             out.skipped["heading_fit"] = why
-        elif "tilt" in out.applied and stop.stream_tilt is None:
-            out.skipped["heading_fit"] = NO_STREAM_TILT
-        elif "tilt" in out.applied and (why := stream_tilt_check(stop.stream_tilt, stop.tilt_prev, stop.tilt_at,
-                                                                 0.0)) is not None:
+        elif "tilt" in out.applied and (why := _stream_tilt_why(stop)) is not None:
             out.skipped["heading_fit"] = why
-        elif lean is not None and lean > 3.0 * anchor_sigma_mm * 1000.0:
-            d = abs(stop.tilt_at[0] - stop.tilt_prev[0])
-            out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean, d=d, h=height)
+        elif lean is not None and lean[0] > 3.0 * anchor_sigma_mm * 1000.0:
+            out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean[0], d=lean[1], h=height)
         else:
             _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg)
     if comp.bias:

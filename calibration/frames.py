@@ -9,6 +9,7 @@ Lengths are millimetres throughout the project.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 #: tolerance for orthonormality / det checks on rotations assembled from data
 ROT_TOL = 1e-6
@@ -54,7 +55,7 @@ def inv_H(H: np.ndarray) -> np.ndarray:
     return out
 
 
-def apply_H(H: np.ndarray, P: np.ndarray) -> np.ndarray:
+def apply_H(H: np.ndarray, P: npt.ArrayLike) -> np.ndarray:
     """Transform points ``P`` (shape (3,) or (N, 3)) by ``H``."""
     P = np.asarray(P, dtype=float)
     return P @ H[:3, :3].T + H[:3, 3]

@@ -28,7 +28,7 @@ from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.intrinsics_recipe import coverage_findings, tilt_findings, view_geometry
 from calibration.board import detect_board_corners
-from calibration.target import make_board
+from calibration.target import BoardLayout, make_board
 
 CALIB_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 #: F(1, m − p) at the 1 % level for the large m (thousands of residuals) of a calibration:
@@ -37,7 +37,7 @@ F_CRIT_1PCT = 6.635
 PARAM_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
-def _collect_views(images: Sequence[np.ndarray], board: Any, size: tuple[int, int], min_corners: int
+def _collect_views(images: Sequence[np.ndarray], board: BoardLayout, size: tuple[int, int], min_corners: int
                    ) -> tuple[list[np.ndarray], list[np.ndarray], list[dict[str, Any]]]:
     """Object and image points of every view with enough ChArUco corners, and a line per view."""
     w, h = size
@@ -120,10 +120,12 @@ def _uncertainty(fit: dict[str, Any], jack: np.ndarray) -> dict[str, Any]:
     held at 0); both sources are kept under ``covariance`` and ``jackknife``."""
     cov = {n: float(v) for n, v in zip(PARAM_NAMES, fit["std"])}
     jk = {n: float(v) for n, v in zip(PARAM_NAMES, jack)}
-    out: dict[str, Any] = {n: max(cov[n], jk[n]) for n in PARAM_NAMES}
+    out: dict[str, float | None] = {n: max(cov[n], jk[n]) for n in PARAM_NAMES}
+    covariance: dict[str, float | None] = {**cov}
+    jackknife: dict[str, float | None] = {**jk}
     if not fit["k3"]:
-        out["k3"] = cov["k3"] = jk["k3"] = None
-    return {**out, "covariance": cov, "jackknife": jk}
+        out["k3"] = covariance["k3"] = jackknife["k3"] = None
+    return {**out, "covariance": covariance, "jackknife": jackknife}
 
 
 def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple[int, int],
@@ -147,7 +149,7 @@ def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple
     return best, decision, keep, n_rejected
 
 
-def calibrate_intrinsics(images: Sequence[np.ndarray], board: Any, size: tuple[int, int], min_corners: int = 20,
+def calibrate_intrinsics(images: Sequence[np.ndarray], board: BoardLayout, size: tuple[int, int], min_corners: int = 20,
                          min_views: int = 6, reject_factor: float | None = 3.0
                          ) -> tuple[CameraModel, dict[str, Any]]:
     """Estimate K and the distortion from ChArUco ``images`` of ``size`` (w, h) of ``board``.

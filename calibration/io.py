@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from calibration.camera_model import CameraModel
 from calibration.plate import Plate
@@ -37,7 +38,9 @@ def load_camera_model(path: str | Path) -> CameraModel:
         raise ValueError(f"{path}: no such camera model file")
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     try:
-        K, dist = fs.getNode("camera_matrix").mat(), fs.getNode("dist_coeffs").mat()
+        # FileNode.mat() gives None for a missing node (its stub says a matrix, always)
+        K: np.ndarray | None = fs.getNode("camera_matrix").mat()
+        dist: np.ndarray | None = fs.getNode("dist_coeffs").mat()
         w, h = fs.getNode("image_width").real(), fs.getNode("image_height").real()
     finally:
         fs.release()

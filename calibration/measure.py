@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from calibration.frames import apply_H, check_H, make_H, rot_x, rot_y
 from calibration.referencing import robot_pose
 from calibration.registration import as_points
 from calibration.uncertainty import perturb_pose, rotmat
+
+if TYPE_CHECKING:  # imported by the caller that builds one: measuring needs no cv2 of its own
+    from calibration.scs import Scs
 
 #: tracker 1σ per coordinate when neither the dataset nor the tracker's distance gives one (mm)
 DEFAULT_SIGMA_T_MM = 0.010
@@ -81,7 +84,7 @@ def robot_pose_at(abs_P_prev: Any, abs_P_at: Any, abs_n: Any = None, roll_deg: f
     H = robot_pose(P_at, P_at - P_prev, n)
     if (roll_deg is None) != (pitch_deg is None):
         raise ValueError(f"robot_pose_at: give both roll and pitch or neither (roll={roll_deg}, pitch={pitch_deg})")
-    if roll_deg is not None:
+    if roll_deg is not None and pitch_deg is not None:
         for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
             if not np.isfinite(a) or abs(a) > 10:
                 raise ValueError(f"robot_pose_at: {name}={a} is not a plausible tilt (|a| <= 10°)")
@@ -121,7 +124,7 @@ class MarkMeasurement:
                 "std_parts_mm": dict(self.std_parts_mm)}
 
 
-def mark_to_abs(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
+def mark_to_abs(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_H_rob: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map one pixel position to (abs_P, rob_P, scn_xy) with the paper's two equations."""
     scn_xy = scs.image_to_scn(np.asarray(uv, dtype=float).reshape(1, 2))[0]
@@ -154,7 +157,7 @@ def _input_cov(sigma_t_mm: float, sigma_px: float, cov_rob_H_scn: Any, sigma_til
     return S
 
 
-def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                  abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
                  sigma_t_mm: float = DEFAULT_SIGMA_T_MM, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
                  cov_rob_H_scn: np.ndarray | None = None, sigma_heading_rad: float = 0.0) -> MarkMeasurement:
@@ -195,7 +198,7 @@ def measure_mark(uv: Any, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
     return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, J @ S @ J.T, parts)
 
 
-def measure_image(image: np.ndarray, scs: Any, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
+def measure_image(image: np.ndarray, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                   kind: str = "dot", approx_uv: Any = None, mark_size_mm: float | None = None,
                   **kw: Any) -> MarkMeasurement:
     """Locate the mark in ``image`` (:func:`calibration.marks.locate_mark`) and measure it.

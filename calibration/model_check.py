@@ -198,7 +198,7 @@ def model_sigma_f(model_dict: dict[str, Any] | None) -> float | None:
     without them (older files, a model typed in by hand) gives None: no finding.
     """
     std = (model_dict or {}).get("std")
-    if not isinstance(std, dict):
+    if model_dict is None or not isinstance(std, dict):
         return None
     K = np.asarray(model_dict.get("K", np.eye(3)), float)
     rel = []
@@ -270,7 +270,7 @@ def camera_height(check: ModelCheck, height_mm: float, rob_H_cam: np.ndarray) ->
     return (sigma_f * height_mm) ** 2 * np.outer(axis, axis)
 
 #: where each uncertain parameter of camera_model.json's ``std`` sits: (row, col) of K, or a dist index
-_STD_SLOTS = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)), "k1": ("dist", 0), "k2": ("dist", 1), "p1": ("dist", 2),
+_STD_SLOTS: dict[str, tuple[str, tuple[int, int] | int]] = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)), "k1": ("dist", 0), "k2": ("dist", 1), "p1": ("dist", 2),
               "p2": ("dist", 3), "k3": ("dist", 4)}
 
 

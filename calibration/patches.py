@@ -72,8 +72,8 @@ def dictionary_size(dict_name: str) -> int:
     return int(cv2.aruco.getPredefinedDictionary(code).bytesList.shape[0])
 
 
-_KEYS = {"name": str, "cols": int, "rows": int, "square_mm": (int, float), "marker_mm": (int, float),
-         "first_id": int, "origin_mm": list}
+_KEYS: dict[str, type | tuple[type, ...]] = {"name": str, "cols": int, "rows": int, "square_mm": (int, float),
+                                             "marker_mm": (int, float), "first_id": int, "origin_mm": list}
 
 
 def _patch(d: Any, where: str) -> Patch:

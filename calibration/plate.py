@@ -95,9 +95,7 @@ class Plate:
         if self.patches:
             self.survey_patches()
         for n, s in self.nests_sigma_mm.items():
-            ok = n in NEST_NAMES and isinstance(s, list) and len(s) == 3 and all(
-                _is_number(v) and np.isfinite(v) and v >= 0 for v in s)
-            if not ok:
+            if not (n in NEST_NAMES and _three_sigmas(s)):
                 raise ValueError(f"plate {self.plate_id!r}: nests_sigma_mm.{n} must be a nest name with "
                                  f"3 finite numbers >= 0 (mm), got {s!r}")
 
@@ -164,6 +162,11 @@ def _typed(value: Any, kind: type, where: str) -> Any:
     if not isinstance(value, kind):
         raise ValueError(f"{where} must be a JSON {'string' if kind is str else 'object'}, got {value!r}")
     return value
+
+
+def _three_sigmas(s: object) -> bool:
+    """3 finite numbers >= 0: a nests_sigma_mm entry as read from a plate file, before it is trusted."""
+    return isinstance(s, list) and len(s) == 3 and all(_is_number(v) and np.isfinite(v) and v >= 0 for v in s)
 
 
 def _is_number(v: Any) -> bool:

@@ -200,7 +200,8 @@ def _bundle(views: list[View], model: CameraModel, poses: list[np.ndarray], seat
             fit_k3: bool) -> tuple[Bundle, list[dict[str, float]]]:
     """Two rounds: ring observations from the current estimate (bias removed), then the bundle."""
     corners = [(v.ref_P, v.uv) for v in views]
-    b, bias = None, []
+    b: Bundle | None = None
+    bias: list[dict[str, float]] = []
     for _ in range(2):
         rings, bias = _ring_obs(views, model, poses, seats)
         b = adjust(model, poses, np.array([seats[c] for c in NEST_NAMES]), corners, rings, fit_k3)

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
 from calibration.model_check import ModelCheck, camera_height, check_camera_model
@@ -44,7 +45,7 @@ def plate_normal(abs_P_nests: Any, abs_P_rob0: Any) -> np.ndarray:
     Pr, Pg, Pb = P
     n = np.cross(Pb - Pr, Pg - Pr)
     norm = float(np.linalg.norm(n))
-    if norm < 1e-6 * max(np.linalg.norm(Pb - Pr), 1.0) ** 2:
+    if norm < 1e-6 * max(float(np.linalg.norm(Pb - Pr)), 1.0) ** 2:
         raise CalibrationError(f"plate normal undefined: nests are collinear ({P.tolist()})")
     n = n / norm
     if float(n @ (P0 - P.mean(axis=0))) < 0:
@@ -244,7 +245,7 @@ def board_corners_ref(plate: Plate, ids: Any) -> np.ndarray:
     return np.column_stack([col * plate.square_mm, row * plate.square_mm, np.zeros(len(ids))])
 
 
-def reference(model: Any, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P_rob1: Any, *,
+def reference(model: CameraModel, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P_rob1: Any, *,
               image: np.ndarray | None = None, cam_ref: Any = None, sigma_t_mm: float = 0.010,
               sigma_plate_mm: float = 0.005, sigma_px: float | None = None, gates: Gates | None = None,
               mc_samples: int = 200, seed: int = 0, model_dict: dict[str, Any] | None = None) -> ReferencingResult:

@@ -139,7 +139,7 @@ def fit_plate(scn_P: Any, abs_P: Any, sigma_mm: float, abs_up: Any | None = None
     valid = {p: f.rms for p, (f, ok) in fits.items() if ok}
     perm_rms = {describe_permutation(p): round(f.rms, 6) for p, (f, ok) in fits.items()}
     others = {p: r for p, r in valid.items() if p != ident}
-    best = min(others, key=others.get) if others else None
+    best = min(others, key=lambda p: others[p]) if others else None
 
     if not up0 or f0.rms > limit:
         why = ("needs the plate upside down (SCS z away from the robot)" if not up0

@@ -18,12 +18,12 @@ with the combined ``rob_H_scn``, use the SCS of the first referencing
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
 from calibration.frames import check_H, inv_H, make_H, rotation_angle
-from calibration.uncertainty import footprint, rotvec
+from calibration.uncertainty import PoseUncertainty, footprint, rotvec
 
 
 def chordal_mean(Rs: Sequence[np.ndarray]) -> np.ndarray:
@@ -62,7 +62,16 @@ class ReversalResult:
                 "cov_rob_H_scn": None if self.cov_rob_H_scn is None else self.cov_rob_H_scn.tolist()}
 
 
-def combine(results: Sequence[Any], max_heading_error_deg: float = 20.0) -> ReversalResult:
+class Referenced(Protocol):
+    """What :func:`combine` needs of one referencing (:class:`calibration.referencing.ReferencingResult`
+    is one); an ``uncertainty`` (:class:`PoseUncertainty`) is used when every referencing has one."""
+
+    rob_H_cam: np.ndarray
+    scn_H_cam: np.ndarray
+    abs_H_rob: np.ndarray
+
+
+def combine(results: Sequence[Referenced], max_heading_error_deg: float = 20.0) -> ReversalResult:
     """Combine referencings (objects with ``rob_H_cam``, ``scn_H_cam``, ``abs_H_rob``) by reversal.
 
     The headings should be evenly spread (180° apart for two); a larger departure than
@@ -101,7 +110,8 @@ def combine(results: Sequence[Any], max_heading_error_deg: float = 20.0) -> Reve
                         f"rotation {spread / 2:.4f}°")
     # independent referencings: the mean's covariance is Σ cov_k / N² (the SCS origins differ
     # by millimetres, which moves the translation part by far less than a micrometre)
-    uncs = [getattr(r, "uncertainty", None) for r in results]
-    cov = None if any(u is None for u in uncs) else sum(u.cov_rob_H_scn for u in uncs) / n ** 2
+    uncs: list[PoseUncertainty | None] = [getattr(r, "uncertainty", None) for r in results]
+    covs = [u.cov_rob_H_scn for u in uncs if u is not None]
+    cov = None if len(covs) < n else sum(covs, np.zeros_like(covs[0])) / n ** 2
     return ReversalResult(rob_H_scn, rob_H_cam, scn_H_cam, headings, half_t, half_r, half_f,
                           [(f - foot)[:2].tolist() for f in feet], messages, cov)

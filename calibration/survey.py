@@ -14,13 +14,21 @@ The surveyed ring centre is the nest seat ``ref_P_nst``; the mounted SMR centre 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.frames import apply_H, check_H, inv_H
 from calibration.plate import NEST_NAMES, Plate
+
+if TYPE_CHECKING:  # the caller's models: this module needs no OpenCV
+    from typing import TypeAlias
+
+    from calibration.camera_model import CameraModel
+
+    #: one model shared by every view, or one per view
+    CameraModels: TypeAlias = CameraModel | list[CameraModel] | tuple[CameraModel, ...]
 
 #: rays closer to parallel than this cannot locate a point along them
 MIN_RAY_ANGLE_DEG = 2.0
@@ -68,7 +76,7 @@ def intersect_rays(C: Any, d: Any) -> tuple[np.ndarray, np.ndarray, float]:
     return X, dist, max_angle
 
 
-def triangulate(ref_H_cams: Sequence[np.ndarray], uvs: Any, models: Any) -> Triangulation:
+def triangulate(ref_H_cams: Sequence[np.ndarray], uvs: Any, models: CameraModels) -> Triangulation:
     """Triangulate one point seen at pixel ``uvs[k]`` by camera ``models[k]`` (or one shared model) at ``ref_H_cams[k]``."""
     uvs = np.asarray(uvs, dtype=float).reshape(-1, 2)
     if len(ref_H_cams) != len(uvs):
@@ -107,7 +115,7 @@ class PlateSurvey:
                 "triangulations": {k: t.to_dict() for k, t in self.triangulations.items()}}
 
 
-def survey_nests(views: dict[str, tuple[Sequence[np.ndarray], Any]], models: Any,
+def survey_nests(views: dict[str, tuple[Sequence[np.ndarray], Any]], models: CameraModels,
                  max_ray_dist_mm: float = 0.1) -> PlateSurvey:
     """Triangulate each nest from ``views[name] = (ref_H_cams, uvs)``; all three nests are required.
 

@@ -141,7 +141,9 @@ def _result(x: np.ndarray, cols: np.ndarray, cov: np.ndarray, var: np.ndarray, r
     full[np.ix_(cols, cols)] = cov
     s0 = 9 + 6 * V
     seat_cov = np.array([full[s0 + 3 * i:s0 + 3 * i + 3, s0 + 3 * i:s0 + 3 * i + 3] for i in range(3)])
-    corner_res, ring_res, at = [], [], 0
+    corner_res: list[np.ndarray] = []
+    ring_res: list[dict[int, np.ndarray]] = []
+    at = 0
     for (P, _), ring in zip(corners, rings):
         corner_res.append(r[at:at + 2 * len(P)].reshape(-1, 2))
         at += 2 * len(P)

@@ -55,10 +55,15 @@ def chroma_score(rgb: np.ndarray, colour: str) -> np.ndarray:
     return rgb[..., c] - np.maximum(rgb[..., others[0]], rgb[..., others[1]])
 
 
+#: the kernel erode/dilate use when given none (spelled out: their stubs do not take None)
+_KERNEL_3X3 = np.ones((3, 3), np.uint8)
+
+
 def find_ring(rgb: np.ndarray, colour: str, name: str) -> RingEdges:
     """Edge points of the ``colour`` ring in ``rgb`` (float RGB); CalibrationError naming image and colour."""
     s = cv2.GaussianBlur(chroma_score(rgb, colour), (0, 0), 0.7)
-    peak = float(cv2.dilate(cv2.erode(s, None), None).max())  # opening: a single hot pixel is no ring
+    # opening with OpenCV's default 3x3 kernel: a single hot pixel is no ring
+    peak = float(cv2.dilate(cv2.erode(s, _KERNEL_3X3), _KERNEL_3X3).max())
     if peak < MIN_RING_SCORE_DN:
         raise CalibrationError(f"{name}: no {colour} ring found (strongest {colour} chroma {peak:.0f} DN, "
                                f"need >= {MIN_RING_SCORE_DN:.0f})")
@@ -100,7 +105,7 @@ def _crossings(s: np.ndarray, level: float, near: np.ndarray) -> np.ndarray:
 def _split(pts: np.ndarray, mask: np.ndarray, offset: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Outer and inner edge points: the blob's outer contour, mapped to a unit circle, splits them."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    c = max(contours, key=len).reshape(-1, 2).astype(np.float32) + np.float32(offset)
+    c = max(contours, key=len).reshape(-1, 2).astype(np.float32) + np.asarray(offset, np.float32)
     if len(c) < 5:
         return pts[:0], pts[:0]
     (cx, cy), (a, b), ang = cv2.fitEllipse(c)
@@ -127,7 +132,8 @@ def detect_patch_corners(grey: np.ndarray, patches: list[Patch], aruco_dict: str
                          ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Inner corners of every patch in view: (ref_P (N, 3) in PCS, uv (N, 2), corners per patch)."""
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, aruco_dict))
-    m_corners, m_ids, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(grey)
+    m_corners, found_ids, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(grey)
+    m_ids: np.ndarray | None = found_ids  # None when no marker is found (the stub says an array, always)
     ref_P, uv, count = [], [], {}
     if m_ids is None:
         return np.zeros((0, 3)), np.zeros((0, 2)), {p.name: 0 for p in patches}
@@ -138,8 +144,9 @@ def detect_patch_corners(grey: np.ndarray, patches: list[Patch], aruco_dict: str
         if len(sel) < 2:
             continue
         det = cv2.aruco.CharucoDetector(p.board(aruco_dict))
-        ch_c, ch_ids, _, _ = det.detectBoard(grey, markerCorners=[m_corners[i] for i in sel],
-                                             markerIds=m_ids[sel].reshape(-1, 1))
+        ch_c, found_ch, _, _ = det.detectBoard(grey, markerCorners=[m_corners[int(i)] for i in sel],
+                                               markerIds=m_ids[sel].reshape(-1, 1))
+        ch_ids: np.ndarray | None = found_ch  # None when no corner is found (the stub says an array, always)
         if ch_ids is None or len(ch_ids) == 0:
             continue
         ids = ch_ids.reshape(-1)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -51,7 +52,23 @@ def _board(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: 
     return cv2.aruco.CharucoBoard((cols, rows), square_mm, marker_mm, board_dict)
 
 
-def make_board(plate: Plate) -> cv2.aruco.CharucoBoard:
+class BoardLayout(Protocol):
+    """What a ChArUco board is made from: the plate's target (:class:`Plate`) or a printed intrinsics
+    board (:class:`calibration.board.Board`)."""
+
+    @property
+    def board_cols(self) -> int: ...
+    @property
+    def board_rows(self) -> int: ...
+    @property
+    def square_mm(self) -> float: ...
+    @property
+    def marker_mm(self) -> float: ...
+    @property
+    def aruco_dict(self) -> str: ...
+
+
+def make_board(plate: BoardLayout) -> cv2.aruco.CharucoBoard:
     """The OpenCV ChArUco board described by ``plate`` (cached)."""
     return _board(plate.board_cols, plate.board_rows, float(plate.square_mm), float(plate.marker_mm),
                   plate.aruco_dict)
@@ -118,7 +135,7 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
         return [], np.zeros((0, 1), np.int32)
     cells = n + 2
     side = cells * _CELL_PX
-    dst = np.float32([[0, 0], [side, 0], [side, side], [0, side]])
+    dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
     lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
     weights = 1 << np.arange(n * n, dtype=np.int64)
     cand_codes, keep = [], []
@@ -179,7 +196,7 @@ def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.Cha
         return corners, ids
     square = board.getSquareLength()
     obj = {int(i): np.asarray(o, np.float64).reshape(4, 3)[:, :2].mean(axis=0) / square
-           for i, o in zip(board.getIds().ravel(), board.getObjPoints())}
+           for i, o in zip(np.asarray(board.getIds()).ravel(), board.getObjPoints())}
     uv = np.array([c.reshape(4, 2).mean(axis=0) for c in corners], np.float64)
     xy = np.array([obj[int(i)] for i in ids.ravel()])
     d2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
@@ -195,7 +212,18 @@ def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.Cha
     return [c for c, k in zip(corners, keep) if k], ids[keep]
 
 
-def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = None,
+def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray, m_corners: list[np.ndarray] | None = None,
+                  m_ids: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``detectBoard``'s (corners, ids), from these markers or its own detection; both are None when it
+    finds no corner (its stub says arrays, always)."""
+    if m_ids is None:
+        corners, ids, _, _ = det.detectBoard(img)
+    else:
+        corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
+    return corners, ids
+
+
+def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | None = None,
                    fast: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Detect ChArUco inner corners: ``(ids (N,), uv (N, 2))``, empty when none are found.
 
@@ -212,19 +240,20 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
     det = _detector(plate.board_cols, plate.board_rows, float(plate.square_mm), float(plate.marker_mm),
                     plate.aruco_dict)
     board = make_board(plate)
-    corners = ids = None
+    corners: np.ndarray | None = None
+    ids: np.ndarray | None = None
     if fast:
         m_corners, m_ids = _detect_markers(img, board)
         if len(m_ids):
-            corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
+            corners, ids = _detect_board(det, img, m_corners, m_ids)
         # OpenCV's board check rejects a marker set it finds inconsistent (no or few
         # corners from many markers): let OpenCV's own detector decide then
         fast = len(m_ids) == 0 or (ids is not None and len(ids) >= len(m_ids) // 2)
     if not fast:
-        corners_cv, ids_cv, _, _ = det.detectBoard(img)
+        corners_cv, ids_cv = _detect_board(det, img)
         if ids_cv is not None and (ids is None or len(ids_cv) > len(ids)):
             corners, ids = corners_cv, ids_cv
-    if ids is None or len(ids) == 0:
+    if ids is None or corners is None or len(ids) == 0:
         return np.zeros(0, int), np.zeros((0, 2))
     return ids.reshape(-1).astype(int), corners.reshape(-1, 2).astype(float)
 

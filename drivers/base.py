@@ -24,12 +24,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-#: ``emit(topic, payload)``: publish a telemetry message (payload: msgpack-able dict),
-#: or ``emit("camera.frame", frame)`` with a :class:`Frame` for the frame socket.
-Emit = Callable[[str, Any], None]
-
-
-def no_emit(topic: str, payload: Any) -> None:
+def no_emit(topic: str, payload: Payload) -> None:
     """Default sink used when a device runs outside the daemon (tests, scripts)."""
 
 
@@ -138,7 +133,7 @@ class Device(ABC):
                              f"{', '.join(map(repr, unknown))} (known: {', '.join(sorted(known)) or 'none'})")
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
-                 settings: Any = None) -> None:
+                 settings: DeviceSettings = None) -> None:
         self.check_url(url)
         self.url = url
         self.emit = emit
@@ -251,6 +246,10 @@ class CameraSettings:
     ptp: bool | None = None
 
 
+#: what ritad hands an adapter to apply on open: a camera's desired settings; the other kinds get None
+DeviceSettings = CameraSettings | None
+
+
 @dataclass
 class Frame:
     """A frame whose pixels the daemon owns (copied out of any driver buffer)."""
@@ -284,6 +283,13 @@ class Frame:
         }
 
 
+#: what ``emit`` carries: a telemetry message (a msgpack-able dict, as it goes on the wire), or a
+#: :class:`Frame` for the frame socket (``emit("camera.frame", frame)``)
+Payload = dict[str, Any] | Frame
+#: ``emit(topic, payload)``: publish; thread-safe, never blocks
+Emit = Callable[[str, Payload], None]
+
+
 class Camera(StreamingDevice):
     """Area camera: software-triggered single frames and free-run streaming.
 
@@ -294,7 +300,7 @@ class Camera(StreamingDevice):
 
     kind = "camera"
 
-    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
+    def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: DeviceSettings = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self._want_stream = False
         self._streaming = False

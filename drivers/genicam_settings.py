@@ -129,15 +129,15 @@ class SettingsWriter:
                                   f"(step {inc})", code="bad_setting")
             return v
         if kind == _FLOAT:
-            v = float(value)
-            lo, hi = float(node.min), float(node.max)
-            if lo <= v <= hi:
-                return v
+            x = float(value)
+            lo_f, hi_f = float(node.min), float(node.max)
+            if lo_f <= x <= hi_f:
+                return x
             if clamp:
-                c = min(max(v, lo), hi)
-                self.warn(f"{name}={v:g} is outside the camera's range {lo:g}..{hi:g}; using {c:g}")
+                c = min(max(x, lo_f), hi_f)
+                self.warn(f"{name}={x:g} is outside the camera's range {lo_f:g}..{hi_f:g}; using {c:g}")
                 return c
-            raise DeviceError(f"{name}={value!r} is outside the camera's range {lo:g}..{hi:g}",
+            raise DeviceError(f"{name}={value!r} is outside the camera's range {lo_f:g}..{hi_f:g}",
                               code="bad_setting")
         return value
 
@@ -159,8 +159,8 @@ def set_trigger_mode(w: SettingsWriter, software: bool) -> bool:
     """
     quiet = not software
     if w.has("TriggerSelector"):
-        sel = find_node(w.nm, "TriggerSelector")
-        if "FrameStart" in tuple(sel.symbolics):
+        sel = find_node(w.nm, "TriggerSelector")  # not None: w.has() found it
+        if sel is not None and "FrameStart" in tuple(sel.symbolics):
             w.write("TriggerSelector", "FrameStart")
         elif not quiet:
             w.warn("camera's TriggerSelector has no FrameStart; using its current selector")

@@ -24,7 +24,7 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
+from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
 
 #: longest single blocking read; keeps every loop responsive to its deadline
 READ_SLICE_S = 0.02
@@ -48,7 +48,7 @@ class SerialRobot(Robot):
         return cls.OPTIONS | cls.PYSERIAL_OPTIONS.get(url.scheme, frozenset())
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
-                 settings: Any = None) -> None:
+                 settings: DeviceSettings = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.baudrate: int = url.option("baudrate", 115200, int)
         self.reply_timeout: float = url.option("timeout", 0.5, float)

@@ -42,13 +42,12 @@ class Arg:
         return self.default is REQUIRED
 
     def range_text(self) -> str:
-        if self.lo is None and self.hi is None:
-            return ""
-        if self.hi is None:
-            return f"{'>' if self.lo_open else '≥'} {_num(self.lo)}"
-        if self.lo is None:
-            return f"≤ {_num(self.hi)}"
-        return f"{'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}]"
+        lo, hi = self.lo, self.hi
+        if hi is None:
+            return "" if lo is None else f"{'>' if self.lo_open else '≥'} {_num(lo)}"
+        if lo is None:
+            return f"≤ {_num(hi)}"
+        return f"{'(' if self.lo_open else '['}{_num(lo)}, {_num(hi)}]"
 
     def check(self, value: float) -> str | None:
         """Why ``value`` is out of range, or None."""
@@ -65,7 +64,7 @@ class Arg:
         """``value`` checked (type, finiteness, range, choices; ints become floats for float args): the one
         check of the command table and of the procedures' parameters (``Param``); :class:`BadValue` says why."""
         name = f"{noun} {self.name!r}"
-        if isinstance(value, bool) and self.type not in ("bool", "any") or not isinstance(value, _PY_TYPES[self.type]):
+        if not _is_of_type(value, self.type):
             raise BadValue(f"{name} must be {self.kind_text()}: {_TYPE_WORDS[self.type]}, got {value!r:.80}")
         if self.type == "float":
             # msgpack ints beyond 2**63 still fit a float; a JSON int may not
@@ -85,6 +84,15 @@ class BadValue(ValueError):
 
 _PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
                                           "map": (dict,), "any": (object,)}
+
+
+def _is_of_type(value: Any, type_name: str) -> bool:
+    """``value`` is of the argument type ``type_name`` (a bool is no number)."""
+    if isinstance(value, bool) and type_name not in ("bool", "any"):
+        return False
+    return isinstance(value, _PY_TYPES[type_name])
+
+
 _TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
                "map": "a JSON object", "any": "anything"}
 

@@ -250,13 +250,14 @@ class HandshakeWatch(threading.Thread):
             while not self.stopping.is_set():
                 if not self.mon.poll(200, zmq.POLLIN):
                     continue
-                if not self.on_event(parse_monitor_message(self.mon.recv_multipart())):
+                ev = parse_monitor_message(self.mon.recv_multipart())
+                if not self.on_event(ev["event"], ev["value"]):
                     break
         finally:
             self.mon.close(linger=0)
 
-    def on_event(self, ev: dict) -> bool:
-        kind, value = ev["event"], ev["value"]
+    def on_event(self, kind: int, value: int) -> bool:
+        """One monitor event (``value``: the socket's fd, or the handshake's error code); False: stop."""
         if kind == zmq.EVENT_MONITOR_STOPPED:
             return False
         if kind == zmq.EVENT_ACCEPTED:

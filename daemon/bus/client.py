@@ -74,11 +74,13 @@ class Client:
         """``fail_fast``: an ipc endpoint without its socket file is no daemon; say so at once (ritactl)
         instead of waiting out the timeout, as a client started before its daemon must."""
         if isinstance(curve, tuple):  # the (curve, key_id) pair from daemon.ctl.keys.client_curve
-            curve, key_id = curve[0], key_id or curve[1]
+            keys, key_id = curve[0], key_id or curve[1]
+        else:
+            keys = curve
         self.endpoint = endpoint or default_endpoint()
         self.timeout = timeout
-        self.curve = curve  # {"public", "secret", "server"} z85 keys, when the daemon requires CURVE
-        self.key_id = key_id or (curve["public"].decode() if curve else None)  # named in refusals
+        self.curve = keys  # {"public", "secret", "server"} z85 keys, when the daemon requires CURVE
+        self.key_id = key_id or (keys["public"].decode() if keys else None)  # named in refusals
         self.ctx = ctx or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._prefix = uuid.uuid4().hex[:8]

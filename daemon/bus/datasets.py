@@ -155,7 +155,8 @@ def rigid_problem(H: list[list[float]]) -> str | None:
 
 def _point_problem(d: dict[str, Any], H: list[list[float]] | None) -> str | None:
     """Mismatch between a point's abs_xyz and abs_H_trk · (x, y, z), or None."""
-    xyz, abs_xyz = [d.get(k) for k in ("x", "y", "z")], d.get("abs_xyz")
+    xyz: list[Any] = [d.get(k) for k in ("x", "y", "z")]  # JSON: numbers, checked below
+    abs_xyz = d.get("abs_xyz")
     if H is None or not all(_is_num(v) and math.isfinite(v) for v in xyz):
         return None
     if not (isinstance(abs_xyz, list) and len(abs_xyz) == 3 and all(_is_num(v) and math.isfinite(v)
@@ -237,9 +238,10 @@ class _Images:
     """Checks each referenced image once: complete PNG, and the size its header or model says."""
 
     def __init__(self, root: Path, problems: list[Problem]) -> None:
-        self.root, self.problems, self.info = root, problems, {}
+        self.root, self.problems = root, problems
+        self.info: dict[str, tuple[int, int, int, int] | str] = {}  # file -> png_info, or what is wrong
 
-    def check(self, file: str, where: str, path: str, header: Any = None,
+    def check(self, file: Any, where: str, path: str, header: Any = None,
               size_wh: Any = None, grey: bool = False) -> None:
         if not isinstance(file, str) or not _IMAGE_NAME.match(file):
             return  # the schema already reported the bad name

@@ -20,8 +20,7 @@ def stream_problems(obs: dict[str, Any]) -> list[tuple[tuple[Any, ...], str]]:
     out = []
     for parts, stop in _stops(obs):
         stream = stop.get("stream") if isinstance(stop, dict) else None
-        pts = stream.get("abs_xyz") if isinstance(stream, dict) else None
-        if not isinstance(pts, list):
+        if not isinstance(stream, dict) or not isinstance(pts := stream.get("abs_xyz"), list):
             continue
         n = stream.get("n")
         if isinstance(n, int) and not isinstance(n, bool) and n != len(pts):

@@ -30,8 +30,13 @@ def parse_compensation(value: Any) -> Compensation:
         raise ValueError(f"compensation={value!r}: {exc}") from None
 
 
+def _reading(rec: dict[str, Any]) -> tuple[float, float]:
+    """(roll, pitch) in degrees of an inclinometer record."""
+    return float(rec["roll_deg"]), float(rec["pitch_deg"])
+
+
 def _tilt(rec: dict[str, Any] | None) -> tuple[float, float] | None:
-    return None if not rec else (float(rec["roll_deg"]), float(rec["pitch_deg"]))
+    return None if not rec else _reading(rec)
 
 
 def stop_of(stop: dict[str, Any]) -> Stop:
@@ -53,7 +58,7 @@ def plate_imu_offset(runs_obs: list[dict[str, Any]], abs_H_robs: list[np.ndarray
     calibration/imu_mount.py: the offset, and with two runs the yaw and the check that the
     runs agree; its messages and verdict join the referencing result's.
     """
-    pairs = [(tilt_of_pose(H), _tilt(r["imu0"]), _reading_sigma(r["imu0"]))
+    pairs = [(tilt_of_pose(H), _reading(r["imu0"]), _reading_sigma(r["imu0"]))
              for r, H in zip(runs_obs, abs_H_robs) if r.get("imu0")]
     if not pairs:
         return None

@@ -197,7 +197,7 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
 
     load = _eight_bit(load)
     if "board" in obs:
-        board: Any = Board.from_dict(obs["board"], source="state.json: obs.board")
+        board: Board | Plate = Board.from_dict(obs["board"], source="state.json: obs.board")
     else:  # a dataset of the earlier procedure: views of the plate target
         board = Plate.from_dict(obs["plate"], source="state.json: obs.plate")
     images = [load(v["image"]) for v in obs["views"]]

@@ -15,7 +15,7 @@ from typing import Any
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
 from daemon.bus.procedures import ALL, REFERENCING, get
 from daemon.compute.inputs import parse_compensation
-from daemon.compute.procedures import COMPUTE
+from daemon.compute.procedures import COMPUTE, LoadImage
 from daemon.compute.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
@@ -23,7 +23,7 @@ from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibration": "result"}
 
 
-def _load(root: Path):
+def _load(root: Path) -> LoadImage:
     return grey_loader(root)
 
 
@@ -118,7 +118,7 @@ def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None)
 
 def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: dict[str, Any] | None = None,
               calibration: dict[str, Any] | None = None, compensation: str | None = None
-              ) -> tuple[dict[str, Any], float | None]:
+              ) -> tuple[dict[str, Any], Difference | None]:
     """Return (result, its :class:`Difference` to the stored result.json, or None without one).
 
     Raises :class:`DatasetInvalid` listing every problem of the folder, ``ValueError``
@@ -142,9 +142,9 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     result["job"] = state.get("job") or root.name
     result["params"] = {k: v for k, v in (state.get("params") or {}).items()
                         if k not in ("plate", "camera_model", "calibration")}
-    overrides["compensation"] = compensation
-    if any(v is not None for v in overrides.values()):
-        result["recomputed_with"] = sorted(k for k, v in overrides.items() if v is not None)
+    given = [k for k, v in (*overrides.items(), ("compensation", compensation)) if v is not None]
+    if given:
+        result["recomputed_with"] = sorted(given)
         return result, None  # other inputs: a difference to the stored result is expected
     stored_path = root / "result.json"
     if not stored_path.exists():

@@ -33,7 +33,7 @@ def plot_clusters(result: dict[str, Any]) -> bytes:
         m = rel[sel].mean(axis=0)
         ax.scatter([m[0]], [m[1]], marker="x", s=80, color=cmap(i % 10))
     c, r = min_enclosing_circle(rel)
-    ax.add_patch(plt.Circle(c, r, fill=False, ls="--", color="grey",
+    ax.add_patch(plt.Circle((float(c[0]), float(c[1])), r, fill=False, ls="--", color="grey",
                             label=f"enclosing circle, d = {2 * r:.0f} µm"))
     ax.set_aspect("equal")
     lim = max(r * 1.25, 10.0)

@@ -57,7 +57,7 @@ def survey_plate(folder: Path, plate: dict[str, Any], source: str = "plate",
     design = Plate.from_dict(plate, source)
     result = run_survey(load_images(folder, part(0, 20)), design, part(20, 90))
     sig = {c: float(np.linalg.norm(result.plate.nests_sigma_mm[c])) for c in NEST_NAMES}
-    worst = max(sig, key=sig.get)
+    worst = max(sig, key=lambda c: sig[c])
     verdict = "ok" if sig[worst] <= SIGMA_OK_MM else "warn"
     result.report["verdict"] = verdict
     result.report["message"] = (f"largest nest uncertainty {sig[worst] * 1000:.0f} µm (1σ, 3-D, {worst}); "

@@ -18,8 +18,9 @@ import json
 import logging
 import mimetypes
 import time
+from concurrent.futures import Executor
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Coroutine, TypedDict
 from urllib.parse import quote
 
 from aiohttp import WSMsgType, web
@@ -39,7 +40,17 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 STATE_PERIOD_S = 0.2          # telemetry push period: 5 updates/s is smooth for numbers and cheap
 MAX_FPS = 30.0                # the page may ask for fewer; never more than a browser can show usefully
-DEFAULT_VIEW = {"width": 640, "fps": 5.0, "roi": None}
+
+
+class View(TypedDict):
+    """What a tab asked to see: picture width (px), frames per second, region (x, y, w, h) or the whole."""
+
+    width: int
+    fps: float
+    roi: tuple[int, ...] | None
+
+
+DEFAULT_VIEW: View = {"width": 640, "fps": 5.0, "roi": None}
 #: commands a page may send: everything an operator or viewer uses, never the worker's own
 PAGE_COMMANDS = sorted(n for n, c in COMMANDS.items() if not c.worker_only)
 
@@ -55,7 +66,7 @@ class Tab:
 
     def __init__(self, ws: web.WebSocketResponse) -> None:
         self.ws = ws
-        self.view = dict(DEFAULT_VIEW)
+        self.view: View = {**DEFAULT_VIEW}
         self.credit = asyncio.Event()
         self.credit.set()
         self.seen: dict[str, int] = {}
@@ -75,6 +86,13 @@ class Console:
         self.frames_sent = 0
         self.survey = Survey()
         self.gate = Gate(token or new_token(), allow_hosts)
+        self._tasks: set[asyncio.Task[None]] = set()  # the page's commands in flight
+
+    def _spawn(self, work: Coroutine[Any, Any, None]) -> None:
+        """Run ``work`` as a task, holding it until it ends (the event loop keeps only weak references)."""
+        task = asyncio.create_task(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     @property
     def token(self) -> str:
@@ -189,13 +207,14 @@ class Console:
             tab.view = _checked_view(req)
             tab.frame_id = -1  # a new size or region: send the current picture again
         elif op == "call":
-            asyncio.create_task(self._call(tab, req))
+            self._spawn(self._call(tab, req))
         elif op == "capture":
-            asyncio.create_task(self._capture(tab, req))
+            self._spawn(self._capture(tab, req))
         elif op == "survey":
-            asyncio.create_task(self._survey(tab, req))
+            self._spawn(self._survey(tab, req))
 
-    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Any, *args: Any, pool: Any = None) -> None:
+    async def _reply(self, tab: Tab, req: dict[str, Any], fn: Callable[..., Any], *args: Any,
+                     pool: Executor | None = None) -> None:
         try:
             result = await asyncio.get_running_loop().run_in_executor(pool or self.bridge.pool, fn, *args)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
@@ -299,9 +318,9 @@ class Console:
             self.frames_sent += 1
 
 
-def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
+def _checked_view(req: dict[str, Any]) -> View:
     """The page's view request, clamped to what the console serves."""
-    out = dict(DEFAULT_VIEW)
+    out: View = {**DEFAULT_VIEW}
     w, fps, roi = req.get("width"), req.get("fps"), req.get("roi")
     if isinstance(w, (int, float)) and w > 0:
         out["width"] = int(min(max(w, 16), 4096))
@@ -312,7 +331,7 @@ def _checked_view(req: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Any = None,
+async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Callable[[str], object] | None = None,
                 duration: float | None = None, allow_hosts: tuple[str, ...] = (), token: str | None = None) -> None:
     """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one).
 

@@ -51,6 +51,7 @@ class Survey:
     def __init__(self) -> None:
         self.state: dict[str, Any] = {"state": "idle", "version": 0}
         self._proc: asyncio.subprocess.Process | None = None
+        self._watcher: asyncio.Task[None] | None = None  # held: the event loop keeps only weak references
 
     def _set(self, **fields: Any) -> None:
         self.state = {**self.state, **fields, "version": self.state["version"] + 1}
@@ -71,7 +72,7 @@ class Survey:
             stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
         self._set(state="running", folder=str(folder), plate=str(plate), out=str(out), percent=0.0,
                   step="starting", started=time.time(), message="", result=None, exit=None, cancelled=False, error="", took_s=None)
-        asyncio.create_task(self._watch(self._proc))
+        self._watcher = asyncio.create_task(self._watch(self._proc))
         return {"started": True, "folder": str(folder), "out": str(out)}
 
     async def _progress(self, stream: asyncio.StreamReader, tail: list[str]) -> None:

@@ -87,29 +87,29 @@ def load_ctl_config(path: str | Path | None = None) -> dict[str, Any]:
     import tomllib  # Python >= 3.11
 
     explicit = path is not None
-    path, from_env = (Path(path).expanduser(), True) if explicit else config_path()
+    file, from_env = (Path(path).expanduser(), True) if path is not None else config_path()
     try:
-        text = path.read_text(encoding="utf-8")
+        text = file.read_text(encoding="utf-8")
     except FileNotFoundError:
         if explicit or from_env:
             source = "--config" if explicit else f"${ENV_CONFIG}"
-            raise CtlConfigError(f"{path} does not exist (named by {source})") from None
+            raise CtlConfigError(f"{file} does not exist (named by {source})") from None
         return {}
     except (OSError, UnicodeDecodeError) as exc:
-        raise CtlConfigError(f"cannot read {path}: {exc}") from None
+        raise CtlConfigError(f"cannot read {file}: {exc}") from None
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise CtlConfigError(f"{path} is not valid TOML: {exc}") from None
+        raise CtlConfigError(f"{file} is not valid TOML: {exc}") from None
     out: dict[str, Any] = {}
     for key, value in raw.items():
         check = KEYS.get(key)
         if check is None:
-            raise CtlConfigError(f"{path}: unknown key {key!r} (known: {', '.join(KEYS)})")
+            raise CtlConfigError(f"{file}: unknown key {key!r} (known: {', '.join(KEYS)})")
         try:
             out[key] = check(value)
         except ValueError as exc:
-            raise CtlConfigError(f"{path}: {key} = {value!r} {exc}") from None
+            raise CtlConfigError(f"{file}: {key} = {value!r} {exc}") from None
     return out
 
 

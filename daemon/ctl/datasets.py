@@ -14,11 +14,14 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
 from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
 from daemon.ctl.io import fail
+
+if TYPE_CHECKING:  # imported where used: ritactl runs without numpy and OpenCV
+    from daemon.compute.recompute import Difference
 
 
 def _print_problems(folder: str, problems: list[Problem]) -> None:
@@ -53,7 +56,7 @@ def _input_file(path: str | None, what: str) -> Any:
         raise ValueError(f"cannot read {what} {path}: {type(exc).__name__}: {exc}") from None
 
 
-def _run(a: argparse.Namespace) -> tuple[dict[str, Any], float | None]:
+def _run(a: argparse.Namespace) -> tuple[dict[str, Any], Difference | None]:
     from daemon.compute.recompute import recompute
 
     return recompute(Path(a.dataset), camera_model=_input_file(a.camera_model, "camera model"),

@@ -122,7 +122,7 @@ def _seconds(text: str) -> float:
 
 def _global_options(p: argparse.ArgumentParser, top: bool) -> None:
     """--endpoint/--timeout/--json, before the verb (top) or after it (every subcommand)."""
-    keep = {} if top else {"default": argparse.SUPPRESS}
+    keep: dict[str, Any] = {} if top else {"default": argparse.SUPPRESS}
     p.add_argument("--endpoint", help=f"daemon command endpoint, tcp://HOST:PORT or ipc:///PATH "
                                       f"(now: {default_endpoint()})", **keep)
     p.add_argument("--timeout", type=_seconds, help="seconds to wait for an answer", **keep)

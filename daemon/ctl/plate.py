@@ -24,7 +24,8 @@ from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
 from daemon.ctl.io import fail, say
 
 
-def _read_plate(path: str) -> dict[str, Any]:
+def _read_plate(path: str) -> Any:
+    """The file's JSON, whatever it holds (the callers check it is a plate definition)."""
     try:
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:

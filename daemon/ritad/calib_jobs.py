@@ -10,6 +10,7 @@ procedure and kind choices); the job id's syntax and the job states are checked 
 """
 from __future__ import annotations
 
+import builtins
 import collections
 import json
 import logging
@@ -227,14 +228,14 @@ class CalibJobs:
         return {"jobs": list(self.jobs.values()), "queued": len(self._queue),
                 "worker_seen_s_ago": self.worker_age(), "latch": self.latch.snapshot()}
 
-    def stop_moving_jobs(self, by: str) -> list[str]:
+    def stop_moving_jobs(self, by: str) -> builtins.list[str]:  # builtins: the method list() shadows it here
         """A robot STOP: every active job that drives becomes ``stopped`` now; their ids."""
         out = []
         for job in self.jobs.values():
             if job["procedure"] not in MOVING_PROCEDURES or job["state"] not in ACTIVE_STATES:
                 continue
             job_id = job["job"]
-            never_ran = self._queue.remove(lambda item, j=job_id: item.get("job") == j)
+            never_ran = self._queue.remove(lambda item: item.get("job") == job_id)  # runs now, in this turn
             if not never_ran:  # its worker sees this at its next bus call, before any further step
                 self._inboxes[job_id].put({"stop": True})
             msg = (f"stopped by {by} (robot STOP); `ritactl robot release`, then `ritactl resume {job_id}` "

@@ -22,7 +22,7 @@ from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
 from daemon.ritad.services import Services
-from drivers.base import Frame, TrackerPoint
+from drivers.base import Frame, Robot, TrackerPoint
 
 __all__ = ["build_handlers", "chain", "gather"]
 
@@ -106,11 +106,11 @@ def _check_motion(req: Request, amount: str, limit: float, speed: str, max_speed
 
 
 def _robot(s: Services) -> dict[str, Handler]:
-    def motion(req: Request, amount: str, speed: str, fn: Callable[[Any, float, float], Any]) -> Any:
+    def motion(req: Request, amount: str, speed: str, fn: Callable[[Robot, float, float], Any]) -> Any:
         a, v = req.args[amount], req.args[speed]
         timeout = req.args["timeout_s"] or 60.0 + 2 * abs(a) / v  # the table's default_text says the same
 
-        def guarded(robot: Any) -> Any:  # again in the owner thread: a STOP may have come while this was queued
+        def guarded(robot: Robot) -> Any:  # again in the owner thread: a STOP may have come while this was queued
             s.latch.guard(req.cmd, _who(req))
             return fn(robot, a, v)
 

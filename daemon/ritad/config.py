@@ -15,12 +15,18 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from daemon.bus.names import KINDS, ROLES
 from daemon.bus import station
 from daemon.ritad.registry import AdapterError, build_device, schemes
 from drivers.base import CameraSettings, DeviceURL
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+#: a config section: one of the dataclasses below
+_Section = TypeVar("_Section", bound="DataclassInstance")
 
 
 class ConfigError(ValueError):
@@ -154,7 +160,7 @@ def _check_value(value: Any, hint: Any, where: str) -> Any:
     raise ConfigError(f"{where}: unsupported type {hint}")
 
 
-def _build(cls: type, data: dict[str, Any], src: str, prefix: str = "") -> Any:
+def _build(cls: type[_Section], data: dict[str, Any], src: str, prefix: str = "") -> _Section:
     """Build dataclass ``cls`` from a TOML table; errors read ``file: section.key: ...``."""
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.name not in ("source", "plugins")}
@@ -169,7 +175,7 @@ def _build(cls: type, data: dict[str, Any], src: str, prefix: str = "") -> Any:
     kwargs = {}
     for key, value in data.items():
         hint = hints[key]
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
             if not isinstance(value, dict):
                 raise ConfigError(f"{src}: {prefix}{key} must be a table [{prefix}{key}], got {value!r}")
             kwargs[key] = _build(hint, value, src, f"{prefix}{key}.")

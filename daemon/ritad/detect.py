@@ -16,7 +16,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.files import PRIVATE_DIRS, confine
 from daemon.ritad.server import Request
 from drivers.base import Frame
+
+if TYPE_CHECKING:  # imported where used: OpenCV loads at the first camera.detect
+    from calibration.plate import Plate
 
 CMD = "camera.detect"
 
@@ -63,7 +66,7 @@ class Detections:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="detect")
         self._running = threading.Lock()
 
-    def _plate(self, path: str) -> Any:
+    def _plate(self, path: str) -> Plate:
         from calibration.io import load_plate
 
         target = confine(self._root, path, CMD, self._private)  # not_found names the file
@@ -86,7 +89,7 @@ class Detections:
             self._running.release()
             raise
 
-    def _run(self, frame: Frame, plate: Any, a: dict[str, Any]) -> dict[str, Any]:
+    def _run(self, frame: Frame, plate: Plate | None, a: dict[str, Any]) -> dict[str, Any]:
         try:
             t0 = time.perf_counter()
             img = _gray8(frame)
@@ -101,7 +104,7 @@ class Detections:
             self._running.release()
 
     @staticmethod
-    def _corners(img: np.ndarray, plate: Any, scale: float) -> dict[str, Any]:
+    def _corners(img: np.ndarray, plate: Plate, scale: float) -> dict[str, Any]:
         from calibration.target import detect_corners
 
         ids, uv = detect_corners(img, plate, fast=True)

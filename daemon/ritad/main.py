@@ -20,7 +20,7 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import zmq
 
@@ -49,8 +49,11 @@ from daemon.ritad.server import CommandServer  # noqa: E402
 from daemon.ritad.services import Services  # noqa: E402
 from daemon.ritad.stop_latch import LATCH_FILE, StopLatch  # noqa: E402
 from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
-from drivers.base import Device, Frame  # noqa: E402
+from drivers.base import Device, Frame, Payload  # noqa: E402
 from daemon.bus.names import KINDS, Topic  # noqa: E402
+
+if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
+    from daemon.bus.auth import Security
 
 log = logging.getLogger("ritad")
 
@@ -79,7 +82,7 @@ class Daemon:
         self.frames: FramePublisher
         self.server: CommandServer
         self.runners: dict[str, DeviceRunner] = {}
-        self.security: Any = None
+        self.security: Security | None = None
         self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
         self.motions = MotionWaiters(lambda fn: self.job("robot", fn))
         self.stop_event = threading.Event()
@@ -92,7 +95,7 @@ class Daemon:
 
     # ------------------------------------------------------------------ wiring
 
-    def emit(self, topic: str, payload: Any) -> None:
+    def emit(self, topic: str, payload: Payload) -> None:
         """The sink handed to every device (thread-safe, never blocks)."""
         if isinstance(payload, Frame):
             self.frames.publish(payload)
@@ -215,8 +218,7 @@ class Daemon:
                 "commands": {"requests": self.server.requests, "errors": self.server.errors,
                              "pending": self.server.pending},
                 "worker": {"pid": self.worker.pid, "seen_s_ago": self.calib.worker_age()},
-                "latch": self.latch.snapshot(),
-                "alive": self.alive()}
+                "latch": self.latch.snapshot(), "alive": self.alive()}
 
     def alive(self) -> bool:
         now = time.monotonic()

@@ -11,9 +11,12 @@ from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.futures import chain
+from drivers.base import Robot
 
+#: a motion: run with the robot adapter in its owner thread
+RobotJob = Callable[[Robot], Any]
 #: submit a job to the robot's runner: fn(robot) -> Future
-SubmitRobot = Callable[[Callable[[Any], Any]], Future]
+SubmitRobot = Callable[[RobotJob], Future]
 
 
 class MotionWaiters:
@@ -52,7 +55,7 @@ class MotionWaiters:
             self._waiters.remove(fut)
             return True
 
-    def start(self, fn: Callable[[Any], Any], wait: bool, timeout: float) -> Future:
+    def start(self, fn: RobotJob, wait: bool, timeout: float) -> Future:
         """Start a motion; with ``wait`` the Future completes at its end (or fails after ``timeout`` s)."""
         if not wait:
             return chain(self._submit(fn), lambda _: {"started": True})

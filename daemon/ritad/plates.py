@@ -69,7 +69,9 @@ def store_plate(data_dir: Path, plate: dict[str, Any], name: str, who: str) -> d
 
 
 def _answer(data_dir: Path, target: Path, data: bytes, kept: Path | None, unchanged: bool) -> dict[str, Any]:
-    rel = lambda p: str(p.relative_to(data_dir)).replace("\\", "/")  # noqa: E731 - data-dir paths as files.* use
+    def rel(p: Path) -> str:  # data-dir paths as files.* use them
+        return str(p.relative_to(data_dir)).replace("\\", "/")
+
     return {"path": rel(target), "sha256": hashlib.sha256(data).hexdigest(), "size": len(data),
             "replaced": rel(kept) if kept else None, "unchanged": unchanged}
 

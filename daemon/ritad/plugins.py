@@ -18,12 +18,14 @@ A plugin writes what ritad should read as files in the data dir, as an installer
 from __future__ import annotations
 
 import logging
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol
 
 from daemon.bus.command_table import Command, markdown_table, register
 from daemon.ritad.registry import load_target, schemes
+from daemon.ritad.server import Handler, Request
 
 log = logging.getLogger("ritad.plugins")
 KIND = "plugin"  # the entry-point name prefix: plugin.NAME
@@ -33,9 +35,21 @@ class PluginError(RuntimeError):
     """An installed plugin cannot be loaded or declares commands it may not; the message names it."""
 
 
+class PluginServices(Protocol):
+    """What a session's handlers may use of ritad: :class:`daemon.ritad.services.Services` provides it
+    (it is not imported here: ritad's config imports this module)."""
+
+    @property
+    def data_dir(self) -> Path: ...
+    @property
+    def storage(self) -> Executor: ...  # the storage thread: file work never holds up a device or the bus
+    @property
+    def device_info(self) -> Callable[[str], dict[str, Any]]: ...
+
+
 class Session(Protocol):
     def urls(self, urls: dict[str, str]) -> dict[str, str]: ...
-    def handlers(self, services: Any) -> dict[str, Callable[[Any], Any]]: ...
+    def handlers(self, services: PluginServices) -> dict[str, Handler]: ...
     def hello(self) -> dict[str, Any]: ...
     def close(self) -> None: ...
 
@@ -78,16 +92,16 @@ class Running:
             urls = s.urls(urls)
         return urls
 
-    def handlers(self, services: Any, plugins: Mapping[str, Plugin]) -> dict[str, Callable[[Any], Any]]:
+    def handlers(self, services: PluginServices, plugins: Mapping[str, Plugin]) -> dict[str, Handler]:
         """Each registered plugin command's handler: its session's, or not_found without one."""
         from daemon.bus.protocol import CommandError, ErrorCode
 
-        out: dict[str, Callable[[Any], Any]] = {}
+        out: dict[str, Handler] = {}
         for name, plugin in plugins.items():
             session = self.sessions.get(name)
             given = session.handlers(services) if session is not None else {}
             for c in plugin.commands:
-                def absent(req: Any, _name: str = name) -> Any:
+                def absent(req: Request, _name: str = name) -> Any:
                     raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: plugin {_name!r} is not running in "
                                                             f"this daemon (no device of its URLs is configured)")
                 out[c.name] = given.get(c.name, absent)

@@ -14,18 +14,21 @@ import logging
 import queue
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import zmq
 
 from daemon.bus.protocol import SCHEMA_VERSION, pack, telemetry
 from drivers.base import Frame
 
+if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
+    from daemon.bus.auth import Security
+
 log = logging.getLogger(__name__)
 
 
-def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Any = None,
-                 setup: Any = None) -> tuple[list[zmq.Socket], list[str]]:
+def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Security | None = None,
+                 setup: Callable[[zmq.Socket], None] | None = None) -> tuple[list[zmq.Socket], list[str]]:
     """One socket for the plain endpoints and, with ``security``, one CURVE socket for the tcp ones.
 
     The security mechanism is a property of a socket, so local ipc clients and remote
@@ -36,15 +39,15 @@ def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: An
     secure = [e for e in endpoints if security is not None and is_secure_endpoint(e)]
     plain = [e for e in endpoints if e not in secure]
     socks, bound = [], []
-    for group, secured in ((plain, False), (secure, True)):
+    for group, curve in ((plain, None), (secure, security)):
         if not group:
             continue
         sock = ctx.socket(kind)
         sock.setsockopt(zmq.LINGER, 0)
         if setup is not None:
             setup(sock)
-        if secured:
-            security.apply(sock)
+        if curve is not None:
+            curve.apply(sock)
         bound += bind_all(sock, group)
         socks.append(sock)
     return socks, bound
@@ -67,7 +70,7 @@ class _Publisher(threading.Thread):
     """One PUB socket per endpoint, fed from a bounded queue by this owner thread only."""
 
     def __init__(self, name: str, ctx: zmq.Context, endpoints: list[str], hwm: int, queue_size: int,
-                 security: Any) -> None:
+                 security: Security | None) -> None:
         super().__init__(name=name, daemon=True)
         self.socks, self.endpoints = open_sockets(ctx, zmq.PUB, endpoints, security,
                                                   lambda s: s.setsockopt(zmq.SNDHWM, hwm))
@@ -100,7 +103,7 @@ class TelemetryPublisher(_Publisher):
     """Owner of the telemetry PUB socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 10000, queue_size: int = 20000,
-                 security: Any = None) -> None:
+                 security: Security | None = None) -> None:
         super().__init__("pub-telemetry", ctx, endpoints, hwm, queue_size, security)
         self._lock = threading.Lock()
         self.latest: dict[str, dict[str, Any]] = {}
@@ -144,7 +147,7 @@ class FramePublisher(_Publisher):
     """Owner of the frame PUB socket: ``[topic, header, pixels]`` zero-copy, small HWM."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4,
-                 security: Any = None) -> None:
+                 security: Security | None = None) -> None:
         super().__init__("pub-frames", ctx, endpoints, hwm, queue_size, security)
         self.dropped = 0  # frames dropped before the socket (publisher could not keep up)
         self.last_header: dict[str, Any] | None = None
@@ -168,7 +171,7 @@ class FramePublisher(_Publisher):
         for sock in self.socks:
             try:
                 # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
-                sock.send_multipart([b"camera.frame", packed, pixels], copy=False, flags=zmq.NOBLOCK)
+                sock.send_multipart([b"camera.frame", packed, pixels.data], copy=False, flags=zmq.NOBLOCK)
             except zmq.Again:
                 self.dropped += 1
         self.sent += 1

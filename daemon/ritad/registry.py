@@ -17,7 +17,7 @@ import importlib
 from importlib.metadata import entry_points
 from typing import Any
 
-from drivers.base import Device, DeviceURL, Emit
+from drivers.base import Device, DeviceSettings, DeviceURL, Emit
 
 #: kind -> scheme -> "module:Class"
 ADAPTERS: dict[str, dict[str, str]] = {
@@ -93,7 +93,7 @@ def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
     return cls
 
 
-def open_device(kind: str, url: str, *, emit: Emit, settings: Any = None) -> Device:
+def open_device(kind: str, url: str, *, emit: Emit, settings: DeviceSettings = None) -> Device:
     """Construct (not open) the adapter for ``url``."""
     parsed = DeviceURL.parse(url)
     return adapter_class(kind, parsed)(parsed, emit=emit, settings=settings)

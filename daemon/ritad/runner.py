@@ -175,6 +175,12 @@ class DeviceRunner(threading.Thread):
         self._set_state(DeviceState.READY)
         return True
 
+    def _connected(self) -> Device:
+        """The device of a READY or BUSY runner (:meth:`_connect` made it before READY)."""
+        if self.device is None:
+            raise RuntimeError(f"{self.kind}: the runner is {self.state.value} without a device")
+        return self.device
+
     def _lost(self, exc: BaseException) -> None:
         self._close()
         self.reconnects += 1
@@ -187,7 +193,7 @@ class DeviceRunner(threading.Thread):
         self._set_state(DeviceState.BUSY)
         self._busy_deadline = time.monotonic() + job.timeout + 5.0
         try:
-            result = job.fn(self.device)
+            result = job.fn(self._connected())
         except DeviceLost as exc:
             self.jobs_failed += 1
             job.future.set_exception(CommandError(ErrorCode.DEVICE_LOST, f"{self.kind}: {exc}"))
@@ -245,7 +251,7 @@ class DeviceRunner(threading.Thread):
                 self._run_job(job)
                 continue
             try:
-                self.device.pump(PUMP_S)  # type: ignore[union-attr]
+                self._connected().pump(PUMP_S)
             except DeviceLost as exc:
                 self._lost(exc)
             except Exception as exc:  # a pump bug must not kill the owner thread

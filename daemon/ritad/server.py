@@ -14,6 +14,7 @@ logged with the key that asked for them.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import queue
@@ -22,7 +23,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import zmq
 
@@ -32,6 +33,9 @@ from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_r
 from daemon.bus.repeatlog import RepeatGate, times
 from daemon.bus.roles import refusal
 from daemon.ritad.publisher import open_sockets
+
+if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
+    from daemon.bus.auth import Security
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +79,8 @@ class CommandServer(threading.Thread):
     """Owner of the ROUTER socket."""
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
-                 max_message_bytes: int = 1 << 20, security: Any = None, plain_role: str = "operator") -> None:
+                 max_message_bytes: int = 1 << 20, security: Security | None = None,
+                 plain_role: str = "operator") -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
         self.max_bytes = max_message_bytes
@@ -147,9 +152,10 @@ class CommandServer(threading.Thread):
         if sock not in self._curve_socks:
             return Caller(f"local peer-{bytes(frames[0].bytes).hex()[:10]}", "local client", self.plain_role, None)
         try:
-            key = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
+            user_id = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
         except (zmq.ZMQError, AttributeError):
-            key = None
+            user_id = None
+        key = user_id if isinstance(user_id, str) else None
         entry = self.keyring.lookup(key.encode()) if key and self.keyring is not None else None
         if entry is None:
             return None
@@ -215,7 +221,7 @@ class CommandServer(threading.Thread):
             return
         if isinstance(result, Future):
             self.pending += 1
-            result.add_done_callback(lambda f, e=envelope, i=req_id, c=cmd: self._complete(e, i, c, f))
+            result.add_done_callback(functools.partial(self._complete, envelope, req_id, cmd))
         else:
             self._reply(envelope, req_id, cmd, result)
 

@@ -13,7 +13,9 @@ from typing import Any, Callable, Protocol
 
 from daemon.ritad.calib_jobs import CalibJobs
 from daemon.ritad.config import RobotSection
+from daemon.ritad.motion import RobotJob
 from daemon.ritad.stop_latch import StopLatch
+from drivers.base import Frame
 
 
 class SubmitJob(Protocol):
@@ -26,7 +28,7 @@ class SubmitJob(Protocol):
 @dataclass(frozen=True)
 class Services:
     job: SubmitJob
-    motion: Callable[[Callable[[Any], Any], bool, float], Future]  # (fn(robot), wait, timeout_s)
+    motion: Callable[[RobotJob, bool, float], Future]  # (fn(robot), wait, timeout_s)
     storage: Executor                    # the one storage thread: file work never holds up a device or the bus
     data_dir: Path
     private_dirs: tuple[str, ...]        # top-level data-dir folders files.* never serve
@@ -40,6 +42,6 @@ class Services:
     hello: Callable[[], dict[str, Any]]
     health: Callable[[], dict[str, Any]]
     state: Callable[[], dict[str, Any]]
-    latest_frame: Callable[[], Any] = lambda: None  # the newest published Frame, for camera.preview
+    latest_frame: Callable[[], Frame | None] = lambda: None  # the newest published Frame, for camera.preview
     latch: StopLatch = field(default_factory=lambda: StopLatch(lambda topic, data: None))  # the latched stop
     abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from daemon.bus.storage import atomic_write_json, calibration_dir
 DEFAULT_IMU_READINGS: int = PARAM_DEFAULTS["imu_readings"]  # the procedures' parameter table
 
 
-def read_tilt(call: Any, n: int, interval_s: float = 0.0) -> dict[str, Any] | None:
+def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict[str, Any] | None:
     """Mean roll/pitch of ``n`` robot.status readings at a standstill, or None when the base reports no tilt.
 
     ``call`` is ``ctx.call``. The readings are ``interval_s`` apart (the inclinometer's

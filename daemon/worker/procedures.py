@@ -131,6 +131,8 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     foot = footprint_abs(calib, abs_H_rob_now)[:2]  # footprint relative to the reflector at this heading
     target = np.asarray(mark_xy, float) - foot - offset
     nav.approach(target, heading, param(ctx, "distance_mm"))
+    if nav.last_points is None:  # approach() ends with a recorded straight move, which sets them
+        raise RuntimeError("measure_stop: the approach left no tracker points")
     P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")

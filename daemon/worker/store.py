@@ -6,6 +6,7 @@ from typing import Any
 
 from daemon.bus.storage import atomic_write_json, calibration_dir
 from daemon.compute.files import write_result_files
+from daemon.worker.job import JobContext
 
 
 def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
@@ -23,7 +24,7 @@ def add_message(root: Path, data_dir: Path, result: dict[str, Any], message: str
     return result
 
 
-def install_camera_model(ctx: Any, result: dict[str, Any], answer_within_s: float = 900.0) -> str:
+def install_camera_model(ctx: JobContext, result: dict[str, Any], answer_within_s: float = 900.0) -> str:
     """Make an intrinsics result the robot's camera model: at once on ``ok``, after a yes on ``warn``.
 
     Returns one line for the result's messages saying what happened and, when the

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from daemon.bus.client import Subscriber
 from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.worker.job import JobContext
 
 #: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
 DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
@@ -47,8 +49,9 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.n
     """
     if not msgs:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    devs = [_device_ns(m) for m in msgs]
-    if any(d is None for d in devs):  # no device clock: each packet's records at its arrival
+    clocks = [_device_ns(m) for m in msgs]
+    devs = [d for d in clocks if d is not None]
+    if len(devs) < len(clocks):  # no device clock: each packet's records at its arrival
         devs = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
     offset = min(int(m["host_time_ns"]) - int(d[-1]) for m, d in zip(msgs, devs))
     P = np.concatenate([np.column_stack([m["x"], m["y"], m["z"]]).astype(float) for m in msgs])
@@ -59,7 +62,7 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.n
     return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order]
 
 
-def _collect_until(sub: Any, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
+def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
     """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``."""
     end = time.monotonic() + wait_s
     while time.monotonic() < end:
@@ -77,7 +80,7 @@ def _thin(n: int, most: int) -> np.ndarray:
     return np.arange(n) if n <= most else np.unique(np.linspace(0, n - 1, most).round().astype(int))
 
 
-def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout_s: float
+def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, timeout_s: float
                         ) -> list[tuple[int, float, float]]:
     """Start the move, poll robot.status until the base is idle; the tilt samples (host ns, roll, pitch)."""
     ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True, wait=False)
@@ -95,7 +98,7 @@ def _drive_polling_tilt(ctx: Any, distance_mm: float, speed_mm_s: float, timeout
             raise CommandError(ErrorCode.TIMEOUT, f"robot still moving {timeout_s:.0f} s after the approach started")
 
 
-def record_move(ctx: Any, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
+def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
                 rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None
                 ) -> tuple[dict[str, Any] | None, str]:
     """Drive ``distance_mm`` straight while recording the stream: (the stop record's ``stream``, "").

@@ -18,7 +18,7 @@ import math
 import time
 from typing import Any
 
-from drivers.base import DeviceError, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
+from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import Packet
 from drivers.emscon.enums import (
@@ -31,9 +31,10 @@ DEFAULT_PORT = 700
 MAX_RATE_HZ = 1000.0
 MIN_RATE_HZ = 0.001  # one point per 1000 s: the time separation (ms) must fit an int32
 MAX_AIM_MM = 1e6  # 1 km, far beyond any tracker's range: larger is a typo, not a target
-_MEAS_STATUS = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
-                ES_SystemStatusChange.MeasStatus_Busy: "Busy",
-                ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
+#: keyed by int: a packet's change is the plain int it carried (an IntEnum hashes as its value)
+_MEAS_STATUS: dict[int, str] = {ES_SystemStatusChange.MeasStatus_NotReady: "NotReady",
+                                ES_SystemStatusChange.MeasStatus_Busy: "Busy",
+                                ES_SystemStatusChange.MeasStatus_Ready: "Ready"}
 
 
 #: statuses that mean "no reflector locked": the operator must aim and find first
@@ -68,7 +69,7 @@ class EmsconTracker(Tracker):
                          "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
-                 settings: Any = None) -> None:
+                 settings: DeviceSettings = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         o = url.option
         self.timeout: float = o("timeout", 30.0, float)

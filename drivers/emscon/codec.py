@@ -36,10 +36,14 @@ Fields = tuple[tuple[str, str], ...]  # (name, code): "i" int32, "d" double, "s"
 class ProtocolError(Exception):
     """The byte stream broke the emScon framing or layout rules; the connection is unusable."""
 
+    #: set by the framer: the whole packets decoded before the bad one (they are good)
+    packets: list[Packet]
+
 
 def _f(spec: str) -> Fields:
     """Parse ``"a:i b:d"`` into a field tuple (keeps the tables below compact)."""
-    return tuple(tuple(item.split(":")) for item in spec.split())  # type: ignore[misc]
+    pairs = [item.split(":") for item in spec.split()]
+    return tuple((name, code) for name, code in pairs)
 
 
 _UNITS = _f("length_unit:i angle_unit:i temperature_unit:i pressure_unit:i humidity_unit:i")

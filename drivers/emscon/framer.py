@@ -48,7 +48,7 @@ class Framer:
                 pos += size
         except ProtocolError as exc:
             self._error = exc
-            exc.packets = out  # type: ignore[attr-defined]  # whole packets before the bad one are good
+            exc.packets = out  # whole packets before the bad one are good
             raise
         finally:
             del buf[:pos]

@@ -157,3 +157,52 @@ def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_p
     ref = dict(zip(full["ids"], full["uv"]))
     d = [np.hypot(*(np.array(p) - ref[i])) for i, p in zip(half["ids"], half["uv"]) if i in ref]
     assert len(d) > 30 and np.median(d) < 1.0, (len(d), np.median(d) if d else None)
+
+
+def test_the_console_holds_a_page_command_in_flight_until_it_ends(tmp_path):
+    """asyncio keeps only weak references to tasks: the task of a page's command is held by the console
+    while the command runs, and let go when the reply has gone to the page."""
+    import asyncio
+    import gc
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from daemon.console.server import Console, Tab
+
+    release = threading.Event()
+    replies: list[dict] = []
+
+    class Bridge:
+        pool = urgent = ThreadPoolExecutor(1)
+        role = "operator"
+
+        def call(self, cmd, args, timeout):
+            release.wait(10)
+            return {"cmd": cmd}
+
+    class Socket:
+        closed = False
+
+        async def send_str(self, text):
+            replies.append(json.loads(text))
+
+    async def run() -> tuple[int, int]:
+        console = Console(Bridge(), tmp_path)
+        console._handle(Tab(Socket()), {"op": "call", "id": 7, "cmd": "ping", "args": {}})
+        await asyncio.sleep(0.05)
+        gc.collect()
+        in_flight = len(console._tasks)
+        release.set()
+        for _ in range(500):
+            if replies and not console._tasks:
+                break
+            await asyncio.sleep(0.01)
+        return in_flight, len(console._tasks)
+
+    try:
+        in_flight, after = asyncio.run(run())
+    finally:
+        release.set()
+        Bridge.pool.shutdown()
+    assert (in_flight, after) == (1, 0)
+    assert replies == [{"type": "reply", "id": 7, "ok": True, "result": {"cmd": "ping"}}]
