@@ -15,6 +15,23 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pix
 MAX_IMAGE_BYTES = 512 * 2 ** 20
 
 
+def png_header(path: Path) -> tuple[int, int, int, int] | None:
+    """(width, height, channels, bit depth) from the IHDR alone, or None; nothing checked beyond it.
+
+    For sizing a file before decoding it (a plausible size: :data:`MAX_IMAGE_BYTES`);
+    :func:`png_info` is the check that the file is complete and intact.
+    """
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(33)
+    except OSError:
+        return None
+    if len(head) < 33 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    w, h, depth, colour = struct.unpack(">IIBB", head[16:26])
+    return (w, h, _PNG_CHANNELS[colour], depth) if colour in _PNG_CHANNELS else None
+
+
 def png_info(path: Path) -> tuple[int, int, int, int]:
     """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
 
@@ -58,4 +75,4 @@ def png_info(path: Path) -> tuple[int, int, int, int]:
     return w, h, _PNG_CHANNELS[colour], depth
 
 
-__all__ = ["png_info"]
+__all__ = ["MAX_IMAGE_BYTES", "png_header", "png_info"]

@@ -9,12 +9,14 @@ through :func:`calibration.image.to_grey` (Bayer demosaiced, 16-bit scaled to 8)
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from calibration.image import infer_format, to_grey
+from daemon.bus.png_check import MAX_IMAGE_BYTES, png_header
 
 
 def pixel_format_of(root: Path, file: str) -> str | None:
@@ -54,4 +56,64 @@ def grey_loader(root: Path) -> Callable[[str], np.ndarray]:
     return load
 
 
-__all__ = ["grey_loader", "pixel_format_of", "read_image"]
+def first_image(root: Path) -> str | None:
+    """The first image a procedure's computation reads (runs, stops, views, stop), from state.json; or None."""
+    try:
+        obs = json.loads((Path(root) / "state.json").read_text(encoding="utf-8")).get("obs")
+        for key in ("runs", "stops", "views"):
+            for item in obs.get(key) or []:
+                if isinstance(item.get("image"), str):
+                    return item["image"]
+        file = (obs.get("stop") or {}).get("image")
+        return file if isinstance(file, str) else None
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
+        return None  # the validation says what is wrong with state.json
+
+
+class PrefetchedLoader:
+    """A :func:`grey_loader` that starts decoding one image in a background thread at once.
+
+    ``ritactl recompute`` validates the folder before it computes, and the validation
+    inflates every PNG in pure Python; OpenCV decoding the same file meanwhile costs no
+    wall time on a second core (both release the GIL). Only the decoded pixels are
+    kept, and only used when the computation asks for that file after the validation
+    passed. A file without a plausible PNG header (size within :data:`MAX_IMAGE_BYTES`)
+    is not prefetched: the validation reports it before anything decodes it.
+    """
+
+    def __init__(self, root: Path, file: str | None) -> None:
+        self._load = grey_loader(root)
+        self._file, self._out, self._thread = file, None, None
+        info = png_header(Path(root) / file) if file and "/" not in file and "\\" not in file else None
+        if info is not None and info[1] * (1 + (info[0] * info[2] * info[3] + 7) // 8) <= MAX_IMAGE_BYTES:
+            self._thread = threading.Thread(target=self._run, name="prefetch-image", daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._out = (self._load(self._file), None)
+        except Exception as exc:  # noqa: BLE001 - raised in the caller's thread when it asks for the file
+            self._out = (None, exc)
+
+    def __call__(self, file: str) -> np.ndarray:
+        if file != self._file or self._thread is None:
+            return self._load(file)
+        self._thread.join()
+        self._thread = None
+        (img, exc), self._out = self._out, None  # handed out once
+        if exc is not None:
+            raise exc
+        return img
+
+    def __enter__(self) -> "PrefetchedLoader":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        """Wait for a decode still running (a recompute leaves no thread behind) and drop its pixels."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        self._out = None
+
+
+__all__ = ["PrefetchedLoader", "first_image", "grey_loader", "pixel_format_of", "read_image"]
