@@ -7,15 +7,17 @@ returns both mirror solutions; it keeps the better one only when its reprojectio
 RMS beats the other by ``min_ambiguity_ratio`` (calibration.md §2.2), then polishes
 it with Levenberg–Marquardt.
 
-Markers are found by OpenCV (square candidates) but identified here: OpenCV 5
-matches each candidate against the dictionary one entry at a time, which costs
-~2 s per image for this 600-marker board; reading each candidate's bits once and
-matching them against all markers and rotations at once takes ~0.1 s and finds the
-same markers. A match may differ in as many bits as OpenCV allows for the dictionary
+Marker candidates are the squares OpenCV's detector finds (found as it does, without
+its comparison of every candidate pair: :mod:`calibration.marker_candidates`), but the
+markers are identified here: OpenCV 5 matches each candidate against the dictionary one
+entry at a time, which costs ~2 s per image for this 600-marker board; reading each
+candidate's bits once and matching them against all markers and rotations at once takes
+~0.1 s and finds the same markers. A match may differ in as many bits as OpenCV allows for the dictionary
 (none for DICT_4X4_1000), and a marker whose id disagrees with its image neighbours
-is dropped. OpenCV's CharucoDetector then interpolates and refines the chessboard
-corners from those markers as usual; if its board check rejects the marker set,
-OpenCV's own detector decides (``fast=False`` uses OpenCV for both steps).
+is dropped. The chessboard corners are then interpolated and refined from those markers
+as OpenCV's CharucoDetector does (:mod:`calibration.charuco_corners`, the same corners
+without its linear searches); if its board check rejects the marker set, OpenCV's own
+detector decides (``fast=False`` uses OpenCV for both steps).
 """
 from __future__ import annotations
 
@@ -26,8 +28,10 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.charuco_corners import detect_board
 from calibration.errors import CalibrationError
 from calibration.frames import make_H
+from calibration.marker_candidates import find_candidates
 from calibration.plate import Plate
 
 LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -82,22 +86,49 @@ _CANDIDATE_WIDTH = 1400
 
 
 @lru_cache(maxsize=8)
-def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.ArucoDetector]:
+def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.DetectorParameters]:
     """Packed inner bits of every board marker, the marker size, the bits a match may
-    differ in, and a candidate finder."""
+    differ in, and the candidate search's parameters (OpenCV's defaults)."""
     d = board.getDictionary()
     n = d.markerSize
     weights = 1 << np.arange(n * n, dtype=np.int64)
     codes = np.array([int(d.getBitsFromByteList(d.bytesList[k:k + 1], n).reshape(-1).astype(np.int64) @ weights)
                       for k in range(d.bytesList.shape[0])])
-    # a one-marker dictionary: OpenCV then finds and returns all square candidates
-    # quickly, and the identification below matches them against the board's markers
-    finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), n, 0))
+    params = cv2.aruco.DetectorParameters()
     # the dictionary's own limit, scaled as OpenCV's identification does: markers of
     # a dense dictionary (DICT_4X4_1000: 0 bits) differ from a neighbour in one bit, so
     # accepting a wrong bit there would read a misread marker as another id
-    max_bits = int(d.maxCorrectionBits * cv2.aruco.DetectorParameters().errorCorrectionRate)
-    return codes, n, max_bits, finder
+    max_bits = int(d.maxCorrectionBits * params.errorCorrectionRate)
+    return codes, n, max_bits, params
+
+
+def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Packed inner bits of each quad (full-image pixels, (N, 4, 2)) in its four rotations.
+
+    Returns (codes (M, 4), indices (M,) of the quads that look like a marker: black and
+    white cells, an all-black border). Each quad is warped to a canonical image, then
+    the cells of all of them are read at once.
+    """
+    cells = n + 2
+    side = cells * _CELL_PX
+    dst = np.float32([[0, 0], [side, 0], [side, side], [0, side]])
+    patches = np.empty((len(quads), side, side), np.uint8)
+    for k, q in enumerate(quads.astype(np.float32)):
+        cv2.warpPerspective(img, cv2.getPerspectiveTransform(q, dst), (side, side), dst=patches[k],
+                            flags=cv2.INTER_LINEAR)
+    lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
+    means = patches.reshape(-1, cells, _CELL_PX, cells, _CELL_PX)[:, :, lo:hi, :, lo:hi].mean(axis=(2, 4))
+    p10, p90 = np.percentile(means.reshape(len(quads), -1), [10, 90], axis=1)
+    bits = means > ((p10 + p90) / 2)[:, None, None]
+    border = (bits[:, 0].sum(axis=1) + bits[:, -1].sum(axis=1) + bits[:, 1:-1, 0].sum(axis=1)
+              + bits[:, 1:-1, -1].sum(axis=1))
+    # black/white structure and an all-black border (two stray cells allowed)
+    keep = np.flatnonzero((p90 - p10 >= 15) & (border <= 2))
+    inner = bits[keep, 1:-1, 1:-1].reshape(len(keep), -1).astype(np.int64)
+    weights = 1 << np.arange(n * n, dtype=np.int64)
+    order = np.arange(n * n).reshape(n, n)
+    codes = np.stack([inner[:, np.rot90(order, r).reshape(-1)] @ weights for r in range(4)], axis=1)
+    return codes, keep
 
 
 def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[list[np.ndarray], np.ndarray]:
@@ -109,38 +140,17 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     vectorised Hamming distances, accepting as many wrong bits as OpenCV would for
     this dictionary (``maxCorrectionBits`` × ``errorCorrectionRate``).
     """
-    codes, n, max_bits, finder = _marker_codes(board)
+    codes, n, max_bits, params = _marker_codes(board)
     f = max(1, int(np.ceil(img.shape[1] / _CANDIDATE_WIDTH)))
     small = img if f == 1 else cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
-    found, _, rejected = finder.detectMarkers(small)
-    quads = [np.asarray(q, np.float64).reshape(4, 2) for q in (*found, *rejected)]
-    if not quads:
+    quads = find_candidates(small, params).astype(np.float64)
+    if not len(quads):
         return [], np.zeros((0, 1), np.int32)
-    cells = n + 2
-    side = cells * _CELL_PX
-    dst = np.float32([[0, 0], [side, 0], [side, side], [0, side]])
-    lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
-    weights = 1 << np.arange(n * n, dtype=np.int64)
-    cand_codes, keep = [], []
-    for k, q in enumerate(quads):
-        q = (q + 0.5) * f - 0.5  # back to full-image pixel coordinates
-        quads[k] = q
-        H = cv2.getPerspectiveTransform(q.astype(np.float32), dst)
-        patch = cv2.warpPerspective(img, H, (side, side), flags=cv2.INTER_LINEAR)
-        means = patch.reshape(cells, _CELL_PX, cells, _CELL_PX)[:, lo:hi, :, lo:hi].mean(axis=(1, 3))
-        p10, p90 = np.percentile(means, [10, 90])
-        if p90 - p10 < 15:  # no black/white structure
-            continue
-        bits = means > (p10 + p90) / 2
-        border = np.concatenate([bits[0], bits[-1], bits[1:-1, 0], bits[1:-1, -1]])
-        if border.sum() > 2:  # a marker has an all-black border
-            continue
-        inner = bits[1:-1, 1:-1]
-        cand_codes.append([int(np.rot90(inner, r).reshape(-1).astype(np.int64) @ weights) for r in range(4)])
-        keep.append(k)
-    if not keep:
+    quads = (quads + 0.5) * f - 0.5  # back to full-image pixel coordinates
+    cand_codes, keep = _read_codes(img, quads, n)
+    if not len(keep):
         return [], np.zeros((0, 1), np.int32)
-    dist = np.bitwise_count(np.asarray(cand_codes)[:, :, None] ^ codes[None, None, :])  # (N, 4, markers)
+    dist = np.bitwise_count(cand_codes[:, :, None] ^ codes[None, None, :])  # (N, 4, markers)
     flat = dist.reshape(len(keep), -1).argmin(axis=1)
     rot, ident = np.unravel_index(flat, dist.shape[1:])
     best = dist.reshape(len(keep), -1)[np.arange(len(keep)), flat]
@@ -201,7 +211,7 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
 
     ``model`` is only used to check that the image has the model's size. ``fast``
     uses this module's marker identification (same markers, ~10x quicker); the
-    chessboard corners are interpolated and refined by OpenCV's CharucoDetector
+    chessboard corners are interpolated and refined as OpenCV's CharucoDetector does
     either way. When OpenCV's board check keeps fewer corners than half the markers
     found, OpenCV's own marker detection runs too and the larger corner set is kept.
     """
@@ -216,7 +226,7 @@ def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = 
     if fast:
         m_corners, m_ids = _detect_markers(img, board)
         if len(m_ids):
-            corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
+            corners, ids = detect_board(img, board, det, m_corners, m_ids)
         # OpenCV's board check rejects a marker set it finds inconsistent (no or few
         # corners from many markers): let OpenCV's own detector decide then
         fast = len(m_ids) == 0 or (ids is not None and len(ids) >= len(m_ids) // 2)
