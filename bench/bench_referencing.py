@@ -44,11 +44,11 @@ FULL_RUN = ("import atexit, sys\n"
             "atexit.register(lambda: open(sys.argv.pop(1), 'w').write(\n"
             "    [ln.split()[1] for ln in open('/proc/self/status') if ln.startswith('VmHWM')][0]))\n"
             "from daemon.ctl.main import main\nsys.exit(main(sys.argv[2:]))\n")
-#: the full run, recording the modules it imported
+#: the full run, recording the modules it imported, in import order (sys.modules keeps it)
 RECORD = ("import atexit, json, sys\n"
-          "atexit.register(lambda: open(sys.argv.pop(1), 'w').write(json.dumps(sorted(sys.modules))))\n"
+          "atexit.register(lambda: open(sys.argv.pop(1), 'w').write(json.dumps(list(sys.modules))))\n"
           "from daemon.ctl.main import main\nsys.exit(main(sys.argv[2:]))\n")
-#: the baseline: import those modules (in recorded order; one that cannot be imported alone is skipped)
+#: the baseline: import those modules in the same order (one that cannot be imported alone is skipped)
 BASELINE = ("import importlib, json, sys\n"
             "for m in json.loads(open(sys.argv[1]).read()):\n"
             "    try:\n        importlib.import_module(m)\n    except Exception:\n        pass\n")
