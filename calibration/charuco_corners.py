@@ -41,16 +41,30 @@ class _Layout:
 @lru_cache(maxsize=8)
 def _layout(board: cv2.aruco.CharucoBoard) -> _Layout | None:
     """The board's corner neighbourhoods (OpenCV's ``calcNearestMarkerCorners``), or None when a
-    corner has not exactly two nearest markers."""
+    corner has not exactly two nearest markers.
+
+    OpenCV compares every corner with every marker centre; markers sit centred in squares, so
+    the nearest ones are among the (at most four) markers of the squares around the corner,
+    the next at 2.2 times their distance: only those are compared.
+    """
     obj = np.array(board.getObjPoints(), np.float32).reshape(-1, 4, 3)
     chess = np.asarray(board.getChessboardCorners(), np.float32).reshape(-1, 3)
+    square = board.getSquareLength()
     centre = obj.sum(axis=1, dtype=np.float32) / np.float32(4)
-    d = chess[:, None, :2] - centre[None, :, :2]
-    sq = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]).astype(np.float64)
-    near = np.abs(sq - sq.min(axis=1, keepdims=True)) < (0.01 * board.getSquareLength()) ** 2
+    cols, rows = board.getChessboardSize()
+    grid = np.full((cols + 2, rows + 2), -1)
+    cell = np.floor(centre[:, :2] / square).astype(int)
+    if cell.min() < 0 or np.any(cell >= (cols, rows)):
+        return None
+    grid[cell[:, 0] + 1, cell[:, 1] + 1] = np.arange(len(obj))
+    at = np.rint(chess[:, :2] / square).astype(int)  # corner (i, j) touches squares i-1..i, j-1..j
+    cand = np.stack([grid[at[:, 0] + dx, at[:, 1] + dy] for dx in (0, 1) for dy in (0, 1)], axis=1)  # (C, 4)
+    d = chess[:, None, :2] - centre[cand][..., :2]
+    sq = np.where(cand >= 0, (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]).astype(np.float64), np.inf)
+    near = np.abs(sq - sq.min(axis=1, keepdims=True)) < (0.01 * square) ** 2
     if np.any(near.sum(axis=1) != 2):
         return None
-    nearest = np.nonzero(near)[1].reshape(-1, 2)
+    nearest = np.sort(cand[near].reshape(-1, 2), axis=1)  # OpenCV lists them by marker index
     dc = chess[:, None, None, :2] - obj[nearest][..., :2]
     corner = np.argmin(dc[..., 0] * dc[..., 0] + dc[..., 1] * dc[..., 1], axis=2)
     return _Layout(np.ascontiguousarray(obj[..., :2]), np.asarray(board.getIds()).ravel(),
