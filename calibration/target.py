@@ -21,6 +21,7 @@ detector decides (``fast=False`` uses OpenCV for both steps).
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -113,11 +114,19 @@ def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray,
     side = cells * _CELL_PX
     dst = np.float32([[0, 0], [side, 0], [side, side], [0, side]])
     patches = np.empty((len(quads), side, side), np.uint8)
-    for k, q in enumerate(quads.astype(np.float32)):
-        cv2.warpPerspective(img, cv2.getPerspectiveTransform(q, dst), (side, side), dst=patches[k],
-                            flags=cv2.INTER_LINEAR)
+    q32 = quads.astype(np.float32)
+
+    def warp(part: range) -> None:
+        for k in part:
+            cv2.warpPerspective(img, cv2.getPerspectiveTransform(q32[k], dst), (side, side), dst=patches[k],
+                                flags=cv2.INTER_LINEAR)
+    half = len(quads) // 2
+    with ThreadPoolExecutor(2) as pool:  # each warp is small: two threads beat OpenCV's own split
+        list(pool.map(warp, (range(half), range(half, len(quads)))))
     lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
-    means = patches.reshape(-1, cells, _CELL_PX, cells, _CELL_PX)[:, :, lo:hi, :, lo:hi].mean(axis=(2, 4))
+    # exact integer sums of the 6×6 inner pixels, then the mean
+    cell_px = patches.reshape(-1, cells, _CELL_PX, cells, _CELL_PX)[:, :, lo:hi, :, lo:hi]
+    means = cell_px.sum(axis=4, dtype=np.uint16).sum(axis=2, dtype=np.uint16) / (hi - lo) ** 2
     p10, p90 = np.percentile(means.reshape(len(quads), -1), [10, 90], axis=1)
     bits = means > ((p10 + p90) / 2)[:, None, None]
     border = (bits[:, 0].sum(axis=1) + bits[:, -1].sum(axis=1) + bits[:, 1:-1, 0].sum(axis=1)
@@ -187,22 +196,28 @@ def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.Cha
     """
     if len(ids) <= _NEIGHBOURS:
         return corners, ids
-    square = board.getSquareLength()
-    obj = {int(i): np.asarray(o, np.float64).reshape(4, 3)[:, :2].mean(axis=0) / square
-           for i, o in zip(board.getIds().ravel(), board.getObjPoints())}
-    uv = np.array([c.reshape(4, 2).mean(axis=0) for c in corners], np.float64)
-    xy = np.array([obj[int(i)] for i in ids.ravel()])
+    centres = _marker_centres(board)
+    uv = np.concatenate(corners).reshape(-1, 4, 2).mean(axis=1).astype(np.float64)
+    xy = np.array([centres[int(i)] for i in ids.ravel()])
     d2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
     near = np.argsort(d2, axis=1)[:, 1:_NEIGHBOURS + 1]
-    keep = np.ones(len(ids), bool)
+    uv_near, xy_near = uv[near], xy[near]  # (N, 8, 2) each
+    A = np.full((len(ids), 2, 3), np.nan)
     for j in range(len(ids)):
-        nb = near[j]
-        A, inl = cv2.estimateAffine2D(uv[nb], xy[nb], method=cv2.RANSAC,
-                                      ransacReprojThreshold=_MAX_OFF_SQUARES / 2, refineIters=0)
-        if A is None or int(inl.sum()) < 4:
-            continue
-        keep[j] = np.linalg.norm(A[:, :2] @ uv[j] + A[:, 2] - xy[j]) <= _MAX_OFF_SQUARES
+        fit, inl = cv2.estimateAffine2D(uv_near[j], xy_near[j], method=cv2.RANSAC,
+                                        ransacReprojThreshold=_MAX_OFF_SQUARES / 2, refineIters=0)
+        if fit is not None and int(inl.sum()) >= 4:
+            A[j] = fit
+    off = np.linalg.norm(np.einsum("nij,nj->ni", A[:, :, :2], uv) + A[:, :, 2] - xy, axis=1)
+    keep = np.isnan(off) | (off <= _MAX_OFF_SQUARES)  # too few agreeing neighbours: kept
     return [c for c, k in zip(corners, keep) if k], ids[keep]
+
+
+@lru_cache(maxsize=8)
+def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, np.ndarray]:
+    """Board position of each marker's centre, in squares."""
+    obj = np.array(board.getObjPoints(), np.float64).reshape(-1, 4, 3)[:, :, :2]
+    return dict(zip(board.getIds().ravel().tolist(), obj.mean(axis=1) / board.getSquareLength()))
 
 
 def detect_corners(image: np.ndarray, plate: Plate, model: CameraModel | None = None,
