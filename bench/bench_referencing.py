@@ -49,8 +49,9 @@ RECORD = ("import atexit, json, sys\n"
           "atexit.register(lambda: open(sys.argv.pop(1), 'w').write(json.dumps(list(sys.modules))))\n"
           "from daemon.ctl.main import main\nsys.exit(main(sys.argv[2:]))\n")
 #: the baseline: import those modules in the same order (one that cannot be imported alone is skipped),
-#: numpy with one BLAS thread as ritactl loads it
+#: numpy and OpenCV with one thread each as ritactl recompute loads them
 BASELINE = ("import importlib, json, os, sys\nos.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n"
+            "os.environ.setdefault('OPENCV_FOR_THREADS_NUM', '1')\n"
             "for m in json.loads(open(sys.argv[1]).read()):\n"
             "    try:\n        importlib.import_module(m)\n    except Exception:\n        pass\n")
 

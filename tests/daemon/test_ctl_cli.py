@@ -145,3 +145,15 @@ def test_a_fresh_ritactl_uses_one_blas_thread_unless_told(given, want):
 
     ctl._one_blas_thread()
     assert os.environ.get("OPENBLAS_NUM_THREADS") == before
+
+
+def test_recompute_runs_opencv_without_its_worker_threads(tmp_path):
+    """ritactl recompute sets OPENCV_FOR_THREADS_NUM=1 before OpenCV loads (its steps split work themselves)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FOR_THREADS_NUM"}
+    code = ("import sys\nfrom daemon.ctl.main import main\nprint(main(['recompute', sys.argv[1]]))\nimport cv2\n"
+            "print(cv2.getNumThreads())")
+    res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing")], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT, env=env)
+    assert res.stdout.split()[-2:] == [str(int(Exit.BAD_INPUT)), "1"], res
