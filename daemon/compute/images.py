@@ -16,7 +16,8 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.image import infer_format, to_grey
-from daemon.bus.png_check import MAX_IMAGE_BYTES, png_header
+from daemon.bus.png_check import png_info, read_png
+from daemon.compute.png_decode import decode_png
 
 
 def pixel_format_of(root: Path, file: str) -> str | None:
@@ -44,14 +45,17 @@ def read_image(root: Path, file: str) -> tuple[np.ndarray, str]:
     return img, pixel_format_of(root, file) or infer_format(img)
 
 
+def _grey(root: Path, file: str, img: np.ndarray, fmt: str) -> np.ndarray:
+    try:
+        return to_grey(img, fmt)
+    except ValueError as exc:
+        raise ValueError(f"{Path(root) / file}: {exc}") from None
+
+
 def grey_loader(root: Path) -> Callable[[str], np.ndarray]:
     """file -> 8-bit grey image for the detectors (the LoadImage of daemon.compute.procedures)."""
     def load(file: str) -> np.ndarray:
-        img, fmt = read_image(root, file)
-        try:
-            return to_grey(img, fmt)
-        except ValueError as exc:
-            raise ValueError(f"{Path(root) / file}: {exc}") from None
+        return _grey(root, file, *read_image(root, file))
 
     return load
 
@@ -71,29 +75,56 @@ def first_image(root: Path) -> str | None:
 
 
 class PrefetchedLoader:
-    """A :func:`grey_loader` that starts decoding one image in a background thread at once.
+    """A :func:`grey_loader` whose first image is checked and decoded once, in a background thread.
 
     ``ritactl recompute`` validates the folder before it computes, and the validation
-    inflates every PNG in pure Python; OpenCV decoding the same file meanwhile costs no
-    wall time on a second core (both release the GIL). Only the decoded pixels are
-    kept, and only used when the computation asks for that file after the validation
-    passed. A file without a plausible PNG header (size within :data:`MAX_IMAGE_BYTES`)
-    is not prefetched: the validation reports it before anything decodes it.
+    inflates every PNG in pure Python to check it (:func:`daemon.bus.png_check.read_png`).
+    For the first image the computation reads, that check starts here, in a thread, at once:
+    the validation takes its result (:meth:`png_info`) instead of inflating the file again,
+    and the pixels come from the rows it inflated (:func:`daemon.compute.png_decode.decode_png`;
+    OpenCV decodes what that does not cover). The pixels are handed out only when the
+    computation asks for that file, which it does after the validation passed.
     """
 
     def __init__(self, root: Path, file: str | None) -> None:
-        self._load = grey_loader(root)
-        self._file, self._out, self._thread = file, None, None
-        info = png_header(Path(root) / file) if file and "/" not in file and "\\" not in file else None
-        if info is not None and info[1] * (1 + (info[0] * info[2] * info[3] + 7) // 8) <= MAX_IMAGE_BYTES:
+        self._root, self._load = Path(root), grey_loader(root)
+        self._file = file if file and "/" not in file and "\\" not in file else None
+        self._checked = threading.Event()
+        self._check: Any = None  # the image's png_info, or what the check raised
+        self._out: tuple[np.ndarray | None, Exception | None] | None = None
+        self._thread: threading.Thread | None = None
+        if self._file is not None:
             self._thread = threading.Thread(target=self._run, name="prefetch-image", daemon=True)
             self._thread.start()
 
     def _run(self) -> None:
         try:
-            self._out = (self._load(self._file), None)
+            png = read_png(self._root / self._file)
+            self._check = png.info
+        except Exception as exc:  # noqa: BLE001 - the validation raises or reports it, as png_info would
+            self._check = exc
+            return
+        finally:
+            self._checked.set()
+        try:
+            img = decode_png(png)
+            del png  # the inflated rows: 12 MB for a full-size image
+            if img is None:
+                self._out = (self._load(self._file), None)
+            else:
+                fmt = pixel_format_of(self._root, self._file) or infer_format(img)
+                self._out = (_grey(self._root, self._file, img, fmt), None)
         except Exception as exc:  # noqa: BLE001 - raised in the caller's thread when it asks for the file
             self._out = (None, exc)
+
+    def png_info(self, path: Path) -> tuple[int, int, int, int]:
+        """:func:`daemon.bus.png_check.png_info` for the validation: the prefetched file's comes from the thread."""
+        if self._thread is None or Path(path) != self._root / self._file:
+            return png_info(path)
+        self._checked.wait()
+        if isinstance(self._check, Exception):
+            raise self._check
+        return self._check
 
     def __call__(self, file: str) -> np.ndarray:
         if file != self._file or self._thread is None:

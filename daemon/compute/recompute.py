@@ -24,7 +24,7 @@ _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibrati
 
 
 def _load(root: Path) -> PrefetchedLoader:
-    """The image loader, already decoding the first image while the folder is validated."""
+    """The image loader, already checking and decoding the first image for the validation and the computation."""
     return PrefetchedLoader(root, first_image(root))
 
 
@@ -128,7 +128,7 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     """
     root = Path(root)
     with _load(root) as load:
-        problems = validate_folder(root)
+        problems = validate_folder(root, png=load.png_info)  # the first image's check runs once, in the loader
         if problems:
             raise DatasetInvalid(root, problems)
         state = json.loads((root / "state.json").read_text())
