@@ -16,8 +16,6 @@ corner refinement or the ArUco3 pyramid.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import cv2
 import numpy as np
 
@@ -118,8 +116,7 @@ def find_candidates(grey: np.ndarray, p: cv2.aruco.DetectorParameters | None = N
     """
     p = p or cv2.aruco.DetectorParameters()
     wins = range(p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax + 1, p.adaptiveThreshWinSizeStep)
-    with ThreadPoolExecutor(2) as pool:  # as OpenCV, the window sizes in parallel (contours release the GIL)
-        q = np.concatenate(list(pool.map(lambda w: _scale_candidates(grey, w, p), wins)))
+    q = np.concatenate([_scale_candidates(grey, w, p) for w in wins])
     if not len(q):
         return q
     q = _clockwise(q)

@@ -222,3 +222,12 @@ def test_board_corners_are_opencvs(shift_px, scene, oblique_4x4) -> None:
         shuffled = np.random.default_rng(0).permutation(ids.ravel()).reshape(-1, 1)
         bad = det.detectBoard(image, markerCorners=corners, markerIds=shuffled)[1]
         assert (bad is None) == (detect_board(image, board, det, corners, shuffled)[1] is None)
+
+
+@pytest.mark.parametrize("f, rows", [(2, None), (3, None), (3, -1), (4, -2)])
+def test_shrink_in_halves_is_one_resize(scene, f, rows) -> None:
+    import cv2
+
+    image = scene[2] if rows is None else scene[2][:rows]  # row counts f does not divide: one resize
+    want = cv2.resize(image, (image.shape[1] // f, image.shape[0] // f), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(target._shrink(image, f), want)
