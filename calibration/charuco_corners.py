@@ -36,6 +36,8 @@ class _Layout:
     corner_xy: np.ndarray  # (C, 2) float32, chessboard corners (PCS x, y)
     nearest: np.ndarray  # (C, 2) board marker index of the two nearest markers, ascending
     nearest_corner: np.ndarray  # (C, 2) which corner (0..3) of each of those markers is nearest
+    uses: np.ndarray  # (2C,) flat (corner, slot) indices grouped by marker: marker b's are uses[at[b]:at[b + 1]]
+    at: np.ndarray  # (M + 1,)
 
 
 @lru_cache(maxsize=8)
@@ -67,8 +69,10 @@ def _layout(board: cv2.aruco.CharucoBoard) -> _Layout | None:
     nearest = np.sort(cand[near].reshape(-1, 2), axis=1)  # OpenCV lists them by marker index
     dc = chess[:, None, None, :2] - obj[nearest][..., :2]
     corner = np.argmin(dc[..., 0] * dc[..., 0] + dc[..., 1] * dc[..., 1], axis=2)
+    uses = np.argsort(nearest.ravel(), kind="stable")
+    at = np.searchsorted(nearest.ravel()[uses], np.arange(len(obj) + 1))
     return _Layout(np.ascontiguousarray(obj[..., :2]), np.asarray(board.getIds()).ravel(),
-                   np.ascontiguousarray(chess[:, :2]), nearest, corner)
+                   np.ascontiguousarray(chess[:, :2]), nearest, corner, uses, at)
 
 
 def _interpolate(lay: _Layout, corners: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -79,7 +83,8 @@ def _interpolate(lay: _Layout, corners: np.ndarray, found: np.ndarray) -> np.nda
         H = cv2.getPerspectiveTransform(lay.marker_xy[b], corners[found[b]])
         if abs(cv2.determinant(H)) <= 1e-6:
             continue
-        c, slot = np.nonzero(lay.nearest == b)
+        flat = lay.uses[lay.at[b]:lay.at[b + 1]]
+        c, slot = flat // 2, flat % 2
         if len(c):
             pos[c, slot] = cv2.perspectiveTransform(lay.corner_xy[c].reshape(-1, 1, 2), H).reshape(-1, 2)
     have = ~np.isnan(pos[:, :, 0])

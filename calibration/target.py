@@ -157,6 +157,13 @@ def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray,
     return codes, keep
 
 
+def _quad_area(q: np.ndarray) -> np.ndarray:
+    """``abs(cv2.contourArea(quad))`` of float32 quads (n, 4, 2), in its arithmetic (double, same order)."""
+    x, y = q[..., 0].astype(np.float64), q[..., 1].astype(np.float64)
+    t = np.roll(x, 1, axis=1) * y - np.roll(y, 1, axis=1) * x  # previous corner × this one, from the last
+    return np.abs((((t[:, 0] + t[:, 1]) + t[:, 2]) + t[:, 3]) * 0.5)
+
+
 def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[list[np.ndarray], np.ndarray]:
     """Board markers in ``img``: corners (each (1, 4, 2) float32, OpenCV order) and ids (N, 1).
 
@@ -179,20 +186,18 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     flat = dist.reshape(len(keep), -1).argmin(axis=1)
     rot, ident = np.unravel_index(flat, dist.shape[1:])
     best = dist.reshape(len(keep), -1)[np.arange(len(keep)), flat]
-    chosen: dict[int, tuple[int, int, float, int]] = {}
-    for j, k in enumerate(keep):
-        if best[j] > max_bits:
-            continue
-        area = abs(cv2.contourArea(quads[k].astype(np.float32)))
-        prev = chosen.get(int(ident[j]))
-        if prev is None or (best[j], -area) < (prev[1], -prev[2]):
-            chosen[int(ident[j])] = (k, int(best[j]), area, int(rot[j]))
-    corners, ids = [], []
-    for marker_id, (k, _, _, r) in sorted(chosen.items()):
-        # bits read from corners in native order equal the marker rotated by r:
-        # the marker's own first corner is r places further along
-        corners.append(np.roll(quads[k], -r, axis=0).astype(np.float32).reshape(1, 4, 2))
-        ids.append(marker_id)
+    # per id the candidate with the fewest wrong bits, then the largest area, then the first
+    ok = np.flatnonzero(best <= max_bits)
+    k, marker, bits, r = keep[ok], ident[ok], best[ok], rot[ok]
+    area = _quad_area(quads[k].astype(np.float32))
+    order = np.lexsort((np.arange(len(k)), -area, bits, marker))
+    first = order[np.r_[True, np.diff(marker[order]) != 0]] if len(order) else order
+    # bits read from corners in native order equal the marker rotated by r:
+    # the marker's own first corner is r places further along
+    turn = (np.arange(4)[None, :] + r[first, None]) % 4
+    chosen = quads[k[first][:, None], turn].astype(np.float32)
+    corners = [c.reshape(1, 4, 2) for c in chosen]
+    ids = marker[first]
     return _consistent(corners, np.array(ids, np.int32).reshape(-1, 1), board)
 
 
