@@ -18,6 +18,7 @@ Steps as in OpenCV's ``charuco_detector.cpp`` (``interpolateCornersCharucoLocalH
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -110,14 +111,20 @@ def _window_sizes(lay: _Layout, corners: np.ndarray, found: np.ndarray, pos: np.
 
 
 def _refine(img: np.ndarray, pos: np.ndarray, win: np.ndarray, p: cv2.aruco.DetectorParameters) -> np.ndarray:
-    """``cornerSubPix`` of each corner with its own window, one call per window size (corners are independent)."""
+    """``cornerSubPix`` of each corner with its own window, one call per window size (corners are
+    independent), the corners split over two threads (the calls release the GIL)."""
     crit = (cv2.TERM_CRITERIA_MAX_ITER | cv2.TERM_CRITERIA_EPS, p.cornerRefinementMaxIterations,
             p.cornerRefinementMinAccuracy)
     out = pos.copy()
-    for w in np.unique(win).tolist():
-        sel = win == w
-        # zero zone Size() = (0, 0), as OpenCV's ChArUco detector passes it: the window's centre pixel ignored
-        out[sel] = cv2.cornerSubPix(img, pos[sel].reshape(-1, 1, 2).copy(), (w, w), (0, 0), crit).reshape(-1, 2)
+
+    def refine(part: slice) -> None:
+        for w in np.unique(win[part]).tolist():
+            sel = np.flatnonzero(win[part] == w) + (part.start or 0)
+            # zero zone Size() = (0, 0), as OpenCV's ChArUco detector passes it: the window's centre pixel ignored
+            out[sel] = cv2.cornerSubPix(img, pos[sel].reshape(-1, 1, 2).copy(), (w, w), (0, 0), crit).reshape(-1, 2)
+    half = len(pos) // 2
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(refine, (slice(0, half), slice(half, len(pos)))))
     return out
 
 

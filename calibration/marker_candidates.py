@@ -68,17 +68,16 @@ def _near_pairs(centre: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     pi, pj = [], []
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            want = key + dx * rows + dy
-            start = np.searchsorted(sorted_key, want, "left")
-            count = np.searchsorted(sorted_key, want, "right") - start
-            a = np.repeat(np.arange(len(key)), count)
-            offset = np.arange(len(a)) - np.repeat(np.cumsum(count) - count, count)
-            b = order[start[a] + offset]
-            keep = a < b
-            pi.append(a[keep])
-            pj.append(b[keep])
+    for dx, dy in ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):  # each pair of cells once
+        want = key + dx * rows + dy
+        start = np.searchsorted(sorted_key, want, "left")
+        count = np.searchsorted(sorted_key, want, "right") - start
+        a = np.repeat(np.arange(len(key)), count)
+        offset = np.arange(len(a)) - np.repeat(np.cumsum(count) - count, count)
+        b = order[start[a] + offset]
+        keep = a < b if (dx, dy) == (0, 0) else slice(None)
+        pi.append(np.minimum(a, b)[keep])
+        pj.append(np.maximum(a, b)[keep])
     i, j = np.concatenate(pi), np.concatenate(pj)
     ok = np.hypot(*(centre[i] - centre[j]).T) < radius[i]
     return i[ok], j[ok]

@@ -36,16 +36,17 @@ class Png(NamedTuple):
         return self.width, self.height, self.channels, self.depth
 
 
-def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[bytes], set[bytes], bool]:
+def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[memoryview], set[bytes], bool]:
     """(IHDR fields, IDAT bodies, chunk types, IEND seen) after checking every chunk's length and CRC."""
+    view = memoryview(data)  # chunk bodies as views: a 7 MB file is not copied chunk by chunk
     pos, ihdr, idat, tags, ended = 8, None, [], set(), False
     while pos + 8 <= len(data) and not ended:
-        length, tag = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + length]
+        length, tag = struct.unpack_from(">I4s", data, pos)
+        body = view[pos + 8:pos + 8 + length]
         crc = data[pos + 8 + length:pos + 12 + length]
         if len(body) < length or len(crc) < 4:
             raise ValueError(f"truncated in chunk {tag!r} at byte {pos} (file has {len(data)} bytes)")
-        if struct.unpack(">I", crc)[0] != zlib.crc32(tag + body) & 0xFFFFFFFF:
+        if struct.unpack(">I", crc)[0] != zlib.crc32(body, zlib.crc32(tag)) & 0xFFFFFFFF:
             raise ValueError(f"chunk {tag!r} at byte {pos} is corrupted (CRC mismatch)")
         if tag == b"IHDR" and length == 13:
             ihdr = struct.unpack(">IIBBBBB", body)
