@@ -11,7 +11,8 @@ lands from that stored result. Then, alternately and each in a fresh process:
   PnP, SCS, plate and robot pose, Monte Carlo uncertainty, camera-model checks, verdict).
 
 Compute = median(full) − median(baseline); ratio = median(full) / median(baseline); peak
-memory is the full run's peak RSS (its own VmHWM). A missed goal prints **MISSED**, the
+memory is the full run's peak RSS (its own VmHWM); CPU time (user + system, ``os.wait4``) is
+printed too: it says what the computation costs whatever the load. A missed goal prints **MISSED**, the
 exit code stays 0. ``--profile`` also profiles one recompute in this process (cProfile,
 the first call after the imports, as in a fresh process) and prints the top 15.
 
@@ -73,23 +74,28 @@ def dataset(rebuild: bool) -> Path:
     return CACHE
 
 
-def run(args: list[str]) -> float:
-    """Wall time (s) of one fresh interpreter running ``args``; stops the bench on a failed run."""
+def run(args: list[str]) -> tuple[float, float]:
+    """(wall s, CPU s: user + system) of one fresh interpreter running ``args``; stops the bench on a failure."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, *args], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
-                       stderr=subprocess.PIPE)
+    p = subprocess.Popen([sys.executable, *args], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE)
+    err = p.stderr.read() if p.stderr else b""
+    _, status, usage = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t0
+    p.returncode = os.waitstatus_to_exitcode(status)
+    if p.stderr:
+        p.stderr.close()
     if p.returncode not in (0, 1):  # 1 = a "warn" verdict: still a full computation
         raise SystemExit(f"python {' '.join(args[1:4])} ... exited {p.returncode}: "
-                         f"{p.stderr.decode(errors='replace')[-2000:]}")
-    return wall
+                         f"{err.decode(errors='replace')[-2000:]}")
+    return wall, usage.ru_utime + usage.ru_stime
 
 
-def run_full(folder: Path, hwm: Path) -> tuple[float, float]:
-    """(wall s, peak RSS MiB) of one ``ritactl --json recompute FOLDER``."""
-    wall = run(["-c", FULL_RUN, str(hwm), "--json", "recompute", str(folder)])
-    return wall, int(hwm.read_text()) / 1024
+def run_full(folder: Path, hwm: Path) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS MiB) of one ``ritactl --json recompute FOLDER``."""
+    wall, cpu = run(["-c", FULL_RUN, str(hwm), "--json", "recompute", str(folder)])
+    return wall, cpu, int(hwm.read_text()) / 1024
 
 
 def modules(folder: Path) -> Path:
@@ -99,8 +105,10 @@ def modules(folder: Path) -> Path:
     return out
 
 
-#: one recompute profiled in a fresh process, after the imports a ritactl run has done
-PROFILE = ("import cProfile, pstats, sys, time\nfrom pathlib import Path\nimport daemon.ctl.main\n"
+#: one recompute profiled in a fresh process, after the imports a ritactl run has done, threads as ritactl sets them
+PROFILE = ("import cProfile, os, pstats, sys, time\nfrom pathlib import Path\n"
+           "os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\nos.environ.setdefault('OPENCV_FOR_THREADS_NUM', '1')\n"
+           "import daemon.ctl.main\n"
            "from daemon.compute.recompute import recompute\n"
            "prof = cProfile.Profile()\nt0 = time.perf_counter()\nprof.enable()\nrecompute(Path(sys.argv[1]))\n"
            "prof.disable()\nprint(f'recompute under cProfile, fresh process: {time.perf_counter() - t0:.3f} s')\n"
@@ -124,11 +132,14 @@ def main() -> int:
     folder = dataset(a.rebuild)
     mods = modules(folder)
     load0 = os.getloadavg()
-    base, full, rss = [], [], []
+    base, full, rss, cpu_base, cpu_full = [], [], [], [], []
     for _ in range(max(a.repeats, 5)):  # alternated: a load change hits both alike
-        base.append(run(["-c", BASELINE, str(mods)]))
-        wall, peak = run_full(folder, mods.with_name("hwm"))
+        wall, cpu = run(["-c", BASELINE, str(mods)])
+        base.append(wall)
+        cpu_base.append(cpu)
+        wall, cpu, peak = run_full(folder, mods.with_name("hwm"))
         full.append(wall)
+        cpu_full.append(cpu)
         rss.append(peak)
     load1 = os.getloadavg()
     med = statistics.median
@@ -151,6 +162,8 @@ def main() -> int:
     print(f"| `ritactl --json recompute` | {med(full):.3f} s ({min(full):.3f}–{max(full):.3f}) | | |")
     print(f"| compute = full − baseline | {compute:.3f} s | ≤ {GOAL_S} s | {verdict(compute <= GOAL_S)} |")
     print(f"| ratio full / baseline | {med(full) / med(base):.2f} | | |")
+    print(f"| CPU (user + system): baseline / full / compute | {med(cpu_base):.3f} / {med(cpu_full):.3f} / "
+          f"{med(cpu_full) - med(cpu_base):.3f} s | | |")
     print(f"| peak RSS of the full run | {med(rss):.0f} MiB (max {max(rss):.0f}) | ≤ {GOAL_MIB:g} MiB | "
           f"{verdict(max(rss) <= GOAL_MIB)} |")
     print(f"| largest difference to the stored result.json | "
