@@ -9,7 +9,6 @@ Run: ``.venv/bin/python bench/bench_datasets.py``
 """
 from __future__ import annotations
 
-import json
 import statistics
 import subprocess
 import sys
@@ -17,42 +16,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import ROOT, machine  # noqa: E402
+from bench.common import FULL, ROOT, machine, write_referencing_folder  # noqa: E402
 
-from fakes.simulate import SimConfig, Simulation  # noqa: E402
 from daemon.compute.recompute import recompute  # noqa: E402
 from daemon.bus.datasets import validate_folder  # noqa: E402
 from daemon.bus.png_check import png_info  # noqa: E402
-from fakes.world import World, WorldParams  # noqa: E402
-
-FULL = (4024, 3036)
-
-
-def write_folder(root: Path) -> None:
-    """A referencing dataset as the worker writes it, from one simulated visit."""
-    world = World(WorldParams(seed=5))
-    sim = Simulation(world, SimConfig(seed=5, render=True, size=FULL, repetitions=1, directions=1))
-    obs = sim.calibration()
-    root.mkdir(parents=True)
-    cv2.imwrite(str(root / "run0.png"), obs.image)
-
-    def point(p) -> dict:
-        return {"abs_xyz": [float(v) for v in p]}
-    header = {"shape": [FULL[1], FULL[0]], "dtype": "|u1"}
-    state = {"schema": 1, "job": "bench", "procedure": "referencing",
-             "obs": {"plate": world.plate().to_dict(), "camera_model": sim.model.to_dict(), "sigma_t_mm": 0.010,
-                     "nests": {n: point(p) for n, p in zip(("red", "green", "blue"), obs.abs_P_nests)},
-                     "runs": [{"tag": "run0", "image": "run0.png", "header": header,
-                               "P0": point(obs.abs_P_rob0), "P1": point(obs.abs_P_rob1)}]}}
-    (root / "state.json").write_text(json.dumps(state))
-    (root / "run0.json").write_text(json.dumps({"camera": header, "image_file": "run0.png"}))
-    (root / "dataset.json").write_text(json.dumps({"schema": 1, "kind": "procedure:referencing", "meta": {},
-                                                   "entries": [{"name": "run0", "json": "run0.json",
-                                                                "image": "run0.png"}]}))
 
 
 def timed(fn, n: int) -> list[float]:
@@ -66,7 +36,7 @@ def timed(fn, n: int) -> list[float]:
 
 def main() -> int:
     root = Path(tempfile.mkdtemp(prefix="rita-bench-ds-")) / "ref"
-    write_folder(root)
+    write_referencing_folder(root)
     assert validate_folder(root) == [], validate_folder(root)
     png_mb = (root / "run0.png").stat().st_size / 2 ** 20
     v = timed(lambda: validate_folder(root), 5)

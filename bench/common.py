@@ -1,6 +1,6 @@
 """The benchmarks' one harness: machine facts, percentiles, /proc readings, ritad on the fakes
 (``fakes.launch``) from the one config template (``tools.harness.config``), and helper processes
-that subscribe, count, and report JSON when told to stop."""
+that subscribe, count, and report JSON when told to stop; a full-size referencing dataset folder."""
 from __future__ import annotations
 
 import json
@@ -107,5 +107,40 @@ def serve_subscriber(sub: Any, add: Callable[[list[Any], int], None], result: Ca
     sub.close()
 
 
-__all__ = ["NO_DEVICES", "ROOT", "RitadProcess", "cpu_seconds", "finish", "machine", "pct", "pick", "ritad_toml",
-           "serve_subscriber", "spawn", "start_ritad", "vm_kib"]
+
+#: the camera's full image size (width, height)
+FULL = (4024, 3036)
+
+
+def write_referencing_folder(root: Path, size: tuple[int, int] = FULL, seed: int = 5) -> None:
+    """A referencing dataset as the worker writes it, from one simulated visit with a rendered image."""
+    import json
+
+    import cv2
+
+    from fakes.simulate import SimConfig, Simulation
+    from fakes.world import World, WorldParams
+
+    world = World(WorldParams(seed=seed))
+    sim = Simulation(world, SimConfig(seed=seed, render=True, size=size, repetitions=1, directions=1))
+    obs = sim.calibration()
+    root.mkdir(parents=True)
+    cv2.imwrite(str(root / "run0.png"), obs.image)
+
+    def point(p) -> dict:
+        return {"abs_xyz": [float(v) for v in p]}
+    header = {"shape": [size[1], size[0]], "dtype": "|u1"}
+    state = {"schema": 1, "job": "bench", "procedure": "referencing",
+             "obs": {"plate": world.plate().to_dict(), "camera_model": sim.model.to_dict(), "sigma_t_mm": 0.010,
+                     "nests": {n: point(p) for n, p in zip(("red", "green", "blue"), obs.abs_P_nests)},
+                     "runs": [{"tag": "run0", "image": "run0.png", "header": header,
+                               "P0": point(obs.abs_P_rob0), "P1": point(obs.abs_P_rob1)}]}}
+    (root / "state.json").write_text(json.dumps(state))
+    (root / "run0.json").write_text(json.dumps({"camera": header, "image_file": "run0.png"}))
+    (root / "dataset.json").write_text(json.dumps({"schema": 1, "kind": "procedure:referencing", "meta": {},
+                                                   "entries": [{"name": "run0", "json": "run0.json",
+                                                                "image": "run0.png"}]}))
+
+
+__all__ = ["FULL", "NO_DEVICES", "ROOT", "RitadProcess", "cpu_seconds", "finish", "machine", "pct", "pick",
+           "ritad_toml", "serve_subscriber", "spawn", "start_ritad", "vm_kib", "write_referencing_folder"]

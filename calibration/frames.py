@@ -27,6 +27,19 @@ def assert_rotation(R: np.ndarray, name: str = "R", tol: float = ROT_TOL) -> np.
     return R
 
 
+def assert_rotations(R: np.ndarray, name: str = "R", tol: float = ROT_TOL) -> np.ndarray:
+    """:func:`assert_rotation` for a stack of rotations (n, 3, 3); the error names the first bad one."""
+    R = np.asarray(R, dtype=float)
+    if R.ndim != 3 or R.shape[1:] != (3, 3):
+        raise ValueError(f"{name}: expected (n, 3, 3) rotations, got shape {R.shape}")
+    err = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((err > tol) | (np.abs(det - 1.0) > tol))
+    if bad.size:
+        assert_rotation(R[bad[0]], f"{name} [{bad[0]}]", tol)
+    return R
+
+
 def make_H(R: np.ndarray, t: np.ndarray, name: str = "H") -> np.ndarray:
     """Assemble a 4x4 transform from a rotation and a translation."""
     H = np.eye(4)

@@ -30,10 +30,10 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
-from calibration.frames import apply_H, check_H, inv_H, make_H, rotation_angle
+from calibration.frames import apply_H, assert_rotations, check_H, inv_H, make_H, rotation_angle
 from calibration.model_check import ModelCheck, camera_height, check_camera_model
 from calibration.plate import Plate
-from calibration.registration import as_points, fit_plate, kabsch, nest_array
+from calibration.registration import as_points, fit_plate, kabsch_many, nest_array
 from calibration.uncertainty import Chain, PoseUncertainty, footprint, monte_carlo, pnp_covariance
 
 
@@ -83,16 +83,49 @@ def robot_pose(abs_P_rob: Any, abs_v: Any, abs_n: Any, min_move_mm: float = 1.0)
     return make_H(np.column_stack([v_perp, c, n]), P, "abs_H_rob")
 
 
+def robot_poses(P: np.ndarray, v: np.ndarray, n: np.ndarray, min_move_mm: float = 1.0) -> np.ndarray:
+    """:func:`robot_pose` for stacks of origins, motions and unit normals (n, 3): (n, 4, 4), same checks."""
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(v))):
+        raise ValueError("robot_pose: the reflector positions contain non-finite values")
+    n_len = np.linalg.norm(n, axis=1)
+    if np.any(np.abs(n_len - 1.0) > 1e-6):
+        raise ValueError(f"robot_pose: abs_n must be a unit vector, has length {n_len[np.abs(n_len - 1.0) > 1e-6][0]}")
+    v_perp = v - np.sum(v * n, axis=1)[:, None] * n
+    length = np.linalg.norm(v_perp, axis=1)
+    if np.any(length < min_move_mm):
+        raise CalibrationError(f"robot heading undefined: the move between the two reflector positions is "
+                               f"{length.min():.3f} mm in the plane (need >= {min_move_mm} mm)")
+    v_perp = v_perp / length[:, None]
+    R = assert_rotations(np.stack([v_perp, np.cross(n, v_perp), n], axis=2), "abs_H_rob")
+    H = np.broadcast_to(np.eye(4), (len(P), 4, 4)).copy()
+    H[:, :3, :3], H[:, :3, 3] = R, P
+    return H
+
+
 def chain(ref_P_smr: np.ndarray, scn_H_cam: np.ndarray) -> Chain:
-    """The bare referencing chain for Monte Carlo: (nests, P0, P1, cam_H_ref) -> (rob_H_cam, rob_H_scn)."""
+    """The bare referencing chain for Monte Carlo: (nests, P0, P1, cam_H_ref) -> (rob_H_cam, rob_H_scn).
+
+    Takes one sample or a stack of them (leading axis), see :data:`calibration.uncertainty.Chain`.
+    """
     def run(abs_P: np.ndarray, P0: np.ndarray, P1: np.ndarray, cam_H_ref: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
-        """One pass of the chain on (possibly perturbed) inputs."""
-        scn_H_ref = scn_H_cam @ cam_H_ref
-        abs_H_scn = kabsch(apply_H(scn_H_ref, ref_P_smr), abs_P).B_H_A
-        abs_H_rob = robot_pose(P0, P1 - P0, surface_normal(abs_H_scn @ scn_H_ref))
-        rob_H_scn = inv_H(abs_H_rob) @ abs_H_scn
-        return rob_H_scn @ scn_H_cam, rob_H_scn
+        """One pass of the chain on (possibly perturbed) inputs, all samples at once."""
+        abs_P = np.asarray(abs_P, dtype=float)
+        one = abs_P.ndim == 2
+        if one:
+            abs_P, P0, P1, cam_H_ref = abs_P[None], np.reshape(P0, (1, 3)), np.reshape(P1, (1, 3)), cam_H_ref[None]
+        scn_H_ref = scn_H_cam @ np.asarray(cam_H_ref, dtype=float)
+        scn_P = ref_P_smr @ np.swapaxes(scn_H_ref[:, :3, :3], 1, 2) + scn_H_ref[:, None, :3, 3]
+        abs_H_scn = kabsch_many(scn_P, abs_P)
+        abs_H_ref = abs_H_scn @ scn_H_ref
+        assert_rotations(abs_H_ref[:, :3, :3], "abs_H_ref")
+        abs_H_rob = robot_poses(np.asarray(P0, float), np.asarray(P1, float) - P0, -abs_H_ref[:, :3, 2])
+        R_t = np.swapaxes(abs_H_rob[:, :3, :3], 1, 2)  # inv_H of each robot pose
+        rob_H_abs = np.broadcast_to(np.eye(4), abs_H_rob.shape).copy()
+        rob_H_abs[:, :3, :3], rob_H_abs[:, :3, 3] = R_t, -np.einsum("nij,nj->ni", R_t, abs_H_rob[:, :3, 3])
+        rob_H_scn = rob_H_abs @ abs_H_scn
+        rob_H_cam = rob_H_scn @ scn_H_cam
+        return (rob_H_cam[0], rob_H_scn[0]) if one else (rob_H_cam, rob_H_scn)
     return run
 
 

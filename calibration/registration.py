@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import CalibrationError
-from calibration.frames import apply_H, check_H, make_H
+from calibration.frames import apply_H, assert_rotations, check_H, make_H
 from calibration.plate import NEST_NAMES
 
 #: a relabelling must beat the labels as given by this factor to be called a swap
@@ -80,6 +80,36 @@ def kabsch(A_P: Any, B_P: Any) -> RigidFit:
     H = make_H(R, b_mean - R @ a_mean, "kabsch B_H_A")
     res = B - apply_H(H, A)
     return RigidFit(H, res, float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))))
+
+
+def kabsch_many(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """:func:`kabsch` of a stack of point sets (n, N, 3) onto (n, N, 3): the transforms (n, 4, 4).
+
+    The same solution and the same checks (finite points, not collinear, a proper
+    rotation) for every set at once; for the Monte Carlo samples of a referencing.
+    """
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    if A.ndim != 3 or A.shape[2] != 3 or B.shape != A.shape or A.shape[1] < 3:
+        raise ValueError(f"kabsch_many: expected two (n, N>=3, 3) stacks, got {A.shape} and {B.shape}")
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
+        raise ValueError("kabsch_many: contains non-finite values")
+    a_mean, b_mean = A.mean(axis=1), B.mean(axis=1)
+    a, b = A - a_mean[:, None], B - b_mean[:, None]
+    s = np.linalg.svd(a, compute_uv=False)
+    bad = s[:, 1] < 1e-6 * np.maximum(s[:, 0], 1e-12)
+    if np.any(bad):
+        raise CalibrationError(f"kabsch: points are collinear (singular values {s[bad][0].round(6).tolist()}); "
+                               "the rotation about their line is undetermined")
+    U, _, Vt = np.linalg.svd(np.swapaxes(a, 1, 2) @ b)
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    d = np.sign(np.linalg.det(V @ Ut))
+    V[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]  # the reflection fix of kabsch: V·diag(1, 1, d)
+    R = V @ Ut
+    assert_rotations(R, "kabsch B_H_A")
+    H = np.broadcast_to(np.eye(4), (len(A), 4, 4)).copy()
+    H[:, :3, :3] = R
+    H[:, :3, 3] = b_mean - np.einsum("nij,nj->ni", R, a_mean)
+    return H
 
 
 @dataclass

@@ -7,18 +7,21 @@ returns both mirror solutions; it keeps the better one only when its reprojectio
 RMS beats the other by ``min_ambiguity_ratio`` (docs/accuracy.md, "Image side"), then polishes
 it with Levenberg–Marquardt.
 
-Markers are found by OpenCV (square candidates) but identified here: OpenCV 5
-matches each candidate against the dictionary one entry at a time, which costs
-~2 s per image for this 600-marker board; reading each candidate's bits once and
-matching them against all markers and rotations at once takes ~0.1 s and finds the
-same markers. A match may differ in as many bits as OpenCV allows for the dictionary
+Marker candidates are the squares OpenCV's detector finds (found as it does, without
+its comparison of every candidate pair: :mod:`calibration.marker_candidates`), but the
+markers are identified here: OpenCV 5 matches each candidate against the dictionary one
+entry at a time, which costs ~2 s per image for this 600-marker board; reading each
+candidate's bits once and matching them against all markers and rotations at once takes
+~0.1 s and finds the same markers. A match may differ in as many bits as OpenCV allows for the dictionary
 (none for DICT_4X4_1000), and a marker whose id disagrees with its image neighbours
-is dropped. OpenCV's CharucoDetector then interpolates and refines the chessboard
-corners from those markers as usual; if its board check rejects the marker set,
-OpenCV's own detector decides (``fast=False`` uses OpenCV for both steps).
+is dropped. The chessboard corners are then interpolated and refined from those markers
+as OpenCV's CharucoDetector does (:mod:`calibration.charuco_corners`, the same corners
+without its linear searches); if its board check rejects the marker set, OpenCV's own
+detector decides (``fast=False`` uses OpenCV for both steps).
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Protocol
@@ -27,8 +30,10 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.charuco_corners import detect_board
 from calibration.errors import CalibrationError
 from calibration.frames import make_H
+from calibration.marker_candidates import find_candidates
 from calibration.plate import Plate
 
 LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -99,22 +104,81 @@ _CANDIDATE_WIDTH = 1400
 
 
 @lru_cache(maxsize=8)
-def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.ArucoDetector]:
+def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.DetectorParameters]:
     """Packed inner bits of every board marker, the marker size, the bits a match may
-    differ in, and a candidate finder."""
+    differ in, and the candidate search's parameters (OpenCV's defaults)."""
     d = board.getDictionary()
     n = d.markerSize
     weights = 1 << np.arange(n * n, dtype=np.int64)
     codes = np.array([int(d.getBitsFromByteList(d.bytesList[k:k + 1], n).reshape(-1).astype(np.int64) @ weights)
                       for k in range(d.bytesList.shape[0])])
-    # a one-marker dictionary: OpenCV then finds and returns all square candidates
-    # quickly, and the identification below matches them against the board's markers
-    finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), n, 0))
+    params = cv2.aruco.DetectorParameters()
     # the dictionary's own limit, scaled as OpenCV's identification does: markers of
     # a dense dictionary (DICT_4X4_1000: 0 bits) differ from a neighbour in one bit, so
     # accepting a wrong bit there would read a misread marker as another id
-    max_bits = int(d.maxCorrectionBits * cv2.aruco.DetectorParameters().errorCorrectionRate)
-    return codes, n, max_bits, finder
+    max_bits = int(d.maxCorrectionBits * params.errorCorrectionRate)
+    return codes, n, max_bits, params
+
+
+def _shrink(img: np.ndarray, f: int) -> np.ndarray:
+    """``img`` reduced f times (INTER_AREA), the two halves in parallel when the row scale is exactly f:
+    each output row then comes from its own f input rows, so the halves join to the same image."""
+    if f == 1:
+        return img
+    size = (img.shape[1] // f, img.shape[0] // f)
+    if img.shape[0] != size[1] * f or size[1] < 2:
+        return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    half = size[1] // 2
+    out = np.empty((size[1], size[0]), img.dtype)
+    with ThreadPoolExecutor(2) as pool:
+        top = pool.submit(cv2.resize, img[:half * f], (size[0], half), out[:half], 0, 0, cv2.INTER_AREA)
+        cv2.resize(img[half * f:], (size[0], size[1] - half), out[half:], 0, 0, cv2.INTER_AREA)
+        top.result()
+    return out
+
+
+def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Packed inner bits of each quad (full-image pixels, (N, 4, 2)) in its four rotations.
+
+    Returns (codes (M, 4), indices (M,) of the quads that look like a marker: black and
+    white cells, an all-black border). Each quad is warped to a canonical image, then
+    the cells of all of them are read at once.
+    """
+    cells = n + 2
+    side = cells * _CELL_PX
+    dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
+    patches = np.empty((len(quads), side, side), np.uint8)
+    q32 = quads.astype(np.float32)
+
+    def warp(part: range) -> None:
+        for k in part:
+            cv2.warpPerspective(img, cv2.getPerspectiveTransform(q32[k], dst), (side, side), dst=patches[k],
+                                flags=cv2.INTER_LINEAR)
+    half = len(quads) // 2
+    with ThreadPoolExecutor(2) as pool:  # each warp is small: two threads beat OpenCV's own split
+        list(pool.map(warp, (range(half), range(half, len(quads)))))
+    lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
+    # exact integer sums of the 6×6 inner pixels, then the mean
+    cell_px = patches.reshape(-1, cells, _CELL_PX, cells, _CELL_PX)[:, :, lo:hi, :, lo:hi]
+    means = cell_px.sum(axis=4, dtype=np.uint16).sum(axis=2, dtype=np.uint16) / (hi - lo) ** 2
+    p10, p90 = np.percentile(means.reshape(len(quads), -1), [10, 90], axis=1)
+    bits = means > ((p10 + p90) / 2)[:, None, None]
+    border = (bits[:, 0].sum(axis=1) + bits[:, -1].sum(axis=1) + bits[:, 1:-1, 0].sum(axis=1)
+              + bits[:, 1:-1, -1].sum(axis=1))
+    # black/white structure and an all-black border (two stray cells allowed)
+    keep = np.flatnonzero((p90 - p10 >= 15) & (border <= 2))
+    inner = bits[keep, 1:-1, 1:-1].reshape(len(keep), -1).astype(np.int64)
+    weights = 1 << np.arange(n * n, dtype=np.int64)
+    order = np.arange(n * n).reshape(n, n)
+    codes = np.stack([inner[:, np.rot90(order, r).reshape(-1)] @ weights for r in range(4)], axis=1)
+    return codes, keep
+
+
+def _quad_area(q: np.ndarray) -> np.ndarray:
+    """``abs(cv2.contourArea(quad))`` of float32 quads (n, 4, 2), in its arithmetic (double, same order)."""
+    x, y = q[..., 0].astype(np.float64), q[..., 1].astype(np.float64)
+    t = np.roll(x, 1, axis=1) * y - np.roll(y, 1, axis=1) * x  # previous corner × this one, from the last
+    return np.abs((((t[:, 0] + t[:, 1]) + t[:, 2]) + t[:, 3]) * 0.5)
 
 
 def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[list[np.ndarray], np.ndarray]:
@@ -126,55 +190,31 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     vectorised Hamming distances, accepting as many wrong bits as OpenCV would for
     this dictionary (``maxCorrectionBits`` × ``errorCorrectionRate``).
     """
-    codes, n, max_bits, finder = _marker_codes(board)
+    codes, n, max_bits, params = _marker_codes(board)
     f = max(1, int(np.ceil(img.shape[1] / _CANDIDATE_WIDTH)))
-    small = img if f == 1 else cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
-    found, _, rejected = finder.detectMarkers(small)
-    quads = [np.asarray(q, np.float64).reshape(4, 2) for q in (*found, *rejected)]
-    if not quads:
+    quads = find_candidates(_shrink(img, f), params).astype(np.float64)
+    if not len(quads):
         return [], np.zeros((0, 1), np.int32)
-    cells = n + 2
-    side = cells * _CELL_PX
-    dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
-    lo, hi = _CELL_MARGIN, _CELL_PX - _CELL_MARGIN
-    weights = 1 << np.arange(n * n, dtype=np.int64)
-    cand_codes, keep = [], []
-    for k, q in enumerate(quads):
-        q = (q + 0.5) * f - 0.5  # back to full-image pixel coordinates
-        quads[k] = q
-        H = cv2.getPerspectiveTransform(q.astype(np.float32), dst)
-        patch = cv2.warpPerspective(img, H, (side, side), flags=cv2.INTER_LINEAR)
-        means = patch.reshape(cells, _CELL_PX, cells, _CELL_PX)[:, lo:hi, :, lo:hi].mean(axis=(1, 3))
-        p10, p90 = np.percentile(means, [10, 90])
-        if p90 - p10 < 15:  # no black/white structure
-            continue
-        bits = means > (p10 + p90) / 2
-        border = np.concatenate([bits[0], bits[-1], bits[1:-1, 0], bits[1:-1, -1]])
-        if border.sum() > 2:  # a marker has an all-black border
-            continue
-        inner = bits[1:-1, 1:-1]
-        cand_codes.append([int(np.rot90(inner, r).reshape(-1).astype(np.int64) @ weights) for r in range(4)])
-        keep.append(k)
-    if not keep:
+    quads = (quads + 0.5) * f - 0.5  # back to full-image pixel coordinates
+    cand_codes, keep = _read_codes(img, quads, n)
+    if not len(keep):
         return [], np.zeros((0, 1), np.int32)
-    dist = np.bitwise_count(np.asarray(cand_codes)[:, :, None] ^ codes[None, None, :])  # (N, 4, markers)
+    dist = np.bitwise_count(cand_codes[:, :, None] ^ codes[None, None, :])  # (N, 4, markers)
     flat = dist.reshape(len(keep), -1).argmin(axis=1)
     rot, ident = np.unravel_index(flat, dist.shape[1:])
     best = dist.reshape(len(keep), -1)[np.arange(len(keep)), flat]
-    chosen: dict[int, tuple[int, int, float, int]] = {}
-    for j, k in enumerate(keep):
-        if best[j] > max_bits:
-            continue
-        area = abs(cv2.contourArea(quads[k].astype(np.float32)))
-        prev = chosen.get(int(ident[j]))
-        if prev is None or (best[j], -area) < (prev[1], -prev[2]):
-            chosen[int(ident[j])] = (k, int(best[j]), area, int(rot[j]))
-    corners, ids = [], []
-    for marker_id, (k, _, _, r) in sorted(chosen.items()):
-        # bits read from corners in native order equal the marker rotated by r:
-        # the marker's own first corner is r places further along
-        corners.append(np.roll(quads[k], -r, axis=0).astype(np.float32).reshape(1, 4, 2))
-        ids.append(marker_id)
+    # per id the candidate with the fewest wrong bits, then the largest area, then the first
+    ok = np.flatnonzero(best <= max_bits)
+    k, marker, bits, r = keep[ok], ident[ok], best[ok], rot[ok]
+    area = _quad_area(quads[k].astype(np.float32))
+    order = np.lexsort((np.arange(len(k)), -area, bits, marker))
+    first = order[np.r_[True, np.diff(marker[order]) != 0]] if len(order) else order
+    # bits read from corners in native order equal the marker rotated by r:
+    # the marker's own first corner is r places further along
+    turn = (np.arange(4)[None, :] + r[first, None]) % 4
+    chosen = quads[k[first][:, None], turn].astype(np.float32)
+    corners = [c.reshape(1, 4, 2) for c in chosen]
+    ids = marker[first]
     return _consistent(corners, np.array(ids, np.int32).reshape(-1, 1), board)
 
 
@@ -194,33 +234,35 @@ def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.Cha
     """
     if len(ids) <= _NEIGHBOURS:
         return corners, ids
-    square = board.getSquareLength()
-    obj = {int(i): np.asarray(o, np.float64).reshape(4, 3)[:, :2].mean(axis=0) / square
-           for i, o in zip(np.asarray(board.getIds()).ravel(), board.getObjPoints())}
-    uv = np.array([c.reshape(4, 2).mean(axis=0) for c in corners], np.float64)
-    xy = np.array([obj[int(i)] for i in ids.ravel()])
+    centres = _marker_centres(board)
+    uv = np.concatenate(corners).reshape(-1, 4, 2).mean(axis=1).astype(np.float64)
+    xy = np.array([centres[int(i)] for i in ids.ravel()])
     d2 = ((uv[:, None, :] - uv[None, :, :]) ** 2).sum(axis=2)
     near = np.argsort(d2, axis=1)[:, 1:_NEIGHBOURS + 1]
-    keep = np.ones(len(ids), bool)
+    uv_near, xy_near = uv[near], xy[near]  # (N, 8, 2) each
+    A = np.full((len(ids), 2, 3), np.nan)
     for j in range(len(ids)):
-        nb = near[j]
-        A, inl = cv2.estimateAffine2D(uv[nb], xy[nb], method=cv2.RANSAC,
-                                      ransacReprojThreshold=_MAX_OFF_SQUARES / 2, refineIters=0)
-        if A is None or int(inl.sum()) < 4:
-            continue
-        keep[j] = np.linalg.norm(A[:, :2] @ uv[j] + A[:, 2] - xy[j]) <= _MAX_OFF_SQUARES
+        fit, inl = cv2.estimateAffine2D(uv_near[j], xy_near[j], method=cv2.RANSAC,
+                                        ransacReprojThreshold=_MAX_OFF_SQUARES / 2, refineIters=0)
+        if fit is not None and int(inl.sum()) >= 4:
+            A[j] = fit
+    off = np.linalg.norm(np.einsum("nij,nj->ni", A[:, :, :2], uv) + A[:, :, 2] - xy, axis=1)
+    keep = np.isnan(off) | (off <= _MAX_OFF_SQUARES)  # too few agreeing neighbours: kept
     return [c for c, k in zip(corners, keep) if k], ids[keep]
 
 
-def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray, m_corners: list[np.ndarray] | None = None,
-                  m_ids: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """``detectBoard``'s (corners, ids), from these markers or its own detection; both are None when it
-    finds no corner (its stub says arrays, always)."""
-    if m_ids is None:
-        corners, ids, _, _ = det.detectBoard(img)
-    else:
-        corners, ids, _, _ = det.detectBoard(img, markerCorners=m_corners, markerIds=m_ids)
+def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """OpenCV's own ``detectBoard`` (corners, ids); both are None when it finds no corner (its stub says
+    arrays, always)."""
+    corners, ids, _, _ = det.detectBoard(img)
     return corners, ids
+
+
+@lru_cache(maxsize=8)
+def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, np.ndarray]:
+    """Board position of each marker's centre, in squares."""
+    obj = np.array(board.getObjPoints(), np.float64).reshape(-1, 4, 3)[:, :, :2]
+    return dict(zip(np.asarray(board.getIds()).ravel().tolist(), obj.mean(axis=1) / board.getSquareLength()))
 
 
 def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | None = None,
@@ -229,7 +271,7 @@ def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | N
 
     ``model`` is only used to check that the image has the model's size. ``fast``
     uses this module's marker identification (same markers, ~10x quicker); the
-    chessboard corners are interpolated and refined by OpenCV's CharucoDetector
+    chessboard corners are interpolated and refined as OpenCV's CharucoDetector does
     either way. When OpenCV's board check keeps fewer corners than half the markers
     found, OpenCV's own marker detection runs too and the larger corner set is kept.
     """
@@ -245,7 +287,7 @@ def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | N
     if fast:
         m_corners, m_ids = _detect_markers(img, board)
         if len(m_ids):
-            corners, ids = _detect_board(det, img, m_corners, m_ids)
+            corners, ids = detect_board(img, board, det, m_corners, m_ids)
         # OpenCV's board check rejects a marker set it finds inconsistent (no or few
         # corners from many markers): let OpenCV's own detector decide then
         fast = len(m_ids) == 0 or (ids is not None and len(ids) >= len(m_ids) // 2)

@@ -5,7 +5,9 @@ nests, P0, P1) gets N(0, σ_t²) per coordinate, and the image-derived ``cam_H_r
 gets a draw from its PnP covariance. Poses are summarised as 6-vectors
 (translation mm, rotation vector rad) of the perturbation ``H = [exp(δr)·R̂ | t̂ + δt]``.
 The chain itself is passed in as a function, so this module knows no frames beyond
-the pose parameterisation; :mod:`calibration.referencing` supplies it.
+the pose parameterisation; :mod:`calibration.referencing` supplies it. The chain takes
+every sample at once (a leading batch axis): a Python loop over 200 samples cost more
+than the rest of the referencing arithmetic together.
 """
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-#: chain(abs_P_nests (3,3), P0 (3,), P1 (3,), cam_H_ref) -> (rob_H_cam, rob_H_scn)
+#: chain(abs_P_nests (n,3,3), P0 (n,3), P1 (n,3), cam_H_ref (n,4,4)) -> (rob_H_cam, rob_H_scn), each (n,4,4);
+#: without the leading axis n it takes and returns one sample
 Chain = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
@@ -51,6 +54,51 @@ def rotmat(r: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(theta) / theta * Kx + (1 - np.cos(theta)) / theta ** 2 * Kx @ Kx
 
 
+def rotvecs(R: np.ndarray) -> np.ndarray:
+    """:func:`rotvec` of a stack of rotations (n, 3, 3) -> (n, 3), the same three cases elementwise."""
+    R = np.asarray(R, dtype=float)
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    s = np.linalg.norm(w, axis=1) / 2
+    c = (np.trace(R, axis1=1, axis2=2) - 1) / 2
+    theta = np.arctan2(s, np.clip(c, -1.0, 1.0))
+    out = w / 2
+    mid = (theta >= 1e-8) & (np.pi - theta > 1e-6)
+    out[mid] = w[mid] * (theta[mid] / (2 * s[mid]))[:, None]
+    for i in np.flatnonzero((theta >= 1e-8) & ~mid):  # near π: rare, as in rotvec
+        out[i] = rotvec(R[i])
+    return out
+
+
+def rotmats(r: np.ndarray) -> np.ndarray:
+    """:func:`rotmat` of a stack of rotation vectors (n, 3) -> (n, 3, 3)."""
+    r = np.asarray(r, dtype=float).reshape(-1, 3)
+    theta = np.linalg.norm(r, axis=1)
+    Kx = np.zeros((len(r), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
+    K2 = Kx @ Kx
+    small = theta < 1e-8
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1 - np.cos(t)) / t ** 2)
+    return np.eye(3) + a[:, None, None] * Kx + b[:, None, None] * K2
+
+
+def pose_deltas(H: np.ndarray, H_ref: np.ndarray) -> np.ndarray:
+    """:func:`pose_delta` of a stack of poses (n, 4, 4) against one ``H_ref`` -> (n, 6)."""
+    H = np.asarray(H, dtype=float)
+    dr = rotvecs(H[:, :3, :3] @ H_ref[:3, :3].T)
+    return np.concatenate([H[:, :3, 3] - H_ref[:3, 3], dr], axis=1)
+
+
+def perturb_poses(H_ref: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """:func:`perturb_pose` for a stack of 6-vectors (n, 6) -> (n, 4, 4)."""
+    H = np.broadcast_to(np.eye(4), (len(delta), 4, 4)).copy()
+    H[:, :3, :3] = rotmats(delta[:, 3:]) @ H_ref[:3, :3]
+    H[:, :3, 3] = H_ref[:3, 3] + delta[:, :3]
+    return H
+
+
 def pose_delta(H: np.ndarray, H_ref: np.ndarray) -> np.ndarray:
     """6-vector (δt mm, δr rad) with ``H = [exp(δr)·R_ref | t_ref + δt]``."""
     return np.concatenate([H[:3, 3] - H_ref[:3, 3], rotvec(H[:3, :3] @ H_ref[:3, :3].T)])
@@ -72,6 +120,16 @@ def footprint(rob_H_cam: np.ndarray, rob_H_plane: np.ndarray) -> np.ndarray:
     if abs(denom) < 1e-9:
         raise ValueError("footprint: optical axis is parallel to the plane")
     return C + a * float((o - C) @ m) / denom
+
+
+def footprints(rob_H_cam: np.ndarray, rob_H_plane: np.ndarray) -> np.ndarray:
+    """:func:`footprint` of stacks of poses (n, 4, 4) -> (n, 3)."""
+    C, a = rob_H_cam[:, :3, 3], rob_H_cam[:, :3, 2]
+    o, m = rob_H_plane[:, :3, 3], rob_H_plane[:, :3, 2]
+    denom = np.sum(a * m, axis=1)
+    if np.any(np.abs(denom) < 1e-9):
+        raise ValueError("footprint: optical axis is parallel to the plane")
+    return C + a * (np.sum((o - C) * m, axis=1) / denom)[:, None]
 
 
 def pnp_covariance(K: np.ndarray, dist: np.ndarray, cam_H_ref: np.ndarray, ref_P: np.ndarray,
@@ -156,17 +214,16 @@ def monte_carlo(chain: Chain, abs_P_nests: np.ndarray, abs_P_rob0: np.ndarray, a
             raise ValueError(f"monte_carlo: cov_cam_H_ref must be 6x6, got {cov.shape}")
         w, V = np.linalg.eigh((cov + cov.T) / 2)
         L = V * np.sqrt(np.clip(w, 0, None))
-    d_cam = np.empty((n_samples, 6))
-    d_scn = np.empty((n_samples, 6))
-    foot = np.empty((n_samples, 2))
-    foot0 = footprint(rob_H_cam0, rob_H_scn0)
-    for k in range(n_samples):
-        n = rng.normal(0.0, sigma_t_mm, size=(5, 3))
-        H_ref = cam_H_ref if L is None else perturb_pose(cam_H_ref, L @ rng.normal(size=6))
-        rc, rs = chain(abs_P_nests + n[:3], abs_P_rob0 + n[3], abs_P_rob1 + n[4], H_ref)
-        d_cam[k] = pose_delta(rc, rob_H_cam0)
-        d_scn[k] = pose_delta(rs, rob_H_scn0)
-        foot[k] = (footprint(rc, rs) - foot0)[:2]
+    # one draw per sample in the order a per-sample loop would take them: 15 tracker
+    # coordinates, then 6 for cam_H_ref (normal(0, σ) is σ times the same standard draw)
+    z = rng.standard_normal((n_samples, 15 if L is None else 21))
+    noise = (sigma_t_mm * z[:, :15]).reshape(n_samples, 5, 3)
+    H_ref = (np.broadcast_to(cam_H_ref, (n_samples, 4, 4)) if L is None
+             else perturb_poses(cam_H_ref, z[:, 15:] @ L.T))
+    rc, rs = chain(abs_P_nests + noise[:, :3], abs_P_rob0 + noise[:, 3], abs_P_rob1 + noise[:, 4], H_ref)
+    d_cam = pose_deltas(rc, rob_H_cam0)
+    d_scn = pose_deltas(rs, rob_H_scn0)
+    foot = (footprints(rc, rs) - footprint(rob_H_cam0, rob_H_scn0))[:, :2]
     method = f"monte carlo, {n_samples} samples, σ_t = {sigma_t_mm * 1000:.1f} µm" + (
         ", PnP covariance" if L is not None else ", cam_H_ref fixed")
     return PoseUncertainty(np.cov(d_cam.T), np.cov(d_scn.T), foot.std(axis=0, ddof=1), n_samples, method)

@@ -2,12 +2,15 @@
 
 ``ritactl validate`` runs on the operator's laptop without OpenCV; this reads the
 chunk structure (PNG specification, ISO/IEC 15948) and inflates the image data.
+:func:`read_png` also hands back what it inflated, so a reader with numpy can take the
+pixels from there instead of inflating the file a second time (daemon/compute/images.py).
 """
 from __future__ import annotations
 
 import struct
 import zlib
 from pathlib import Path
+from typing import NamedTuple
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pixel
@@ -15,30 +18,52 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pix
 MAX_IMAGE_BYTES = 512 * 2 ** 20
 
 
-def png_info(path: Path) -> tuple[int, int, int, int]:
-    """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
+class Png(NamedTuple):
+    """A checked PNG: its header and its image data inflated (filtered scanlines, not yet pixels)."""
 
-    Reads every chunk, checks each CRC and inflates the image data to its exact size,
-    so a truncated or corrupted file is found without an imaging library.
-    """
-    data = path.read_bytes()
-    if not data.startswith(_PNG_SIGNATURE):
-        raise ValueError("not a PNG file (bad signature)")
-    pos, ihdr, idat, ended = 8, None, [], False
+    width: int
+    height: int
+    channels: int
+    depth: int
+    colour: int  # colour type
+    interlace: int
+    tags: frozenset[bytes]  # the chunk types the file has
+    rows: bytes
+
+    @property
+    def info(self) -> tuple[int, int, int, int]:
+        """(width, height, channels, bit depth), as :func:`png_info` gives."""
+        return self.width, self.height, self.channels, self.depth
+
+
+def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[memoryview], set[bytes], bool]:
+    """(IHDR fields, IDAT bodies, chunk types, IEND seen) after checking every chunk's length and CRC."""
+    view = memoryview(data)  # chunk bodies as views: a 7 MB file is not copied chunk by chunk
+    pos, ihdr, idat, tags, ended = 8, None, [], set(), False
     while pos + 8 <= len(data) and not ended:
-        length, tag = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + length]
+        length, tag = struct.unpack_from(">I4s", data, pos)
+        body = view[pos + 8:pos + 8 + length]
         crc = data[pos + 8 + length:pos + 12 + length]
         if len(body) < length or len(crc) < 4:
             raise ValueError(f"truncated in chunk {tag!r} at byte {pos} (file has {len(data)} bytes)")
-        if struct.unpack(">I", crc)[0] != zlib.crc32(tag + body) & 0xFFFFFFFF:
+        if struct.unpack(">I", crc)[0] != zlib.crc32(body, zlib.crc32(tag)) & 0xFFFFFFFF:
             raise ValueError(f"chunk {tag!r} at byte {pos} is corrupted (CRC mismatch)")
         if tag == b"IHDR" and length == 13:
             ihdr = struct.unpack(">IIBBBBB", body)
         elif tag == b"IDAT":
             idat.append(body)
+        tags.add(tag)
         ended = tag == b"IEND"
         pos += 12 + length
+    return ihdr, idat, tags, ended
+
+
+def read_png(path: Path) -> Png:
+    """The checks of :func:`png_info`, returning the header and the inflated image data too."""
+    data = path.read_bytes()
+    if not data.startswith(_PNG_SIGNATURE):
+        raise ValueError("not a PNG file (bad signature)")
+    ihdr, idat, tags, ended = _chunks(data)
     if ihdr is None or not ended:
         raise ValueError("truncated: " + ("no IHDR header" if ihdr is None else "no IEND chunk"))
     w, h, depth, colour, _, _, interlace = ihdr
@@ -55,7 +80,16 @@ def png_info(path: Path) -> tuple[int, int, int, int]:
     if interlace == 0 and (len(raw) != want or not inflate.eof):
         raise ValueError(f"image data has {len(raw)}{'' if inflate.eof else '+'} bytes, "
                          f"a {w}x{h} image needs {want}")
-    return w, h, _PNG_CHANNELS[colour], depth
+    return Png(w, h, _PNG_CHANNELS[colour], depth, colour, interlace, frozenset(tags), raw)
 
 
-__all__ = ["png_info"]
+def png_info(path: Path) -> tuple[int, int, int, int]:
+    """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
+
+    Reads every chunk, checks each CRC and inflates the image data to its exact size,
+    so a truncated or corrupted file is found without an imaging library.
+    """
+    return read_png(path).info
+
+
+__all__ = ["MAX_IMAGE_BYTES", "Png", "png_info", "read_png"]

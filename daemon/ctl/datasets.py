@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -70,8 +72,20 @@ def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]
     return write_result_files(Path(out), result, dataset=dataset)
 
 
+def _single_threaded_opencv() -> None:
+    """OpenCV without its own worker threads in this process, unless cv2 is loaded or the user chose.
+
+    A recompute makes many small OpenCV calls (800 marker warps, per-corner refinement) where
+    waking OpenCV's workers costs more than it saves, most on a busy machine; the computation
+    splits its larger steps over threads itself (calibration.marker_candidates, .target).
+    """
+    if "cv2" not in sys.modules:  # read when OpenCV loads
+        os.environ.setdefault("OPENCV_FOR_THREADS_NUM", "1")
+
+
 def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
+    _single_threaded_opencv()
     try:
         from daemon.compute.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
     except ImportError as exc:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import os
 import re
 import sys
 from typing import Any, Callable, NoReturn
@@ -258,8 +259,20 @@ def _main(argv: list[str], as_json: bool) -> int:
         client.close()
 
 
+def _one_blas_thread() -> None:
+    """One OpenBLAS thread for this process, unless numpy is loaded already or the user chose.
+
+    ritactl's computations (recompute, plate survey) solve small systems (a PnP, a 7-parameter
+    refit, 6×6 covariances): OpenBLAS's helper threads gain nothing there and cost a wake-up per
+    call, milliseconds on a busy machine (a referencing recompute ran ~30 % slower with them).
+    """
+    if "numpy" not in sys.modules:  # the setting is read when numpy loads; a library caller keeps its own
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    _one_blas_thread()
     as_json = "--json" in (argv[:argv.index("--")] if "--" in argv else argv)  # for errors before parsing
     try:
         code = _main(argv, as_json)

@@ -137,3 +137,18 @@ def test_fit_plate_bad_sigma():
     scn, ab, _, up = _plate_case(11)
     with pytest.raises(ValueError, match="sigma_mm"):
         fit_plate(scn, ab, 0.0, abs_up=up)
+
+
+def test_kabsch_many_is_kabsch_for_each_set_with_the_same_checks():
+    from calibration.registration import kabsch_many
+
+    rng = np.random.default_rng(7)
+    A = np.array([triangle(skew=s) + rng.normal(0, 0.01, (3, 3)) for s in range(20)])
+    B = np.array([apply_H(random_H(rng), a) + rng.normal(0, 0.01, (3, 3)) for a in A])
+    H = kabsch_many(A, B)
+    assert np.allclose(H, [kabsch(a, b).B_H_A for a, b in zip(A, B)], atol=1e-9)
+    line = np.array([[0.0, 0, 0], [1, 1, 1], [2, 2, 2]])
+    with pytest.raises(CalibrationError, match="collinear"):
+        kabsch_many(np.array([A[0], line]), B[:2])
+    with pytest.raises(ValueError, match="non-finite"):
+        kabsch_many(A[:1], np.full((1, 3, 3), np.nan))

@@ -157,3 +157,77 @@ def test_rejected_marker_set_falls_back_to_opencv(oblique_4x4, monkeypatch) -> N
     ocv_ids, ocv_uv = detect_corners(image, plate, fast=False)
     assert len(got_ids) == len(ocv_ids) > 300
     assert np.array_equal(got_ids, ocv_ids) and np.allclose(got_uv, ocv_uv)
+
+
+def _opencv_candidates(small: np.ndarray, board) -> tuple[list, list]:
+    """What OpenCV's own detector examines: (found, rejected) with a one-marker dictionary (board marker 0)."""
+    import cv2
+
+    d = board.getDictionary()
+    finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), d.markerSize, 0))
+    found, _, rejected = finder.detectMarkers(small)
+    return [np.asarray(q).reshape(4, 2) for q in found], [np.asarray(q).reshape(4, 2) for q in rejected]
+
+
+def _unrotated(q: np.ndarray) -> tuple[float, ...]:
+    return min(tuple(np.roll(q, -r, axis=0).ravel().tolist()) for r in range(4))
+
+
+@pytest.mark.parametrize("view", ["nadir", "oblique 4x4", "whole board"])
+def test_candidates_are_opencvs(view, scene, oblique_4x4) -> None:
+    """calibration.marker_candidates finds exactly OpenCV's candidates, in OpenCV's order (only a
+    candidate OpenCV identifies as its one dictionary marker moves to the front, rotated)."""
+    import cv2
+
+    from calibration.marker_candidates import find_candidates
+
+    if view == "nadir":
+        image, board = scene[2], make_board(scene[0].plate())
+    elif view == "oblique 4x4":
+        image, board = oblique_4x4[1], make_board(oblique_4x4[0].plate())
+    else:  # marker 0 in view: OpenCV identifies it
+        board = make_board(World().plate())
+        image = cv2.copyMakeBorder(board.generateImage((1200, 900), marginSize=40), 20, 20, 20, 20,
+                                   cv2.BORDER_CONSTANT, value=255)
+    f = max(1, int(np.ceil(image.shape[1] / target._CANDIDATE_WIDTH)))
+    small = cv2.resize(image, (image.shape[1] // f, image.shape[0] // f), interpolation=cv2.INTER_AREA)
+    found, rejected = _opencv_candidates(small, board)
+    mine = find_candidates(small)
+    assert len(mine) > 300 and len(mine) == len(found) + len(rejected)
+    assert sorted(map(_unrotated, mine)) == sorted(map(_unrotated, found + rejected))
+    moved = {_unrotated(q) for q in found}
+    assert view != "whole board" or len(found) == 1
+    assert np.array_equal(np.array([q for q in mine if _unrotated(q) not in moved]), np.array(rejected))
+
+
+@pytest.mark.parametrize("shift_px", [0.0, 1.9, 2.2])
+def test_board_corners_are_opencvs(shift_px, scene, oblique_4x4) -> None:
+    """calibration.charuco_corners gives OpenCV's detectBoard corners and ids to the bit, also with the
+    outermost corner moved just inside or outside the 2 px border, and refuses the same boards."""
+    from calibration.charuco_corners import detect_board
+
+    for world, image in ((scene[0], scene[2]), (oblique_4x4[0], oblique_4x4[1])):
+        plate = world.plate()
+        board = make_board(plate)
+        det = target._detector(plate.board_cols, plate.board_rows, float(plate.square_mm), float(plate.marker_mm),
+                               plate.aruco_dict)
+        corners, ids = _detect_markers(image, board)
+        ocv_uv, ocv_ids, _, _ = det.detectBoard(image, markerCorners=corners, markerIds=ids)
+        if shift_px:  # the leftmost corner OpenCV returns lands at x = shift_px
+            dx = np.float32(shift_px - ocv_uv.reshape(-1, 2)[:, 0].min())
+            corners = [c + np.float32([dx, 0.0]) for c in corners]
+            ocv_uv, ocv_ids, _, _ = det.detectBoard(image, markerCorners=corners, markerIds=ids)
+        uv, got = detect_board(image, board, det, corners, ids)
+        assert len(got) > 300 and np.array_equal(got, ocv_ids) and np.array_equal(uv, ocv_uv)
+        shuffled = np.random.default_rng(0).permutation(ids.ravel()).reshape(-1, 1)
+        bad = det.detectBoard(image, markerCorners=corners, markerIds=shuffled)[1]
+        assert (bad is None) == (detect_board(image, board, det, corners, shuffled)[1] is None)
+
+
+@pytest.mark.parametrize("f, rows", [(2, None), (3, None), (3, -1), (4, -2)])
+def test_shrink_in_halves_is_one_resize(scene, f, rows) -> None:
+    import cv2
+
+    image = scene[2] if rows is None else scene[2][:rows]  # row counts f does not divide: one resize
+    want = cv2.resize(image, (image.shape[1] // f, image.shape[0] // f), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(target._shrink(image, f), want)

@@ -103,3 +103,42 @@ def test_rotvec_handles_tiny_and_large_angles():
         assert abs(np.linalg.det(R) - 1) < 1e-12
         assert np.abs(rotmat(rotvec(R)) - R).max() < 1e-12
     assert np.allclose(rotvec(rotmat([5e-6, 0, 0])), [5e-6, 0, 0], rtol=1e-9, atol=0)
+
+
+def _loop_monte_carlo(ch, abs_P, P0, P1, cam_H_ref, sigma, L, n, seed):
+    """The per-sample loop the batched Monte Carlo replaces: same draws, same chain, one sample at a time."""
+    rng = np.random.default_rng(seed)
+    c0, s0 = ch(abs_P, P0, P1, cam_H_ref)
+    d = []
+    for _ in range(n):
+        e = rng.normal(0.0, sigma, size=(5, 3))
+        H = cam_H_ref if L is None else perturb_pose(cam_H_ref, L @ rng.normal(size=6))
+        rc, rs = ch(abs_P + e[:3], P0 + e[3], P1 + e[4], H)
+        d.append(np.concatenate([pose_delta(rc, c0), pose_delta(rs, s0), footprint(rc, rs) - footprint(c0, s0)]))
+    return np.array(d)
+
+
+@pytest.mark.parametrize("with_pnp", [False, True])
+def test_batched_monte_carlo_equals_the_per_sample_loop(with_pnp):
+    world = World(WorldParams(seed=22))
+    sim = Simulation(world, SimConfig(seed=1))
+    obs = sim.calibration()
+    ch = chain(sim.plate.ref_P_smr(), FLIP @ inv_H(obs.cam_ref))
+    cov = np.diag([0.02, 0.02, 0.05, 1e-5, 1e-5, 2e-5]) ** 2 if with_pnp else None
+    L = None if cov is None else np.linalg.eigh(cov)[1] * np.sqrt(np.linalg.eigh(cov)[0])
+    d = _loop_monte_carlo(ch, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, obs.cam_ref, 0.01, L, 40, 3)
+    unc = monte_carlo(ch, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, obs.cam_ref, 0.01, cov, 40, 3)
+    assert np.allclose(unc.cov_rob_H_cam, np.cov(d[:, :6].T), rtol=1e-9, atol=1e-20)
+    assert np.allclose(unc.cov_rob_H_scn, np.cov(d[:, 6:12].T), rtol=1e-9, atol=1e-20)
+    assert np.allclose(unc.std_footprint_mm, d[:, 12:14].std(axis=0, ddof=1), rtol=1e-9)
+
+
+def test_batched_rotations_match_the_single_ones_in_every_case():
+    from calibration.uncertainty import rotmats, rotvec, rotvecs, rotmat
+
+    rng = np.random.default_rng(4)
+    r = np.vstack([rng.normal(0, 0.3, (20, 3)), rng.normal(0, 1e-10, (3, 3)),  # ordinary, below 1e-8 rad
+                   [[np.pi, 0, 0], [0, np.pi - 1e-8, 0], [0, 0, 0]]])  # at and near π, identity
+    R = np.array([rotmat(x) for x in r])
+    assert np.allclose(rotmats(r), R, atol=1e-15)
+    assert np.allclose(rotvecs(R), [rotvec(x) for x in R], atol=1e-12)

@@ -125,3 +125,35 @@ def test_key_and_config_problems_are_exit_5_naming_the_file(tmp_path, capsys):
     (tmp_path / "ritactl.toml").write_text('endpoint = "127.0.0.1:5555"\n')
     assert ctl.main(["--config", str(tmp_path / "ritactl.toml"), "status"]) == Exit.BAD_INPUT
     assert "endpoint" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("given, want", [(None, "1"), ("2", "2")])
+def test_a_fresh_ritactl_uses_one_blas_thread_unless_told(given, want):
+    """numpy's OpenBLAS reads OPENBLAS_NUM_THREADS when it loads: ritactl sets 1 first, a user's value wins,
+    and a process that loaded numpy already (a library caller, this test) is left alone."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    code = ("import os, sys\nfrom daemon.ctl.main import main\nmain(['--version'])\nimport numpy\n"
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT, env=env)
+    assert res.stdout.split()[-1] == want, res
+    before = os.environ.get("OPENBLAS_NUM_THREADS")
+    import numpy  # noqa: F401
+
+    ctl._one_blas_thread()
+    assert os.environ.get("OPENBLAS_NUM_THREADS") == before
+
+
+def test_recompute_runs_opencv_without_its_worker_threads(tmp_path):
+    """ritactl recompute sets OPENCV_FOR_THREADS_NUM=1 before OpenCV loads (its steps split work themselves)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FOR_THREADS_NUM"}
+    code = ("import sys\nfrom daemon.ctl.main import main\nprint(main(['recompute', sys.argv[1]]))\nimport cv2\n"
+            "print(cv2.getNumThreads())")
+    res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing")], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT, env=env)
+    assert res.stdout.split()[-2:] == [str(int(Exit.BAD_INPUT)), "1"], res
