@@ -17,9 +17,10 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(PY) -m fakes.demo
 
-# Two workers, whole files per worker: a module's shared daemon (the closed loops) is built once.
+# Three workers on the 2-core machine (much of the suite waits on daemons and devices, not the CPU),
+# whole files per worker: a module's shared daemon (the closed loops) is built once.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+	$(PY) -m pytest -q -n 3 --dist loadfile --durations=15
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
