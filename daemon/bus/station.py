@@ -2,8 +2,8 @@
 
 Set once per tracker station by whoever surveyed it: ``[tracker] abs_H_trk`` in the config,
 else the station file an installer left in the data dir (``calibration/tracker_station.json``,
-``{"abs_H_trk": 4x4 row-major}``; the simulator's installer writes one for its world), else
-identity (the tracker frame is the ACS). Read once at start: a new station needs a restart.
+``{"abs_H_trk": 4x4 row-major, "source": text}``; the simulator's installer writes one for its
+world), else identity (the tracker frame is the ACS). Read once at start: a new station needs a restart.
 """
 from __future__ import annotations
 
@@ -58,7 +58,8 @@ def abs_H_trk(configured: list[list[float]] | None, data_dir: Path) -> tuple[lis
         raise StationError(f"{path}: not valid JSON: {exc}") from None
     if not isinstance(data, dict) or "abs_H_trk" not in data:
         raise StationError(f"{path}: expected an object with abs_H_trk")
-    return checked(data["abs_H_trk"], str(path)), str(path)
+    said = data.get("source")  # who surveyed it, as the writer put it: shown wherever the pose is reported
+    return checked(data["abs_H_trk"], str(path)), f"{path}" + (f" ({said})" if isinstance(said, str) else "")
 
 
 __all__ = ["IDENTITY", "STATION_FILE", "StationError", "abs_H_trk", "checked"]

@@ -96,3 +96,11 @@ def test_a_plugin_command_declared_with_an_arg_is_validated_like_the_products():
         validate("sim.survey_images", {"views": 99})
     assert e.value.code == ErrorCode.BAD_ARGS and "'views'" in str(e.value)
     assert isinstance(plugins.installed()["sim"].commands[1].args[0], Arg)
+
+
+def test_the_station_files_own_source_is_reported_with_it(tmp_path):
+    """A station file left by the simulator in a data dir later used with a real tracker says so in the log."""
+    f = tmp_path / station.STATION_FILE
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps({"abs_H_trk": station.IDENTITY, "source": "simulated world (seed 1, profile ideal)"}))
+    assert station.abs_H_trk(None, tmp_path)[1] == f"{f} (simulated world (seed 1, profile ideal))"
