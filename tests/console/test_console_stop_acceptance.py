@@ -92,6 +92,8 @@ def test_stop_from_the_page_during_an_experiment_latches_and_the_job_resumes_aft
             wait_for("released", lambda: not c.call("state")["latch"]["latched"], 5)
             wait_for("Resume enabled", lambda: drv.find_element("id", "proc-resume").is_enabled(), 5)
             drv.find_element("id", "proc-resume").click()
+            # the page's resume travels page -> console -> bus: until it lands the job still reads stopped
+            wait_for("resume accepted", lambda: _jobs(c)[job]["state"] != "stopped", 30, poll=0.1)
         else:  # a viewer may stop, never release or resume: an operator does, here through the bus
             assert not drv.find_element("id", "release").is_enabled()
             assert not drv.find_element("id", "proc-resume").is_enabled()

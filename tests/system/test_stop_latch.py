@@ -39,8 +39,11 @@ def wait_for(pred: Any, timeout: float, what: str, poll: float = 0.02) -> Any:
 
 
 def wait_end(c: Client, job: str, timeout: float = 400) -> dict[str, Any]:
-    return wait_for(lambda: _jobs(c)[job] if _jobs(c)[job]["state"] in ("done", "failed", "stopped") else None,
-                    timeout, f"job {job} ended", poll=0.5)
+    def ended() -> dict[str, Any] | None:
+        entry = _jobs(c)[job]  # read once: the state tested is the state returned
+        return entry if entry["state"] in ("done", "failed", "stopped") else None
+
+    return wait_for(ended, timeout, f"job {job} ended", poll=0.5)
 
 
 @pytest.fixture(scope="module")
