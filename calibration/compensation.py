@@ -17,6 +17,9 @@ applied. None of them changes the paper's equations; they change their inputs:
 Each result also says how well its heading is known beyond the two tracker points
 (``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`): the chord's
 250 µrad from the path deviation, or the fit's own σ when the fit was applied.
+* **mount** — the reflector mount's eccentricity, measured by the referencing's reversal
+  (calibration/mount.py): fixed relative to the line of sight to the tracker, so the same in
+  ACS at every heading; subtracted from the stop's tracker points when the data showed it.
 * **bias** — the robot-frame bias b of an earlier 8-direction experiment
   (calibration/metrics.py ``fit_bias``: cluster means M_k = M + R(ψ_k)·b) is removed
   from ``rob_H_scn`` (:func:`apply_bias`). Right for what is fixed in the robot frame
@@ -29,7 +32,7 @@ Angles follow the world's and :func:`calibration.measure.robot_pose_at`'s conven
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -39,10 +42,11 @@ from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.imu_mount import body_tilt, rot2
 from calibration.measure import CHORD_HEADING_SIGMA_RAD
+from calibration.mount import MountOffset
 from calibration.registration import as_points
 
 #: the compensation names, in the order results list them
-NAMES = ("tilt", "heading_fit", "bias")
+NAMES = ("tilt", "heading_fit", "bias", "mount")
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,7 @@ class Compensation:
     tilt: bool = False
     heading_fit: bool = False
     bias: bool = False
+    mount: bool = False
 
     @classmethod
     def parse(cls, value: Any) -> "Compensation":
@@ -59,7 +64,7 @@ class Compensation:
         if value is None or value is False or value == "none" or value == []:
             return cls()
         if value is True or value == "all":
-            return cls(True, True, True)
+            return cls(**{n: True for n in NAMES})
         names = [s.strip() for s in value.split(",")] if isinstance(value, str) else list(value)
         unknown = [n for n in names if n not in NAMES]
         if unknown:
@@ -177,6 +182,7 @@ class Applied:
     """The inputs of :func:`calibration.measure.measure_mark` after compensation, and the record."""
 
     abs_P_prev: np.ndarray  # an equivalent previous point: the heading is P_at − abs_P_prev
+    abs_P_at: np.ndarray  # the stop's point as measure_mark takes it (the mount's offset removed)
     roll_deg: float | None
     pitch_deg: float | None
     rob_H_scn: np.ndarray
@@ -185,6 +191,8 @@ class Applied:
     #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
     sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
     heading_source: str = "chord"
+    #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
+    cov_mount_xy_mm2: np.ndarray | None = None
 
 
 def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: float) -> float:
@@ -286,14 +294,46 @@ def _stream_tilt_why(stop: Stop) -> str | None:
     return stream_tilt_check(stop.stream_tilt, tilt_prev, tilt_at, 0.0)
 
 
+def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, abs_t_trk: Any,
+                   skipped: dict[str, str]) -> tuple[Stop, np.ndarray | None]:
+    """The stop with the mount's offset removed from its tracker points when ``comp.mount`` and the data allow
+    (else the stop unchanged and the reason in ``skipped``), and the covariance the offset leaves."""
+    if mount is None:
+        if comp.mount:
+            skipped["mount"] = "the calibration holds no reflector mount offset (reference with --reversal)"
+        return stop, None
+    if abs_t_trk is None:
+        if comp.mount:
+            skipped["mount"] = "the stop's points carry no abs_H_trk: the offset cannot be turned to this line of sight"
+        return stop, None
+    P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
+    apply = comp.mount and mount.significant
+    if comp.mount and not apply:
+        skipped["mount"] = mount.why
+    cov = mount.cov_abs_xy(P_at, abs_t_trk, apply)
+    if not apply:
+        return stop, cov
+    shift = mount.offset_abs(P_at, abs_t_trk)  # the line of sight turns < 3° over a move: one offset
+    stream = None if stop.stream is None else as_points(stop.stream, "stream") - shift
+    return replace(stop, abs_P_prev=as_points(stop.abs_P_prev, "abs_P_prev", 1)[0] - shift, abs_P_at=P_at - shift,
+                   stream=stream), cov
+
+
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None,
-               anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0) -> Applied:
+               anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0, mount: MountOffset | None = None,
+               abs_t_trk: Any = None) -> Applied:
     """Apply ``comp`` to one stop; a compensation without its input, or one the data contradict, is skipped
-    and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured)."""
+    and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured).
+    ``mount`` and ``abs_t_trk`` (the tracker's ACS position): the calibration's reflector mount offset."""
+    skipped: dict[str, str] = {}
+    stop, cov_mount = _mount_applied(comp, stop, mount, abs_t_trk, skipped)
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
     P_prev = as_points(stop.abs_P_prev, "abs_P_prev", 1)[0]
-    out = Applied(forward_prev(P_prev, P_at, stop.reverse), None, None, check_H(rob_H_scn, "rob_H_scn"), [], {})
+    out = Applied(forward_prev(P_prev, P_at, stop.reverse), P_at, None, None, check_H(rob_H_scn, "rob_H_scn"), [],
+                  skipped, cov_mount_xy_mm2=cov_mount)
+    if comp.mount and "mount" not in skipped:
+        out.applied.append("mount")
     tilt_ok = stop.tilt_at is not None and stop.tilt_prev is not None and imu_offset is not None
     offset = imu_offset if imu_offset is not None else (0.0, 0.0)
     needs_height = (comp.tilt and tilt_ok) or (comp.heading_fit and stop.tilt_at is not None)

@@ -15,7 +15,7 @@ heading (σ_ψ: the robot pose turned about the floor normal through P_at). The 
 term is the one the tracker points cannot show: the chord P_prev → P_at is off the final
 heading by the path's bend (:data:`CHORD_HEADING_SIGMA_RAD`), and it moves the mark by
 σ_ψ × its lever arm from the reflector. :func:`tracker_sigma_mm` gives σ_t from the
-tracker's data-sheet MPE at its distance to the points (issue #20, docs/accuracy.md).
+tracker's data-sheet MPE at its distance to the points (docs/accuracy.md).
 """
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ class MarkMeasurement:
     abs_H_rob: np.ndarray
     cov_xy_mm2: np.ndarray  # ACS x, y covariance, mm²
     #: each input's share of std_mm (mm, radial): tracker, pixel, calibration, tilt, heading (BLOCKS)
-    std_parts_mm: dict[str, float] = field(default_factory=dict)
+    std_parts_mm: dict[str, float] = field(default_factory=dict)  # + "mount" when given
 
     @property
     def std_xy_mm(self) -> np.ndarray:
@@ -160,11 +160,14 @@ def _input_cov(sigma_t_mm: float, sigma_px: float, cov_rob_H_scn: Any, sigma_til
 def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,
                  abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
                  sigma_t_mm: float = DEFAULT_SIGMA_T_MM, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
-                 cov_rob_H_scn: np.ndarray | None = None, sigma_heading_rad: float = 0.0) -> MarkMeasurement:
+                 cov_rob_H_scn: np.ndarray | None = None, sigma_heading_rad: float = 0.0,
+                 cov_mount_xy_mm2: Any = None) -> MarkMeasurement:
     """ACS position of a mark seen at pixel ``uv`` from a robot stop, with a first-order covariance.
 
     ``sigma_heading_rad``: the heading's 1σ beyond what the two tracker points show (the chord's
     :data:`CHORD_HEADING_SIGMA_RAD`, or a heading fit's own σ); 0 leaves it out.
+    ``cov_mount_xy_mm2``: the ACS xy covariance the reflector mount's offset leaves (calibration/mount.py;
+    a translation of both tracker points moves the mark by itself), added as the part ``mount``.
     """
     uv = np.asarray(uv, dtype=float).reshape(-1)
     if uv.shape != (2,) or not np.all(np.isfinite(uv)):
@@ -195,7 +198,13 @@ def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
         J[:, k] = (run(x0 + dx) - run(x0 - dx)) / (2 * steps[k])
     S = _input_cov(sigma_t_mm, sigma_px, cov_rob_H_scn, sigma_tilt_deg, sigma_heading_rad)
     parts = {name: float(np.sqrt(np.trace(J[:, b] @ S[b, b] @ J[:, b].T))) for name, b in BLOCKS.items()}
-    return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, J @ S @ J.T, parts)
+    cov = J @ S @ J.T
+    if cov_mount_xy_mm2 is not None:
+        C = np.asarray(cov_mount_xy_mm2, dtype=float)
+        if C.shape != (2, 2) or not np.all(np.isfinite(C)):
+            raise ValueError(f"measure_mark: cov_mount_xy_mm2 must be a finite 2x2, got {C.tolist()}")
+        cov, parts["mount"] = cov + C, float(np.sqrt(np.trace(C)))
+    return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, cov, parts)
 
 
 def measure_image(image: np.ndarray, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_P_at: Any, *,

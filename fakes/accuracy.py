@@ -3,8 +3,10 @@
 One *case* is a profile, a set of compensations and a set of error groups switched off.
 One run of a case on one seed does what the robot would do:
 
-1. referencing on the plate (PnP on projected corners + 0.05 px; the inclinometer read on
-   the plate gives its offset when the tilt compensation is on);
+1. referencing on the plate (PnP on projected corners + 0.05 px), with the 180° reversal when
+   the procedure table's default says so, as the product combines it: the mean of the two runs,
+   the reflector mount's offset (calibration/mount.py) and the inclinometer's offset and yaw
+   (calibration/imu_mount.py) from both runs;
 2. with the bias compensation: an 8-direction experiment over mark M2 whose fitted
    robot-frame bias b is stored with the calibration (the learning run);
 3. the scored 8 × 5 experiment over mark M1 with every compensation of the case;
@@ -21,11 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from calibration.compensation import Compensation, Stop, compensate, imu_offset_deg
+from calibration.compensation import Compensation, Stop, compensate, imu_offset_deg, reflector_height_mm, tilt_of_pose
+from calibration.imu_mount import imu_mount
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_mark, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
+from calibration.mount import MountOffset, estimate as estimate_mount, half_diff_cov
 from calibration.referencing import reference, rob_H_cam_error
+from calibration.reversal import combine
 from calibration.scs import make_scs
+from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from fakes import profiles
 from fakes.simulate import MarkObs, SimConfig, Simulation
 from fakes.world import World, WorldParams
@@ -41,6 +47,19 @@ METRICS = ("enclosing_mm", "pairwise_mm", "abs_rms_mm", "t_xy_mm", "rotation_deg
 
 
 @dataclass(frozen=True)
+class Calibration:
+    """What a referencing gives the later jobs (the fields of the product's referencing result they read)."""
+
+    rob_H_scn: np.ndarray
+    rob_H_cam: np.ndarray
+    scs: Any
+    cov: np.ndarray | None  # cov_rob_H_scn
+    imu_offset: tuple[float, float] | None = None
+    imu_yaw_deg: float = 0.0
+    mount: MountOffset | None = None
+
+
+@dataclass(frozen=True)
 class Case:
     profile: str = "paper"
     comp: Compensation = Compensation()
@@ -48,6 +67,7 @@ class Case:
     mark_window_mm: float = 3.0  # the mark's spread about the footprint centre
     tweak: tuple[tuple[str, str, Any], ...] = ()  # (group, field, value): sensitivity cases
     name: str = ""  # a short label for a tweaked case
+    reversal: bool = PARAM_DEFAULTS["reversal"]  # the referencing procedure's default
 
     @property
     def label(self) -> str:
@@ -70,27 +90,29 @@ def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
 
 
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
-                bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None,
+                mount: MountOffset | None = None, imu_yaw_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
 
     σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
     from its MPE at its distance (``abs_t_trk``: the tracker's ACS position; None: the 10 µm
-    default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``. Per stop:
+    default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``, the reflector mount's share. Per stop:
     that std_mm; the mark variance per unit tracker variance (mm²/mm², to restate σ with another
-    σ_t); the mark's lever arm from the reflector (mm); the std_mm the product stated before issue
-    #20 (10 µm, no heading term); the heading term's share (mm); the tracker σ used (mm).
+    σ_t); the mark's lever arm from the reflector (mm); the std_mm the product first stated
+    (10 µm, no heading or mount term); the heading term's share (mm); the tracker σ used (mm).
     """
     pts, heads, sig = [], [], []
     for o in val.observations:
-        a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias)
+        a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias, mount=mount,
+                       abs_t_trk=abs_t_trk, imu_yaw_deg=imu_yaw_deg)
         s_t = stated_tracker_sigma(None, _distance_mm(o, abs_t_trk))[0]
-        m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, o.abs_P_at, roll_deg=a.roll_deg,
+        m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, a.abs_P_at, roll_deg=a.roll_deg,
                          pitch_deg=a.pitch_deg, cov_rob_H_scn=cov, sigma_t_mm=s_t,
-                         sigma_heading_rad=a.sigma_heading_rad)
+                         sigma_heading_rad=a.sigma_heading_rad, cov_mount_xy_mm2=a.cov_mount_xy_mm2)
         parts = m.std_parts_mm
         unit = (parts["tracker"] / s_t) ** 2
-        old = np.sqrt(m.std_mm ** 2 - parts["heading"] ** 2 + (DEFAULT_SIGMA_T_MM ** 2 - s_t ** 2) * unit)
+        old = np.sqrt(m.std_mm ** 2 - parts["heading"] ** 2 - parts.get("mount", 0.0) ** 2
+                      + (DEFAULT_SIGMA_T_MM ** 2 - s_t ** 2) * unit)
         pts.append(m.abs_P)
         sig.append((m.std_mm, unit, float(np.linalg.norm(m.rob_P[:2])), old, parts["heading"], s_t))
         v = o.abs_P_at - a.abs_P_prev
@@ -98,33 +120,64 @@ def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, i
     return np.array(pts), np.array(heads), np.array(sig)
 
 
+def _visit(sim: Simulation, heading_deg: float | None, stream: str, nests: Any = None, seed: int = 0
+           ) -> tuple[Any, Any]:
+    """Run ``seed`` on the plate (its Monte Carlo seed, as the product numbers runs); ``nests``: as measured
+    for the first run (the worker measures them once for both)."""
+    obs = sim.calibration(heading_deg, stream=stream)
+    return obs, reference(sim.model, sim.plate, obs.abs_P_nests if nests is None else nests, obs.abs_P_rob0,
+                          obs.abs_P_rob1, cam_ref=obs.cam_ref, mc_samples=MC_SAMPLES, seed=seed)
+
+
+def referencing(sim: Simulation, reversal: bool) -> Calibration:
+    """The referencing as daemon/compute/procedures.py ``compute_referencing`` combines it (one run, or two
+    180° apart), on the simulation's observations."""
+    obs, res = _visit(sim, None, "calib")
+    scs = make_scs(sim.model, res.cam_H_ref)  # with a reversal: the SCS of the first run (calibration/reversal.py)
+    if not reversal:
+        offset = imu_offset_deg(res.abs_H_rob, *obs.imu_deg) if obs.imu_deg is not None else None
+        return Calibration(res.rob_H_scn, res.rob_H_cam, scs, None if res.uncertainty is None else
+                           res.uncertainty.cov_rob_H_scn, offset)
+    obs1, res1 = _visit(sim, obs.heading_deg + 180.0, "calib-reversal", obs.abs_P_nests, seed=1)
+    rev = combine([res, res1])
+    trk = sim.world.abs_H_trk[:3, 3]  # every tracker point carries abs_H_trk in a dataset
+    assert rev.half_diff_t_mm is not None and rev.half_diff_rot_deg is not None and rev.cov_rob_H_scn is not None
+    assert res.uncertainty is not None and res1.uncertainty is not None
+    mount = estimate_mount(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, res.abs_H_rob, trk,
+                           half_diff_cov([res.uncertainty.cov_rob_H_scn, res1.uncertainty.cov_rob_H_scn]),
+                           rev.headings_deg)
+    offset, yaw = None, 0.0
+    if obs.imu_deg is not None and obs1.imu_deg is not None:
+        im = imu_mount([tilt_of_pose(res.abs_H_rob), tilt_of_pose(res1.abs_H_rob)], [obs.imu_deg, obs1.imu_deg],
+                       [obs.imu_sigma_deg or 0.0, obs1.imu_sigma_deg or 0.0], reflector_height_mm(rev.rob_H_scn))
+        offset = None if im.offset_deg is None else (im.offset_deg[0], im.offset_deg[1])
+        yaw = im.yaw_deg or 0.0
+    return Calibration(rev.rob_H_scn, rev.rob_H_cam, scs, rev.cov_rob_H_scn, offset, yaw, mount)
+
+
 def run(case: Case, seed: int) -> dict[str, Any]:
     """One seed of ``case``: the metrics of :data:`METRICS`, per-stop image positions, errors and σ figures
-    (:func:`measure_all`; ``std_mm`` as the product states it, ``std_old_mm`` as it did before issue
-    #20), and the experiment's full metrics (``metrics``)."""
+    (:func:`measure_all`; ``std_mm`` as the product states it, ``std_old_mm`` as it first
+    did), and the experiment's full metrics (``metrics``)."""
     p = profiles.apply(case.profile, WorldParams(seed=seed))
     world = World(p.with_(errors=p.errors.without(*case.off).tweaked(case.tweak)))
     imu = world.params.base_has_inclinometer
     cfg = SimConfig(seed=seed, pnp_sigma_px=0.05, report_tilt=imu, mark_window_mm=case.mark_window_mm)
     sim = Simulation(world, cfg)
-    obs = sim.calibration()
-    res = reference(sim.model, sim.plate, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, cam_ref=obs.cam_ref,
-                    mc_samples=MC_SAMPLES)
-    scs = make_scs(sim.model, res.cam_H_ref)
-    offset = imu_offset_deg(res.abs_H_rob, *obs.imu_deg) if obs.imu_deg is not None else None
+    cal = referencing(sim, case.reversal)
     bias, trk = None, world.abs_H_trk[:3, 3]
+    kw = dict(abs_t_trk=trk, mount=cal.mount, imu_yaw_deg=cal.imu_yaw_deg)
     if case.comp.bias:  # learn b on another mark, as a later job would find it in the calibration
         learn = Simulation(world, SimConfig(**{**cfg.__dict__, "mark": "M2"})).validation("learn-bias")
-        base = Compensation(case.comp.tilt, case.comp.heading_fit, False)
-        lp, lh, _ = measure_all(learn, base, scs, res.rob_H_scn, offset, None, abs_t_trk=trk)
+        base = Compensation(case.comp.tilt, case.comp.heading_fit, False, case.comp.mount)
+        lp, lh, _ = measure_all(learn, base, cal.scs, cal.rob_H_scn, cal.imu_offset, None, **kw)
         fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
         bias = None if fit is None else fit.b
     val = sim.validation()
-    cov = None if res.uncertainty is None else res.uncertainty.cov_rob_H_scn
-    pts, heads, sig = measure_all(val, case.comp, scs, res.rob_H_scn, offset, bias, cov, abs_t_trk=trk)
+    pts, heads, sig = measure_all(val, case.comp, cal.scs, cal.rob_H_scn, cal.imu_offset, bias, cal.cov, **kw)
     m = experiment_metrics(pts, heads, [o.direction for o in val.observations])
     err = pts[:, :2] - val.mark_abs[:2]
-    e = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
+    e = rob_H_cam_error(cal.rob_H_cam, world.rob_H_cam)
     return {"enclosing_mm": m.enclosing_diameter_mm, "pairwise_mm": m.pairwise_mean_mm,
             "abs_rms_mm": float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), "t_xy_mm": e["t_xy_mm"],
             "rotation_deg": e["rot_deg"], "uv": np.array([o.uv for o in val.observations]),
@@ -139,4 +192,4 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:
             for k in METRICS}
 
 
-__all__ = ["Case", "GOALS_MM", "METRICS", "PAPER_MM", "measure_all", "run", "summarise"]
+__all__ = ["Calibration", "Case", "GOALS_MM", "METRICS", "PAPER_MM", "measure_all", "referencing", "run", "summarise"]

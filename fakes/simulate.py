@@ -79,6 +79,7 @@ class CalibrationObs:
     cam_H_ref_true: np.ndarray
     pixel_format: str = "Mono8"  # of ``image`` (a Bayer image is the raw mosaic)
     imu_deg: tuple[float, float] | None = None  # the inclinometer's roll, pitch at P0 (``report_tilt``)
+    imu_sigma_deg: float | None = None  # that mean's 1σ from the readings' spread, as the worker states it
 
 
 @dataclass
@@ -231,11 +232,14 @@ class Simulation:
             ids, uv = true_corner_projections(w, cfg.size, abs_H_cam)
             uv = uv + self.rng(stream + "-corners").normal(0.0, cfg.pnp_sigma_px, size=uv.shape)
             cam_ref = pose_from_corners(ids, uv, self.model, self.plate)
-        imu = None
+        imu = imu_sd = None
         if cfg.report_tilt:
-            imu = self._standstill_tilt(pose0, self.rng(stream + "-imu"))
+            r = self._readings(pose0, self.rng(stream + "-imu"))
+            imu = float(r[:, 0].mean()), float(r[:, 1].mean())
+            # daemon/compute/inputs.py: hypot of the two spreads / sqrt(2n)
+            imu_sd = float(np.hypot(*r.std(axis=0)) / math.sqrt(2 * len(r)))
         return CalibrationObs(heading_deg, abs_P_nests, P0, P1, cam_ref, image, abs_H_rob0, cam_H_ref_true,
-                              cfg.pixel_format, imu)
+                              cfg.pixel_format, imu, imu_sd)
 
     # ------------------------------------------------------------------ validation
 
@@ -292,10 +296,14 @@ class Simulation:
             out.update(stream_tilt_deg=tilt, prev_roll_deg=prev[0], prev_pitch_deg=prev[1])
         return out
 
+    def _readings(self, pose: RobotPose, rng: np.random.Generator) -> np.ndarray:
+        """``imu_readings`` inclinometer readings (n, 2) at a stop (degrees), as the worker takes them."""
+        return np.degrees([self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
+                           for _ in range(max(1, self.cfg.imu_readings))])
+
     def _standstill_tilt(self, pose: RobotPose, rng: np.random.Generator) -> tuple[float, float]:
         """The mean of ``imu_readings`` inclinometer readings at a stop (degrees), as the worker takes it."""
-        r = np.degrees([self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
-                        for _ in range(max(1, self.cfg.imu_readings))])
+        r = self._readings(pose, rng)
         return float(r[:, 0].mean()), float(r[:, 1].mean())
 
     def _locate(self, abs_H_cam: np.ndarray, uv_true: np.ndarray, rng: np.random.Generator, name: str

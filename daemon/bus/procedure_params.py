@@ -68,7 +68,7 @@ DISTANCE = Param("distance_mm", _FLOAT, "straight drive of each approach (refere
                  unit="mm", default=200.0, lo=0, lo_open=True, aliases=("--distance",))
 SPEED = Param("speed_mm_s", _FLOAT, "drive speed of the procedure's motions", unit="mm/s", default=100.0,
               lo=0, lo_open=True)
-# no default: the computation states its own (referencing 10 µm; marks the tracker's MPE at its distance, issue #20)
+# no default: the computation states its own (referencing 10 µm; marks the tracker's MPE at its distance)
 SIGMA_T = Param("sigma_t_mm", _FLOAT, "tracker 1σ per coordinate (referencing: nest-fit limit and uncertainty; "
                 "marks: their stated σ)", unit="mm", lo=0, lo_open=True,
                 default_text="referencing 0.01; marks: ½ the tracker's MPE at its distance (docs/accuracy.md)")
@@ -82,8 +82,8 @@ IMU_READINGS = Param("imu_readings", "int", "inclinometer readings averaged at e
 IMU_INTERVAL = Param("imu_interval_s", _FLOAT, "time between those readings: the inclinometer's output period "
                      "(closer readings repeat one sample)", unit="s", default=0.1, lo=0, hi=10)
 # heading_fit is not in the default: through ritad it has not yet been shown to help (docs/accuracy.md)
-COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of tilt, heading_fit, bias "
-                     "(docs/accuracy.md)", default="tilt,bias")
+COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of tilt, heading_fit, bias, "
+                     "mount (docs/accuracy.md)", default="tilt,bias,mount")
 APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT, "speed of the recorded final move of each approach (more "
                        "stream points and inclinometer samples along it)", unit="mm/s", lo=0, lo_open=True,
                        default_text="speed_mm_s")

@@ -59,7 +59,8 @@ REFERENCING = Procedure(
               content="xyz_map", default_text="none: the worker asks for each nest", aliases=("--nests-approx",)),
         Param("robot_approx_trk", "vec", "approximate robot reflector, tracker frame", unit="mm", length=3,
               default_text="none: the worker asks", aliases=("--robot-approx",)),
-        Param("reversal", "bool", "second referencing turned 180° (instrument reversal)", default=False),
+        Param("reversal", "bool", "second referencing turned 180° (instrument reversal; it also measures the "
+              "reflector mount's offset)", default=True),
         DISTANCE, SPEED, SIGMA_T, IMU_READINGS, IMU_INTERVAL))
 INTRINSICS = Procedure(
     "intrinsics", "intrinsics", "camera model from a hand-held board, view by view as the prompts say",
@@ -234,8 +235,9 @@ def describe() -> dict[str, dict[str, Any]]:
 
 
 def cli_flags(p: Param) -> tuple[str, ...]:
-    """A parameter's ritactl options: ``--name-with-dashes`` first, then its aliases."""
-    return (f"--{p.name.replace('_', '-')}", *p.aliases)
+    """A parameter's ritactl options: ``--name-with-dashes`` first (a bool also ``--no-name``), then its aliases."""
+    name = p.name.replace('_', '-')
+    return (f"--{name}", *((f"--no-{name}",) if p.type == "bool" else ()), *p.aliases)
 
 
 def _rows() -> Iterator[str]:

@@ -1,10 +1,12 @@
 """What moves between a dataset's stop records and the compensation math (calibration/compensation.py).
 
-* :func:`parse_compensation` — a job's ``compensation`` parameter (default ``tilt,bias``);
+* :func:`parse_compensation` — a job's ``compensation`` parameter (default: the procedure table's);
 * :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
 * :func:`plate_imu_offset` — the inclinometer's offset and yaw from the on-plate runs (referencing);
 * :func:`compensation_summary` — which compensations were requested, applied, skipped;
-* :func:`tracker_distance_mm` — how far the tracker stood from a stop's points (its σ grows with it).
+* :func:`tracker_distance_mm` — how far the tracker stood from a stop's points (its σ grows with it);
+* :func:`tracker_position` — the tracker's ACS position a point was measured from (the mount's line of sight);
+* :func:`reflector_mount` — the reflector mount offset a calibration holds.
 
 docs/datasets.md ("Compensations") documents every field read here.
 """
@@ -16,6 +18,7 @@ import numpy as np
 
 from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
 from calibration.imu_mount import imu_mount
+from calibration.mount import MountOffset
 from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 
 #: the compensations a job applies when its parameters do not say
@@ -92,6 +95,18 @@ def tracker_distance_mm(stop: dict[str, Any]) -> float | None:
     return max(float(np.linalg.norm([float(p["x"]), float(p["y"]), float(p["z"])])) for p in pts)
 
 
+def tracker_position(point: dict[str, Any]) -> np.ndarray | None:
+    """The tracker's ACS position (``abs_H_trk``'s translation) a stored point carries, else None."""
+    H = point.get("abs_H_trk")
+    return None if H is None else np.asarray(H, dtype=float)[:3, 3]
+
+
+def reflector_mount(calib: dict[str, Any]) -> MountOffset | None:
+    """The reflector mount offset of a calibration (a referencing with reversal), None when it holds none."""
+    rec = calib.get("reflector_mount")
+    return None if not rec else MountOffset.from_dict(rec, "calibration: reflector_mount")
+
+
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
     """The per-stop compensation record of a mark."""
     return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
@@ -101,7 +116,8 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     """Over all stops: per compensation how many stops applied it and why the others skipped it."""
     offset, bias = calibration_inputs(calib)
     out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
-                           "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias}
+                           "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias,
+                           "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm")}
     for name in NAMES:
         if name not in out["requested"]:
             continue
@@ -113,4 +129,5 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
 
 
 __all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "imu_yaw", "parse_compensation",
-           "plate_imu_offset", "stop_of", "stop_record", "tracker_distance_mm"]
+           "plate_imu_offset", "reflector_mount", "stop_of", "stop_record", "tracker_distance_mm",
+           "tracker_position"]

@@ -21,12 +21,14 @@ from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
-from calibration.reversal import combine
+from calibration.mount import MountOffset, estimate as estimate_mount, half_diff_cov, message as mount_message
+from calibration.reversal import ReversalResult, combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, parse_compensation,
-                                         imu_yaw, plate_imu_offset, stop_of, stop_record, tracker_distance_mm)
+                                         imu_yaw, plate_imu_offset, reflector_mount, stop_of, stop_record,
+                                         tracker_distance_mm, tracker_position)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -79,17 +81,10 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     first_d = first.to_dict()
     out["uncertainty"] = first_d.get("uncertainty")
     if len(runs) >= 2:
-        rev = combine(runs)
-        out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
-        # dict.fromkeys: a note both runs give (same text) is listed once
-        messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
-        verdicts = [r.verdict for r in runs]
-        if rev.cov_rob_H_scn is not None and out["uncertainty"]:
-            # the combined estimate: its covariance replaces the single run's for marks
-            out["uncertainty"] = {**out["uncertainty"], "cov_rob_H_scn": rev.cov_rob_H_scn.tolist(),
-                                  "note": "cov_rob_H_scn of the reversal mean; other figures of run 0"}
+        messages, verdicts = _reversal(runs, obs["runs"][0]["P0"], out)
     else:
-        out.update(rob_H_cam=first.rob_H_cam.tolist(), rob_H_scn=first.rob_H_scn.tolist(), reversal=None)
+        out.update(rob_H_cam=first.rob_H_cam.tolist(), rob_H_scn=first.rob_H_scn.tolist(), reversal=None,
+                   reflector_mount=None)
         messages, verdicts = list(first.messages), [first.verdict]
     out["scs"] = scs0.to_dict()
     out["residuals_mm"] = first_d.get("nest_residuals_mm")
@@ -104,6 +99,37 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
         if imu["verdict"] == "warn" and out["verdict"] == "ok":
             out["verdict"] = "warn"
     return out
+
+
+def _reversal(runs: list[Any], P0: dict[str, Any], out: dict[str, Any]) -> tuple[list[str], list[str]]:
+    """The runs combined by reversal into ``out`` (rob_H_cam, rob_H_scn, the covariance of their mean, the
+    reflector mount offset); their messages and verdicts."""
+    rev = combine(runs)
+    out.update(rob_H_cam=rev.rob_H_cam.tolist(), rob_H_scn=rev.rob_H_scn.tolist(), reversal=rev.to_dict())
+    # dict.fromkeys: a note both runs give (same text) is listed once
+    messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
+    verdicts = [r.verdict for r in runs]
+    mount = _mount(rev, runs, P0)
+    out["reflector_mount"] = None if mount is None else mount.to_dict()
+    if mount is not None:
+        messages.append(mount_message(mount))
+        verdicts.append("warn" if mount.warn else "ok")
+    if rev.cov_rob_H_scn is not None and out["uncertainty"]:
+        # the combined estimate: its covariance replaces the single run's for marks
+        out["uncertainty"] = {**out["uncertainty"], "cov_rob_H_scn": rev.cov_rob_H_scn.tolist(),
+                              "note": "cov_rob_H_scn of the reversal mean; other figures of run 0"}
+    return messages, verdicts
+
+
+def _mount(rev: ReversalResult, runs: list[Any], P0: dict[str, Any]) -> MountOffset | None:
+    """The reflector mount offset from a two-run reversal (calibration/mount.py), None when the runs cannot
+    give it (not two, no covariance, or P0 without the tracker's pose to orient the line of sight)."""
+    trk = tracker_position(P0)
+    covs = [r.uncertainty.cov_rob_H_scn for r in runs if r.uncertainty is not None]
+    if rev.half_diff_t_mm is None or rev.half_diff_rot_deg is None or len(covs) != 2 or trk is None:
+        return None
+    return estimate_mount(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, runs[0].abs_H_rob, trk,
+                          half_diff_cov(covs), rev.headings_deg)
 
 
 #: default mark sizes (dot radius / cross half-size, mm) when the procedure did not record one
@@ -125,16 +151,18 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
     offset, bias = calibration_inputs(calib)
-    anchor = DEFAULT_SIGMA_T_MM if sigma_t_mm is None else sigma_t_mm  # heading_fit's anchors: unchanged by issue #20
+    # heading_fit's anchors keep the 10 µm default its significance test was built with
+    anchor = DEFAULT_SIGMA_T_MM if sigma_t_mm is None else sigma_t_mm
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib))
+                   bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib), mount=reflector_mount(calib),
+                   abs_t_trk=tracker_position(stop["P_at"]))
     distance = tracker_distance_mm(stop)
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
-    P_at = _abs(stop["P_at"])
+    P_at = a.abs_P_at
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
-                      cov_rob_H_scn=None if cov is None else np.array(cov))
+                      cov_rob_H_scn=None if cov is None else np.array(cov), cov_mount_xy_mm2=a.cov_mount_xy_mm2)
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
     sigma = {"tracker_mm": s_t, "tracker_source": t_source, "tracker_distance_mm": distance,

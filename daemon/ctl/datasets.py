@@ -136,8 +136,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--calibration", metavar="FILE",
                    help="referencing result.json to use instead of the stored one (experiment, measure-mark)")
     p.add_argument("--compensation", metavar="NAMES",
-                   help="compensations: none, all, or a comma list of tilt,heading_fit,bias "
-                        "(experiment, measure-mark; default: the job's own, 'tilt,bias' when it named none). "
+                   help="compensations: none, all, or a comma list of tilt,heading_fit,bias,mount "
+                        "(experiment, measure-mark; default: the job's own, the procedure table's when it named none). "
                         "A bad name exits 5")
     p.set_defaults(fn=cmd_recompute, offline=True)
 

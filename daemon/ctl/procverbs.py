@@ -30,8 +30,10 @@ def _dest(p: Param) -> str:
 
 def _add_option(parser: argparse.ArgumentParser, p: Param) -> None:
     kind: dict[str, Any] = {"dest": _dest(p), "help": option_help(p)}
-    if p.type == "bool":
-        parser.add_argument(*cli_flags(p), action="store_const", const=not p.default, **kind)
+    if p.type == "bool":  # --name sets it, --no-name clears it, whatever the default
+        yes, no, *aliases = cli_flags(p)
+        parser.add_argument(yes, *aliases, action="store_const", const=True, **kind)
+        parser.add_argument(no, action="store_const", const=False, dest=kind["dest"], help=f"not: {p.help}")
         return
     if p.type == "vec":
         number = Param(p.name, "float", p.help, unit=p.unit, lo=p.lo, hi=p.hi, lo_open=p.lo_open)

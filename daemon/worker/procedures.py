@@ -103,7 +103,7 @@ def referencing(ctx: JobContext) -> None:
         _measure_reflector(ctx, "robot", ctx.params.get("robot_approx_trk"), 35)
         ctx.mark_done("lock_robot")
     _on_plate_run(ctx, nav, "run0", 40)
-    if ctx.params.get("reversal"):
+    if param(ctx, "reversal"):
         if not ctx.done("reverse"):
             ctx.progress("reversal: turn the robot 180° on the plate", 60, "robot moving")
             first = compute_referencing({**ctx.obs, "runs": ctx.obs["runs"][:1]}, ctx.load_image)

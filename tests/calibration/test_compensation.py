@@ -24,7 +24,7 @@ def pose(heading: float, roll: float, pitch: float, P=(0.0, 0.0, 0.0)) -> np.nda
 
 def test_parse_names_and_refusal():
     assert Compensation.parse(None).names() == [] and Compensation.parse("none").names() == []
-    assert Compensation.parse("all").names() == ["tilt", "heading_fit", "bias"]
+    assert Compensation.parse("all").names() == ["tilt", "heading_fit", "bias", "mount"]
     assert Compensation.parse("bias, tilt").names() == ["tilt", "bias"]
     with pytest.raises(ValueError, match="'tlit'"):
         Compensation.parse(["tlit"])
@@ -96,8 +96,9 @@ def test_compensate_says_why_it_skips():
     stop = Stop(np.array([0.0, 0.0, H_MM]), np.array([200.0, 0.0, H_MM]))
     a = compensate(Compensation.parse("all"), stop, ROB_H_SCN)
     assert a.applied == []
-    assert set(a.skipped) == {"tilt", "heading_fit", "bias"}
+    assert set(a.skipped) == {"tilt", "heading_fit", "bias", "mount"}
     assert "offset" in a.skipped["tilt"] and "stream" in a.skipped["heading_fit"]
+    assert "--reversal" in a.skipped["mount"] and a.cov_mount_xy_mm2 is None
     assert np.array_equal(a.rob_H_scn, ROB_H_SCN) and a.roll_deg is None
 
 

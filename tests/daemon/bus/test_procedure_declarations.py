@@ -15,7 +15,8 @@ import pytest
 
 from daemon.bus import procedures
 from daemon.bus.procedure_params import Param
-from daemon.bus.procedures import ALL, EXPERIMENT, PROCEDURES, Hooks, ParamError, check_params, markdown_table
+from daemon.bus.procedures import (ALL, DEFAULTS, EXPERIMENT, PROCEDURES, REFERENCING, Hooks, ParamError, check_params,
+                                   markdown_table)
 from daemon.compute.files import EXTRA_FILES
 from daemon.compute.procedures import COMPUTE
 from daemon.ctl import main as ctl
@@ -72,6 +73,19 @@ def test_todays_flags_stay_as_aliases():
     assert params_of(EXPERIMENT, b) == {"mark_xy": [1.0, 2.0], "repetitions": 3, "approach_speed_mm_s": 5.0}
     c = parser.parse_args(["calibrate", "--robot-approx", "1", "2", "3", "--reversal"])
     assert c.pp_robot_approx_trk == [1.0, 2.0, 3.0] and c.pp_reversal is True
+
+
+def test_a_bool_parameter_can_be_set_and_cleared_whatever_its_default():
+    """The reversal is on by default: ``--no-reversal`` clears it, ``--reversal`` (today's flag) keeps it, and
+    neither leaves it to the worker's default (the table's)."""
+    parser = ctl.build_parser()
+    assert DEFAULTS["reversal"] is True and DEFAULTS["store_bias"] is False
+    for argv, value in ((["--no-reversal"], False), (["--reversal"], True), ([], None)):
+        a = parser.parse_args(["calibrate", *argv])
+        assert a.pp_reversal is value, argv
+        assert params_of(REFERENCING, a).get("reversal") is value
+    assert parser.parse_args(["experiment", "--mark", "1", "2", "--store-bias"]).pp_store_bias is True
+    assert parser.parse_args(["experiment", "--mark", "1", "2", "--no-store-bias"]).pp_store_bias is False
 
 
 def test_adding_a_parameter_is_one_line_in_the_declaration(monkeypatch):
