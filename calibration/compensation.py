@@ -313,10 +313,9 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
     cov = mount.cov_abs_xy(P_at, abs_t_trk, apply)
     if not apply:
         return stop, cov
-    shift = mount.offset_abs(P_at, abs_t_trk)  # the line of sight turns < 3° over a move: one offset
-    stream = None if stop.stream is None else as_points(stop.stream, "stream") - shift
-    return replace(stop, abs_P_prev=as_points(stop.abs_P_prev, "abs_P_prev", 1)[0] - shift, abs_P_at=P_at - shift,
-                   stream=stream), cov
+    stream = None if stop.stream is None else mount.corrected(as_points(stop.stream, "stream"), abs_t_trk)
+    return replace(stop, abs_P_prev=mount.corrected(as_points(stop.abs_P_prev, "abs_P_prev", 1)[0], abs_t_trk),
+                   abs_P_at=mount.corrected(P_at, abs_t_trk), stream=stream), cov
 
 
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,

@@ -122,6 +122,8 @@ def imu_mount(body_tilts: Sequence[Sequence[float]], readings: Sequence[Sequence
         # not shown (a fit of a small tilt spread may wander): the offsets agree, their mean is the offset
         out.yaw_deg = 0.0
         out.offset_deg = offs.mean(axis=0).tolist()
+        if implausible:  # that fit's σ describes no yaw
+            out.yaw_sigma_deg = None
     else:
         out.messages.append(f"the inclinometer is yawed {yaw:.2f}° ± {yaw_sigma:.2f}° in the body (from the runs' "
                             f"offsets, which disagree by {np.hypot(*d):.4f}°): the tilt is compensated with it")

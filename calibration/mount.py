@@ -2,7 +2,9 @@
 "The reflector mount").
 
 The robot's SMR sits in a mount that turns to keep the tracker in sight (paper §Robot: its movement
-in the chassis is "sub-mm" and taken as the RCS origin). A ball centre off the mount's axis by m
+in the chassis is "sub-mm" and taken as the RCS origin). Assumed: the mount turns about the robot's
+vertical only (the paper does not say); one that also tilts toward the tracker would move the
+offset with the elevation angle, which this model does not follow. A ball centre off the mount's axis by m
 therefore keeps its place relative to the line of sight: in the frame ``los`` (x horizontal from
 the reflector toward the tracker, z up, y = z × x) m is constant. In ACS it is the same at every
 heading, so no per-stop datum and no robot-frame bias shows it, and every tracker point of the
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
@@ -72,6 +74,13 @@ class MountOffset:
     def offset_abs(self, abs_P: Any, abs_t_trk: Any) -> np.ndarray:
         """The ACS offset (3,) of a tracker point of the robot at ``abs_P``: subtract it to correct."""
         return los_R(abs_P, abs_t_trk)[:, :2] @ self.los_mm
+
+    def corrected(self, abs_P: Any, abs_t_trk: Any) -> np.ndarray:
+        """Points (3,) or (N, 3) with the offset removed, each turned to its own line of sight (over a
+        0.2 m move 2 m from the tracker the line of sight turns 6°)."""
+        P = np.asarray(abs_P, dtype=float)
+        flat = P.reshape(-1, 3)
+        return (flat - np.array([self.offset_abs(q, abs_t_trk) for q in flat])).reshape(P.shape)
 
     def cov_abs_xy(self, abs_P: Any, abs_t_trk: Any, applied: bool) -> np.ndarray:
         """ACS xy covariance (2, 2) the offset leaves in a mark: the estimate's own when it was applied;
@@ -149,6 +158,25 @@ def estimate(half_diff_t_mm: Sequence[float], half_diff_rot_deg: Sequence[float]
     return MountOffset(m, C, False, why, warn=mag > MAX_OFFSET_MM)
 
 
+class _Run(Protocol):
+    abs_H_rob: np.ndarray
+    uncertainty: Any  # calibration.uncertainty.PoseUncertainty | None
+
+
+def from_reversal(rev: Any, runs: Sequence[_Run], abs_t_trk: Any) -> tuple[MountOffset | None, str]:
+    """The offset of a combined reversal (:class:`calibration.reversal.ReversalResult`) and its two runs
+    (referencing results), or None and why it cannot be estimated."""
+    covs = [r.uncertainty.cov_rob_H_scn for r in runs if getattr(r, "uncertainty", None) is not None]
+    if len(runs) != 2 or rev.half_diff_t_mm is None or rev.half_diff_rot_deg is None:
+        return None, f"the reversal has {len(runs)} runs; the offset needs two, 180° apart"
+    if len(covs) != 2:
+        return None, "the runs state no covariance (Monte Carlo off): the offset's significance cannot be tested"
+    if abs_t_trk is None:
+        return None, "P0 carries no abs_H_trk: the line of sight to the tracker is unknown"
+    return estimate(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, runs[0].abs_H_rob, abs_t_trk,
+                    half_diff_cov(covs), rev.headings_deg), ""
+
+
 def message(m: MountOffset) -> str:
     """The referencing result's line about the offset."""
     sd = np.sqrt(np.diag(m.cov_los_mm2)) * 1000
@@ -157,4 +185,5 @@ def message(m: MountOffset) -> str:
     return f"{fig}: marks measured with compensation 'mount' correct it" if m.significant else f"{fig}: {m.why}"
 
 
-__all__ = ["MAX_OFFSET_MM", "MountOffset", "SIGNIFICANT_CHI2", "estimate", "half_diff_cov", "los_R", "message"]
+__all__ = ["MAX_OFFSET_MM", "MountOffset", "SIGNIFICANT_CHI2", "estimate", "from_reversal", "half_diff_cov", "los_R",
+           "message"]

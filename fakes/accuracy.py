@@ -27,7 +27,7 @@ from calibration.compensation import Compensation, Stop, compensate, imu_offset_
 from calibration.imu_mount import imu_mount
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_mark, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
-from calibration.mount import MountOffset, estimate as estimate_mount, half_diff_cov
+from calibration.mount import MountOffset, from_reversal as mount_from_reversal
 from calibration.referencing import reference, rob_H_cam_error
 from calibration.reversal import combine
 from calibration.scs import make_scs
@@ -140,12 +140,9 @@ def referencing(sim: Simulation, reversal: bool) -> Calibration:
                            res.uncertainty.cov_rob_H_scn, offset)
     obs1, res1 = _visit(sim, obs.heading_deg + 180.0, "calib-reversal", obs.abs_P_nests, seed=1)
     rev = combine([res, res1])
-    trk = sim.world.abs_H_trk[:3, 3]  # every tracker point carries abs_H_trk in a dataset
-    assert rev.half_diff_t_mm is not None and rev.half_diff_rot_deg is not None and rev.cov_rob_H_scn is not None
-    assert res.uncertainty is not None and res1.uncertainty is not None
-    mount = estimate_mount(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, res.abs_H_rob, trk,
-                           half_diff_cov([res.uncertainty.cov_rob_H_scn, res1.uncertainty.cov_rob_H_scn]),
-                           rev.headings_deg)
+    # every tracker point carries abs_H_trk in a dataset
+    mount, why = mount_from_reversal(rev, [res, res1], sim.world.abs_H_trk[:3, 3])
+    assert mount is not None, why
     offset, yaw = None, 0.0
     if obs.imu_deg is not None and obs1.imu_deg is not None:
         im = imu_mount([tilt_of_pose(res.abs_H_rob), tilt_of_pose(res1.abs_H_rob)], [obs.imu_deg, obs1.imu_deg],

@@ -101,10 +101,14 @@ def tracker_position(point: dict[str, Any]) -> np.ndarray | None:
     return None if H is None else np.asarray(H, dtype=float)[:3, 3]
 
 
-def reflector_mount(calib: dict[str, Any]) -> MountOffset | None:
-    """The reflector mount offset of a calibration (a referencing with reversal), None when it holds none."""
+def reflector_mount(calib: dict[str, Any]) -> tuple[MountOffset | None, str]:
+    """The reflector mount offset of a calibration (a referencing with reversal), None when it holds none,
+    and why a record it holds cannot be read ("" when it can): a bad record skips the compensation only."""
     rec = calib.get("reflector_mount")
-    return None if not rec else MountOffset.from_dict(rec, "calibration: reflector_mount")
+    try:
+        return (None if not rec else MountOffset.from_dict(rec, "calibration: reflector_mount")), ""
+    except ValueError as exc:
+        return None, str(exc)
 
 
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:

@@ -21,8 +21,8 @@ from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at
 from calibration.metrics import experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
-from calibration.mount import MountOffset, estimate as estimate_mount, half_diff_cov, message as mount_message
-from calibration.reversal import ReversalResult, combine
+from calibration.mount import from_reversal as mount_from_reversal, message as mount_message
+from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
@@ -109,27 +109,16 @@ def _reversal(runs: list[Any], P0: dict[str, Any], out: dict[str, Any]) -> tuple
     # dict.fromkeys: a note both runs give (same text) is listed once
     messages = list(dict.fromkeys([m for r in runs for m in r.messages] + rev.messages))
     verdicts = [r.verdict for r in runs]
-    mount = _mount(rev, runs, P0)
+    mount, why = mount_from_reversal(rev, runs, tracker_position(P0))
     out["reflector_mount"] = None if mount is None else mount.to_dict()
+    messages.append(f"reflector mount offset not estimated: {why}" if mount is None else mount_message(mount))
     if mount is not None:
-        messages.append(mount_message(mount))
         verdicts.append("warn" if mount.warn else "ok")
     if rev.cov_rob_H_scn is not None and out["uncertainty"]:
         # the combined estimate: its covariance replaces the single run's for marks
         out["uncertainty"] = {**out["uncertainty"], "cov_rob_H_scn": rev.cov_rob_H_scn.tolist(),
                               "note": "cov_rob_H_scn of the reversal mean; other figures of run 0"}
     return messages, verdicts
-
-
-def _mount(rev: ReversalResult, runs: list[Any], P0: dict[str, Any]) -> MountOffset | None:
-    """The reflector mount offset from a two-run reversal (calibration/mount.py), None when the runs cannot
-    give it (not two, no covariance, or P0 without the tracker's pose to orient the line of sight)."""
-    trk = tracker_position(P0)
-    covs = [r.uncertainty.cov_rob_H_scn for r in runs if r.uncertainty is not None]
-    if rev.half_diff_t_mm is None or rev.half_diff_rot_deg is None or len(covs) != 2 or trk is None:
-        return None
-    return estimate_mount(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, runs[0].abs_H_rob, trk,
-                          half_diff_cov(covs), rev.headings_deg)
 
 
 #: default mark sizes (dot radius / cross half-size, mm) when the procedure did not record one
@@ -153,9 +142,12 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     offset, bias = calibration_inputs(calib)
     # heading_fit's anchors keep the 10 µm default its significance test was built with
     anchor = DEFAULT_SIGMA_T_MM if sigma_t_mm is None else sigma_t_mm
+    mount, bad_mount = reflector_mount(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
-                   bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib), mount=reflector_mount(calib),
+                   bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib), mount=mount,
                    abs_t_trk=tracker_position(stop["P_at"]))
+    if bad_mount and comp.mount:  # a record no offset can be read from: measure without it, say why
+        a.skipped["mount"] = bad_mount
     distance = tracker_distance_mm(stop)
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = a.abs_P_at
@@ -193,8 +185,9 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])
     metrics = experiment_metrics(xy, headings, groups)
-    check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm,
-                             [m["std_mm"] for m in marks])
+    # the mount's share is the same offset at every stop: no scatter between the cluster means
+    scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0)) for m in marks]
+    check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm, scatter)
     return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
             "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),

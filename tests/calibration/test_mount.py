@@ -67,27 +67,38 @@ def test_the_absolute_error_of_an_eccentric_mount_is_removed():
     assert np.percentile(ratio, 95) < 1.73  # the stated σ covers the error (χ², 2 dof)
 
 
+#: an anisotropic covariance (mm²): a transposed rotation would show
+COV_ANISO = np.array([[4e-4, 1e-4], [1e-4, 1e-4]])
+
+
 def _stop() -> Stop:
     P_at = np.array([1000.0, 1000.0, 350.0])
-    stream = np.linspace([800.0, 1000.0, 350.0], P_at, 21)
-    return Stop(np.array([800.0, 1000.0, 350.0]), P_at, stream=stream)
+    stream = np.linspace([800.0, 900.0, 350.0], P_at, 21)
+    return Stop(np.array([800.0, 900.0, 350.0]), P_at, stream=stream)
 
 
 def test_compensate_removes_a_shown_offset_from_every_tracker_point():
-    m = MountOffset(np.array([0.08, -0.03]), COV, True)
-    a = compensate(Compensation(mount=True), _stop(), np.eye(4), mount=m, abs_t_trk=TRK)
-    shift = m.offset_abs(_stop().abs_P_at, TRK)
-    assert a.applied == ["mount"] and a.abs_P_at == pytest.approx(_stop().abs_P_at - shift)
-    assert a.abs_P_prev == pytest.approx(_stop().abs_P_prev - shift)
-    assert a.cov_mount_xy_mm2 == pytest.approx(COV)  # a rotation of an isotropic covariance
+    """Each point loses the offset turned to its own line of sight (the tracker 2.3 m away: 5° over the move)."""
+    trk = np.array([-1000.0, 2500.0, 1200.0])
+    m = MountOffset(np.array([0.08, -0.03]), COV_ANISO, True)
+    a = compensate(Compensation(mount=True), _stop(), np.eye(4), mount=m, abs_t_trk=trk)
+    s = _stop()
+    assert a.applied == ["mount"]
+    assert a.abs_P_at == pytest.approx(s.abs_P_at - m.offset_abs(s.abs_P_at, trk))
+    assert a.abs_P_prev == pytest.approx(s.abs_P_prev - m.offset_abs(s.abs_P_prev, trk))
+    turn = np.linalg.norm(m.offset_abs(s.abs_P_prev, trk) - m.offset_abs(s.abs_P_at, trk))
+    assert turn > 0.005  # µm-level: one offset for the whole move would be wrong by this much
+    R = los_R(s.abs_P_at, trk)[:2, :2]
+    assert a.cov_mount_xy_mm2 == pytest.approx(R @ COV_ANISO @ R.T)
+    assert not np.allclose(a.cov_mount_xy_mm2, R.T @ COV_ANISO @ R)
 
 
 def test_an_offset_not_shown_is_skipped_and_stated_in_sigma():
-    m = MountOffset(np.array([0.02, 0.0]), COV, False, "not shown by the data")
+    m = MountOffset(np.array([0.02, 0.0]), COV_ANISO, False, "not shown by the data")
     a = compensate(Compensation(mount=True), _stop(), np.eye(4), mount=m, abs_t_trk=TRK)
     assert a.applied == [] and a.skipped["mount"] == "not shown by the data"
     assert a.abs_P_at == pytest.approx(_stop().abs_P_at)
-    assert np.trace(a.cov_mount_xy_mm2) == pytest.approx(2e-4 + 0.02 ** 2)
+    assert np.trace(a.cov_mount_xy_mm2) == pytest.approx(5e-4 + 0.02 ** 2)
     b = compensate(Compensation(mount=True), _stop(), np.eye(4), mount=m, abs_t_trk=None)
     assert "abs_H_trk" in b.skipped["mount"] and b.cov_mount_xy_mm2 is None
 

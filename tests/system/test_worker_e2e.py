@@ -296,6 +296,10 @@ def test_paper_imu_experiment_with_compensations_beats_the_paper(daemon, tmp_pat
             assert ref["verdict"] in ("ok", "warn"), ref
             assert len(c.call("calib.results")["active"]["imu_offset_deg"]) == 2  # calibrated on the plate
             truth = c.call("sim.truth")  # scoring only
+            # the product's own path to the mount's offset (compute_referencing) against the world's
+            m = c.call("calib.results")["active"]["reflector_mount"]
+            e = np.subtract(m["los_mm"], truth["errors"]["mount_offset_mm"][:2])
+            assert float(e @ np.linalg.solve(np.array(m["cov_los_mm2"]), e)) < 3.5 ** 2, (m, truth["errors"])
             run_ok(c, "experiment", {"mark_xy": rough_mark(c, 1)[1], "kind": truth["marks"][1]["kind"],
                                      "repetitions": 1, "store_bias": True, **imu})
             assert "robot_bias_mm" in c.call("calib.results")["active"]

@@ -198,7 +198,8 @@ def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp
     for m0, m1, st in zip(without["marks"], res["marks"], stops):
         P_at = np.array(st["P_at"]["abs_xyz"])
         expect = -(los_R(P_at, tracker_position(st["P_at"]))[:, :2] @ [0.08, 0.03])
-        assert np.subtract(m1["abs_xyz"], m0["abs_xyz"])[:2] == pytest.approx(expect[:2], abs=1e-6)
+        # each tracker point turned to its own line of sight: the chord turns the mark by < 1 µm here
+        assert np.subtract(m1["abs_xyz"], m0["abs_xyz"])[:2] == pytest.approx(expect[:2], abs=1e-3)
         assert m1["sigma"]["parts_mm"]["mount"] == pytest.approx(math.sqrt(2e-4), rel=1e-6)
     _edit(folder, lambda s: s["obs"]["calibration"].update(reflector_mount={**shown, "significant": False,
                                                                                 "why": "not shown by the data"}))
@@ -209,3 +210,8 @@ def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp
     _edit(folder, lambda s: [st["P_at"].pop("abs_H_trk") for st in s["obs"]["stops"]])
     blind = recompute(folder, compensation="mount")[0]
     assert "abs_H_trk" in blind["compensation"]["skipped"]["mount"][0]
+    # a record the schema passes but no offset can be read from (a zero covariance) skips the compensation,
+    # naming it; the marks are still measured
+    _edit(folder, lambda s: s["obs"]["calibration"].update(reflector_mount={**shown, "cov_los_mm2": [[0, 0], [0, 0]]}))
+    bad = recompute(folder, compensation="tilt,mount")[0]
+    assert "reflector_mount" in bad["compensation"]["skipped"]["mount"][0] and len(bad["marks"]) == len(HEADINGS)
