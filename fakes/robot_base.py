@@ -94,7 +94,11 @@ class FakeBase:
         self.state = "IDLE"
         self.fault = ""
         self.motion: Motion | None = None
+        #: the motion finished last and the clock time of the tick that finished it (pose_at)
+        self._last_motion: tuple[Motion | None, float] = (None, 0.0)
         self.travelled_mm = 0.0
+        if clock is time.monotonic:  # the world's clock: the tracker asks for poses on it
+            world.pose_source = self.pose_at
         self._last_motion_cmd: tuple[str, bytes] | None = None  # (body, reply) for retries
         self._out: list[bytes] = []
         self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0}
@@ -305,28 +309,44 @@ class FakeBase:
         else:
             self._place(f)
 
+    def _pose(self, m: Motion, f: float) -> RobotPose:
+        """The true pose at fraction ``f`` of motion ``m`` (linear in time, on its bent path)."""
+        if f >= 1.0:
+            return m.end
+        s, e = m.start, m.end
+        pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
+                       heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
+        if m.bend_mm:  # on the bent path (arc or S), not the chord
+            a = math.radians(s.heading_deg)
+            side, dh = self.world.effects.bend_profile(f, m.bend_mm, max(m.path, 1e-9))
+            pose = replace(pose, x_mm=pose.x_mm - float(side) * math.sin(a),
+                           y_mm=pose.y_mm + float(side) * math.cos(a),
+                           heading_deg=pose.heading_deg + math.degrees(float(dh)))
+        if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
+            pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
+        return pose
+
+    def pose_at(self, t: float) -> RobotPose | None:
+        """The true pose at clock time ``t`` during the motion in progress or the last one until it was
+        finished, from its velocity profile: a continuous function of time, however seldom the base is
+        ticked (the world's ``robot_at`` asks here first). None outside those motions."""
+        with self._lock:
+            for m, t_done in ((self.motion, math.inf), self._last_motion):
+                if m is None or not m.t0 <= t <= t_done:
+                    continue
+                f = 1.0 if m.duration <= 0.0 else (t - m.t0) / m.duration
+                return self._pose(m, min(f, 1.0 if m.fault_at is None else m.fault_at))
+        return None
+
     def _place(self, f: float) -> tuple[RobotPose, tuple[float, float, float]]:
         """Put truth and odometry at fraction ``f`` of the motion (linear in time)."""
         m = self.motion
         assert m is not None
-        if f >= 1.0:
-            pose, odo = m.end, m.odo_end
-        else:
-            s, e = m.start, m.end
-            pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
-                           heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
-            if m.bend_mm:  # on the bent path (arc or S), not the chord
-                a = math.radians(s.heading_deg)
-                side, dh = self.world.effects.bend_profile(f, m.bend_mm, max(m.path, 1e-9))
-                pose = replace(pose, x_mm=pose.x_mm - float(side) * math.sin(a),
-                               y_mm=pose.y_mm + float(side) * math.cos(a),
-                               heading_deg=pose.heading_deg + math.degrees(float(dh)))
-            odo = tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))  # type: ignore[assignment]
-            if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
-                pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
+        pose = self._pose(m, f)
+        odo = m.odo_end if f >= 1.0 else tuple(a + f * (b - a) for a, b in zip(m.odo_start, m.odo_end))
         self.world.set_robot(pose)
-        self.odometry = odo
-        return pose, odo
+        self.odometry = odo  # type: ignore[assignment]
+        return pose, odo  # type: ignore[return-value]
 
     def _finish(self, f: float, result: str, reason: str = "") -> None:
         """End the motion at fraction ``f``: settle (new tilt), report DONE or FAULT."""
@@ -340,6 +360,7 @@ class FakeBase:
                                                        roll_rad=float(roll), pitch_rad=float(pitch), z_mm=None)))
         self.odometry = (ox, oy, _wrap_deg(oh))
         self.travelled_mm += f * m.path
+        self._last_motion = (m, self.clock())  # pose_at answers for it up to this tick
         self.motion = None
         self._stops += 1
         self._imu_rng = self.world.rng(f"robot.imu.stop{self._stops}")

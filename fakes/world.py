@@ -26,7 +26,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -162,6 +162,9 @@ class World:
         #: recent (monotonic time, pose) of the robot, so a tracker stream sees it where it was when
         #: each record was taken, not where it is when the packet goes out (the base moves between)
         self.robot_track: deque[tuple[float, RobotPose]] = deque([(time.monotonic(), self.robot)], maxlen=2000)
+        #: the base's pose as a function of time during a motion (fakes/robot_base.py ``FakeBase.pose_at``),
+        #: asked first by robot_at: the track only holds the poses the base set when it was ticked
+        self.pose_source: Callable[[float], RobotPose | None] | None = None
 
     # ------------------------------------------------------------------ randomness
 
@@ -288,7 +291,11 @@ class World:
             self.robot_track.append((time.monotonic(), pose))
 
     def robot_at(self, t: float) -> RobotPose:
-        """The robot's pose at monotonic time ``t``: linear between the poses the base set around it."""
+        """The robot's pose at monotonic time ``t``: from the base's motion when one covers ``t``
+        (:attr:`pose_source`), else linear between the poses the base set around it."""
+        source = self.pose_source
+        if source is not None and (pose := source(t)) is not None:
+            return pose
         with self.lock:
             track, now = list(self.robot_track), self.robot
         if t >= track[-1][0] or track[-1][1] is not now:  # a pose set directly (tests) is the pose now

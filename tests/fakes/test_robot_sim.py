@@ -198,3 +198,33 @@ def test_world_created_when_none_given_and_bad_options_rejected() -> None:
         SimRobot(DeviceURL.parse("sim:?time_scale=-1"))
     with pytest.raises(ValueError, match="fault_rate=2"):
         FakeBase(World(), fault_rate=2.0)
+
+
+def test_the_tracker_sees_the_pose_at_each_records_time_without_ticks() -> None:
+    """The base's pose is a function of time, not of when it was last ticked: a tracker record's time
+    during a move gives the pose of the velocity profile there (within 5 µm), and one after the move's
+    end gives the end pose although nothing ticked the base since the start (no lag at the end)."""
+    from drivers import robot_protocol as rp
+
+    world = World(WorldParams(start_pose=START))
+    base = FakeBase(world, time_scale=0.2)  # 200 mm at 100 mm/s: 0.4 s of wall time
+    base.handle_line(rp.encode("HELLO", 1, 1))
+    t_cmd = time.monotonic()
+    base.handle_line(rp.encode("MOVE", 2, 200, 100))
+    motion = base.motion
+    assert motion is not None and motion.t0 >= t_cmd
+    h = math.radians(START[2])
+    for f in (0.25, 0.5, 0.75, 1.0, 1.5):  # queried ahead of and after the motion, as a stream does
+        p = world.robot_at(motion.t0 + f * motion.duration)
+        along = 200.0 * min(f, 1.0)
+        assert math.hypot(p.x_mm - (START[0] + along * math.cos(h)),
+                          p.y_mm - (START[1] + along * math.sin(h))) < 0.005, (f, p)
+    time.sleep(motion.duration + 0.05)
+    reflector_trk = world.robot_reflector_trk_at(time.monotonic())  # the tracker's view, nothing ticked
+    end = world.abs_H_rob(RobotPose(START[0] + 200.0 * math.cos(h), START[1] + 200.0 * math.sin(h), START[2]))
+    from calibration.frames import apply_H, inv_H
+
+    expected = apply_H(inv_H(world.abs_H_trk), world.robot_reflector_abs(end))
+    assert np.linalg.norm(reflector_trk - expected) < 0.005
+    base.tick()  # the base finishes the motion: the pose stays where the profile had it
+    assert world.robot_at(time.monotonic()).x_mm == pytest.approx(START[0] + 200.0 * math.cos(h), abs=0.005)
