@@ -5,7 +5,7 @@ The path is the GenTL producer (.cti); the device is chosen by ``serial=``, by
 ``name=`` (the user-defined name, DeviceUserID) or, as a last resort, by
 ``index=`` into the producer's device list; with none of them the producer must
 offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
-4) and ``timeout`` (seconds without a frame while streaming before the camera is
+4; the settings' ``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame while streaming before the camera is
 declared lost, default 3; at least three frame periods are always allowed).
 
 Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are
@@ -291,7 +291,7 @@ class GenICamCamera(Camera):
                 raise self._no_frame("acquisition start", timeout)
             return frame
         self._start_acquisition()
-        for _ in range(self.num_buffers + 1):  # drop frames left by an earlier timed-out trigger
+        for _ in range(int(ia.num_buffers) + 1):  # drop frames left by an earlier timed-out trigger
             if self._fetch(time.monotonic() + 0.001) is None:
                 break
         nm = ia.remote_device.node_map
