@@ -230,6 +230,10 @@ class Tracker(StreamingDevice):
 # --------------------------------------------------------------------------- camera
 
 
+#: the smallest GigE packet size accepted: the IPv4 datagram size every host must be able to receive
+MIN_PACKET_BYTES = 576
+
+
 @dataclass
 class CameraSettings:
     """Desired camera settings ("daemon is master"); ``None`` leaves a feature alone."""

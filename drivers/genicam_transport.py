@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from harvesters.core import Callback
 
-from drivers.base import CameraSettings, DeviceError
+from drivers.base import MIN_PACKET_BYTES, CameraSettings, DeviceError
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node
 
 #: chunks enabled by ``chunks = true`` -> the frame header key each one fills
@@ -99,8 +99,8 @@ def _packet_size(w: SettingsWriter, stream: SettingsWriter, want: int | str) -> 
     if name is None:
         w.warn(f"camera has no GevSCPSPacketSize; packet_size={want} not applied")
         return
-    if want < 576:  # smaller packets cannot be sent over IPv4 without fragmentation rules kicking in
-        raise DeviceError(f"packet_size={want} is below 576 bytes", code="bad_setting")
+    if want < MIN_PACKET_BYTES:
+        raise DeviceError(f"packet_size={want} is below {MIN_PACKET_BYTES} bytes", code="bad_setting")
     if stream.has("StreamAutoNegotiatePacketSize"):
         stream.write("StreamAutoNegotiatePacketSize", False)  # else the producer overrides our value
     w.write(name, want)

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from daemon.bus.names import KINDS, ROLES
 from daemon.bus import station
 from daemon.ritad.registry import AdapterError, build_device, schemes
-from drivers.base import CameraSettings, DeviceURL
+from drivers.base import MIN_PACKET_BYTES, CameraSettings, DeviceURL
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -247,8 +247,8 @@ def _validate_camera(c: CameraSettings, src: str) -> None:
         raise ConfigError(f"{src}: camera.trigger {c.trigger!r} must be 'software' or 'free'")
     if isinstance(c.packet_size, str) and c.packet_size != "auto":
         raise ConfigError(f"{src}: camera.packet_size {c.packet_size!r} must be \"auto\" or a number of bytes")
-    if isinstance(c.packet_size, int) and not c.packet_size >= 576:
-        raise ConfigError(f"{src}: camera.packet_size must be >= 576 bytes, got {c.packet_size}")
+    if isinstance(c.packet_size, int) and not c.packet_size >= MIN_PACKET_BYTES:
+        raise ConfigError(f"{src}: camera.packet_size must be >= {MIN_PACKET_BYTES} bytes, got {c.packet_size}")
     if c.throughput_limit_bytes_s is not None and c.throughput_limit_bytes_s < 0:
         raise ConfigError(f"{src}: camera.throughput_limit_bytes_s must be >= 0 (0 = no limit), "
                           f"got {c.throughput_limit_bytes_s}")

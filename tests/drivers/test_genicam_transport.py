@@ -6,6 +6,7 @@ refused (by name), and that a missing node is a warning naming it.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -51,9 +52,10 @@ class Rig:
 
 def test_transport_is_written_after_the_imaging_settings_in_the_documented_order() -> None:
     rig = Rig()
-    assert rig.apply(RECOMMENDED) is True  # the fake camera can be software-triggered
+    assert rig.apply(replace(RECOMMENDED, ptp=True)) is True  # the fake camera can be software-triggered
     names = rig.written
-    assert names.index("PtpEnable" if "PtpEnable" in names else "TriggerMode") < names.index("ChunkModeActive")
+    assert names.index("ExposureTime") < names.index("TriggerMode") < names.index("PtpEnable")
+    assert names.index("PtpEnable") < names.index("ChunkModeActive")
     tail = [n for n in names if n in TRANSPORT]
     assert tail == TRANSPORT
     assert names.index("ChunkModeActive") < names.index("GevSCPSPacketSize")
@@ -156,9 +158,11 @@ def test_sfnc_packet_size_name_is_used_when_the_gev_one_is_absent() -> None:
     assert cam["DeviceStreamChannelPacketSize"] == 9000 and rig.warnings == []
 
 
-def test_bad_stream_buffer_count_is_refused() -> None:
+def test_bad_stream_buffer_count_and_tiny_packets_are_refused() -> None:
     with pytest.raises(DeviceError, match="stream_buffers=0 must be >= 1"):
         Rig().apply(CameraSettings(stream_buffers=0))
+    with pytest.raises(DeviceError, match="packet_size=500 is below 576 bytes"):
+        Rig().apply(CameraSettings(packet_size=500))
 
 
 def test_ptp_status_role_and_offset_or_unavailable() -> None:
