@@ -230,6 +230,10 @@ class Tracker(StreamingDevice):
 # --------------------------------------------------------------------------- camera
 
 
+#: the smallest GigE packet size accepted: the IPv4 datagram size every host must be able to receive
+MIN_PACKET_BYTES = 576
+
+
 @dataclass
 class CameraSettings:
     """Desired camera settings ("daemon is master"); ``None`` leaves a feature alone."""
@@ -244,6 +248,17 @@ class CameraSettings:
     frame_rate_hz: float | None = 5.0
     trigger: str = "software"  # "software" or "free"
     ptp: bool | None = None
+    #: ChunkModeActive plus the Timestamp, ExposureTime and Gain chunks (frame header: chunk_*)
+    chunks: bool | None = None
+    #: GigE transport, applied after the above in this order (docs/operations.md, "GigE link"):
+    #: GevSCPSPacketSize in bytes, or "auto" (the producer's negotiation, else the camera's maximum)
+    packet_size: int | str | None = None
+    #: DeviceLinkThroughputLimit in bytes/s; 0 switches the limit off
+    throughput_limit_bytes_s: int | None = None
+    #: the GenTL stream's StreamPacketResendEnable (a host-side feature of the producer)
+    packet_resend: bool | None = None
+    #: host buffers the GenTL stream announces (harvesters' num_buffers); None: the URL's num_buffers
+    stream_buffers: int | None = None
 
 
 #: what ritad hands an adapter to apply on open: a camera's desired settings; the other kinds get None

@@ -5,7 +5,7 @@ The path is the GenTL producer (.cti); the device is chosen by ``serial=``, by
 ``name=`` (the user-defined name, DeviceUserID) or, as a last resort, by
 ``index=`` into the producer's device list; with none of them the producer must
 offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
-4) and ``timeout`` (seconds without a frame while streaming before the camera is
+4; the settings' ``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame while streaming before the camera is
 declared lost, default 3; at least three frame periods are always allowed).
 
 Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are
@@ -13,7 +13,8 @@ decoded from the raw GenTL buffer by :mod:`drivers.pixel_formats` and carry its 
 ``trigger()`` fires TriggerSoftware (after TriggerArmed where the device has it);
 on a device without software triggers it takes the next free-run frame instead
 and says so in ``status()["warnings"]``. ``start_stream()`` switches to free run
-and ``pump()`` emits ``camera.frame``. A missing device at ``open()`` and every
+and ``pump()`` emits ``camera.frame``, and ``camera.link`` (``status()["link"]``) at most once a
+second when a link counter changed; ``status()["ptp"]`` reads the PTP state. A missing device at ``open()`` and every
 transport failure raise :class:`DeviceLost`, so the daemon's reconnect loop
 retries; an ambiguous selection or bad settings raise :class:`DeviceError`.
 
@@ -26,36 +27,24 @@ from __future__ import annotations
 
 import logging
 import math
-import signal
-import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from genicam import gentl
-from harvesters.core import Callback, Harvester, ImageAcquirer
+from harvesters.core import Harvester, ImageAcquirer
 
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
                           DeviceURL, Emit, Frame, no_emit)
-from drivers.genicam_device import decode_buffer, select_device
-from drivers.genicam_settings import SettingsWriter, apply_settings, find_node, set_trigger_mode
+from drivers.genicam_device import create_acquirer, decode_buffer, select_device
+from drivers.genicam_settings import SettingsWriter, find_node, set_trigger_mode
+from drivers.genicam_transport import IncompleteCounter, apply_all, link_stats, ptp_status, read_chunks
 
 log = logging.getLogger(__name__)
 
 _OPEN_STATUSES = (5, 6)  # DEVICE_ACCESS_STATUS_OPEN_READWRITE / _OPEN_READONLY
 _STATUS_POLL_S = 1.0
-
-
-class _Counter(Callback):
-    """harvesters callback counting INCOMPLETE_BUFFER events."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.count = 0
-
-    def emit(self, context: Any = None) -> None:
-        self.count += 1
 
 
 class GenICamCamera(Camera):
@@ -83,7 +72,7 @@ class GenICamCamera(Camera):
             raise ValueError(f"camera URL {url.raw!r}: timeout={self.timeout} must be > 0")
         self._h: Harvester | None = None
         self._ia: ImageAcquirer | None = None
-        self._incomplete = _Counter()
+        self._incomplete = IncompleteCounter()
         self._facts: dict[str, Any] = {}
         self._logged: set[str] = set()
         self._software = False
@@ -92,6 +81,7 @@ class GenICamCamera(Camera):
         self._next_status_poll = 0.0
         self._last_frame = 0.0
         self._exposure: float | None = None
+        self._last_link: dict[str, Any] = {}
         self.counters = {"opens": 0, "applies": 0, "writes": 0, "frames": 0, "timeouts": 0}
 
     # ------------------------------------------------------------------ lifecycle
@@ -111,7 +101,7 @@ class GenICamCamera(Camera):
             i = select_device(infos, self.serial, self.name, self.index)
             self._facts = {k: infos[i].get(k) for k in
                            ("serial_number", "model", "vendor", "user_defined_name", "id_", "tl_type")}
-            self._ia = self._create(i)
+            self._ia = create_acquirer(self._h, i)
             self._ia.num_buffers = self.num_buffers
             self._ia.add_callback(ImageAcquirer.Events.INCOMPLETE_BUFFER, self._incomplete)
             self._access = self._ia.device.module.access_status
@@ -128,18 +118,6 @@ class GenICamCamera(Camera):
             raise DeviceLost(f"cannot open camera {self.url.raw!r}: {type(exc).__name__}: {exc}") from exc
         self.counters["opens"] += 1
         log.info("camera %s open (%s)", self._facts.get("serial_number"), self._facts.get("model"))
-
-    def _create(self, i: int) -> ImageAcquirer:
-        assert self._h is not None
-        # harvesters installs its own SIGINT handler when created on the main thread
-        # (Ctrl-C would then destroy the acquirer instead of stopping the program).
-        on_main = threading.current_thread() is threading.main_thread()
-        previous = signal.getsignal(signal.SIGINT) if on_main else None
-        try:
-            return self._h.create(i)
-        finally:
-            if on_main and previous is not None:
-                signal.signal(signal.SIGINT, previous)
 
     def close(self) -> None:
         """Destroy the acquirer and reset the Harvester; never raises."""
@@ -181,11 +159,22 @@ class GenICamCamera(Camera):
         assert self._ia is not None
         return SettingsWriter(self._ia.remote_device.node_map, self._warn, self._applied)
 
+    def _stream_writer(self) -> SettingsWriter:
+        assert self._ia is not None
+        return SettingsWriter(self._ia.data_streams[0].node_map, self._warn, self._applied,
+                              owner="the GenTL producer's stream")
+
+    def _set_buffers(self, n: int) -> int:
+        assert self._ia is not None
+        self._ia.num_buffers = n  # allocated at the next start(); _apply runs while stopped
+        return int(self._ia.num_buffers)
+
     def _apply(self) -> None:
         self._warnings = []
         self._applied = {}
         w = self._writer()
-        self._software = apply_settings(w, self.settings or CameraSettings())
+        self._software = apply_all(w, self._stream_writer(), self.settings or CameraSettings(),
+                                   self._set_buffers)
         exposure = w.read("ExposureTime")
         self._exposure = None if exposure is None else float(exposure)
         self.counters["applies"] += 1
@@ -238,6 +227,8 @@ class GenICamCamera(Camera):
             try:  # pixels are decoded into a copy before the buffer goes back to the producer
                 pixels, fmt = decode_buffer(buf)
                 frame_id = int(buf.frame_id)
+                # chunk nodes read the held buffer's memory: only valid before the requeue
+                chunks = read_chunks(self._writer()) if self._applied.get("ChunkModeActive") else {}
                 try:
                     device_ns: int | None = int(buf.timestamp_ns)
                 except (gentl.GenericException, AttributeError):
@@ -252,8 +243,8 @@ class GenICamCamera(Camera):
         self._last_frame = time.monotonic()
         return Frame(pixels=pixels, frame_id=frame_id, pixel_format=fmt,
                      camera_serial=str(self._facts.get("serial_number")),
-                     exposure_us=self._exposure, device_time_ns=device_ns,
-                     incomplete_count=self._incomplete.count)
+                     exposure_us=chunks.get("chunk_exposure_us", self._exposure), device_time_ns=device_ns,
+                     incomplete_count=self._incomplete.count, extra=chunks)
 
     def _check_access(self, force: bool = False) -> None:
         """Poll the device's access status (about once a second); a change means loss."""
@@ -300,7 +291,7 @@ class GenICamCamera(Camera):
                 raise self._no_frame("acquisition start", timeout)
             return frame
         self._start_acquisition()
-        for _ in range(self.num_buffers + 1):  # drop frames left by an earlier timed-out trigger
+        for _ in range(int(ia.num_buffers) + 1):  # drop frames left by an earlier timed-out trigger
             if self._fetch(time.monotonic() + 0.001) is None:
                 break
         nm = ia.remote_device.node_map
@@ -366,6 +357,8 @@ class GenICamCamera(Camera):
             if frame is None:
                 break
             self.emit("camera.frame", frame)
+        if time.monotonic() >= self._next_status_poll:  # the same once-a-second pace as the access poll
+            self._publish_link()
         self._check_access()
         stalled = time.monotonic() - self._last_frame
         if stalled > self._stall_limit():
@@ -376,6 +369,15 @@ class GenICamCamera(Camera):
 
     def info(self) -> dict[str, Any]:
         return {"url": self.url.raw, "producer": self.cti, **self._facts}
+
+    def _link(self) -> dict[str, Any]:
+        return link_stats(self._stream_writer(), {"incomplete_frames": self._incomplete.count})
+
+    def _publish_link(self) -> None:
+        link = self._link()
+        if link != self._last_link and self._last_link:  # the first reading is the baseline
+            self.emit("camera.link", {"serial": self._facts.get("serial_number"), **link})
+        self._last_link = link
 
     def status(self) -> dict[str, Any]:
         return {
@@ -388,5 +390,7 @@ class GenICamCamera(Camera):
             "applied": dict(self._applied),
             "warnings": list(self._warnings),
             "incomplete_count": self._incomplete.count,
+            "link": self._link() if self._ia is not None else None,
+            "ptp": ptp_status(self._writer()) if self._ia is not None else {"available": False},
             **self.counters,
         }

@@ -7,9 +7,12 @@ GenTL buffer only needs ``pixel_format`` (PFNC code), ``width``, ``height``,
 """
 from __future__ import annotations
 
+import signal
+import threading
 from typing import Any
 
 import numpy as np
+from harvesters.core import Harvester, ImageAcquirer
 
 from drivers import pixel_formats
 from drivers.base import DeviceError, DeviceLost
@@ -74,3 +77,18 @@ def decode_buffer(buf: Any) -> tuple[np.ndarray, str]:
         return pixel_formats.decode(memoryview(raw)[:max(filled, 0)], fmt.name, w, h, pad, offset), fmt.name
     except ValueError as exc:
         raise DeviceError(f"camera buffer: {exc}", code="bad_buffer") from None
+
+
+def create_acquirer(h: Harvester, i: int) -> ImageAcquirer:
+    """``h.create(i)`` without letting harvesters keep its own SIGINT handler.
+
+    harvesters installs one when created on the main thread (Ctrl-C would then destroy the
+    acquirer instead of stopping the program).
+    """
+    on_main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGINT) if on_main else None
+    try:
+        return h.create(i)
+    finally:
+        if on_main and previous is not None:
+            signal.signal(signal.SIGINT, previous)

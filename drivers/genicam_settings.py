@@ -2,7 +2,9 @@
 
 The order is PixelFormat, Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
 AcquisitionFrameRateEnable/AcquisitionFrameRate, TriggerSelector/TriggerMode/
-TriggerSource, PtpEnable. Pixel format comes first because it changes the ranges
+TriggerSource, PtpEnable, then chunk data and the GigE transport (packet size,
+throughput limit, packet resend, stream buffers; :mod:`drivers.genicam_transport`,
+whose :func:`~drivers.genicam_transport.apply_all` runs the whole sequence). Pixel format comes first because it changes the ranges
 of the geometry features; geometry comes before exposure and frame rate because
 the maximum frame rate depends on the region of interest.
 
@@ -74,6 +76,8 @@ class SettingsWriter:
     warn: Warn
     applied: dict[str, Any] = field(default_factory=dict)
     writes: int = 0
+    #: who lacks a feature, in warnings: the camera, or the GenTL producer's data stream
+    owner: str = "camera"
 
     def read(self, name: str) -> Any | None:
         """Current value of a readable feature, or None."""
@@ -93,11 +97,11 @@ class SettingsWriter:
         node = find_node(self.nm, name)
         if node is None:
             if not quiet:
-                self.warn(f"camera has no {name}; {name}={value!r} not applied")
+                self.warn(f"{self.owner} has no {name}; {name}={value!r} not applied")
             return False
         if node.get_access_mode() != _RW:
             if not quiet:
-                self.warn(f"camera's {name} is not writable now (access mode "
+                self.warn(f"{self.owner}'s {name} is not writable now (access mode "
                           f"{node.get_access_mode()}); {name}={value!r} not applied")
             return False
         kind = _kind(node)

@@ -18,6 +18,11 @@ URL ``sim:`` with options:
   seeded point down are zero, ``incomplete_count`` goes up), and
   ``disconnect_after=N`` raises DeviceLost once a connection has delivered N
   frames; ``close()`` + ``open()`` connects again and re-applies the settings.
+* GigE link (:mod:`fakes.gige_link`'s model, counted in ``status()["link"]``):
+  ``packet_loss=P`` is the per-packet loss chance at line rate (default 0: a perfect link;
+  a throughput limit below 95 % of the link cuts it tenfold), ``path_mtu=N`` the largest
+  packet the path passes (default 9000; 1500 = a NIC without jumbo frames). A frame the link
+  leaves incomplete is delivered like an ``incomplete_every`` one.
 
 How it differs from the real PHX122S: images come from :class:`fakes.render.Renderer`
 (planar world, Gaussian noise); exposure and gain only scale the rendered
@@ -28,7 +33,9 @@ and one render may overrun ``pump``'s timeout; one camera offers both sensor
 profiles of the family, :data:`PIXEL_FORMATS` (the configured PixelFormat picks the
 mono or the RGGB Bayer colour sensor, :mod:`fakes.colour`; frames are packed into the
 format's wire layout and decoded by :mod:`drivers.pixel_formats`, like a GenICam
-camera's); Bayer ROIs need even offsets; no PTP, chunks or events; the frame is
+camera's); Bayer ROIs need even offsets; no PTP or events (``status()["ptp"]`` says
+unavailable); with ``chunks`` on, the header's chunk values are the applied exposure and gain
+and the device timestamp; the frame is
 rendered at the pose the robot has when it is produced (no exposure time, no
 rolling shutter); device timestamps are the host's monotonic clock; frame ids
 run on across reconnects instead of restarting. Width/Height/OffsetX/OffsetY
@@ -50,6 +57,7 @@ from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, Devic
                           Emit, Frame, no_emit)
 from drivers import pixel_formats
 from fakes.colour import ColourRenderer, sensor_image
+from fakes.gige_link import GigELink, LinkSettings, sim_transport
 from fakes.render import Renderer
 from fakes import worlds
 from fakes.world import World
@@ -104,7 +112,7 @@ class SimCamera(Camera):
     """Renders the simulated world at the robot's pose; see the module docstring."""
 
     OPTIONS = frozenset({"size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
-                         "disconnect_after", worlds.OPTION})
+                         "disconnect_after", "packet_loss", "path_mtu", worlds.OPTION})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
@@ -123,6 +131,17 @@ class SimCamera(Camera):
         self.drop_every = _count(url, "drop_every")
         self.incomplete_every = _count(url, "incomplete_every")
         self.disconnect_after = _count(url, "disconnect_after")
+        loss = url.option("packet_loss", 0.0, float)
+        if not 0.0 <= loss < 1.0:
+            raise ValueError(f"camera URL {url.raw!r}: packet_loss={loss} must be in [0, 1)")
+        self.path_mtu: int = url.option("path_mtu", 9000, int)
+        if self.path_mtu < 576:
+            raise ValueError(f"camera URL {url.raw!r}: path_mtu={self.path_mtu} must be >= 576")
+        self.link = GigELink(self.world.rng("camera.link"), path_mtu=self.path_mtu,
+                             loss_at_line_rate=loss, loss_limited=loss / 10)
+        self._link_settings = LinkSettings()
+        self._next_link = 0.0
+        self._last_link: dict[str, Any] = self.link.stats()
         self._rng = self.world.rng("camera.noise")
         self._cut_rng = self.world.rng("camera.incomplete")
         self._renderer: Renderer | None = None
@@ -189,12 +208,13 @@ class SimCamera(Camera):
             raise DeviceError(f"frame rate {rate!r} must be > 0", code="bad_setting")
         if s.ptp is not None:
             warnings.append(f"camera has no PtpEnable; PtpEnable={s.ptp!r} not applied")
+        self._link_settings, transport = sim_transport(s, self.path_mtu, warnings)
         if fmt != self._applied.get("PixelFormat"):
             self._prerendered = []  # rendered in the previous format
         self._renderer = renderer_for(self.world, self.size, pixel_formats.lookup(fmt).colour)
         self._applied = {"PixelFormat": fmt, "Width": w, "Height": h, "OffsetX": ox, "OffsetY": oy,
                          "ExposureTime": exposure, "Gain": gain_db, "AcquisitionFrameRate": rate,
-                         "TriggerMode": "On" if s.trigger == "software" else "Off"}
+                         "TriggerMode": "On" if s.trigger == "software" else "Off", **transport}
         self._roi = (slice(oy, oy + h), slice(ox, ox + w))
         self._factor = exposure / NOMINAL_EXPOSURE_US * 10.0 ** (gain_db / 20.0)
         self._warnings = warnings
@@ -239,7 +259,11 @@ class SimCamera(Camera):
             img = self._render()
         img = self._deliver(img[self._roi])
         extra: dict[str, Any] = {"sim": True, "sim_abs_H_cam": pose.tolist()}
-        if self.incomplete_every and n % self.incomplete_every == 0:
+        if self._applied.get("ChunkModeActive"):
+            extra.update(chunk_timestamp_ns=t_mono, chunk_exposure_us=self._applied["ExposureTime"],
+                         chunk_gain_db=self._applied["Gain"])
+        complete, _ = self.link.send(img.nbytes, self._link_settings)
+        if not complete or (self.incomplete_every and n % self.incomplete_every == 0):
             cut = int(self._cut_rng.integers(1, max(2, img.shape[0])))
             img[cut:] = 0  # the packets of the lower rows never arrived
             self.counters["incomplete"] += 1
@@ -296,11 +320,19 @@ class SimCamera(Camera):
                 frame = self._produce()
                 if frame is not None:
                     self.emit("camera.frame", frame)
+                self._publish_link(now)
                 continue
             if now >= deadline:
                 return
             wake = min(self._next_due, deadline) if self._streaming else deadline
             time.sleep(max(0.0, wake - now))
+
+    def _publish_link(self, now: float) -> None:
+        """``camera.link`` at most once a second, when a link counter changed (as the GenICam adapter)."""
+        stats = self.link.stats()
+        if now >= self._next_link and stats != self._last_link:
+            self._next_link, self._last_link = now + 1.0, stats
+            self.emit("camera.link", {"serial": self.serial, **stats})
 
     # ------------------------------------------------------------------ reporting
 
@@ -320,5 +352,7 @@ class SimCamera(Camera):
             "applied": dict(self._applied),
             "warnings": list(self._warnings),
             "incomplete_count": self.counters["incomplete"],
+            "link": self.link.stats(),
+            "ptp": {"available": False},
             **self.counters,
         }

@@ -45,6 +45,7 @@ class Topic(StrEnum):
     ROBOT_LATCH = "robot.latch"
     ROBOT_REFUSED = "robot.refused"
     CAMERA_FRAME = "camera.frame"
+    CAMERA_LINK = "camera.link"
     CALIB_PROGRESS = "calib.progress"
     CALIB_PROMPT = "calib.prompt"
     CALIB_RESULT = "calib.result"

@@ -40,6 +40,7 @@ class LiveStatus:
     fps: float | None = None
     job: dict[str, Any] | None = None
     latch: dict[str, Any] = field(default_factory=dict)
+    link: dict[str, Any] = field(default_factory=dict)  # the last camera.link
     _frames: tuple[float, int] | None = None  # (uptime_s, frames sent) of the last health message
 
     def update(self, topic: str, d: dict[str, Any]) -> str | None:
@@ -69,6 +70,8 @@ class LiveStatus:
             return self._calib(topic, d)
         elif topic == "log":
             return f"{d.get('level')}: {d.get('message')}"
+        elif topic == "camera.link":
+            self.link = d
         return None
 
     def _health(self, d: dict[str, Any]) -> None:
@@ -111,6 +114,10 @@ class LiveStatus:
         rob = (f"{r.get('state', '?')} x {_fmt(r.get('x_mm'))} y {_fmt(r.get('y_mm'))} "
                f"hdg {_fmt(r.get('heading_deg'))}° {tilt}") if r else "no state yet"
         cam = f"{self.fps:.1f} fps" if self.fps is not None else "? fps"
+        if self.link:  # only sent once a link counter moved: a struggling link
+            cam += (f" link: {_fmt(self.link.get('incomplete_frames'), 'd')} incomplete, "
+                    f"{_fmt(self.link.get('lost_packets'), 'd')} packets lost, "
+                    f"{_fmt(self.link.get('resend_requests'), 'd')} resends")
         stop = " STOP LATCHED" if self.latch.get("latched") else ""
         parts = [f"tracker {dev.get('tracker', '?')} {self.lock} {trk}", f"robot {dev.get('robot', '?')}{stop} {rob}",
                  f"camera {dev.get('camera', '?')} {cam}"]

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from daemon.bus.names import KINDS, ROLES
 from daemon.bus import station
 from daemon.ritad.registry import AdapterError, build_device, schemes
-from drivers.base import CameraSettings, DeviceURL
+from drivers.base import MIN_PACKET_BYTES, CameraSettings, DeviceURL
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -233,13 +233,27 @@ def _validate(cfg: Config) -> None:
                           f"daemon.reconnect_min_s ({d.reconnect_min_s})")
     if d.log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError(f"{src}: daemon.log_level {d.log_level!r} is not DEBUG/INFO/WARNING/ERROR")
-    if cfg.camera.trigger not in ("software", "free"):
-        raise ConfigError(f"{src}: camera.trigger {cfg.camera.trigger!r} must be 'software' or 'free'")
+    _validate_camera(cfg.camera, src)
     if cfg.tracker.abs_H_trk is not None:
         try:
             cfg.tracker.abs_H_trk = station.checked(cfg.tracker.abs_H_trk, "tracker.abs_H_trk")
         except station.StationError as exc:
             raise ConfigError(f"{src}: {exc}") from None
+
+
+def _validate_camera(c: CameraSettings, src: str) -> None:
+    """The [camera] values a device cannot judge (its ranges are checked when it opens)."""
+    if c.trigger not in ("software", "free"):
+        raise ConfigError(f"{src}: camera.trigger {c.trigger!r} must be 'software' or 'free'")
+    if isinstance(c.packet_size, str) and c.packet_size != "auto":
+        raise ConfigError(f"{src}: camera.packet_size {c.packet_size!r} must be \"auto\" or a number of bytes")
+    if isinstance(c.packet_size, int) and not c.packet_size >= MIN_PACKET_BYTES:
+        raise ConfigError(f"{src}: camera.packet_size must be >= {MIN_PACKET_BYTES} bytes, got {c.packet_size}")
+    if c.throughput_limit_bytes_s is not None and c.throughput_limit_bytes_s < 0:
+        raise ConfigError(f"{src}: camera.throughput_limit_bytes_s must be >= 0 (0 = no limit), "
+                          f"got {c.throughput_limit_bytes_s}")
+    if c.stream_buffers is not None and c.stream_buffers < 1:
+        raise ConfigError(f"{src}: camera.stream_buffers must be >= 1, got {c.stream_buffers}")
 
 
 def check_devices(cfg: Config) -> list[str]:

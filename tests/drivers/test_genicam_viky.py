@@ -36,9 +36,15 @@ def _viky() -> str:
 VIKY = _viky()
 
 
+LINK: list[dict[str, Any]] = []  # camera.link messages of the camera under test
+
+
 def make(query: str = "serial=1", settings: CameraSettings | None = None,
          sink: list[Frame] | None = None) -> GenICamCamera:
     def emit(topic: str, payload: Any) -> None:
+        if topic == "camera.link":
+            LINK.append(payload)  # type: ignore[arg-type]
+            return
         assert topic == "camera.frame"
         if sink is not None:
             sink.append(payload)
@@ -340,9 +346,34 @@ def test_incomplete_buffer_callback_is_counted(cam: GenICamCamera, frames: list[
 
     cam._ia._emit_callbacks(ImageAcquirer.Events.INCOMPLETE_BUFFER)  # type: ignore[union-attr]
     assert cam.status()["incomplete_count"] == 1
+    # viky's stream has no link counters: the incomplete frames are the adapter's count
+    link = cam.status()["link"]
+    assert link["incomplete_frames"] == 1 and link["source"]["incomplete_frames"] == "adapter"
+    assert link["resend_requests"] is None and link["source"]["resend_requests"] is None
     cam.start_stream()
     pump_until(cam, frames, 1)
     assert frames[0].incomplete_count == 1
+    LINK.clear()
+    cam._next_status_poll = 0.0  # the link is read at the access poll's once-a-second pace
+    cam.pump(0.05)
+    cam._ia._emit_callbacks(ImageAcquirer.Events.INCOMPLETE_BUFFER)  # type: ignore[union-attr]
+    cam._next_status_poll = 0.0
+    cam.pump(0.05)
+    assert [m["incomplete_frames"] for m in LINK] == [2]
+
+
+def test_viky_reports_ptp_unavailable_and_missing_transport_nodes(cam: GenICamCamera) -> None:
+    assert cam.status()["ptp"] == {"available": False}
+    cam.configure(CameraSettings(pixel_format="Mono8", exposure_us=None, gain_db=None, frame_rate_hz=None,
+                                 trigger="free", packet_size=9000, throughput_limit_bytes_s=100_000_000,
+                                 packet_resend=True, stream_buffers=6, chunks=False))
+    warnings = cam.status()["warnings"]
+    assert "camera has no GevSCPSPacketSize; packet_size=9000 not applied" in warnings
+    assert "camera has no DeviceLinkThroughputLimit; throughput_limit_bytes_s=100000000 not applied" in warnings
+    assert ("the GenTL producer's stream has no StreamPacketResendEnable; StreamPacketResendEnable=True "
+            "not applied") in warnings
+    assert cam.status()["applied"]["StreamBufferCount"] == 6
+    assert cam.status()["applied"]["ChunkModeActive"] is False  # viky has chunk mode on by default
 
 
 def test_access_status_change_is_device_lost(cam: GenICamCamera) -> None:

@@ -60,6 +60,16 @@ class Tty(io.StringIO):
         return True
 
 
+def test_status_line_shows_a_struggling_camera_link() -> None:
+    s = LiveStatus()
+    assert "link" not in s.line()
+    s.update("camera.link", {"serial": "X", "resend_requests": 40, "lost_packets": 3, "incomplete_frames": 2,
+                             "lost_frames": None, "source": {}})
+    assert "link: 2 incomplete, 3 packets lost, 40 resends" in s.line()
+    s.update("camera.link", {"resend_requests": None, "lost_packets": 1, "incomplete_frames": 2})
+    assert "link: 2 incomplete, 1 packets lost, ? resends" in s.line()
+
+
 def test_screen_redraws_in_place_on_a_tty_and_prints_changes_otherwise(monkeypatch) -> None:
     out = io.StringIO()
     scr = Screen(out, tty=False)

@@ -1,0 +1,193 @@
+"""Chunks, GigE transport, PTP status and link statistics against the fake GenApi node maps.
+
+The fake (fakes/genicam_nodes.py) logs every write in order, so these tests check the
+documented order, that a value already in place is not written again, what is clamped or
+refused (by name), and that a missing node is a warning naming it.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import pytest
+
+from drivers.base import CameraSettings, DeviceError
+from drivers.genicam_settings import SettingsWriter
+from drivers.genicam_transport import apply_all, link_stats, ptp_status, read_chunks
+from fakes.genicam_nodes import FakeNodeMap, camera_node_map, stream_node_map
+
+pytestmark = pytest.mark.timeout(30)
+
+RECOMMENDED = CameraSettings(chunks=True, packet_size=9000, throughput_limit_bytes_s=110_000_000,
+                             packet_resend=True, stream_buffers=8)
+TRANSPORT = ["GevSCPSPacketSize", "DeviceLinkThroughputLimitMode", "DeviceLinkThroughputLimit",
+             "StreamPacketResendEnable", "num_buffers"]
+
+
+class Rig:
+    """A camera and a stream node map sharing one write log, plus a buffer-count hook."""
+
+    def __init__(self, cam: FakeNodeMap | None = None, stream: FakeNodeMap | None = None) -> None:
+        self.cam = cam or camera_node_map()
+        self.stream = stream or stream_node_map()
+        self.stream.log = self.cam.log
+        self.warnings: list[str] = []
+        self.applied: dict[str, Any] = {}
+        self.buffers = 4
+
+    def set_buffers(self, n: int) -> int:
+        self.cam.log.append(("num_buffers", n))
+        self.buffers = n
+        return n
+
+    def apply(self, s: CameraSettings) -> bool:
+        w = SettingsWriter(self.cam, self.warnings.append, self.applied)
+        st = SettingsWriter(self.stream, self.warnings.append, self.applied, owner="the GenTL producer's stream")
+        return apply_all(w, st, s, self.set_buffers)
+
+    @property
+    def written(self) -> list[str]:
+        return [name for name, _ in self.cam.log]
+
+
+def test_transport_is_written_after_the_imaging_settings_in_the_documented_order() -> None:
+    rig = Rig()
+    assert rig.apply(replace(RECOMMENDED, ptp=True)) is True  # the fake camera can be software-triggered
+    names = rig.written
+    assert names.index("ExposureTime") < names.index("TriggerMode") < names.index("PtpEnable")
+    assert names.index("PtpEnable") < names.index("ChunkModeActive")
+    tail = [n for n in names if n in TRANSPORT]
+    assert tail == TRANSPORT
+    assert names.index("ChunkModeActive") < names.index("GevSCPSPacketSize")
+    assert names[-5:] == TRANSPORT  # nothing after the transport
+    assert rig.warnings == []
+    assert (rig.cam["GevSCPSPacketSize"], rig.cam["DeviceLinkThroughputLimitMode"],
+            rig.cam["DeviceLinkThroughputLimit"], rig.stream["StreamPacketResendEnable"],
+            rig.buffers) == (9000, "On", 110_000_000, True, 8)
+    assert rig.applied["StreamBufferCount"] == 8
+    assert rig.applied["GevSCPSPacketSize"] == 9000
+
+
+def test_unchanged_transport_values_are_not_written_again() -> None:
+    rig = Rig()
+    rig.apply(RECOMMENDED)
+    rig.cam.log.clear()
+    rig.apply(RECOMMENDED)
+    # the buffer count is host memory, not a device write: it is set at every apply; the chunk
+    # selector must move to reach each chunk's enable (a selector write changes no state)
+    assert [n for n in rig.written if n != "ChunkSelector"] == ["num_buffers"]
+
+
+def test_chunks_enable_each_offered_chunk_and_the_values_are_read() -> None:
+    rig = Rig()
+    rig.apply(CameraSettings(chunks=True))
+    for chunk in ("Timestamp", "ExposureTime", "Gain"):
+        assert rig.applied[f"ChunkEnable[{chunk}]"] is True
+    w = SettingsWriter(rig.cam, rig.warnings.append)
+    assert read_chunks(w) == {"chunk_timestamp_ns": 1_000_000_123, "chunk_exposure_us": 2000.0,
+                              "chunk_gain_db": 0.0}
+    rig.apply(CameraSettings(chunks=False))
+    assert read_chunks(w) == {}  # chunk nodes are not available without chunk mode
+
+
+def test_a_chunk_the_camera_lacks_is_a_warning_naming_it() -> None:
+    cam = camera_node_map()
+    cam.nodes["ChunkSelector"].symbolics = ("Timestamp", "Width")
+    rig = Rig(cam)
+    rig.apply(CameraSettings(chunks=True))
+    assert rig.warnings == ["camera has no ChunkSelector 'ExposureTime'; the ExposureTime chunk is not enabled",
+                            "camera has no ChunkSelector 'Gain'; the Gain chunk is not enabled"]
+    assert read_chunks(SettingsWriter(cam, rig.warnings.append)) == {"chunk_timestamp_ns": 1_000_000_123}
+
+
+def test_auto_packet_size_uses_the_producers_negotiation() -> None:
+    rig = Rig()
+    rig.apply(CameraSettings(packet_size="auto"))
+    assert rig.stream["StreamAutoNegotiatePacketSize"] is True
+    assert "GevSCPSPacketSize" not in rig.written  # the producer negotiates at stream start
+    rig.apply(CameraSettings(packet_size=8192))  # an explicit size switches the negotiation off
+    assert rig.stream["StreamAutoNegotiatePacketSize"] is False and rig.cam["GevSCPSPacketSize"] == 8192
+
+
+def test_auto_packet_size_without_negotiation_takes_the_camera_maximum_and_says_so() -> None:
+    rig = Rig(camera_node_map(packet_max=8999), stream_node_map(without=("StreamAutoNegotiatePacketSize",)))
+    rig.apply(CameraSettings(packet_size="auto"))
+    assert rig.cam["GevSCPSPacketSize"] == 8996  # on the node's 4-byte grid from 576
+    assert len(rig.warnings) == 1 and "GevSCPSPacketSize=8996" in rig.warnings[0]
+    assert "jumbo frames" in rig.warnings[0]
+
+
+def test_packet_size_outside_the_range_is_refused_by_name() -> None:
+    with pytest.raises(DeviceError, match=r"GevSCPSPacketSize=16000 is outside the camera's range 576\.\.9000"):
+        Rig().apply(CameraSettings(packet_size=16000))
+    with pytest.raises(DeviceError, match=r"packet_size='big' is not 'auto'"):
+        Rig().apply(CameraSettings(packet_size="big"))
+
+
+def test_throughput_limit_is_clamped_with_a_warning_and_zero_switches_it_off() -> None:
+    rig = Rig()
+    rig.apply(CameraSettings(throughput_limit_bytes_s=200_000_000))
+    assert rig.cam["DeviceLinkThroughputLimit"] == 125_000_000
+    assert rig.warnings == ["DeviceLinkThroughputLimit=200000000 is outside the camera's range "
+                            "31250000..125000000; using 125000000"]
+    rig.apply(CameraSettings(throughput_limit_bytes_s=0))
+    assert rig.cam["DeviceLinkThroughputLimitMode"] == "Off"
+    with pytest.raises(DeviceError, match="throughput_limit_bytes_s=-5"):
+        rig.apply(CameraSettings(throughput_limit_bytes_s=-5))
+
+
+def test_missing_transport_nodes_are_reported_by_name_and_the_rest_applies() -> None:
+    cam = camera_node_map(without=("GevSCPSPacketSize", "DeviceLinkThroughputLimitMode",
+                                   "DeviceLinkThroughputLimit"))
+    rig = Rig(cam, stream_node_map(without=("StreamPacketResendEnable",)))
+    rig.apply(RECOMMENDED)
+    assert "camera has no GevSCPSPacketSize; packet_size=9000 not applied" in rig.warnings
+    assert ("camera has no DeviceLinkThroughputLimit; throughput_limit_bytes_s=110000000 not applied"
+            in rig.warnings)
+    assert ("the GenTL producer's stream has no StreamPacketResendEnable; StreamPacketResendEnable=True "
+            "not applied" in rig.warnings)
+    assert rig.buffers == 8  # the buffer count still applies
+
+
+def test_sfnc_packet_size_name_is_used_when_the_gev_one_is_absent() -> None:
+    from fakes.genicam_nodes import INT, FakeNode
+    cam = camera_node_map(without=("GevSCPSPacketSize",))
+    cam.add(FakeNode("DeviceStreamChannelPacketSize", INT, 1500, 576, 9000, 4))
+    rig = Rig(cam)
+    rig.apply(CameraSettings(packet_size=9000))
+    assert cam["DeviceStreamChannelPacketSize"] == 9000 and rig.warnings == []
+
+
+def test_bad_stream_buffer_count_and_tiny_packets_are_refused() -> None:
+    with pytest.raises(DeviceError, match="stream_buffers=0 must be >= 1"):
+        Rig().apply(CameraSettings(stream_buffers=0))
+    with pytest.raises(DeviceError, match="packet_size=500 is below 576 bytes"):
+        Rig().apply(CameraSettings(packet_size=500))
+
+
+def test_ptp_status_role_and_offset_or_unavailable() -> None:
+    rig = Rig()
+    w = SettingsWriter(rig.cam, rig.warnings.append)
+    assert ptp_status(w) == {"available": True, "enabled": False, "status": "Disabled",
+                             "offset_from_master_ns": None}
+    rig.apply(CameraSettings(ptp=True))
+    assert ptp_status(w) == {"available": True, "enabled": True, "status": "Slave",
+                             "offset_from_master_ns": -42}
+    assert rig.cam.log[-1] == ("PtpDataSetLatch", "execute")
+    bare = camera_node_map(without=("PtpEnable", "PtpStatus", "PtpOffsetFromMaster", "PtpDataSetLatch"))
+    assert ptp_status(SettingsWriter(bare, rig.warnings.append)) == {"available": False}
+
+
+def test_link_statistics_from_the_stream_else_the_adapters_counts() -> None:
+    counts = {"StreamResendRequestCount": 12, "StreamLostPacketCount": 3, "StreamIncompleteFrameCount": 2}
+    st = SettingsWriter(stream_node_map(counters=counts), lambda m: None)
+    stats = link_stats(st, {"incomplete_frames": 7})
+    assert (stats["resend_requests"], stats["lost_packets"], stats["incomplete_frames"],
+            stats["lost_frames"]) == (12, 3, 2, 0)
+    assert stats["source"]["incomplete_frames"] == "StreamIncompleteFrameCount"
+    counts["StreamLostPacketCount"] = 5  # counters are read live
+    assert link_stats(st, {})["lost_packets"] == 5
+    bare = SettingsWriter(FakeNodeMap(), lambda m: None)
+    stats = link_stats(bare, {"incomplete_frames": 7})
+    assert stats["incomplete_frames"] == 7 and stats["source"]["incomplete_frames"] == "adapter"
+    assert stats["resend_requests"] is None and stats["source"]["resend_requests"] is None
