@@ -10,23 +10,27 @@ per bin of device time (``bin_s``, a min-filter), the bins older than ``window_s
 line is the lower envelope of the bins (their lower convex hull) chosen as TICSync and the
 linear-programming skew estimators do: the line under every point that is highest at the
 samples' mean device time, i.e. the hull edge spanning it. Its slope is the drift; a fit with
-fewer than ``MIN_DRIFT_BINS`` bins takes no drift (the lowest point's offset) and states the
-drift prior ``prior_drift_ppm`` in its sigma instead. Delayed packets lie above the line and
+fewer than ``MIN_DRIFT_BINS`` bins, or whose slope is known no better than the drift prior
+``prior_drift_ppm``, takes no drift (the lowest point's offset) and states the prior in its
+sigma instead. Delayed packets lie above the line and
 move nothing; only a message stamped *early* (a clock fault) could pull it down.
 
 Sigma. The fitted line sits above the truth by about the least latency among the bins near
 the hull's contacts. Where the latency's density at its floor is f, the bins' residuals
 above the line grow like rank/(n·f), so the k-th smallest residual over k (k =
 ``K_ORDER``) measures the spacing at the floor; ``ENVELOPE_SIGMA_SCALE`` times that is the
-envelope's sigma at the samples' centre, growing along the slope's uncertainty away from it
-(``sqrt(1 + ((d − centre)/half span)²)``, so an extrapolation says how far it reaches). With
-fewer than ``MIN_DRIFT_BINS`` bins the latency cannot be read from the data: the sigma is
-``prior_latency_ns``/n. The device time's resolution adds ``resolution_ns``/√12.
+envelope's sigma at the samples' centre. With fewer than 2·``K_ORDER`` bins it is at least
+``prior_latency_ns``/n (with fewer than ``MIN_DRIFT_BINS``, exactly that: the latency cannot
+be read from so few). Away from the centre the sigma grows with the slope's uncertainty:
+the lowest residual of each of ``SEGMENTS`` stretches of the window, fitted by least squares,
+gives the slope's error (its slope and standard error) and how far the envelope may sit
+above the truth at the window's ends (their RMS per half span), so an extrapolation says
+how far it reaches. The device time's resolution adds ``resolution_ns``/√12.
 
 Exchanges (``add(device_ns, host_rx_ns, host_tx_ns)``: the host asked at ``host_tx_ns``) bound
 the event from both sides: ``host_tx_ns ≤ T(d) ≤ host_rx_ns``. The receive side's lower
 envelope and the send side's upper envelope are fitted alike; the mapping is their middle
-and the sigma adds half their gap (as a uniform spread, gap/√12). A map with exchanges in its
+and the sigma adds their gap as a uniform spread (gap/√12). A map with exchanges in its
 window uses only those.
 
 What one-way samples cannot see: the latency's fixed part (cable, driver, the device's own
@@ -70,7 +74,7 @@ class _Line:
     sigma: float        # at the samples' centre
     slope_sigma: float  # the slope's (the drift prior when no drift was fitted)
     centre: float       # device ns relative to x0
-    n: int
+    drift_fitted: bool
     edge_per_ns: float = 0.0  # the segments' RMS per half span: growth of sigma toward the ends
 
     def at(self, x: int) -> float:
@@ -166,7 +170,7 @@ def _fit_lower(bins: deque[list[int]], prior_latency_ns: float, prior_drift: flo
     n = len(xs)
     centre = sum(xs) / n
     if n < MIN_DRIFT_BINS:
-        return _Line(x0, y0, min(ys), 0.0, prior_latency_ns / n, prior_drift, centre, n)
+        return _Line(x0, y0, min(ys), 0.0, prior_latency_ns / n, prior_drift, centre, False)
     hull = _lower_hull(xs, ys)
     b = 0.0
     for j, k in zip(hull, hull[1:]):
@@ -180,9 +184,10 @@ def _fit_lower(bins: deque[list[int]], prior_latency_ns: float, prior_drift: flo
     slope = _slope_sigma(xs, res)
     if slope is None or slope[0] > prior_drift:  # the window cannot tell the drift yet
         a = min(ys)
-        return _Line(x0, y0, a, 0.0, _envelope_sigma([y - a for y in ys], prior_latency_ns), prior_drift, centre, n)
+        return _Line(x0, y0, a, 0.0, _envelope_sigma([y - a for y in ys], prior_latency_ns), prior_drift, centre,
+                     False)
     half_span = max(xs[-1] - centre, centre - xs[0], 1.0)
-    return _Line(x0, y0, a, b, _envelope_sigma(res, prior_latency_ns), slope[0], centre, n, slope[1] / half_span)
+    return _Line(x0, y0, a, b, _envelope_sigma(res, prior_latency_ns), slope[0], centre, True, slope[1] / half_span)
 
 
 class ClockMap:
@@ -191,7 +196,8 @@ class ClockMap:
     def __init__(self, window_s: float = DEFAULT_WINDOW_S, bin_s: float = DEFAULT_BIN_S,
                  prior_latency_ns: float = 5e6, prior_drift_ppm: float = 100.0,
                  resolution_ns: float = 1.0, min_latency_ns: int = 0) -> None:
-        for name, v in (("window_s", window_s), ("bin_s", bin_s), ("prior_latency_ns", prior_latency_ns)):
+        for name, v in (("window_s", window_s), ("bin_s", bin_s), ("prior_latency_ns", prior_latency_ns),
+                        ("prior_drift_ppm", prior_drift_ppm), ("resolution_ns", resolution_ns)):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
         if not bin_s < window_s:
@@ -200,6 +206,7 @@ class ClockMap:
         self.prior_latency_ns, self.prior_drift = float(prior_latency_ns), prior_drift_ppm * 1e-6
         self.floor_ns = resolution_ns / math.sqrt(12.0)
         self.min_latency_ns = int(min_latency_ns)
+        self.resets = 0  # restarts of the device clock seen
         self.reset()
 
     def reset(self) -> None:
@@ -209,7 +216,6 @@ class ClockMap:
         self._rx_ex = _Bins(self.bin_ns, self.window_ns)  # receive side of exchanges
         self._newest: int | None = None
         self._fit: tuple[_Line | None, _Line | None] | None = None
-        self.resets = 0
 
     def add(self, device_ns: int, host_rx_ns: int, host_tx_ns: int | None = None) -> None:
         """One sample: the device's time of an event and when the host received it (and, for an
@@ -239,9 +245,6 @@ class ClockMap:
                 self._fit = (_fit_lower(self._rx.bins, self.prior_latency_ns, self.prior_drift), None)
         return self._fit
 
-    def ready(self) -> bool:
-        return self._newest is not None
-
     def map(self, device_ns: int) -> tuple[int, int]:
         """(t_ns, t_sigma_ns): the host time of the device time ``device_ns`` and its sigma."""
         hi, lo = self._lines()
@@ -265,7 +268,7 @@ class ClockMap:
 
     def status(self) -> dict[str, Any]:
         """The mapping at the newest sample: offset (host − device, ns), drift (ppm), sigma (ns),
-        samples and bins in the window, the window's span (s) and whether exchanges bound it."""
+        samples in the window, the window's span (s), whether exchanges bound it, restarts seen."""
         hi, lo = self._lines()
         if hi is None or self._newest is None:
             return {"offset_ns": None, "drift_ppm": None, "sigma_ns": None, "samples": 0,
@@ -273,7 +276,7 @@ class ClockMap:
         t, s = self.map(self._newest)
         drift = hi.b if lo is None else (hi.b - lo.b) / 2
         bins = self._rx_ex.bins if lo is not None else self._rx.bins
-        fitted = hi.b != 0.0 or hi.slope_sigma < self.prior_drift
+        fitted = hi.drift_fitted and (lo is None or lo.drift_fitted)
         return {"offset_ns": t - self._newest, "drift_ppm": round(drift * 1e6, 3) if fitted else None,
                 "sigma_ns": s, "samples": sum(b[3] for b in bins),
                 "window_s": round((bins[-1][1] - bins[0][1]) / 1e9, 3), "two_way": lo is not None,

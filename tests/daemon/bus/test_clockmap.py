@@ -154,9 +154,14 @@ def test_clock_restart_and_bad_input():
     cm.add(1_000_000, HOST0 + 10**9)  # the device clock went back by 100 s: it restarted
     st = cm.status()
     assert st["resets"] == 1 and st["samples"] == 1, st
+    cm.add(10 * 10**9, HOST0 + 2 * 10**9)
+    cm.add(0, HOST0 + 3 * 10**9)  # and again
+    assert cm.status()["resets"] == 2
     with pytest.raises(ValueError, match="host_tx_ns 5 is after host_rx_ns 4"):
         cm.add(1, 4, 5)
     with pytest.raises(ValueError, match="window_s must be a positive number, got -1"):
         ClockMap(window_s=-1)
+    with pytest.raises(ValueError, match="prior_drift_ppm must be a positive number, got nan"):
+        ClockMap(prior_drift_ppm=float("nan"))
     with pytest.raises(ValueError, match=r"bin_s \(2\.0\) must be below window_s \(1\.0\)"):
         ClockMap(window_s=1.0, bin_s=2.0)
