@@ -87,7 +87,9 @@ TABLE: tuple[Command, ...] = (
     Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),
             result="{streaming: false}"),
     Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status"),
-            result="adapter status and counters", polled=True),
+            result="adapter status and counters; clock: the tracker clock's mapping onto the host's from its "
+                   "stream packets {offset_ns, drift_ppm, sigma_ns, samples, window_s, two_way, resets}",
+            polled=True),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),

@@ -16,7 +16,8 @@ def _stops(obs: dict[str, Any]) -> Iterator[tuple[tuple[Any, ...], Any]]:
 
 
 def stream_problems(obs: dict[str, Any]) -> list[tuple[tuple[Any, ...], str]]:
-    """``stream.n`` and the per-point arrays (``tilt_deg``, ``host_time_ns``) against ``abs_xyz``'s rows."""
+    """``stream.n`` and the per-point arrays (``tilt_deg``, ``host_time_ns``,
+    ``t_sigma_ns``) against ``abs_xyz``'s rows."""
     out = []
     for parts, stop in _stops(obs):
         stream = stop.get("stream") if isinstance(stop, dict) else None
@@ -25,7 +26,7 @@ def stream_problems(obs: dict[str, Any]) -> list[tuple[tuple[Any, ...], str]]:
         n = stream.get("n")
         if isinstance(n, int) and not isinstance(n, bool) and n != len(pts):
             out.append(((*parts, "stream", "n"), f"{n} but abs_xyz has {len(pts)} rows"))
-        for key in ("tilt_deg", "host_time_ns"):
+        for key in ("tilt_deg", "host_time_ns", "t_sigma_ns"):
             rows = stream.get(key)
             if isinstance(rows, list) and len(rows) != len(pts):
                 out.append(((*parts, "stream", key), f"{len(rows)} rows but abs_xyz has {len(pts)}: one per "

@@ -102,6 +102,8 @@ class Daemon:
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
+        elif topic == Topic.TRACKER_POINT and "tracker" in self.runners:
+            self.runners["tracker"].clock.observe_tracker_packet(payload)
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:
@@ -140,10 +142,9 @@ class Daemon:
             t.start()
         self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())  # late joiners' snapshot holds it too
         for kind in KINDS:
-            runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
+            self.runners[kind] = runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
                                   heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s)
-            self.runners[kind] = runner
             runner.start()
 
     def _worker_cmd(self) -> list[str]:
@@ -180,7 +181,7 @@ class Daemon:
                         robot=cfg.robot, calib=self.calib,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
-                        abort_motions=self.motions.abort)
+                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status())
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""
@@ -319,8 +320,7 @@ def check_config(cfg: config_mod.Config) -> int:
     print(f"  tracker station abs_H_trk: {where}")
     for w in warnings:
         print(f"  WARNING: {w}")
-    insecure = _insecure_tcp(cfg)
-    if insecure:
+    if insecure := _insecure_tcp(cfg):
         print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")
     return RitadExit.OK
 
@@ -386,8 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         log.error("cannot start: lock: %s", exc)
         return RitadExit.CANNOT_START
-    insecure = _insecure_tcp(cfg)
-    if insecure:
+    if insecure := _insecure_tcp(cfg):
         log.warning("insecure_tcp = true: %s accept any client without CURVE; anyone who reaches these ports "
                     "can move the robot (docs/operations.md, Keys)", ", ".join(insecure))
     try:

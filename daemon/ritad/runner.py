@@ -25,6 +25,7 @@ from typing import Any, Callable
 from daemon.bus.protocol import CommandError, ErrorCode
 from drivers.base import Device, DeviceError, DeviceLost, DeviceState, DeviceTimeout
 from daemon.bus.names import Topic
+from daemon.ritad.device_clock import DeviceClock
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +83,8 @@ class DeviceRunner(threading.Thread):
         #: end of the time limit of the blocking call in progress (job or open), else None
         self._busy_deadline: float | None = None
         self._last_fault = ""
+        #: the device clock's mapping onto the host's, fed by ritad from the device's telemetry
+        self.clock = DeviceClock()
 
     # ------------------------------------------------------------------ API (any thread)
 

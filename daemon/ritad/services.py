@@ -45,3 +45,4 @@ class Services:
     latest_frame: Callable[[], Frame | None] = lambda: None  # the newest published Frame, for camera.preview
     latch: StopLatch = field(default_factory=lambda: StopLatch(lambda topic, data: None))  # the latched stop
     abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end
+    clock_status: Callable[[str], dict[str, Any]] = lambda kind: {}  # a device clock's mapping (device_clock.py)

@@ -7,7 +7,9 @@ tilt along it. The move is started without waiting; while it runs the worker pol
 ``robot.status`` (tilt samples with the daemon's host time), and the tracker's
 ``tracker.point`` telemetry is collected on a subscriber. Tilt samples are
 interpolated to the stream records' times: the tracker's ``device_time`` (s + µs) per
-record, put on the host clock by the least-delayed packet's arrival ``host_time_ns``.
+record, put on the host clock by a clock map (daemon/bus/clockmap.py) of the packets: each
+packet's last record's device time against its arrival ``host_time_ns``; its offset, drift
+and sigma come from the least-delayed packets.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from daemon.bus.client import Subscriber
+from daemon.bus.clockmap import ClockMap
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.worker.job import JobContext
 
@@ -28,6 +31,9 @@ MAX_STREAM_POINTS = 200
 MIN_TILT_SAMPLES = 5
 #: a subscriber needs a moment to be connected before the first message it should see
 SUB_SETTLE_S = 0.02
+#: the clock map's bins: about one packet each (packets come at >= 8 Hz); the tracker stamps in µs
+CLOCK_BIN_S = 0.01
+DEVICE_RESOLUTION_NS = 1000
 #: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
 LAST_PACKET_WAIT_S = 2.0
 
@@ -40,26 +46,39 @@ def _device_ns(msg: dict[str, Any]) -> np.ndarray | None:
     return np.asarray(dt[0], dtype=np.int64) * 1_000_000_000 + np.asarray(dt[1], dtype=np.int64) * 1000
 
 
-def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) ACS points in time order and their host times (ns), good records only.
+def _host_times(msgs: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray | None]:
+    """Each record's host time (ns) and its sigma (ns; None without a device clock).
 
-    Records are ordered and timed by the tracker's clock; one offset maps it to the host
-    clock: the smallest (packet arrival − its last record's device time), i.e. the packet
-    that waited least (arrival jitter would otherwise interleave records of two packets).
+    The tracker's clock is mapped onto the host's by a clock map of the packets (each
+    packet's last record's device time against its arrival), so records are ordered and timed
+    by the tracker's clock with its drift corrected (arrival jitter would otherwise interleave
+    records of two packets). Without a device clock in every packet, each packet's records are
+    put at its arrival, with no sigma.
     """
-    if not msgs:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     clocks = [_device_ns(m) for m in msgs]
     devs = [d for d in clocks if d is not None]
-    if len(devs) < len(clocks):  # no device clock: each packet's records at its arrival
-        devs = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
-    offset = min(int(m["host_time_ns"]) - int(d[-1]) for m, d in zip(msgs, devs))
+    if len(devs) < len(clocks):
+        return np.concatenate([np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]), None
+    cm = ClockMap(bin_s=CLOCK_BIN_S, resolution_ns=DEVICE_RESOLUTION_NS)
+    for last, rx in sorted((int(d[-1]), int(m["host_time_ns"])) for m, d in zip(msgs, devs)):
+        cm.add(last, rx)  # in the device's order: a clock going back would read as a restart
+    t, s = cm.map_many([int(x) for x in np.concatenate(devs)])
+    return np.asarray(t, dtype=np.int64), np.asarray(s, dtype=np.int64)
+
+
+def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(N, 3) ACS points in time order, their host times (ns) and those times' sigma (ns, None
+    without a device clock), good records only."""
+    if not msgs:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), None
+    t, sigma = _host_times(msgs)
     P = np.concatenate([np.column_stack([m["x"], m["y"], m["z"]]).astype(float) for m in msgs])
-    t = np.concatenate(devs) + offset
     ok = np.concatenate([np.asarray(m.get("status") or [0] * int(m["n"])) == 0 for m in msgs])
     P, t = P[ok], t[ok]
     order = np.argsort(t, kind="stable")
-    return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order]
+    sigma = None if sigma is None else sigma[ok][order]
+    return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order], sigma
 
 
 def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
@@ -127,13 +146,14 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             ctx.client.call("tracker.stream.stop", timeout=30)
     finally:
         sub.close()
-    P, t = _abs_points(msgs, np.asarray(abs_H_trk, float))
-    keep = (t >= t0) & (t <= t1)
-    P, t = P[keep], t[keep]
-    idx = _thin(len(P), MAX_STREAM_POINTS)
+    P, t, sigma = _abs_points(msgs, np.asarray(abs_H_trk, float))
+    keep = np.flatnonzero((t >= t0) & (t <= t1))
+    idx = keep[_thin(len(keep), MAX_STREAM_POINTS)]
     P, t = P[idx], t[idx]
     out: dict[str, Any] = {"rate_hz": started.get("rate_hz", rate_hz), "n": len(P), "abs_xyz": P.tolist(),
                            "host_time_ns": t.tolist(), "tilt_samples": len(tilt)}
+    if sigma is not None:
+        out["t_sigma_ns"] = sigma[idx].tolist()
     if len(tilt) >= MIN_TILT_SAMPLES and len(P):
         if start_tilt:
             tilt.insert(0, (t0, float(start_tilt["roll_deg"]), float(start_tilt["pitch_deg"])))

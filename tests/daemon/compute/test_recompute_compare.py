@@ -92,11 +92,13 @@ def _edited(folder, tmp_path, fn):
 def test_validate_checks_the_streams_rows(experiment_folder, tmp_path):
     def stream(state):
         stop = state["obs"]["stops"][0]
-        stop["stream"] = {"n": 3, "abs_xyz": [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], "tilt_deg": [[0.0, 0.0]]}
+        stop["stream"] = {"n": 3, "abs_xyz": [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], "tilt_deg": [[0.0, 0.0]],
+                          "t_sigma_ns": [5, 6, 7]}
 
     problems = _edited(experiment_folder, tmp_path, stream)
     assert any("$.obs.stops[0].stream.n" in p and "3 but abs_xyz has 2 rows" in p for p in problems), problems
     assert any("$.obs.stops[0].stream.tilt_deg" in p and "1 rows" in p for p in problems), problems
+    assert any("$.obs.stops[0].stream.t_sigma_ns" in p and "3 rows" in p for p in problems), problems
 
 
 def test_compensation_names_are_an_enum_in_the_schema(experiment_folder, tmp_path):

@@ -39,6 +39,7 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
         assert np.all(np.diff(along) > -1.0), "stream points are not in time order"
         side = u[0] * (P - a)[:, 1] - u[1] * (P - a)[:, 0]
         assert np.abs(side).max() < 5.0, np.abs(side).max()
+        assert len(s["t_sigma_ns"]) == len(P) and min(s["t_sigma_ns"]) > 0, s.get("t_sigma_ns")
         assert s["tilt_samples"] >= MIN_TILT_SAMPLES, s["tilt_samples"]
         T = np.array(s["tilt_deg"])
         assert T.shape == (len(P), 2)
