@@ -1,0 +1,215 @@
+"""ritactl record / replay: a sim session to MCAP and back onto a bus endpoint.
+
+The live test records two seconds of a sim ritad (tracker streaming at 1 kHz, small frames),
+checks the file with the mcap library's own reader (CRCs, summary, every tracker packet with no
+gap in its seq), then replays it as fast as possible into a subscriber and into
+``ritactl watch --json``, which must see the same messages in the same order.
+"""
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import signal
+import threading
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+from mcap.reader import make_reader
+
+from daemon.bus.client import Client, Subscriber
+from daemon.ctl import main as ctl
+from daemon.ctl import mcapfile as fmt
+from daemon.ctl.exitcodes import CtlError, Exit
+from daemon.ctl.record import Recorder, check_out, parse_frames
+from daemon.ctl.replay import ReplayServer, endpoints, play
+from daemon.ritad.main import Daemon
+from fakes.operator import lock_on_robot
+from tests.ritad_up import SMALL_CAMERA, ritad_in_process
+
+
+def test_frames_option_and_out_file_errors_name_the_value(tmp_path: Path) -> None:
+    assert parse_frames(["off"]) == 0 and parse_frames(["every", "3"]) == 3
+    for bad in (["every", "0"], ["every"], ["sometimes"], ["every", "x"]):
+        with pytest.raises(CtlError) as e:
+            parse_frames(bad)
+        assert e.value.exit == Exit.USAGE and " ".join(bad) in e.value.args[0]
+    with pytest.raises(CtlError, match="nowhere.*does not exist"):
+        check_out(tmp_path / "nowhere" / "a.mcap", False)
+    (tmp_path / "a.mcap").write_bytes(b"x")
+    with pytest.raises(CtlError, match="a.mcap exists"):
+        check_out(tmp_path / "a.mcap", False)
+    assert check_out(tmp_path / "a.mcap", True) == tmp_path / "a.mcap"
+    with pytest.raises(CtlError, match="is a folder"):
+        check_out(tmp_path, True)
+    with pytest.raises(CtlError, match="'tcp://10.0.0.5:5555'"):
+        endpoints("tcp://10.0.0.5:5555")  # a replay serves this computer only
+
+
+def test_ctl_exit_codes_for_bad_record_and_replay_input(tmp_path: Path, capsys) -> None:
+    assert ctl.main(["replay", str(tmp_path / "missing.mcap")]) == Exit.BAD_INPUT
+    assert "missing.mcap: no such file" in capsys.readouterr().err
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
+    assert ctl.main(["replay", "--no-wait", "--endpoint", f"ipc://{tmp_path}/cmd", str(tmp_path / "junk.mcap")]) \
+        == Exit.BAD_INPUT
+    assert "junk.mcap is not a readable MCAP recording" in capsys.readouterr().err
+    assert ctl.main(["replay", "--speed", "-1", str(tmp_path / "junk.mcap")]) == Exit.USAGE
+    assert ctl.main(["--endpoint", f"ipc://{tmp_path}/none", "record", "--out", "x.mcap",
+                     "--frames", "every", "0"]) == Exit.USAGE
+    assert ctl.main(["--endpoint", f"ipc://{tmp_path}/none", "record", "--out", "x.mcap",
+                     "--duration", "0"]) == Exit.USAGE
+    assert "--duration must be more than 0 seconds, got 0" in capsys.readouterr().err
+
+
+def test_json_and_raw_image_encodings() -> None:
+    assert fmt.to_json({"a": math.nan, "b": [1.5, math.inf], "c": b"\x00\x01"}) == b'{"a":null,"b":[1.5,null],"c":"AAE="}'
+    header = {"seq": 3, "pixel_format": "Mono8", "shape": [2, 3], "dtype": "|u1", "host_time_ns": 5_000_000_123}
+    img = json.loads(fmt.raw_image(header, bytes(range(6))))
+    assert img["timestamp"] == {"sec": 5, "nsec": 123} and (img["width"], img["height"], img["step"]) == (3, 2, 3)
+    assert img["encoding"] == "mono8" and fmt.pixels_of(fmt.raw_image(header, bytes(range(6)))) == bytes(range(6))
+    assert fmt.raw_image_encoding({"pixel_format": "Mono12", "dtype": "<u2", "shape": [2, 2]}) == "mono16"
+    assert fmt.raw_image_encoding({"pixel_format": "X", "dtype": "|u1", "shape": [2, 2, 3]}) == "rgb8"
+    with pytest.raises(fmt.UnsupportedFrame, match="Odd16"):
+        fmt.raw_image_encoding({"pixel_format": "Odd16", "dtype": ">u2", "shape": [2, 2]})  # big-endian
+    schema = fmt.infer_schema("robot.state", {"x_mm": 1, "state": "IDLE", "ok": True, "roll_deg": None})
+    assert schema["properties"]["x_mm"] == {"type": "number"} and schema["properties"]["ok"] == {"type": "boolean"}
+
+
+def test_recorder_gaps_and_replay_order_without_a_daemon(tmp_path: Path) -> None:
+    buf = io.BytesIO()
+    rec = Recorder(buf, {"test": "1"}, "lz4")
+    for seq in (1, 2, 3, 6, 7):  # 4 and 5 never arrived
+        rec.telemetry("tracker.point", {"seq": seq, "t_ns": 1000 + seq, "data": {"n": 1, "seq": seq}}, 2000 + seq)
+    rec.finish()
+    assert rec.counts.missed == 2 and rec.counts.messages == 5
+    got = [(ch.topic, m.sequence, m.log_time, m.publish_time) for _, ch, m in
+           make_reader(io.BytesIO(buf.getvalue()), validate_crcs=True).iter_messages()]
+    assert got == [("tracker.point", s, 1000 + s, 2000 + s) for s in (1, 2, 3, 6, 7)]
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Iterator[tuple[Daemon, Client, str, Path]]:
+    tmp = tmp_path_factory.mktemp("record")
+    with ritad_in_process(tmp / "rt", tmp / "data", timeout=30, camera=SMALL_CAMERA + "&fps=10") as (d, c):
+        lock_on_robot(c)
+        c.call("tracker.stream.start", rate_hz=1000.0)
+        c.call("camera.stream.start")
+        try:
+            out = tmp / "session.mcap"
+            ep = d.server.endpoints[0]
+            assert ctl.main(["--endpoint", ep, "record", "--out", str(out), "--duration", "2",
+                             "--frames", "every", "2"]) == Exit.OK
+            yield d, c, ep, out
+        finally:
+            c.call("tracker.stream.stop")
+            c.call("camera.stream.stop")
+
+
+def _read(path: Path) -> list[tuple[str, Any, Any]]:
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        msgs = [(ch.topic, sch, m) for sch, ch, m in reader.iter_messages(log_time_order=False)]
+        assert summary.statistics.message_count == len(msgs)
+        assert fmt.METADATA_NAME in [md.name for md in reader.iter_metadata()]
+    return msgs
+
+
+def test_recording_is_a_valid_mcap_with_every_tracker_packet(session, capsys) -> None:
+    _, _, _, out = session
+    assert not list(out.parent.glob(".*.partial"))  # renamed into place, nothing left behind
+    msgs = _read(out)
+    points = [json.loads(m.data) for t, _, m in msgs if t == "tracker.point"]
+    assert sum(p["n"] for p in points) >= 1000  # 2 s at 1 kHz, in packets
+    # a packet's seq is its first record's: each packet starts where the one before ended
+    gaps = [(a["seq"], a["n"], b["seq"]) for a, b in zip(points, points[1:]) if a["seq"] + a["n"] != b["seq"]]
+    assert not gaps, f"tracker records missing: {gaps[:3]}"
+    bus_seqs = [m.sequence for t, _, m in msgs if not t.startswith("camera.")]
+    assert bus_seqs == list(range(bus_seqs[0], bus_seqs[0] + len(bus_seqs)))  # no telemetry lost either
+    frames = [(sch, json.loads(m.data)) for t, sch, m in msgs if t == fmt.FRAME_TOPIC]
+    headers = [json.loads(m.data)["seq"] for t, _, m in msgs if t == fmt.FRAME_HEADER_TOPIC]
+    assert len(frames) == len(headers) >= 4 and all(b - a >= 2 for a, b in zip(headers, headers[1:]))  # every 2
+    assert all(sch.name == "foxglove.RawImage" and sch.encoding == "jsonschema" for sch, _ in frames)
+    assert all(len(fmt.pixels_of(json.dumps(f).encode())) == f["step"] * f["height"] for _, f in frames)
+    assert all(m.publish_time >= m.log_time - int(1e9) for _, _, m in msgs)  # received after (clocks: one host)
+
+
+def _replay_thread(path: Path, cmd: str, speed: float | None) -> tuple[threading.Thread, ReplayServer]:
+    server = ReplayServer(cmd, str(path))
+
+    def run() -> None:
+        with open(path, "rb") as f:
+            while server.subscribers == 0:
+                server.serve(0.05)
+            play(server, f, speed)
+            server.serve(0.5)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t, server
+
+
+def test_replay_feeds_a_subscriber_the_same_messages_in_order(session, tmp_path: Path) -> None:
+    _, _, _, out = session
+    recorded = [(t, m.sequence, json.loads(m.data)) for t, _, m in _read(out) if not t.startswith("camera.")]
+    t, server = _replay_thread(out, f"ipc://{tmp_path}/cmd", None)
+    try:
+        c = Client(f"ipc://{tmp_path}/cmd", timeout=5)
+        sub = c.subscriber(hwm=100_000)
+        got = []
+        for topic, msg, _ in sub.iter(30):
+            got.append((topic, msg["seq"], msg["data"]))
+            if len(got) == len(recorded):
+                break
+        assert got == recorded
+        assert c.call("state")["seq"] == recorded[-1][1]
+        sub.close()
+        c.close()
+    finally:
+        t.join(10)
+        server.close()
+
+
+def test_replay_into_ritactl_watch(session, tmp_path: Path, capsys) -> None:
+    _, _, _, out = session
+    cmd = f"ipc://{tmp_path}/cmd"
+    t, server = _replay_thread(out, cmd, 4.0)  # 2 s recorded, half a second to play
+    try:
+        assert ctl.main(["--endpoint", cmd, "--json", "watch", "--duration", "2"]) == Exit.OK
+        lines = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+        live = [m for m in lines if not m.get("snapshot") and m["topic"] == "tracker.point"]
+        assert len(live) > 10 and [m["seq"] for m in live] == sorted(m["seq"] for m in live)
+    finally:
+        t.join(10)
+        server.close()
+
+
+def test_replay_refuses_commands_it_cannot_answer(tmp_path: Path) -> None:
+    server = ReplayServer(f"ipc://{tmp_path}/cmd", "x.mcap")
+    t = threading.Thread(target=server.serve, args=(2.0,), daemon=True)
+    t.start()
+    try:
+        with Client(f"ipc://{tmp_path}/cmd", timeout=5) as c:
+            assert c.hello()["replay"] == "x.mcap"
+            with pytest.raises(Exception, match="replay of x.mcap"):
+                c.call("robot.move", distance_mm=10)
+    finally:
+        t.join(5)
+        server.close()
+    assert os.path.exists(tmp_path / "telemetry")
+
+
+def test_ctrl_c_ends_a_recording_with_a_complete_file(session, tmp_path: Path, capsys) -> None:
+    _, _, ep, _ = session
+    out = tmp_path / "ctrl-c.mcap"
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))  # the operator's Ctrl-C
+    timer.start()
+    try:
+        assert ctl.main(["--endpoint", ep, "record", "--out", str(out)]) == Exit.INTERRUPTED
+    finally:
+        timer.cancel()
+    assert "recorded" in capsys.readouterr().out
+    assert any(t == "tracker.point" for t, _, _ in _read(out)) and not list(tmp_path.glob(".*"))
