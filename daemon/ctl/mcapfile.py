@@ -7,9 +7,11 @@ docs/operations.md ("Record and replay") documents this layout; keep the two in 
   daemon's ``t_ns`` its ``log_time`` and the recorder's receive time its ``publish_time``.
   The channel's schema (``jsonschema``) is inferred from the topic's first message: top-level
   field names and JSON types, so Foxglove's panels can offer the fields.
-* Frames: channel ``camera.frame`` with Foxglove's ``foxglove.RawImage`` schema in JSON (pixels
-  base64), and channel ``camera.frame.header`` with the bus's frame header as JSON, written just
-  before each image so a replay can rebuild the bus frame exactly.
+* Frames: channel ``camera.frame`` with Foxglove's raw-image schema in its ROS 2 form
+  (``foxglove_msgs/msg/RawImage``, schema encoding ``ros2msg``, messages in CDR): the pixels go in
+  as they are, where JSON would base64 them: a third larger, and on the standard machine 58 ms to
+  encode a 12.2 MP frame, a third of the camera's frame interval, against a copy here. Channel ``camera.frame.header`` has the bus's frame header as JSON,
+  written just before each image so a replay can rebuild the bus frame exactly.
 * Metadata record ``ritactl.record``: who recorded what (ritad's ``hello``, the options).
 
 Imports only the standard library so the thin client stays thin; the ``mcap`` package is
@@ -20,13 +22,14 @@ from __future__ import annotations
 import base64
 import json
 import math
+import struct
 from typing import Any
 
 PROFILE = ""  # no ROS profile: plain JSON channels
 FRAME_TOPIC = "camera.frame"
 FRAME_HEADER_TOPIC = "camera.frame.header"
 METADATA_NAME = "ritactl.record"
-RAW_IMAGE_SCHEMA = "foxglove.RawImage"
+RAW_IMAGE_SCHEMA = "foxglove_msgs/msg/RawImage"
 SEQ_MOD = 1 << 32  # an MCAP sequence is a uint32
 
 #: GenICam pixel formats with a Foxglove RawImage encoding of their own; others fall back on dtype
@@ -34,21 +37,21 @@ _ENCODINGS = {"Mono8": "mono8", "Mono10": "mono16", "Mono12": "mono16", "Mono16"
               "RGB8": "rgb8", "BGR8": "bgr8", "BayerRG8": "bayer_rggb8", "BayerGR8": "bayer_grbg8",
               "BayerGB8": "bayer_gbrg8", "BayerBG8": "bayer_bggr8"}
 
-#: Foxglove's RawImage, as its JSON schema (field names and types from Foxglove's schema docs)
-RAW_IMAGE_JSON_SCHEMA: dict[str, Any] = {
-    "title": RAW_IMAGE_SCHEMA, "description": "A raw image", "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
-                                                       "nsec": {"type": "integer", "minimum": 0,
-                                                                "maximum": 999_999_999}}},
-        "frame_id": {"type": "string"},
-        "width": {"type": "integer", "minimum": 0},
-        "height": {"type": "integer", "minimum": 0},
-        "encoding": {"type": "string"},
-        "step": {"type": "integer", "minimum": 0},
-        "data": {"type": "string", "contentEncoding": "base64"},
-    },
-}
+#: Foxglove's RawImage in ROS 2 message syntax (fields from Foxglove's schema docs), with the one
+#: message it uses appended the way MCAP's ros2msg encoding wants dependencies
+RAW_IMAGE_ROS2MSG = """builtin_interfaces/Time timestamp
+string frame_id
+uint32 width
+uint32 height
+string encoding
+uint32 step
+uint8[] data
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header: plain CDR, little-endian
 
 
 class UnsupportedFrame(ValueError):
@@ -121,24 +124,58 @@ def raw_image_encoding(header: dict[str, Any]) -> str:
                            f"Foxglove RawImage encoding")
 
 
+class _Cdr:
+    """Just enough little-endian CDR for RawImage: 4-byte words aligned from the end of the header."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray(_CDR_LE)
+
+    def u32(self, *values: int) -> None:
+        self.buf += b"\x00" * (-(len(self.buf) - 4) % 4)
+        self.buf += struct.pack(f"<{len(values)}I", *values)
+
+    def string(self, text: str) -> None:
+        raw = text.encode()
+        self.u32(len(raw) + 1)  # CDR strings count their terminating NUL
+        self.buf += raw + b"\x00"
+
+
 def raw_image(header: dict[str, Any], pixels: bytes | memoryview) -> bytes:
-    """A bus frame (header + row-major pixels) as a ``foxglove.RawImage`` JSON message."""
+    """A bus frame (header + row-major pixels) as a CDR ``foxglove_msgs/msg/RawImage``."""
     encoding = raw_image_encoding(header)
     shape = [int(n) for n in header["shape"]]
     height, width = shape[0], shape[1]
     t = int(header.get("host_time_ns") or 0)
-    msg = {"timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000}, "frame_id": "camera",
-           "width": width, "height": height, "encoding": encoding,
-           "step": len(pixels) // height if height else 0,
-           "data": base64.b64encode(pixels).decode("ascii")}
-    return json.dumps(msg, separators=(",", ":")).encode()
+    c = _Cdr()
+    c.u32(t // 1_000_000_000, t % 1_000_000_000)  # sec is int32 in the schema: fine until 2038
+    c.string("camera")
+    c.u32(width, height)
+    c.string(encoding)
+    c.u32(len(pixels) // height if height else 0)
+    c.u32(len(pixels))
+    return b"".join((c.buf, pixels))
 
 
-def pixels_of(raw_image_json: bytes | memoryview) -> bytes:
-    """The pixel bytes of a RawImage JSON message (for a replay)."""
-    return base64.b64decode(json.loads(bytes(raw_image_json))["data"])
+def pixels_of(raw: bytes | memoryview) -> memoryview:
+    """The pixel bytes of a CDR RawImage made by :func:`raw_image` (for a replay; no copy)."""
+    view = memoryview(raw)
+    off = 4 + 8  # header, timestamp
+
+    def word(at: int) -> tuple[int, int]:
+        at += -(at - 4) % 4
+        return struct.unpack_from("<I", view, at)[0], at + 4
+
+    n, off = word(off)      # frame_id
+    off += n
+    _, off = word(off)      # width
+    _, off = word(off)      # height
+    n, off = word(off)      # encoding
+    off += n
+    _, off = word(off)      # step
+    n, off = word(off)      # data
+    return view[off:off + n]
 
 
-__all__ = ["FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_JSON_SCHEMA",
+__all__ = ["FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG",
            "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame", "infer_schema", "pixels_of", "raw_image",
            "raw_image_encoding", "to_json"]

@@ -33,7 +33,7 @@ from daemon.ctl.watch import NO_FRAMES, Screen
 #: deep enough for many seconds of 1 kHz tracker packets while a chunk is compressed or the disk stalls
 TELEMETRY_HWM = 200_000
 FRAME_HWM = 4
-COMPRESSIONS = ("zstd", "lz4", "none")
+COMPRESSIONS = ("auto", "zstd", "lz4", "none")
 
 
 @dataclass
@@ -71,10 +71,10 @@ class Recorder:
         ch = self.channels.get(topic)
         if ch is None:
             if topic == fmt.FRAME_TOPIC:
-                schema = self.writer.register_schema(fmt.RAW_IMAGE_SCHEMA, "jsonschema",
-                                                     fmt.to_json(fmt.RAW_IMAGE_JSON_SCHEMA))
-            else:
-                schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(fmt.infer_schema(topic, sample)))
+                schema = self.writer.register_schema(fmt.RAW_IMAGE_SCHEMA, "ros2msg", fmt.RAW_IMAGE_ROS2MSG.encode())
+                ch = self.channels[topic] = self.writer.register_channel(topic, "cdr", schema)
+                return ch
+            schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(fmt.infer_schema(topic, sample)))
             ch = self.channels[topic] = self.writer.register_channel(topic, "json", schema)
         return ch
 
@@ -217,12 +217,15 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
         subs.append((c.subscriber(frames=True, hwm=FRAME_HWM), every))
         if (hint := _frames_hint(c)) is not None:
             print(hint, file=sys.stderr, flush=True)
+    # auto: frames are nearly all of the bytes and compressing them halves the recorder's speed
+    # (bench/bench_record.py); telemetry alone is small and shrinks to 40 % with zstd
+    compression = ("none" if every else "zstd") if a.compression == "auto" else a.compression
     meta = {"hello": json.dumps(c.hello(), default=str), "frames": f"every {every}" if every else "off",
-            "compression": a.compression, "endpoint": c.endpoint}
+            "compression": compression, "endpoint": c.endpoint}
     stop = threading.Event()
     try:
         with open(tmp, "wb") as f, _stop_on_sigint(stop):
-            rec = Recorder(f, meta, a.compression)
+            rec = Recorder(f, meta, compression)
             seconds = _record_loop(subs, rec, a, out, stop)
             rec.finish()
             f.flush()
@@ -265,8 +268,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--frames", nargs="+", metavar="every N|off", default=["off"],
                    help="record one camera frame in N ('every 1': all of them), or none (default: off)")
-    p.add_argument("--compression", choices=COMPRESSIONS, default="zstd", help="MCAP chunk compression "
-                   "(default: zstd)")
+    p.add_argument("--compression", choices=COMPRESSIONS, default="auto", help="MCAP chunk compression "
+                   "(default auto: none when frames are recorded, else zstd)")
     p.add_argument("--force", action="store_true", help="replace FILE.mcap if it exists")
     p.set_defaults(fn=cmd_record)
 

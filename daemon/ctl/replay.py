@@ -3,7 +3,7 @@
 It binds the three bus endpoints a client expects (docs/protocol.md): a command socket that
 answers ``hello`` (which names the other two), ``ping``, ``state`` (the Clone snapshot, as of the
 replay's position) and ``status``/``health`` (the last ``daemon.health`` replayed); every other
-command is refused with ``not_ready``. Telemetry goes out on a PUB socket in the bus's own format
+command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not driven. Telemetry goes out on a PUB socket in the bus's own format
 (``[topic, msgpack {v, seq, t_ns, data}]`` with the recorded seq and t_ns), frames on a frame
 socket. Messages keep the file's order; pacing follows their log times divided by ``--speed``.
 
@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import socket
+import struct
 import sys
 import tempfile
 import time
@@ -36,12 +38,29 @@ def default_endpoint() -> str:
     return f"ipc://{Path(tempfile.gettempdir()) / 'rita-replay' / 'cmd'}"
 
 
+def _check_free(path: Path) -> None:
+    """Refuse a socket file something listens on: binding it would take the endpoint from a live ritad."""
+    if not path.exists():
+        return
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.connect(str(path))
+    except OSError:
+        return  # nothing listening (a stale file from an earlier replay): ours to reuse
+    finally:
+        probe.close()
+    raise CtlError(Exit.USAGE, "usage", f"bad replay endpoint ipc://{path}: something is listening there (a running "
+                                        f"ritad?); choose another path")
+
+
 def endpoints(cmd: str) -> tuple[str, str, str]:
     """Command, telemetry and frame endpoints: ipc siblings of the command socket, or tcp ports of the system's."""
     if cmd.startswith("ipc://"):
         path = Path(cmd.removeprefix("ipc://"))
         if not path.parent.is_dir():
             raise bad_input(f"--endpoint {cmd}: the folder {path.parent} does not exist")
+        for p in (path, path.parent / "telemetry", path.parent / "frames"):
+            _check_free(p)
         return cmd, f"ipc://{path.parent / 'telemetry'}", f"ipc://{path.parent / 'frames'}"
     m = _LOCAL_TCP.match(cmd)
     if not m or (m.group(2) != "*" and not 0 <= int(m.group(2)) < 65536):
@@ -125,7 +144,7 @@ class ReplayServer:
             req = parse_request(body)
             req_id = req["id"]
             if req["cmd"] not in ANSWERED:
-                raise ProtocolError(ErrorCode.NOT_READY, f"{req['cmd']!r}: this is a replay of {self.source}; "
+                raise ProtocolError(ErrorCode.FORBIDDEN, f"{req['cmd']!r}: this is a replay of {self.source}; "
                                                          f"it answers only {', '.join(ANSWERED)}")
             reply = ok_reply(req_id, self._answer(req["cmd"]))
         except ProtocolError as exc:
@@ -137,7 +156,7 @@ class ReplayServer:
         self.latest[topic] = {"seq": seq, "t_ns": t_ns, "data": data}
         self.pub.send_multipart([topic.encode(), telemetry(seq, t_ns, data)])
 
-    def publish_frame(self, header: dict[str, Any], pixels: bytes) -> None:
+    def publish_frame(self, header: dict[str, Any], pixels: bytes | memoryview) -> None:
         self.frames.send_multipart([fmt.FRAME_TOPIC.encode(), pack(header), pixels])
 
     def close(self) -> None:
@@ -156,7 +175,7 @@ def messages(f: IO[bytes]) -> Iterator[tuple[str, int, int, bytes]]:
     try:
         for _, channel, m in make_reader(f).iter_messages(log_time_order=False):
             yield channel.topic, m.sequence, m.log_time, m.data
-    except McapError as exc:
+    except (McapError, OSError, ValueError, struct.error) as exc:  # a truncated file fails its seeks too
         raise bad_input(f"{getattr(f, 'name', 'the file')} is not a readable MCAP recording: {exc}") from None
 
 
@@ -200,6 +219,16 @@ def _speed(text: str) -> float | None:
     return value
 
 
+def _linger(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 <= value <= 3600:
+        raise argparse.ArgumentTypeError(f"{text!r} must be between 0 and 3600 seconds")
+    return value
+
+
 def cmd_replay(_: None, a: argparse.Namespace) -> int:
     path = Path(a.file)
     if not path.is_file():
@@ -237,7 +266,7 @@ def add_parser(sub: Any) -> None:
                    help=f"command endpoint to serve, ipc:///PATH or tcp://127.0.0.1:PORT; telemetry and frames "
                         f"are bound beside it (default {default_endpoint()})")
     p.add_argument("--no-wait", action="store_true", help="start at once instead of waiting for a subscriber")
-    p.add_argument("--linger", type=float, default=1.0, metavar="S",
+    p.add_argument("--linger", type=_linger, default=1.0, metavar="S",
                    help="keep answering for S seconds after the last message (default 1)")
     p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     p.set_defaults(fn=cmd_replay, offline=True)

@@ -13,13 +13,18 @@ import math
 import os
 import signal
 import threading
+import time
 from pathlib import Path
 from typing import Any, Iterator
 
 import pytest
 from mcap.reader import make_reader
+from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
 
-from daemon.bus.client import Client, Subscriber
+from daemon.bus.client import Client
+from daemon.bus.protocol import CommandError
+from daemon.console.bridge import Bridge
 from daemon.ctl import main as ctl
 from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit
@@ -55,6 +60,10 @@ def test_ctl_exit_codes_for_bad_record_and_replay_input(tmp_path: Path, capsys) 
     assert ctl.main(["replay", "--no-wait", "--endpoint", f"ipc://{tmp_path}/cmd", str(tmp_path / "junk.mcap")]) \
         == Exit.BAD_INPUT
     assert "junk.mcap is not a readable MCAP recording" in capsys.readouterr().err
+    (tmp_path / "short.mcap").write_bytes(b"\x89MCAP0\r\n\x01")  # a copy cut short
+    assert ctl.main(["replay", "--no-wait", "--endpoint", f"ipc://{tmp_path}/cmd", str(tmp_path / "short.mcap")]) \
+        == Exit.BAD_INPUT
+    assert "short.mcap is not a readable MCAP recording" in capsys.readouterr().err
     assert ctl.main(["replay", "--speed", "-1", str(tmp_path / "junk.mcap")]) == Exit.USAGE
     assert ctl.main(["--endpoint", f"ipc://{tmp_path}/none", "record", "--out", "x.mcap",
                      "--frames", "every", "0"]) == Exit.USAGE
@@ -63,12 +72,24 @@ def test_ctl_exit_codes_for_bad_record_and_replay_input(tmp_path: Path, capsys) 
     assert "--duration must be more than 0 seconds, got 0" in capsys.readouterr().err
 
 
+def ros2_raw_image(data: bytes) -> Any:
+    schema = Schema(id=1, name=fmt.RAW_IMAGE_SCHEMA, encoding="ros2msg", data=fmt.RAW_IMAGE_ROS2MSG.encode())
+    decode = DecoderFactory().decoder_for("cdr", schema)
+    assert decode is not None
+    return decode(data)
+
+
 def test_json_and_raw_image_encodings() -> None:
     assert fmt.to_json({"a": math.nan, "b": [1.5, math.inf], "c": b"\x00\x01"}) == b'{"a":null,"b":[1.5,null],"c":"AAE="}'
     header = {"seq": 3, "pixel_format": "Mono8", "shape": [2, 3], "dtype": "|u1", "host_time_ns": 5_000_000_123}
-    img = json.loads(fmt.raw_image(header, bytes(range(6))))
-    assert img["timestamp"] == {"sec": 5, "nsec": 123} and (img["width"], img["height"], img["step"]) == (3, 2, 3)
-    assert img["encoding"] == "mono8" and fmt.pixels_of(fmt.raw_image(header, bytes(range(6)))) == bytes(range(6))
+    img = ros2_raw_image(fmt.raw_image(header, bytes(range(6))))  # a ROS 2 decoder reads our CDR
+    assert (img.timestamp.sec, img.timestamp.nanosec, img.frame_id) == (5, 123, "camera")
+    assert (img.width, img.height, img.step, img.encoding) == (3, 2, 3, "mono8") and img.data == bytes(range(6))
+    assert fmt.pixels_of(fmt.raw_image(header, bytes(range(6)))) == bytes(range(6))
+    odd = {**header, "pixel_format": "BayerRG8", "shape": [1, 5]}  # strings and data off the 4-byte grid
+    img = ros2_raw_image(fmt.raw_image(odd, b"abcde"))
+    assert (img.encoding, img.data, img.step) == ("bayer_rggb8", b"abcde", 5) and fmt.pixels_of(
+        fmt.raw_image(odd, b"abcde")) == b"abcde"
     assert fmt.raw_image_encoding({"pixel_format": "Mono12", "dtype": "<u2", "shape": [2, 2]}) == "mono16"
     assert fmt.raw_image_encoding({"pixel_format": "X", "dtype": "|u1", "shape": [2, 2, 3]}) == "rgb8"
     with pytest.raises(fmt.UnsupportedFrame, match="Odd16"):
@@ -114,7 +135,11 @@ def _read(path: Path) -> list[tuple[str, Any, Any]]:
         assert summary is not None and summary.statistics is not None
         msgs = [(ch.topic, sch, m) for sch, ch, m in reader.iter_messages(log_time_order=False)]
         assert summary.statistics.message_count == len(msgs)
-        assert fmt.METADATA_NAME in [md.name for md in reader.iter_metadata()]
+        meta = {md.name: md.metadata for md in reader.iter_metadata()}
+        assert json.loads(meta[fmt.METADATA_NAME]["hello"])["version"]
+        # auto: frames in the file, no compression (docs/operations.md); telemetry alone: zstd
+        assert meta[fmt.METADATA_NAME]["compression"] == ("none" if "every" in meta[fmt.METADATA_NAME]["frames"]
+                                                          else "zstd")
     return msgs
 
 
@@ -129,11 +154,13 @@ def test_recording_is_a_valid_mcap_with_every_tracker_packet(session, capsys) ->
     assert not gaps, f"tracker records missing: {gaps[:3]}"
     bus_seqs = [m.sequence for t, _, m in msgs if not t.startswith("camera.")]
     assert bus_seqs == list(range(bus_seqs[0], bus_seqs[0] + len(bus_seqs)))  # no telemetry lost either
-    frames = [(sch, json.loads(m.data)) for t, sch, m in msgs if t == fmt.FRAME_TOPIC]
-    headers = [json.loads(m.data)["seq"] for t, _, m in msgs if t == fmt.FRAME_HEADER_TOPIC]
-    assert len(frames) == len(headers) >= 4 and all(b - a >= 2 for a, b in zip(headers, headers[1:]))  # every 2
-    assert all(sch.name == "foxglove.RawImage" and sch.encoding == "jsonschema" for sch, _ in frames)
-    assert all(len(fmt.pixels_of(json.dumps(f).encode())) == f["step"] * f["height"] for _, f in frames)
+    frames = [(sch, ros2_raw_image(m.data)) for t, sch, m in msgs if t == fmt.FRAME_TOPIC]
+    headers = [json.loads(m.data) for t, _, m in msgs if t == fmt.FRAME_HEADER_TOPIC]
+    seqs = [h["seq"] for h in headers]
+    assert len(frames) == len(headers) >= 4 and all(b - a >= 2 for a, b in zip(seqs, seqs[1:]))  # every 2
+    assert all(sch.name == "foxglove_msgs/msg/RawImage" and sch.encoding == "ros2msg" for sch, _ in frames)
+    assert all((f.height, f.width) == tuple(h["shape"]) and len(f.data) == f.step * f.height
+               for (_, f), h in zip(frames, headers))
     assert all(m.publish_time >= m.log_time - int(1e9) for _, _, m in msgs)  # received after (clocks: one host)
 
 
@@ -173,6 +200,30 @@ def test_replay_feeds_a_subscriber_the_same_messages_in_order(session, tmp_path:
         server.close()
 
 
+def test_replay_republishes_the_frames(session, tmp_path: Path) -> None:
+    _, _, _, out = session
+    msgs = _read(out)
+    want = [(json.loads(m.data)["seq"], bytes(fmt.pixels_of(n.data)))
+            for (t, _, m), (u, _, n) in zip(msgs, msgs[1:]) if t == fmt.FRAME_HEADER_TOPIC and u == fmt.FRAME_TOPIC]
+    t, server = _replay_thread(out, f"ipc://{tmp_path}/cmd", 2.0)  # frames: the PUB drops for a slow reader
+    try:
+        c = Client(f"ipc://{tmp_path}/cmd", timeout=5)
+        frames = c.subscriber(frames=True, hwm=100)
+        tel = c.subscriber()  # the replay starts once a telemetry subscriber is there
+        got = []
+        for _, header, extra in frames.iter(10):
+            got.append((header["seq"], extra[0].bytes))
+            if len(got) == len(want):
+                break
+        assert got == want and len(want) >= 4
+        frames.close()
+        tel.close()
+        c.close()
+    finally:
+        t.join(10)
+        server.close()
+
+
 def test_replay_into_ritactl_watch(session, tmp_path: Path, capsys) -> None:
     _, _, _, out = session
     cmd = f"ipc://{tmp_path}/cmd"
@@ -187,6 +238,31 @@ def test_replay_into_ritactl_watch(session, tmp_path: Path, capsys) -> None:
         server.close()
 
 
+def test_replay_feeds_the_console_bridge(session, tmp_path: Path) -> None:
+    _, _, _, out = session
+    cmd = f"ipc://{tmp_path}/cmd"
+    t, server = _replay_thread(out, cmd, 1.0)
+    bridge = Bridge(lambda: Client(cmd, timeout=5))
+    try:
+        bridge.start()  # hello, the role probe, the snapshot, then the telemetry reader
+        assert bridge.role == "viewer" and bridge.hello["replay"] == str(out)
+        end = time.monotonic() + 10
+        while "tracker.point" not in bridge.latest and time.monotonic() < end:
+            time.sleep(0.05)
+        assert bridge.latest["tracker.point"]["data"]["n"] >= 1 and bridge.link["bus"] == "up"
+    finally:
+        bridge.stop()
+        t.join(10)
+        server.close()
+
+
+def test_replay_never_takes_a_live_daemons_socket(session) -> None:
+    d, _, ep, _ = session
+    with pytest.raises(CtlError, match="something is listening there"):
+        endpoints(ep)
+    assert ctl.main(["replay", "--no-wait", "--endpoint", ep, str(session[3])]) == Exit.USAGE
+
+
 def test_replay_refuses_commands_it_cannot_answer(tmp_path: Path) -> None:
     server = ReplayServer(f"ipc://{tmp_path}/cmd", "x.mcap")
     t = threading.Thread(target=server.serve, args=(2.0,), daemon=True)
@@ -194,8 +270,9 @@ def test_replay_refuses_commands_it_cannot_answer(tmp_path: Path) -> None:
     try:
         with Client(f"ipc://{tmp_path}/cmd", timeout=5) as c:
             assert c.hello()["replay"] == "x.mcap"
-            with pytest.raises(Exception, match="replay of x.mcap"):
+            with pytest.raises(CommandError, match="replay of x.mcap") as e:
                 c.call("robot.move", distance_mm=10)
+            assert e.value.code == "forbidden"
     finally:
         t.join(5)
         server.close()
