@@ -79,12 +79,13 @@ class ReplayServer:
         want = endpoints(cmd)
         self.router = self._bind(zmq.ROUTER, want[0])
         self.pub = self._bind(zmq.XPUB, want[1])  # XPUB: we see subscriptions arrive
-        self.frames = self._bind(zmq.PUB, want[2])
+        self.frames = self._bind(zmq.XPUB, want[2])
         self.pub.setsockopt(zmq.SNDHWM, 0)  # a replay has the whole file: never drop for a slow reader
         self.source = source
         self.latest: dict[str, dict[str, Any]] = {}
         self.seq = 0
-        self.subscribers = 0
+        self.subscribers = 0  # subscriptions seen on the telemetry socket
+        self.frame_subscribers = 0
 
     def _bind(self, kind: int, endpoint: str) -> zmq.Socket:
         s = self.ctx.socket(kind)
@@ -125,17 +126,26 @@ class ReplayServer:
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         poller.register(self.pub, zmq.POLLIN)
+        poller.register(self.frames, zmq.POLLIN)
         end = time.monotonic() + timeout
         while True:
             ready = dict(poller.poll(max(0, int((end - time.monotonic()) * 1000))))
             if self.pub in ready:
-                while self.pub.poll(0):
-                    if self.pub.recv()[:1] == b"\x01":
-                        self.subscribers += 1
+                self.subscribers += self._subscriptions(self.pub)
+            if self.frames in ready:
+                self.frame_subscribers += self._subscriptions(self.frames)
             if self.router in ready:
                 self._request(self.router.recv_multipart())
             if time.monotonic() >= end or not ready:
                 return
+
+    @staticmethod
+    def _subscriptions(s: zmq.Socket) -> int:
+        """New subscriptions waiting on an XPUB socket (a first byte 1; 0 is an unsubscription)."""
+        n = 0
+        while s.poll(0):
+            n += s.recv()[:1] == b"\x01"
+        return n
 
     def _request(self, frames: list[bytes]) -> None:
         ident, body = frames[0], frames[-1]
