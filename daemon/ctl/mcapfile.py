@@ -143,8 +143,10 @@ class _Cdr:
 def raw_image(header: dict[str, Any], pixels: bytes | memoryview) -> bytes:
     """A bus frame (header + row-major pixels) as a CDR ``foxglove_msgs/msg/RawImage``."""
     encoding = raw_image_encoding(header)
-    shape = [int(n) for n in header["shape"]]
-    height, width = shape[0], shape[1]
+    try:
+        height, width = (int(n) for n in header["shape"][:2])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UnsupportedFrame(f"frame header has no usable shape ({header.get('shape')!r})") from exc
     t = int(header.get("host_time_ns") or 0)
     c = _Cdr()
     c.u32(t // 1_000_000_000, t % 1_000_000_000)  # sec is int32 in the schema: fine until 2038

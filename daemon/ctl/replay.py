@@ -12,6 +12,7 @@ Only 127.0.0.1 and ipc endpoints are accepted: a replay is for this computer.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import socket
@@ -174,8 +175,8 @@ class ReplayServer:
             s.close()
 
 
-def messages(f: IO[bytes]) -> Iterator[tuple[str, int, int, bytes]]:
-    """``(topic, sequence, log_time, data)`` in the file's order (the order they were received)."""
+def messages(f: IO[bytes]) -> Iterator[tuple[str, str, int, int, bytes]]:
+    """``(topic, message encoding, sequence, log_time, data)`` in the file's order (the order received)."""
     try:
         from mcap.exceptions import McapError
         from mcap.reader import make_reader
@@ -184,37 +185,51 @@ def messages(f: IO[bytes]) -> Iterator[tuple[str, int, int, bytes]]:
                                                           f"installed): pip install --upgrade rita") from None
     try:
         for _, channel, m in make_reader(f).iter_messages(log_time_order=False):
-            yield channel.topic, m.sequence, m.log_time, m.data
+            yield channel.topic, channel.message_encoding, m.sequence, m.log_time, m.data
     except (McapError, OSError, ValueError, struct.error) as exc:  # a truncated file fails its seeks too
         raise bad_input(f"{getattr(f, 'name', 'the file')} is not a readable MCAP recording: {exc}") from None
 
 
-def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> int:
-    """Publish every message of ``f``; returns how many. ``speed`` None: as fast as possible."""
-    import json
+def _decoded(topic: str, encoding: str, data: bytes) -> Any:
+    """A message's content, or None for one not in ritad's layout (another tool's channel, bad JSON)."""
+    if topic == fmt.FRAME_TOPIC:
+        return data if encoding == "cdr" else None
+    if encoding != "json":
+        return None
+    try:
+        return json.loads(data)
+    except ValueError:
+        return None
 
-    n = 0
+
+def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, int]:
+    """Publish every message of ``f``: ``(published, skipped)``. ``speed`` None: as fast as possible."""
+    n = skipped = 0
     start = time.monotonic()
     first: int | None = None
     due = 0.0
     header: dict[str, Any] | None = None
-    for topic, seq, log_ns, data in messages(f):
+    for topic, encoding, seq, log_ns, data in messages(f):
         first = log_ns if first is None else first
         if speed is not None:
             due = max(due, (log_ns - first) / 1e9 / speed)
             server.serve(max(0.0, start + due - time.monotonic()))
         elif n % 256 == 0:
             server.serve(0)
+        content = _decoded(topic, encoding, data)
+        if content is None:
+            skipped += 1
+            continue
         if topic == fmt.FRAME_HEADER_TOPIC:
-            header = json.loads(data)
+            header = content
         elif topic == fmt.FRAME_TOPIC:
             if header is not None:
                 server.publish_frame(header, fmt.pixels_of(data))
             header = None
         else:
-            server.publish(topic, seq, log_ns, json.loads(data))
+            server.publish(topic, seq, log_ns, content)
         n += 1
-    return n
+    return n, skipped
 
 
 def _speed(text: str) -> float | None:
@@ -255,9 +270,10 @@ def cmd_replay(_: None, a: argparse.Namespace) -> int:
             while server.subscribers == 0:
                 server.serve(0.2)
         with open(path, "rb") as f:
-            n = play(server, f, a.speed)
+            n, skipped = play(server, f, a.speed)
         server.serve(a.linger)
-        print(f"replayed {n} messages from {path}", file=sys.stderr, flush=True)
+        other = f" ({skipped} skipped: not in ritactl record's layout)" if skipped else ""
+        print(f"replayed {n} messages from {path}{other}", file=sys.stderr, flush=True)
         return Exit.OK
     except KeyboardInterrupt:
         return Exit.INTERRUPTED

@@ -293,3 +293,24 @@ def test_ctrl_c_ends_a_recording_with_a_complete_file(session, tmp_path: Path, c
         timer.cancel()
     assert "recorded" in capsys.readouterr().out
     assert any(t == "tracker.point" for t, _, _ in _read(out)) and not list(tmp_path.glob(".*"))
+
+
+def test_replay_skips_channels_of_another_layout(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.mcap"
+    with open(path, "wb") as f:
+        rec = Recorder(f, {}, "none")
+        rec.telemetry("robot.state", {"seq": 1, "t_ns": 10, "data": {"x_mm": 1.0}}, 11)
+        schema = rec.writer.register_schema("other/Thing", "ros2msg", b"int32 a")
+        other = rec.writer.register_channel("/other", "cdr", schema)
+        rec.writer.add_message(other, log_time=12, data=b"\x00\x01\x00\x00\x05\x00\x00\x00", publish_time=12)
+        rec.telemetry("robot.state", {"seq": 2, "t_ns": 13, "data": {"x_mm": 2.0}}, 14)
+        rec.frame({"seq": 1, "pixel_format": "Mono8", "shape": None, "dtype": "|u1"}, b"", 15)  # no shape
+        rec.finish()
+    assert rec.counts.unsupported == 1
+    server = ReplayServer(f"ipc://{tmp_path}/cmd", str(path))
+    try:
+        with open(path, "rb") as f:
+            assert play(server, f, None) == (3, 1)  # two states and the frame's header; /other skipped
+        assert server.latest["robot.state"]["data"] == {"x_mm": 2.0}
+    finally:
+        server.close()
