@@ -14,6 +14,8 @@ Examples::
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
+    ritactl record --out FILE.mcap [--duration S] [--frames every N|off]  # telemetry to MCAP
+    ritactl replay FILE.mcap [--speed X|max] [--endpoint ipc:///PATH]  # republish it, for watch
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
 
@@ -145,6 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     from daemon.ctl.datasets import add_parsers as add_dataset_parsers
     from daemon.ctl.keys import add_parser as add_keys_parser
     from daemon.ctl.plate import add_parsers as add_plate_parsers
+    from daemon.ctl.record import add_parser as add_record_parser
+    from daemon.ctl.replay import add_parser as add_replay_parser
 
     ap = _Parser(prog="ritactl", description="Operator client for ritad",
                  epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ritactl.toml, else ipc:///run/ritad/cmd. "
@@ -171,6 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_plate_parsers(sub)
     add_keys_parser(sub)
     ctl_fetch.add_parser(sub)
+    add_record_parser(sub)
+    add_replay_parser(sub)
     add_console_parser(sub)
     call = sub.add_parser("call", help="send any bus command (JSON result)")
     call.add_argument("command", help="bus command name (`ritactl call help` lists them)")

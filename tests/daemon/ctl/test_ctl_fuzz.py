@@ -98,7 +98,7 @@ def make_safe(argv: list[str], path: tuple[str, ...], rng: random.Random, tmp: s
     verb = path[0] if path else ""
     if verb in PROCEDURE_VERBS:
         argv.append("--detach")  # no worker here: following would wait for ever
-    if verb == "watch":
+    if verb in ("watch", "record"):
         argv += ["--duration", "0.3"]
     if verb == "keys":
         argv += ["--dir", f"{tmp}/keys"]
@@ -115,6 +115,8 @@ def make_safe(argv: list[str], path: tuple[str, ...], rng: random.Random, tmp: s
         argv[2:] = [rng.choice(JSONS)] if rng.random() < 0.7 else argv[2:3]
     if "--endpoint" in argv[:-1] and rng.random() < 0.8:
         argv[argv.index("--endpoint") + 1] = endpoint
+    if verb == "replay":  # never waiting for a subscriber; the last --endpoint wins
+        argv += ["--no-wait", "--linger", "0", "--endpoint", f"ipc://{tmp}/replay"]
     if "--out" in argv:
         i = argv.index("--out")
         argv[i + 1:i + 2] = [rng.choice(["f.png", "missing/f.png", "."])]

@@ -1,0 +1,278 @@
+"""``ritactl record``: ritad's telemetry (and frames) to an MCAP file, the way rosbag2 records a session.
+
+It subscribes as ``ritactl watch`` does (same endpoint discovery through ``hello``, same CURVE
+keys) and writes each message as it arrives (layout: daemon/ctl/mcapfile.py). The file is
+written under a hidden ``.NAME.partial`` beside the target and renamed into place once the
+MCAP summary is written, so a reader never sees a truncated recording under the real name.
+Ctrl-C and ``--duration`` end it the same way; a progress line shows the size and duration.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, Iterator
+
+import zmq
+
+from daemon import __version__
+from daemon.bus.client import Client, Subscriber
+from daemon.bus.protocol import CommandError, unpack
+from daemon.bus.storage import fsync_dir
+from daemon.ctl import mcapfile as fmt
+from daemon.ctl.exitcodes import CtlError, Exit, bad_input
+from daemon.ctl.watch import NO_FRAMES, Screen
+
+#: deep enough for many seconds of 1 kHz tracker packets while a chunk is compressed or the disk stalls
+TELEMETRY_HWM = 200_000
+FRAME_HWM = 4
+COMPRESSIONS = ("auto", "zstd", "lz4", "none")
+
+
+@dataclass
+class Counts:
+    messages: int = 0
+    frames: int = 0
+    missed: int = 0          # telemetry messages lost before they reached the recorder (seq gaps)
+    frames_missed: int = 0   # frames the frame socket dropped for this subscriber (not the ones --frames skips)
+    unsupported: int = 0     # frames with no RawImage encoding: only their header is recorded
+    topics: dict[str, int] = field(default_factory=dict)
+
+
+class Recorder:
+    """Bus messages in, MCAP out (no sockets: the benchmark drives it directly)."""
+
+    def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd") -> None:
+        try:
+            from mcap.writer import CompressionType, Writer
+        except ImportError as exc:
+            raise CtlError(Exit.BAD_INPUT, "missing_package",
+                           f"recording needs the mcap package ({exc.name} is not installed): "
+                           f"pip install --upgrade rita") from None
+        kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
+        self.stream = stream
+        self.writer = Writer(stream, compression=kind)
+        self.writer.start(profile=fmt.PROFILE, library=f"ritactl {__version__}")
+        self.writer.add_metadata(fmt.METADATA_NAME, metadata)
+        self.channels: dict[str, int] = {}
+        self.counts = Counts()
+        self._seq: int | None = None
+        self._frame_seq: int | None = None  # the last frame seen
+        self.kept_seq: int | None = None  # the last frame written (--frames every N counts from it)
+
+    def _channel(self, topic: str, sample: Any) -> int:
+        ch = self.channels.get(topic)
+        if ch is None:
+            if topic == fmt.FRAME_TOPIC:
+                schema = self.writer.register_schema(fmt.RAW_IMAGE_SCHEMA, "ros2msg", fmt.RAW_IMAGE_ROS2MSG.encode())
+                ch = self.channels[topic] = self.writer.register_channel(topic, "cdr", schema)
+                return ch
+            schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(fmt.infer_schema(topic, sample)))
+            ch = self.channels[topic] = self.writer.register_channel(topic, "json", schema)
+        return ch
+
+    def telemetry(self, topic: str, msg: dict[str, Any], recv_ns: int) -> None:
+        seq = int(msg.get("seq") or 0)
+        if self._seq is not None and seq > self._seq + 1:
+            self.counts.missed += seq - self._seq - 1
+        self._seq = seq
+        data = msg.get("data")
+        self._write(topic, data, fmt.to_json(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
+
+    def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
+        seq = int(header.get("seq") or 0)
+        if self._frame_seq is not None and seq > self._frame_seq + 1:
+            self.counts.frames_missed += seq - self._frame_seq - 1
+        self._frame_seq = self.kept_seq = seq
+        t = int(header.get("host_time_ns") or recv_ns)
+        self._write(fmt.FRAME_HEADER_TOPIC, header, fmt.to_json(header), t, recv_ns, seq)
+        try:
+            image = fmt.raw_image(header, pixels)
+        except fmt.UnsupportedFrame:
+            self.counts.unsupported += 1
+            return
+        self._write(fmt.FRAME_TOPIC, None, image, t, recv_ns, seq)
+        self.counts.frames += 1
+
+    def note_frame_seen(self, seq: int) -> None:
+        """A frame --frames skips: keeps the frame gap count honest."""
+        if self._frame_seq is not None and seq > self._frame_seq + 1:
+            self.counts.frames_missed += seq - self._frame_seq - 1
+        self._frame_seq = seq
+
+    def _write(self, topic: str, sample: Any, data: bytes, log_ns: int, recv_ns: int, seq: int) -> None:
+        self.writer.add_message(self._channel(topic, sample), log_time=log_ns, data=data, publish_time=recv_ns,
+                                sequence=seq % fmt.SEQ_MOD)
+        self.counts.messages += 1
+        self.counts.topics[topic] = self.counts.topics.get(topic, 0) + 1
+
+    def finish(self) -> None:
+        self.writer.finish()  # type: ignore[no-untyped-call]  # mcap 1.6 leaves finish() unannotated
+
+
+def parse_frames(words: list[str] | None) -> int:
+    """``--frames off`` → 0, ``--frames every N`` → N (keep one frame in N)."""
+    if not words or words == ["off"]:
+        return 0
+    if len(words) == 2 and words[0] == "every" and words[1].isdigit() and int(words[1]) >= 1:
+        return int(words[1])
+    raise CtlError(Exit.USAGE, "usage", f"--frames must be 'off' or 'every N' with N >= 1, got {' '.join(words)!r}")
+
+
+def check_out(out: Path, force: bool) -> Path:
+    """The target file, refused when its folder is missing or it exists (unless ``force``)."""
+    if out.is_dir():
+        raise bad_input(f"--out {out} is a folder: name the .mcap file to write")
+    if not out.parent.is_dir():
+        raise bad_input(f"--out {out}: the folder {out.parent} does not exist")
+    if out.exists() and not force:
+        raise bad_input(f"--out {out} exists: choose another name, or --force to replace it")
+    return out
+
+
+@contextmanager
+def _stop_on_sigint(stop: threading.Event) -> Iterator[None]:
+    """Ctrl-C sets ``stop`` instead of raising, so the file is always finished (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
+
+
+def progress_line(path: Path, seconds: float, size: int, c: Counts, frames: bool) -> str:
+    fr = f", {c.frames} frames" + (f" ({c.frames_missed} dropped by the frame socket)" if c.frames_missed else "") \
+        if frames else ""
+    lost = f", {c.missed} telemetry messages MISSED" if c.missed else ""
+    return f"recording {path.name}: {seconds:.1f} s, {_mb(size)}, {c.messages} messages{fr}{lost}"
+
+
+def _drain(sub: Subscriber, rec: Recorder, every: int, limit: int = 2000) -> None:
+    """Write what has arrived (at most ``limit`` messages, so the progress line keeps moving)."""
+    for _ in range(limit):
+        try:
+            frames = sub.sock.recv_multipart(zmq.NOBLOCK, copy=False)
+        except zmq.Again:
+            return
+        now = time.time_ns()
+        msg = unpack(frames[1].buffer)
+        if frames[0].bytes != b"camera.frame":
+            rec.telemetry(frames[0].bytes.decode(), msg, now)
+        elif rec.kept_seq is None or int(msg["seq"]) >= rec.kept_seq + every:
+            rec.frame(msg, frames[2].buffer if len(frames) > 2 else b"", now)
+        else:
+            rec.note_frame_seen(int(msg["seq"]))
+
+
+def _record_loop(subs: list[tuple[Subscriber, int]], rec: Recorder, a: argparse.Namespace, path: Path,
+                 stop: threading.Event) -> float:
+    poller = zmq.Poller()
+    for s, _ in subs:
+        poller.register(s.sock, zmq.POLLIN)
+    screen = Screen(sys.stderr, sys.stderr.isatty(), every=5.0)
+    start = time.monotonic()
+    end = start + (a.duration if a.duration is not None else float("inf"))
+    while not stop.is_set() and (now := time.monotonic()) < end:
+        ready = dict(poller.poll(int(min(200.0, max(0.0, (end - now) * 1000)))))
+        for s, every in subs:
+            if s.sock in ready:
+                _drain(s, rec, every)
+        screen.status(progress_line(path, time.monotonic() - start, rec.stream.tell(), rec.counts, len(subs) > 1),
+                      time.monotonic())
+    for s, every in subs:  # what arrived before the stop belongs to the recording
+        _drain(s, rec, every, limit=1_000_000)
+    screen.close()
+    return time.monotonic() - start
+
+
+def _frames_hint(c: Client) -> str | None:
+    try:
+        return None if c.call("camera.status", timeout=5).get("streaming") else NO_FRAMES
+    except CommandError as exc:
+        return f"no frames: the camera is not available ({exc.args[0]})"
+
+
+def cmd_record(c: Client, a: argparse.Namespace) -> int:
+    every = parse_frames(a.frames)
+    if a.duration is not None and not 0 < a.duration < 1e7:
+        raise CtlError(Exit.USAGE, "usage", f"--duration must be more than 0 seconds, got {a.duration:g}")
+    out = check_out(Path(a.out), a.force)
+    tmp = out.parent / f".{out.name}.partial"
+    subs = [(c.subscriber(hwm=TELEMETRY_HWM), 0)]  # subscribed before the first message we want
+    if every:
+        subs.append((c.subscriber(frames=True, hwm=FRAME_HWM), every))
+        if (hint := _frames_hint(c)) is not None:
+            print(hint, file=sys.stderr, flush=True)
+    # auto: frames are nearly all of the bytes and compressing them halves the recorder's speed
+    # (bench/bench_record.py); telemetry alone is small and shrinks to 40 % with zstd
+    compression = ("none" if every else "zstd") if a.compression == "auto" else a.compression
+    meta = {"hello": json.dumps(c.hello(), default=str), "frames": f"every {every}" if every else "off",
+            "compression": compression, "endpoint": c.endpoint}
+    stop = threading.Event()
+    try:
+        with open(tmp, "wb") as f, _stop_on_sigint(stop):
+            rec = Recorder(f, meta, compression)
+            seconds = _record_loop(subs, rec, a, out, stop)
+            rec.finish()
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, out)
+        fsync_dir(out.parent)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        for s, _ in subs:
+            s.close()
+    return _report(out, seconds, rec.counts, bool(every), a.json, stop.is_set())
+
+
+def _report(out: Path, seconds: float, cnt: Counts, frames: bool, as_json: bool, interrupted: bool) -> int:
+    size = out.stat().st_size
+    if as_json:
+        print(json.dumps({"path": str(out), "duration_s": round(seconds, 3), "bytes": size,
+                          "messages": cnt.messages, "topics": cnt.topics, "frames": cnt.frames,
+                          "missed": cnt.missed, "frames_missed": cnt.frames_missed,
+                          "frames_unsupported": cnt.unsupported}), flush=True)
+    else:
+        print(f"recorded {out}: {seconds:.1f} s, {_mb(size)}, {cnt.messages} messages on {len(cnt.topics)} "
+              f"topics" + (f", {cnt.frames} frames" if frames else ""), flush=True)
+    if cnt.missed:
+        print(f"ritactl: WARNING: {cnt.missed} telemetry messages were lost before they reached the recorder "
+              f"(gaps in seq)", file=sys.stderr, flush=True)
+    if cnt.unsupported:
+        print(f"ritactl: WARNING: {cnt.unsupported} frames have a pixel format Foxglove cannot show: "
+              f"only their headers are in the file", file=sys.stderr, flush=True)
+    return Exit.INTERRUPTED if interrupted else Exit.OK
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("record", help="record telemetry (and frames) to an MCAP file (Foxglove opens it)",
+                       description="Record ritad's telemetry, and frames with --frames, to an MCAP file until "
+                                   "Ctrl-C or --duration. The file appears under its name only once complete.")
+    p.add_argument("--out", required=True, metavar="FILE.mcap", help="the file to write")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--frames", nargs="+", metavar="every N|off", default=["off"],
+                   help="record one camera frame in N ('every 1': all of them), or none (default: off)")
+    p.add_argument("--compression", choices=COMPRESSIONS, default="auto", help="MCAP chunk compression "
+                   "(default auto: none when frames are recorded, else zstd)")
+    p.add_argument("--force", action="store_true", help="replace FILE.mcap if it exists")
+    p.set_defaults(fn=cmd_record)
+
+
+__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "check_out", "cmd_record", "parse_frames",
+           "progress_line"]
