@@ -22,6 +22,8 @@ import pytest
 from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[2]
+#: the base (client) requirements: the bus, `ritactl validate`'s schemas, `ritactl record`'s MCAP
+CLIENT = ("pyzmq", "msgpack", "jsonschema", "mcap")
 HEAVY = {"numpy", "opencv-python-headless", "harvesters", "genicam", "pyserial", "matplotlib"}
 
 
@@ -31,10 +33,10 @@ def names(requirements: list[str]) -> set[str]:
 
 def test_base_requirements_are_the_client_and_the_robot_extra_has_the_rest():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert names(project["dependencies"]) == {"pyzmq", "msgpack", "jsonschema"}
+    assert names(project["dependencies"]) == set(CLIENT)
     extras = project["optional-dependencies"]
     assert HEAVY <= names(extras["robot"])
-    assert names(extras["client"]) <= {"pyzmq", "msgpack", "jsonschema"}  # the documented laptop extra adds nothing heavy
+    assert names(extras["client"]) <= set(CLIENT)  # the documented laptop extra adds nothing heavy
 
 
 def _closure(dist_names: list[str]) -> list[str]:
@@ -111,7 +113,7 @@ def test_laptop_install_without_no_deps_has_no_broken_requirements(tmp_path):
     assert res.returncode == 0, res.stderr
     py = venv / "bin" / "python"
     site = Path(run(py, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))").stdout.strip())
-    _link_site(_closure(["pyzmq", "msgpack", "jsonschema"]), tmp_path / "bus")
+    _link_site(_closure(list(CLIENT)), tmp_path / "bus")
     (site / "bus.pth").write_text(str(tmp_path / "bus") + "\n")
     res = run(py, "-m", "pip", "install", "--no-index", wheel)  # no --no-deps: requirements must resolve
     assert res.returncode == 0 and "ERROR" not in res.stdout + res.stderr, res.stdout[-2000:] + res.stderr[-2000:]
