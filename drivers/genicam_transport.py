@@ -1,7 +1,7 @@
 """The GigE side of a GenICam camera: chunk data, transport settings, PTP status, link statistics.
 
-:func:`drivers.genicam_settings.apply_settings` calls :func:`apply_chunks` and
-:func:`apply_transport` after the imaging settings, in this order:
+:func:`apply_all` applies the imaging settings (:func:`drivers.genicam_settings.apply_settings`),
+then :func:`apply_chunks` and :func:`apply_transport`, in this order:
 
 1. ChunkModeActive, then ChunkSelector/ChunkEnable for Timestamp, ExposureTime, Gain;
 2. packet size: GevSCPSPacketSize (GigE Vision name) or DeviceStreamChannelPacketSize (SFNC);
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from genicam import genapi
 from harvesters.core import Callback
 
 from drivers.base import MIN_PACKET_BYTES, CameraSettings, DeviceError
@@ -155,7 +156,10 @@ def ptp_status(w: SettingsWriter) -> dict[str, Any]:
     if enabled is None:
         return {"available": False}
     if enabled:
-        w.execute("PtpDataSetLatch")  # cameras that latch their PTP data set report it only after this
+        try:  # cameras that latch their PTP data set report it only after this
+            w.execute("PtpDataSetLatch")
+        except genapi.GenericException as exc:  # status must answer: the latch's failure is reported
+            return {"available": True, "enabled": True, "error": f"PtpDataSetLatch: {exc}"}
     role = next((v for v in (w.read(n) for n in PTP_STATUS_NODES) if v is not None), None)
     offset = next((v for v in (w.read(n) for n in PTP_OFFSET_NODES) if v is not None), None)
     return {"available": True, "enabled": bool(enabled), "status": role,

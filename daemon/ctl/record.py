@@ -172,7 +172,8 @@ def _drain(sub: Subscriber, rec: Recorder, every: int, limit: int = 2000) -> Non
         msg = unpack(frames[1].buffer)
         if frames[0].bytes != b"camera.frame":
             rec.telemetry(frames[0].bytes.decode(), msg, now)
-        elif rec.kept_seq is None or int(msg["seq"]) >= rec.kept_seq + every:
+        elif rec.kept_seq is None or not 0 <= int(msg["seq"]) - rec.kept_seq < every:
+            # a seq below the last kept one is ritad restarted (its seq begins again): keep it
             rec.frame(msg, frames[2].buffer if len(frames) > 2 else b"", now)
         else:
             rec.note_frame_seen(int(msg["seq"]))

@@ -31,7 +31,7 @@ from daemon.bus.protocol import SCHEMA_VERSION, ErrorCode, ProtocolError, error_
 from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
 
-_LOCAL_TCP = re.compile(r"^tcp://(127\.0\.0\.1|localhost|\[::1\]):(\d{1,5}|\*)$")
+_LOCAL_TCP = re.compile(r"^tcp://(127\.0\.0\.1|localhost):(\d{1,5}|\*)$")
 ANSWERED = ("hello", "ping", "state", "status", "health")
 
 
@@ -82,6 +82,7 @@ class ReplayServer:
         self.pub = self._bind(zmq.XPUB, want[1])  # XPUB: we see subscriptions arrive
         self.frames = self._bind(zmq.XPUB, want[2])
         self.pub.setsockopt(zmq.SNDHWM, 0)  # a replay has the whole file: never drop for a slow reader
+        self.frames.setsockopt(zmq.SNDHWM, 2)  # frames are 12 MB: drop for a slow reader, as ritad does
         self.source = source
         self.latest: dict[str, dict[str, Any]] = {}
         self.seq = 0

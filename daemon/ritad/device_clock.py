@@ -31,10 +31,13 @@ class DeviceClock:
         try:
             device_ns = int(dt[0][-1]) * 1_000_000_000 + int(dt[1][-1]) * 1000  # type: ignore[index]
             host_ns = int(payload["host_time_ns"])
-        except (TypeError, IndexError, KeyError, ValueError):
+        except (TypeError, IndexError, KeyError, ValueError, OverflowError):
             return
         with self._lock:
-            self._map.add(device_ns, host_ns)
+            try:
+                self._map.add(device_ns, host_ns)
+            except (ValueError, OverflowError):  # a packet the map cannot take must not stop its publishing
+                return
 
     def status(self) -> dict[str, Any]:
         """The mapping's offset, drift, sigma, samples and window (ClockMap.status)."""

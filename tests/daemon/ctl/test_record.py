@@ -285,7 +285,15 @@ def test_replay_refuses_commands_it_cannot_answer(tmp_path: Path) -> None:
 def test_ctrl_c_ends_a_recording_with_a_complete_file(session, tmp_path: Path, capsys) -> None:
     _, _, ep, _ = session
     out = tmp_path / "ctrl-c.mcap"
-    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))  # the operator's Ctrl-C
+
+    def ctrl_c() -> None:  # the operator's Ctrl-C, once the recording runs (its partial file exists)
+        deadline = time.monotonic() + 30.0
+        while not (tmp_path / ".ctrl-c.mcap.partial").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    timer = threading.Timer(0.0, ctrl_c)
     timer.start()
     try:
         assert ctl.main(["--endpoint", ep, "record", "--out", str(out)]) == Exit.INTERRUPTED
