@@ -82,7 +82,12 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray
 
 
 def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
-    """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``."""
+    """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``.
+
+    A packet's arrival after ``t_end_ns`` is not enough: one sent before the move ended and held
+    up on the way (a busy host) arrives late too. Its records' own times, on the host clock
+    through the clock map, must reach ``t_end_ns``.
+    """
     end = time.monotonic() + wait_s
     while time.monotonic() < end:
         got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
@@ -91,7 +96,7 @@ def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, w
         data = got[1].get("data") if isinstance(got[1], dict) else None
         if isinstance(data, dict) and data.get("n"):
             msgs.append(data)
-            if int(data["host_time_ns"]) >= t_end_ns:
+            if int(data["host_time_ns"]) >= t_end_ns and int(_host_times(msgs)[0].max()) >= t_end_ns:
                 return
 
 

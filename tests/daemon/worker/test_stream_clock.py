@@ -9,7 +9,7 @@ import random
 
 import numpy as np
 
-from daemon.worker.stream import _abs_points
+from daemon.worker.stream import _abs_points, _collect_until
 
 HOST0 = 1_760_000_000_000_000_000
 
@@ -48,3 +48,29 @@ def test_without_device_clock_records_take_their_packets_arrival():
     P, t, sigma = _abs_points(msgs, np.eye(4))
     assert sigma is None and len(t) == 100
     assert set(t.tolist()) == {m["host_time_ns"] for m in msgs}
+
+
+class _Sub:
+    """A subscriber handing out the given messages in order, then nothing."""
+
+    def __init__(self, msgs: list[dict]) -> None:
+        self.msgs = list(msgs)
+
+    def recv(self, timeout: float) -> tuple[str, dict] | None:
+        return ("tracker.point", {"data": self.msgs.pop(0)}) if self.msgs else None
+
+
+def test_a_late_packet_from_before_the_move_end_does_not_end_the_collection():
+    # packets every 10 ms arriving up to 5 ms after their last record; the one holding records up to
+    # 0.45 s is held up 150 ms on the way, so it arrives after the move's end at 0.5 s
+    msgs, _ = _packets(1.0)
+    msgs.sort(key=lambda m: m["device_time"][1][-1] + 10**6 * m["device_time"][0][-1])
+    late = msgs[44]
+    late["host_time_ns"] += 150_000_000
+    before = [m for m in msgs if m["host_time_ns"] < late["host_time_ns"]]
+    after = sorted((m for m in msgs if m["host_time_ns"] > late["host_time_ns"]), key=lambda m: m["host_time_ns"])
+    got: list[dict] = []
+    _collect_until(_Sub(before + [late] + after), got, HOST0 + 500_000_000, wait_s=1.0)
+    assert got[-1] is not late, "the collection ended on a packet sent before the move's end"
+    _, t, _ = _abs_points(got, np.eye(4))
+    assert t.max() >= HOST0 + 500_000_000
