@@ -18,9 +18,10 @@ demo: $(STAMP)
 	$(PY) -m fakes.demo
 
 # Three workers on the 2-core machine (much of the suite waits on daemons and devices, not the CPU),
-# whole files per worker: a module's shared daemon (the closed loops) is built once.
+# whole files per worker: a module's shared daemon (the closed loops) is built once. The longest files
+# go first (tests/conftest.py LONGEST_FIRST; xdist's reordering by test count off) so none starts last.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 3 --dist loadfile --durations=15
+	$(PY) -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder --durations=15
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py

@@ -95,3 +95,10 @@ def test_the_checks_catch_offenders():
     assert repeated_blocks(files) == ["fakes/b.py:3 repeats fakes/a.py:2"]
     renamed = copy.replace("value_", "result_")  # other names: not a copy by this rule
     assert repeated_blocks({"fakes/a.py": files["fakes/a.py"], "fakes/c.py": f"def g(source):\n{renamed}\n"}) == []
+
+
+def test_the_longest_first_files_exist():
+    from tests.conftest import LONGEST_FIRST
+
+    missing = [p for p in LONGEST_FIRST if not (ROOT / p).is_file()]
+    assert not missing, f"tests/conftest.py LONGEST_FIRST names files that are gone: {missing}"
