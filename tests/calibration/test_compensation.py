@@ -134,3 +134,36 @@ def test_a_backward_approach_gives_the_forward_result(roll, pitch):
     assert np.allclose(poses[0][:3, :3], H_at[:3, :3], atol=2e-5)  # and it is the robot's true attitude
     mark = [300.0, -40.0, -H_MM]
     assert np.linalg.norm(apply_H(poses[0], mark) - apply_H(poses[1], mark)) < 0.010
+
+
+def test_a_backward_approach_with_an_eccentric_mount_gives_the_true_pose():
+    """MOVE < 0 with the mount's offset shown: the offset (fixed toward the tracker, whichever way the
+    robot drove) comes off every point before the direction of travel is read, so backward = forward = truth."""
+    from calibration.mount import MountOffset
+
+    heading, d, roll, pitch = 120.0, 200.0, 0.4, -0.3
+    trk = np.array([-1500.0, 3000.0, 1200.0])
+    m = MountOffset(np.array([0.10, -0.04]), np.diag([1e-4, 1e-4]), True)
+    H_at = pose(heading, roll, pitch, (1000.0, 500.0, 0.0))
+    refl = np.array([0.0, 0.0, H_MM])
+    seen = lambda P: P + m.offset_abs(P, trk)  # noqa: E731 (what the tracker measures of an eccentric reflector)
+    x = H_at[:3, 0] * [1, 1, 0] / np.linalg.norm(H_at[:3, 0][:2])
+    poses = []
+    for reverse in (False, True):
+        H_prev = pose(heading, roll + 0.01, pitch - 0.01, H_at[:3, 3] - (-d if reverse else d) * x)
+        stop = Stop(seen(apply_H(H_prev, refl)), seen(apply_H(H_at, refl)), (roll + 0.01, pitch - 0.01), (roll, pitch),
+                    reverse=reverse)
+        a = compensate(Compensation(tilt=True, mount=True), stop, ROB_H_SCN, imu_offset=(0.0, 0.0), mount=m,
+                       abs_t_trk=trk)
+        assert a.applied == ["mount", "tilt"], a.skipped
+        poses.append(robot_pose_at(a.abs_P_prev, a.abs_P_at, roll_deg=a.roll_deg, pitch_deg=a.pitch_deg))
+    mark = [300.0, -40.0, -H_MM]  # in the pose robot_pose_at gives: the robot's axes at the reflector
+    H_refl = H_at.copy()
+    H_refl[:3, 3] = apply_H(H_at, refl)
+    truth = apply_H(H_refl, mark)
+    for P in poses:  # the offset turns by ~0.01° over the move: what is left is well under a micrometre
+        assert np.linalg.norm(apply_H(P, mark) - truth) < 0.002, np.linalg.norm(apply_H(P, mark) - truth)
+    # without the mount, each direction is off by the offset (and the two by the same amount)
+    b = compensate(Compensation(tilt=True), stop, ROB_H_SCN, imu_offset=(0.0, 0.0))
+    off = apply_H(robot_pose_at(b.abs_P_prev, b.abs_P_at, roll_deg=b.roll_deg, pitch_deg=b.pitch_deg), mark) - truth
+    assert 0.09 < np.linalg.norm(off[:2]) < 0.12
