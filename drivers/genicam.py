@@ -173,8 +173,9 @@ class GenICamCamera(Camera):
         self._warnings = []
         self._applied = {}
         w = self._writer()
+        minimum = getattr(self._ia, "min_num_buffers", 1)  # harvesters: STREAM_INFO_BUF_ANNOUNCE_MIN
         self._software = apply_all(w, self._stream_writer(), self.settings or CameraSettings(),
-                                   self._set_buffers)
+                                   self._set_buffers, int(minimum) if isinstance(minimum, int) else 1)
         exposure = w.read("ExposureTime")
         self._exposure = None if exposure is None else float(exposure)
         self.counters["applies"] += 1

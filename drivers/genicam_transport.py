@@ -11,7 +11,10 @@ then :func:`apply_chunks` and :func:`apply_transport`, in this order:
 3. DeviceLinkThroughputLimitMode / DeviceLinkThroughputLimit (clamped into the camera's range
    with a warning: the range moves with the link speed);
 4. the stream's StreamPacketResendEnable;
-5. the stream buffer count (harvesters' ``num_buffers``, set before acquisition starts).
+5. the stream buffer count (harvesters' ``num_buffers``, set before acquisition starts); a count
+   below the producer's minimum (its ``StreamAnnounceBufferMinimum`` node or harvesters'
+   ``min_num_buffers``, the larger) is raised to that minimum with a warning naming both: harvesters
+   refuses a smaller count, which would leave the camera in FAULT over a tuning value.
 
 The chunks come first because they change the payload size the buffers are sized for. Packet
 size, throughput and resend are features of two node maps: the camera's and the GenTL data
@@ -132,8 +135,23 @@ def _throughput(w: SettingsWriter, limit: int) -> None:
     w.write("DeviceLinkThroughputLimit", lo + (limit - lo) // inc * inc)
 
 
+def _buffers(w: SettingsWriter, stream: SettingsWriter, want: int, set_buffers: SetBuffers | None,
+             min_buffers: int) -> None:
+    if want < 1:
+        raise DeviceError(f"stream_buffers={want} must be >= 1", code="bad_setting")
+    if set_buffers is None:
+        w.warn(f"no stream to size; stream_buffers={want} not applied")
+        return
+    node_min = stream.read("StreamAnnounceBufferMinimum")
+    lo = max(min_buffers, int(node_min) if isinstance(node_min, (int, float)) else 1)
+    if want < lo:
+        stream.warn(f"stream_buffers={want} is below the GenTL producer's minimum of {lo} buffers; using {lo}")
+        want = lo
+    stream.applied["StreamBufferCount"] = set_buffers(want)
+
+
 def apply_transport(w: SettingsWriter, stream: SettingsWriter, s: CameraSettings,
-                    set_buffers: SetBuffers | None) -> None:
+                    set_buffers: SetBuffers | None, min_buffers: int = 1) -> None:
     """Packet size, throughput limit, packet resend and buffer count, in that order (module docstring)."""
     if s.packet_size is not None:
         _packet_size(w, stream, s.packet_size)
@@ -142,12 +160,7 @@ def apply_transport(w: SettingsWriter, stream: SettingsWriter, s: CameraSettings
     if s.packet_resend is not None:
         stream.write("StreamPacketResendEnable", bool(s.packet_resend))
     if s.stream_buffers is not None:
-        if s.stream_buffers < 1:
-            raise DeviceError(f"stream_buffers={s.stream_buffers} must be >= 1", code="bad_setting")
-        if set_buffers is None:
-            w.warn(f"no stream to size; stream_buffers={s.stream_buffers} not applied")
-        else:
-            stream.applied["StreamBufferCount"] = set_buffers(s.stream_buffers)
+        _buffers(w, stream, s.stream_buffers, set_buffers, min_buffers)
 
 
 def ptp_status(w: SettingsWriter) -> dict[str, Any]:
@@ -198,10 +211,14 @@ def read_chunks(w: SettingsWriter) -> dict[str, Any]:
 
 
 def apply_all(w: SettingsWriter, stream: SettingsWriter, s: CameraSettings,
-              set_buffers: SetBuffers | None) -> bool:
-    """Imaging settings, then chunks, then transport; returns whether software triggering works."""
+              set_buffers: SetBuffers | None, min_buffers: int = 1) -> bool:
+    """Imaging settings, then chunks, then transport; returns whether software triggering works.
+
+    ``min_buffers`` is the producer's buffer minimum as the acquirer knows it (harvesters'
+    ``min_num_buffers``); the stream's own ``StreamAnnounceBufferMinimum`` raises it further.
+    """
     software = apply_settings(w, s)
     if s.chunks is not None:
         apply_chunks(w, bool(s.chunks))
-    apply_transport(w, stream, s, set_buffers)
+    apply_transport(w, stream, s, set_buffers, min_buffers)
     return software

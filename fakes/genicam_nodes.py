@@ -157,9 +157,12 @@ def camera_node_map(*, without: tuple[str, ...] = (), packet_max: int = 9000) ->
     return nm
 
 
-def stream_node_map(*, without: tuple[str, ...] = (), counters: dict[str, int] | None = None) -> FakeNodeMap:
-    """A GenTL data stream with resend, packet-size negotiation and the link counters in ``counters``."""
+def stream_node_map(*, without: tuple[str, ...] = (), counters: dict[str, int] | None = None,
+                    buffer_minimum: int = 2) -> FakeNodeMap:
+    """A GenTL data stream with resend, packet-size negotiation, the link counters in ``counters`` and
+    ``StreamAnnounceBufferMinimum`` (read-only: the fewest buffers the producer accepts)."""
     nm = FakeNodeMap()
+    nm.add(FakeNode("StreamAnnounceBufferMinimum", INT, buffer_minimum, access=RO))
     nm.add(FakeNode("StreamPacketResendEnable", BOOL, False))
     nm.add(FakeNode("StreamAutoNegotiatePacketSize", BOOL, False))
     counts = counters if counters is not None else {}

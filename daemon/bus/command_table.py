@@ -318,7 +318,7 @@ def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
     rows = ["| command | role | args | result | what it does |", "|---|---|---|---|---|"]
     for c in commands:
         args = "<br>".join(_arg_cell(a) for a in c.args) or "–"
-        what = c.help
+        what = c.help + (" *(polled)*" if c.polled else "")  # polled: not reported on daemon.command
         result = c.result.replace("|", "\\|") or "–"  # a bar inside a cell would split it
         rows.append(f"| `{c.name}` | {c.role} | {args} | {result} | {what} |")
     return "\n".join(rows) + "\n"

@@ -38,6 +38,7 @@ class Topic(StrEnum):
 
     DAEMON_HEALTH = "daemon.health"
     DAEMON_STATE = "daemon.state"
+    DAEMON_COMMAND = "daemon.command"
     TRACKER_POINT = "tracker.point"
     TRACKER_EVENT = "tracker.event"
     ROBOT_STATE = "robot.state"

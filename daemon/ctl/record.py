@@ -4,7 +4,9 @@ It subscribes as ``ritactl watch`` does (same endpoint discovery through ``hello
 keys) and writes each message as it arrives (layout: daemon/ctl/mcapfile.py). The file is
 written under a hidden ``.NAME.partial`` beside the target and renamed into place once the
 MCAP summary is written, so a reader never sees a truncated recording under the real name.
-Ctrl-C and ``--duration`` end it the same way; a progress line shows the size and duration.
+Ctrl-C and ``--duration`` end it the same way; a progress line shows the size and duration. An
+error mid-recording (a full disk, a bug) never throws away what was written: the file is finished
+if it still can be, kept as ``NAME.partial.mcap`` and named in the error with the reason.
 """
 from __future__ import annotations
 
@@ -52,9 +54,10 @@ class Recorder:
     def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd") -> None:
         try:
             from mcap.writer import CompressionType, Writer
+            self.encode = fmt.json_encoder()
         except ImportError as exc:
             raise CtlError(Exit.BAD_INPUT, "missing_package",
-                           f"recording needs the mcap package ({exc.name} is not installed): "
+                           f"recording needs the mcap and msgspec packages ({exc.name} is not installed): "
                            f"pip install --upgrade rita") from None
         kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
         self.stream = stream
@@ -66,6 +69,7 @@ class Recorder:
         self._seq: int | None = None
         self._frame_seq: int | None = None  # the last frame seen
         self.kept_seq: int | None = None  # the last frame written (--frames every N counts from it)
+        self.finishing = False  # finish() was called: a second try after its failure would write garbage
 
     def _channel(self, topic: str, sample: Any) -> int:
         ch = self.channels.get(topic)
@@ -84,7 +88,7 @@ class Recorder:
             self.counts.missed += seq - self._seq - 1
         self._seq = seq
         data = msg.get("data")
-        self._write(topic, data, fmt.to_json(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
+        self._write(topic, data, self.encode(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
 
     def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
         seq = int(header.get("seq") or 0)
@@ -92,7 +96,7 @@ class Recorder:
             self.counts.frames_missed += seq - self._frame_seq - 1
         self._frame_seq = self.kept_seq = seq
         t = int(header.get("host_time_ns") or recv_ns)
-        self._write(fmt.FRAME_HEADER_TOPIC, header, fmt.to_json(header), t, recv_ns, seq)
+        self._write(fmt.FRAME_HEADER_TOPIC, header, self.encode(header), t, recv_ns, seq)
         try:
             image = fmt.raw_image(header, pixels)
         except fmt.UnsupportedFrame:
@@ -108,12 +112,19 @@ class Recorder:
         self._frame_seq = seq
 
     def _write(self, topic: str, sample: Any, data: bytes, log_ns: int, recv_ns: int, seq: int) -> None:
-        self.writer.add_message(self._channel(topic, sample), log_time=log_ns, data=data, publish_time=recv_ns,
-                                sequence=seq % fmt.SEQ_MOD)
+        ch = self.channels.get(topic)
+        self.writer.add_message(self._channel(topic, sample) if ch is None else ch, log_time=log_ns, data=data,
+                                publish_time=recv_ns, sequence=seq % fmt.SEQ_MOD)
         self.counts.messages += 1
-        self.counts.topics[topic] = self.counts.topics.get(topic, 0) + 1
+        topics = self.counts.topics
+        topics[topic] = topics.get(topic, 0) + 1
 
-    def finish(self) -> None:
+    def finish(self, ended: str = "", error: str = "") -> None:
+        """The end record (how it ended), then the summary; call once."""
+        self.finishing = True
+        if ended:
+            self.writer.add_metadata(fmt.END_METADATA_NAME, {"ended": ended, "error": error,
+                                                             "messages": str(self.counts.messages)})
         self.writer.finish()  # type: ignore[no-untyped-call]  # mcap 1.6 leaves finish() unannotated
 
 
@@ -224,22 +235,68 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
     meta = {"hello": json.dumps(c.hello(), default=str), "frames": f"every {every}" if every else "off",
             "compression": compression, "endpoint": c.endpoint}
     stop = threading.Event()
+    rec: Recorder | None = None
     try:
         with open(tmp, "wb") as f, _stop_on_sigint(stop):
             rec = Recorder(f, meta, compression)
-            seconds = _record_loop(subs, rec, a, out, stop)
-            rec.finish()
-            f.flush()
-            os.fsync(f.fileno())
+            try:
+                seconds = _record_loop(subs, rec, a, out, stop)
+                rec.finish("interrupted" if stop.is_set() else "duration")
+                f.flush()
+                os.fsync(f.fileno())
+            except BaseException as exc:
+                failed = _keep_partial(rec, f, tmp, out, exc)
+                if isinstance(exc, Exception):
+                    raise failed from None
+                print(f"ritactl: {failed}", file=sys.stderr, flush=True)  # e.g. a second Ctrl-C
+                raise
         os.replace(tmp, out)
         fsync_dir(out.parent)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if rec is None:  # nothing recorded yet: no file worth keeping
+            tmp.unlink(missing_ok=True)
         raise
     finally:
         for s, _ in subs:
             s.close()
     return _report(out, seconds, rec.counts, bool(every), a.json, stop.is_set())
+
+
+def partial_name(out: Path) -> Path:
+    """Where a recording an error ended is kept: ``NAME.partial.mcap``, numbered if that exists."""
+    stem, suffix = (out.stem, out.suffix) if out.suffix else (out.name, ".mcap")
+    for n in range(1, 1000):
+        path = out.with_name(f"{stem}.partial{'' if n == 1 else f'-{n}'}{suffix}")
+        if not path.exists():
+            return path
+    return out.with_name(f".{out.name}.partial")  # the hidden file stays where it is
+
+
+def _keep_partial(rec: Recorder, f: IO[bytes], tmp: Path, out: Path, exc: BaseException) -> CtlError:
+    """Finish what was written (if the writer still can), keep it visible and say where and why."""
+    why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    state = "finished (a valid MCAP file)"
+    try:
+        if rec.finishing:
+            raise RuntimeError("the failure was in writing the summary")
+        rec.finish("error", why)
+        f.flush()
+        os.fsync(f.fileno())
+    except Exception as again:
+        state = (f"NOT finished ({type(again).__name__}: {again}); the messages in its complete chunks can be "
+                 f"recovered with mcap's recover tool")
+    try:
+        f.close()  # now: a buffer that cannot be flushed must not raise again at the end of ``with``
+    except OSError:
+        pass
+    keep = partial_name(out)
+    try:
+        os.replace(tmp, keep)
+    except OSError:
+        keep = tmp
+    return CtlError(Exit.BAD_INPUT, "record_failed",
+                    f"the recording ended on an error after {rec.counts.messages} messages: {why}. What was "
+                    f"recorded is kept in {keep}, {state}")
 
 
 def _report(out: Path, seconds: float, cnt: Counts, frames: bool, as_json: bool, interrupted: bool) -> int:
@@ -276,4 +333,4 @@ def add_parser(sub: Any) -> None:
 
 
 __all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "check_out", "cmd_record", "parse_frames",
-           "progress_line"]
+           "partial_name", "progress_line"]

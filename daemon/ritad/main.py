@@ -137,7 +137,8 @@ class Daemon:
         handlers = build_handlers(services, self.running.handlers(services, self.plugins))
         self.server = CommandServer(self.ctx, cfg.command_endpoints, handlers,
                                     cfg.max_message_bytes, security=s,
-                                    plain_role=self.config.security.ipc_role)
+                                    plain_role=self.config.security.ipc_role,
+                                    on_command=lambda d: self.telemetry.publish(Topic.DAEMON_COMMAND, d))
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())  # late joiners' snapshot holds it too

@@ -11,6 +11,12 @@ Every request is checked against its sender's role before a handler sees it
 looked up again at every request so a revocation or a new role applies to open
 connections; plain (ipc) clients have ``[security] ipc_role``. Motion commands are
 logged with the key that asked for them.
+
+Every command the table does not mark ``polled`` is also reported, once its reply is sent, to
+``on_command`` (ritad publishes it as ``daemon.command`` telemetry, so a recording holds the
+session's command/reply pairs): name, arguments, the caller's key name and role, ok or the error
+code and message, and the receive and reply times. Reporting never fails a command: an exception
+from ``on_command`` is logged.
 """
 from __future__ import annotations
 
@@ -27,7 +33,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import zmq
 
-from daemon.bus.command_table import COMMANDS
+from daemon.bus.command_table import COMMANDS, Command
 from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_reply, ok_reply,
                              parse_request)
 from daemon.bus.repeatlog import RepeatGate, times
@@ -65,6 +71,23 @@ class Caller(NamedTuple):
     who: str  # for messages: "key bob" or "local client"
     role: str
     key: str | None
+    name: str | None = None  # the CURVE key's allow-list name; None for a plain (ipc) client
+
+
+class Audit(NamedTuple):
+    """What ``daemon.command`` reports of a request, kept until its reply is sent."""
+
+    cmd: str
+    id: Any
+    args: Any  # None when the request was larger than AUDIT_ARGS_BYTES
+    key: str | None
+    role: str
+    recv_ns: int
+
+
+#: requests larger than this (plate uploads) are reported without their arguments: telemetry stays small
+AUDIT_ARGS_BYTES = 8192
+CommandHook = Callable[[dict[str, Any]], None]
 
 
 #: a refusal repeated by a client in a loop is logged once per window with its count
@@ -80,9 +103,10 @@ class CommandServer(threading.Thread):
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
                  max_message_bytes: int = 1 << 20, security: Security | None = None,
-                 plain_role: str = "operator") -> None:
+                 plain_role: str = "operator", on_command: CommandHook | None = None) -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
+        self.on_command = on_command
         self.max_bytes = max_message_bytes
         self.plain_role = plain_role  # of clients on sockets without CURVE (ipc; tcp with insecure_tcp)
         self.keyring = security.keyring if security is not None else None
@@ -96,7 +120,8 @@ class CommandServer(threading.Thread):
 
         self.socks, self.endpoints = open_sockets(ctx, zmq.ROUTER, endpoints, security, setup)
         self._curve_socks = {s for s in self.socks if s.getsockopt(zmq.CURVE_SERVER)}
-        self._done: queue.Queue[tuple[tuple[zmq.Socket, list[bytes]], Any, str, Future]] = queue.Queue()
+        self._done: queue.Queue[tuple[tuple[zmq.Socket, list[bytes]], Any, str, Audit | None, Future]] = \
+            queue.Queue()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         self._stop_evt = threading.Event()
@@ -130,6 +155,17 @@ class CommandServer(threading.Thread):
         self._log_error(cmd or "?", code, message, who)
         self._send(envelope, error_reply(req_id, code, message))
 
+    def _audit(self, audit: Audit | None, code: str | None = None, message: str | None = None) -> None:
+        """Report a sent reply to ``on_command`` (never raises: a command must not fail over its report)."""
+        if audit is None or self.on_command is None:
+            return
+        try:
+            self.on_command({"cmd": audit.cmd, "id": audit.id, "args": audit.args, "key": audit.key,
+                             "role": audit.role, "ok": code is None, "code": code, "message": message,
+                             "recv_ns": audit.recv_ns, "reply_ns": time.time_ns()})
+        except Exception:
+            log.exception("daemon.command report of %s failed (the command itself was answered)", audit.cmd)
+
     def _log_error(self, cmd: str, code: str, message: str, who: str) -> None:
         """One line per (command, code, sender) per window; a crash is always logged."""
         level = logging.WARNING if code in (ErrorCode.FORBIDDEN, ErrorCode.STOPPED) else logging.INFO
@@ -159,10 +195,10 @@ class CommandServer(threading.Thread):
         entry = self.keyring.lookup(key.encode()) if key and self.keyring is not None else None
         if entry is None:
             return None
-        return Caller(f"{entry.name} ({key})", f"key {entry.name}", entry.role, key)
+        return Caller(f"{entry.name} ({key})", f"key {entry.name}", entry.role, key, entry.name)
 
     def _admit(self, envelope: tuple[zmq.Socket, list[bytes]], frames: list[zmq.Frame], req_id: Any,
-               cmd: str) -> Caller | None:
+               cmd: str, audit: Callable[[Caller], Audit | None]) -> Caller | None:
         """The caller when it may send ``cmd``; else the error is sent here and None returned."""
         caller = self._caller(envelope[0], frames)
         if caller is None:
@@ -176,12 +212,14 @@ class CommandServer(threading.Thread):
         why = refusal(cmd, caller.role, caller.who)
         if why is not None:  # a WARNING naming the sender (rate-limited like every refusal)
             self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd, f"from {caller.peer}, role {caller.role}")
+            self._audit(audit(caller), ErrorCode.FORBIDDEN, why)
             return None
         return caller
 
     # ------------------------------------------------------------------ owner thread
 
     def _on_request(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> None:
+        recv_ns = time.time_ns()
         self.requests += 1
         envelope = (sock, [f.bytes for f in frames[:-1]])
         body = frames[-1]
@@ -198,36 +236,52 @@ class CommandServer(threading.Thread):
             self._error(envelope, None, exc.code, str(exc))
             return
         req_id, cmd = msg["id"], msg["cmd"]
-        caller = self._admit(envelope, frames, req_id, cmd)
+        declared = COMMANDS.get(cmd)
+
+        def audit(c: Caller) -> Audit | None:
+            if self.on_command is None or declared is not None and declared.polled:
+                return None
+            args = msg["args"] if len(body) <= AUDIT_ARGS_BYTES else None
+            return Audit(cmd, req_id, args, c.name, c.role, recv_ns)
+
+        caller = self._admit(envelope, frames, req_id, cmd, audit)
         if caller is None:
             return
         request = Request(req_id, cmd, msg["args"], caller.peer, caller.role, caller.key)
-        declared = COMMANDS.get(cmd)
+        self._handle(envelope, request, declared, audit(caller))
+
+    def _handle(self, envelope: tuple[zmq.Socket, list[bytes]], request: Request, declared: Command | None,
+                audit: Audit | None) -> None:
+        req_id, cmd = request.id, request.cmd
         if declared is not None and declared.motion:  # moves and stops: logged with the caller
-            log.info("motion %s id=%s from %s (role %s): %s", cmd, req_id, caller.peer, caller.role,
-                     _ARGS.repr(msg["args"]))
+            log.info("motion %s id=%s from %s (role %s): %s", cmd, req_id, request.peer, request.role,
+                     _ARGS.repr(request.args))
         else:
             # polled reads at DEBUG, else one open console page alone writes several INFO lines a second
-            log.log(logging.DEBUG if declared is not None and declared.polled else logging.INFO, "command %s id=%s from %s", cmd, req_id,
-                    request.peer)
+            log.log(logging.DEBUG if declared is not None and declared.polled else logging.INFO,
+                    "command %s id=%s from %s", cmd, req_id, request.peer)
         try:
             result = self.handlers[cmd](request)
         except CommandError as exc:
             self._error(envelope, req_id, exc.code, exc.args[0], cmd)
+            self._audit(audit, exc.code, exc.args[0])
             return
         except Exception as exc:
             log.exception("handler %s crashed", cmd)
             self._error(envelope, req_id, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}", cmd)
+            self._audit(audit, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}")
             return
         if isinstance(result, Future):
             self.pending += 1
-            result.add_done_callback(functools.partial(self._complete, envelope, req_id, cmd))
+            result.add_done_callback(functools.partial(self._complete, envelope, req_id, cmd, audit))
         else:
             self._reply(envelope, req_id, cmd, result)
+            self._audit(audit)
 
-    def _complete(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, fut: Future) -> None:
+    def _complete(self, envelope: tuple[zmq.Socket, list[bytes]], req_id: Any, cmd: str, audit: Audit | None,
+                  fut: Future) -> None:
         """Called in whatever thread finished the future: hand it to the owner thread."""
-        self._done.put((envelope, req_id, cmd, fut))
+        self._done.put((envelope, req_id, cmd, audit, fut))
         try:
             os.write(self._wake_w, b"x")
         except OSError:
@@ -240,17 +294,20 @@ class CommandServer(threading.Thread):
             pass
         while True:
             try:
-                envelope, req_id, cmd, fut = self._done.get_nowait()
+                envelope, req_id, cmd, audit, fut = self._done.get_nowait()
             except queue.Empty:
                 return
             self.pending -= 1
             exc = fut.exception()
             if exc is None:
                 self._reply(envelope, req_id, cmd, fut.result())
+                self._audit(audit)
             elif isinstance(exc, CommandError):
                 self._error(envelope, req_id, exc.code, exc.args[0], cmd)
+                self._audit(audit, exc.code, exc.args[0])
             else:
                 self._error(envelope, req_id, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}", cmd)
+                self._audit(audit, ErrorCode.INTERNAL, f"{type(exc).__name__}: {exc}")
 
     def run(self) -> None:
         poller = zmq.Poller()

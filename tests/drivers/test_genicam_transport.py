@@ -165,6 +165,22 @@ def test_bad_stream_buffer_count_and_tiny_packets_are_refused() -> None:
         Rig().apply(CameraSettings(packet_size=500))
 
 
+def test_stream_buffers_below_the_producers_minimum_are_raised_to_it_with_a_warning() -> None:
+    from fakes.genicam_nodes import stream_node_map
+    rig = Rig(stream=stream_node_map(buffer_minimum=3))
+    rig.apply(CameraSettings(stream_buffers=2))  # harvesters would refuse 2: the camera would go to FAULT
+    assert rig.buffers == 3 and rig.applied["StreamBufferCount"] == 3
+    assert rig.warnings == ["stream_buffers=2 is below the GenTL producer's minimum of 3 buffers; using 3"]
+    rig = Rig(stream=stream_node_map(without=("StreamAnnounceBufferMinimum",)))
+    w = SettingsWriter(rig.cam, rig.warnings.append, rig.applied)
+    st = SettingsWriter(rig.stream, rig.warnings.append, rig.applied, owner="the GenTL producer's stream")
+    apply_all(w, st, CameraSettings(stream_buffers=1), rig.set_buffers, min_buffers=4)  # harvesters' own minimum
+    assert rig.buffers == 4 and "stream_buffers=1 is below the GenTL producer's minimum of 4" in rig.warnings[0]
+    rig = Rig(stream=stream_node_map(buffer_minimum=3))
+    rig.apply(CameraSettings(stream_buffers=3))
+    assert rig.buffers == 3 and rig.warnings == []
+
+
 def test_ptp_status_role_and_offset_or_unavailable() -> None:
     rig = Rig()
     w = SettingsWriter(rig.cam, rig.warnings.append)

@@ -22,8 +22,8 @@ import pytest
 from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[2]
-#: the base (client) requirements: the bus, `ritactl validate`'s schemas, `ritactl record`'s MCAP
-CLIENT = ("pyzmq", "msgpack", "jsonschema", "mcap")
+#: the base (client) requirements: the bus, `ritactl validate`'s schemas, `ritactl record`'s MCAP and its JSON encoder
+CLIENT = ("pyzmq", "msgpack", "jsonschema", "mcap", "msgspec")
 HEAVY = {"numpy", "opencv-python-headless", "harvesters", "genicam", "pyserial", "matplotlib"}
 
 

@@ -322,3 +322,44 @@ def test_replay_skips_channels_of_another_layout(tmp_path: Path) -> None:
         assert server.latest["robot.state"]["data"] == {"x_mm": 2.0}
     finally:
         server.close()
+
+
+def test_an_error_mid_recording_keeps_a_finished_partial_file(session, tmp_path: Path, capsys, monkeypatch) -> None:
+    _, _, ep, _ = session
+    out = tmp_path / "disk.mcap"
+    write = Recorder.telemetry
+
+    def disk_fills(self: Recorder, topic: str, msg: dict[str, Any], recv_ns: int) -> None:
+        if self.counts.messages >= 30:
+            raise OSError(28, "No space left on device")
+        write(self, topic, msg, recv_ns)
+
+    monkeypatch.setattr(Recorder, "telemetry", disk_fills)
+    assert ctl.main(["--endpoint", ep, "record", "--out", str(out), "--duration", "20"]) == Exit.BAD_INPUT
+    err = capsys.readouterr().err
+    kept = tmp_path / "disk.partial.mcap"
+    assert f"kept in {kept}, finished (a valid MCAP file)" in err and "No space left on device" in err
+    assert "after 30 messages" in err and not out.exists() and not list(tmp_path.glob(".*"))
+    msgs = _read(kept)  # CRCs, summary and statistics check out
+    assert len(msgs) == 30 and sum(t == "tracker.point" for t, _, _ in msgs) >= 1
+    with open(kept, "rb") as f:
+        end = {m.name: m.metadata for m in make_reader(f).iter_metadata()}[fmt.END_METADATA_NAME]
+    assert end["ended"] == "error" and "No space left" in end["error"] and end["messages"] == "30"
+
+
+def test_a_recording_whose_summary_fails_is_kept_unfinished(session, tmp_path: Path, capsys, monkeypatch) -> None:
+    _, _, ep, _ = session
+    (tmp_path / "s.partial.mcap").write_bytes(b"an earlier one")  # never overwritten
+
+    def summary_fails(self: Recorder, ended: str = "", error: str = "") -> None:
+        self.finishing = True
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(Recorder, "finish", summary_fails)
+    assert ctl.main(["--endpoint", ep, "record", "--out", str(tmp_path / "s.mcap"), "--duration", "0.5"]) \
+        == Exit.BAD_INPUT
+    err = capsys.readouterr().err
+    kept = tmp_path / "s.partial-2.mcap"
+    assert f"kept in {kept}, NOT finished" in err and "Input/output error" in err
+    assert kept.read_bytes().startswith(b"\x89MCAP0\r\n") and kept.stat().st_size > 8  # the data written so far
+    assert (tmp_path / "s.partial.mcap").read_bytes() == b"an earlier one"
