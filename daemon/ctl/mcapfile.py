@@ -19,8 +19,8 @@ docs/operations.md ("Record and replay") documents this layout; keep the two in 
   ``ritactl.record.end``: how the recording ended (``duration``, ``interrupted`` or ``error`` and
   the error), written just before the summary.
 
-Imports only the standard library (and the bus's names) so the thin client stays thin; the ``mcap`` and ``msgspec``
-packages are imported by the verbs that write and read.
+Imports only the standard library (and the bus's names) so the thin client stays thin; the ``mcap``
+package is imported by the verbs that write and read.
 """
 from __future__ import annotations
 
@@ -90,24 +90,6 @@ def to_json(obj: Any) -> bytes:
     except ValueError:  # a NaN somewhere: the slow path only for such messages
         text = json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False, default=_json_default)
     return text.encode()
-
-
-def json_encoder() -> Callable[[Any], bytes]:
-    """:func:`to_json`, fast: msgspec's encoder writes the same JSON (NaN and infinities as null,
-    binary as base64) at about 15 times the speed of ``json.dumps`` on a tracker packet's 500
-    doubles, which were most of the recorder's time. What msgspec refuses (an integer beyond 64
-    bits, a msgpack extension type) takes the standard library's path."""
-    import msgspec
-
-    encode = msgspec.json.Encoder().encode
-
-    def fast(obj: Any) -> bytes:
-        try:
-            return encode(obj)
-        except (TypeError, OverflowError, msgspec.EncodeError):
-            return to_json(obj)
-
-    return fast
 
 
 def _json_type(value: Any, depth: int) -> dict[str, Any]:
@@ -217,4 +199,4 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
 
 __all__ = ["COMMAND_SCHEMA", "END_METADATA_NAME", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG",
            "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame", "infer_schema", "pixels_of", "raw_image",
-           "raw_image_encoding", "json_encoder", "to_json"]
+           "raw_image_encoding", "to_json"]

@@ -54,10 +54,9 @@ class Recorder:
     def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd") -> None:
         try:
             from mcap.writer import CompressionType, Writer
-            self.encode = fmt.json_encoder()
         except ImportError as exc:
             raise CtlError(Exit.BAD_INPUT, "missing_package",
-                           f"recording needs the mcap and msgspec packages ({exc.name} is not installed): "
+                           f"recording needs the mcap package ({exc.name} is not installed): "
                            f"pip install --upgrade rita") from None
         kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
         self.stream = stream
@@ -88,7 +87,7 @@ class Recorder:
             self.counts.missed += seq - self._seq - 1
         self._seq = seq
         data = msg.get("data")
-        self._write(topic, data, self.encode(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
+        self._write(topic, data, fmt.to_json(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
 
     def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
         seq = int(header.get("seq") or 0)
@@ -96,7 +95,7 @@ class Recorder:
             self.counts.frames_missed += seq - self._frame_seq - 1
         self._frame_seq = self.kept_seq = seq
         t = int(header.get("host_time_ns") or recv_ns)
-        self._write(fmt.FRAME_HEADER_TOPIC, header, self.encode(header), t, recv_ns, seq)
+        self._write(fmt.FRAME_HEADER_TOPIC, header, fmt.to_json(header), t, recv_ns, seq)
         try:
             image = fmt.raw_image(header, pixels)
         except fmt.UnsupportedFrame:

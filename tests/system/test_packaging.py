@@ -23,7 +23,7 @@ from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the base (client) requirements: the bus, `ritactl validate`'s schemas, `ritactl record`'s MCAP and its JSON encoder
-CLIENT = ("pyzmq", "msgpack", "jsonschema", "mcap", "msgspec")
+CLIENT = ("pyzmq", "msgpack", "jsonschema", "mcap")
 HEAVY = {"numpy", "opencv-python-headless", "harvesters", "genicam", "pyserial", "matplotlib"}
 
 
