@@ -19,6 +19,8 @@ LONGEST_FIRST = (
     "tests/system/test_readme.py",
     "tests/console/test_console_stop_acceptance.py",
     "tests/calibration/test_calibration_sim.py",
+    "tests/drivers/test_fuzz_devices.py",
+    "tests/fakes/test_accuracy_coverage.py",
     "tests/system/test_stop_latch.py",
     "tests/console/test_console_browser.py",
     "tests/calibration/test_marks.py",
