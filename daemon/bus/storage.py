@@ -173,6 +173,8 @@ def save_capture(data_dir: Path, parts: dict[str, Any], label: str, dataset: str
         entry["tracker"] = tracker_point_dict(parts["tracker"].to_dict(), meta.get("abs_H_trk"))
     if parts.get("robot") is not None:
         entry["robot"] = parts["robot"].to_dict()
+    if parts.get("at_exposure") is not None:
+        entry["at_exposure"] = parts["at_exposure"]
     name = f"{len(ds.manifest['entries']):04d}-{label}"
     return ds.add_entry(name, entry, image=None if frame is None else frame.pixels)
 

@@ -22,6 +22,7 @@ from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
 from daemon.ritad.services import Services
+from daemon.ritad.timelines import frame_time
 from drivers.base import Frame, Robot, TrackerPoint
 
 __all__ = ["build_handlers", "chain", "gather"]
@@ -147,12 +148,20 @@ def _capture(s: Services) -> dict[str, Handler]:
         parts = {"camera": s.job("camera", lambda c: c.trigger(), timeout=30),
                  "tracker": s.job("tracker", lambda t: t.measure(), timeout=60),
                  "robot": s.job("robot", lambda r: r.status())}
-        return chain(gather(parts), lambda res: {"path": str(s.save_capture(res, label, dataset)),
-                                                 "header": res["camera"].header(),
-                                                 "tracker": _point_dict(res["tracker"], s.abs_H_trk),
-                                                 "robot": res["robot"].to_dict()}, s.storage)
+        return chain(gather(parts), lambda res: _captured(s, res, label, dataset), s.storage)
 
     return {"capture": capture}
+
+
+def _captured(s: Services, res: dict[str, Any], label: str, dataset: str | None) -> dict[str, Any]:
+    """Store a capture with where every stream was at the frame's exposure (in the storage thread)."""
+    header = res["camera"].header()
+    when = frame_time(header)
+    res["at_exposure"] = ({"error": "the frame has no exposure time on the host's timeline (t_ns)"}
+                          if when is None else s.at_time(when[0]))
+    return {"path": str(s.save_capture(res, label, dataset)), "header": header,
+            "tracker": _point_dict(res["tracker"], s.abs_H_trk), "robot": res["robot"].to_dict(),
+            "at_exposure": res["at_exposure"]}
 
 
 def _files(s: Services) -> dict[str, Handler]:

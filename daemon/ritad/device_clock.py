@@ -27,19 +27,41 @@ class DeviceClock:
 
     def observe_tracker_packet(self, payload: Any) -> None:
         """A ``tracker.point`` packet; one without device time (or malformed) adds nothing."""
-        dt = payload.get("device_time") if isinstance(payload, dict) else None
+        times = _device_times(payload)
+        if not times:
+            return
         try:
-            device_ns = int(dt[0][-1]) * 1_000_000_000 + int(dt[1][-1]) * 1000  # type: ignore[index]
             host_ns = int(payload["host_time_ns"])
-        except (TypeError, IndexError, KeyError, ValueError, OverflowError):
+        except (TypeError, KeyError, ValueError, OverflowError):
             return
         with self._lock:
             try:
-                self._map.add(device_ns, host_ns)
+                self._map.add(times[-1], host_ns)
             except (ValueError, OverflowError):  # a packet the map cannot take must not stop its publishing
                 return
+
+    def map_packet(self, payload: Any) -> list[tuple[int, int]] | None:
+        """Each record of a ``tracker.point`` packet on the host's timeline: (t_ns, t_sigma_ns);
+        None without device times or before the map has a sample."""
+        times = _device_times(payload)
+        if not times:
+            return None
+        with self._lock:
+            try:
+                return [self._map.map(d) for d in times]
+            except (ValueError, OverflowError):
+                return None
 
     def status(self) -> dict[str, Any]:
         """The mapping's offset, drift, sigma, samples and window (ClockMap.status)."""
         with self._lock:
             return self._map.status()
+
+
+def _device_times(payload: Any) -> list[int] | None:
+    """A packet's records' device times (ns; the tracker stamps s + µs), None when it has none."""
+    dt = payload.get("device_time") if isinstance(payload, dict) else None
+    try:
+        return [int(s) * 1_000_000_000 + int(us) * 1000 for s, us in zip(dt[0], dt[1], strict=True)]  # type: ignore[index]
+    except (TypeError, IndexError, KeyError, ValueError, OverflowError):
+        return None

@@ -31,16 +31,14 @@ except ModuleNotFoundError as _exc:
              f"pip install 'rita[robot]' (docs/operations.md, Install)")
 
 from daemon import __version__  # noqa: E402
-from daemon.ritad import config as config_mod
+from daemon.ritad import config as config_mod, files, plugins  # noqa: E402
 from daemon.ritad.calib_jobs import CalibJobs  # noqa: E402
-from daemon.ritad import files  # noqa: E402
 from daemon.ritad.commands import build_handlers  # noqa: E402
 from daemon.ritad.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
 from daemon.ritad.logs import setup_logging  # noqa: E402
 from daemon.ritad.notify import Notifier  # noqa: E402
 from daemon.bus.protocol import SCHEMA_VERSION  # noqa: E402
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher  # noqa: E402
-from daemon.ritad import plugins
 from daemon.bus import station  # noqa: E402
 from daemon.ritad.registry import open_device  # noqa: E402
 from daemon.ritad.motion import MotionWaiters  # noqa: E402
@@ -48,6 +46,7 @@ from daemon.ritad.runner import DeviceRunner  # noqa: E402
 from daemon.ritad.server import CommandServer  # noqa: E402
 from daemon.ritad.services import Services  # noqa: E402
 from daemon.ritad.stop_latch import LATCH_FILE, StopLatch  # noqa: E402
+from daemon.ritad.timelines import Timelines  # noqa: E402
 from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
 from drivers.base import Device, Frame, Payload  # noqa: E402
 from daemon.bus.names import KINDS, Topic  # noqa: E402
@@ -85,6 +84,7 @@ class Daemon:
         self.security: Security | None = None
         self.storage = ThreadPoolExecutor(max_workers=1, thread_name_prefix="storage")
         self.motions = MotionWaiters(lambda fn: self.job("robot", fn))
+        self.timelines = Timelines(lambda kind: self.runners[kind].clock if kind in self.runners else None)
         self.stop_event = threading.Event()
         publish = lambda topic, data: self.telemetry.publish(topic, data)  # noqa: E731 - telemetry starts later
         self.latch = StopLatch(publish, Path(cfg.daemon.data_dir) / LATCH_FILE)  # persists across restarts
@@ -102,8 +102,7 @@ class Daemon:
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
-        elif topic == Topic.TRACKER_POINT and "tracker" in self.runners:
-            self.runners["tracker"].clock.observe_tracker_packet(payload)
+        self.timelines.observe(topic, payload)
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:
@@ -182,7 +181,8 @@ class Daemon:
                         robot=cfg.robot, calib=self.calib,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
-                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status())
+                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status(),
+                        at_time=self.timelines.at)
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""
