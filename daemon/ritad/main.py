@@ -98,7 +98,7 @@ class Daemon:
     def emit(self, topic: str, payload: Payload) -> None:
         """The sink handed to every device (thread-safe, never blocks)."""
         if isinstance(payload, Frame):
-            self.frames.publish(payload)
+            self.frames.publish(self.runners["camera"].clock.stamp_frame(payload))
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
@@ -182,7 +182,8 @@ class Daemon:
                         robot=cfg.robot, calib=self.calib,
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
-                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status())
+                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status(),
+                        stamp_frame=lambda frame: self.runners["camera"].clock.stamp_frame(frame))
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""

@@ -46,3 +46,4 @@ class Services:
     latch: StopLatch = field(default_factory=lambda: StopLatch(lambda topic, data: None))  # the latched stop
     abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end
     clock_status: Callable[[str], dict[str, Any]] = lambda kind: {}  # a device clock's mapping (device_clock.py)
+    stamp_frame: Callable[[Frame], Frame] = lambda frame: frame  # its exposure's host time (device_clock.py)
