@@ -179,11 +179,10 @@ class Daemon:
         return Services(job=self.job, motion=self.motions.start, storage=self.storage,
                         data_dir=data, private_dirs=private, auth_dir=data / auth_top, save_capture=self.save_capture,
                         abs_H_trk=self.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
-                        robot=cfg.robot, calib=self.calib,
+                        robot=cfg.robot, calib=self.calib, stamp_frame=lambda f: self.runners["camera"].clock.stamp_frame(f),
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
-                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status(),
-                        stamp_frame=lambda frame: self.runners["camera"].clock.stamp_frame(frame))
+                        abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status())
 
     def state(self) -> dict[str, Any]:
         """Clone snapshot for late joiners, with the devices' states."""

@@ -7,6 +7,7 @@ after the last, its latency is a seeded draw.
 """
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -138,9 +139,18 @@ def test_ritad_frames_and_camera_status_carry_the_time(tmp_path: Path) -> None:
         cfg.camera.ptp = True
 
     with ritad_in_process(tmp_path / "rt", tmp_path / "data", configure=configure,
-                          camera=f"{SMALL_CAMERA}&{DRIFTING}&ptp=Slave") as (_, c):
+                          camera=f"{SMALL_CAMERA}&{DRIFTING}&ptp=Slave") as (d, c):
         headers: list[dict[str, Any]] = [c.call("camera.capture", save=False)["header"] for _ in range(3)]
         st = c.call("camera.status")
+        c.call("camera.stream.start")
+        try:
+            end = time.monotonic() + 20
+            while d.frames.last_frame is None:  # streamed frames are stamped as they are published
+                assert time.monotonic() < end, "no streamed frame within 20 s"
+                time.sleep(0.05)
+        finally:
+            c.call("camera.stream.stop")
+        headers.append(d.frames.last_frame.header())
     for h in headers:
         assert h["t_source"] == "ptp" and abs(h["t_ns"] - h["sim_t_mid_ns"]) <= 10_000, h
         assert PTP_FLOOR_NS <= h["t_sigma_ns"] < 10_000, h
