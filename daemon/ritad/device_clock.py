@@ -40,6 +40,9 @@ PTP_FLOOR_NS = 1000
 #: a frame timed by its arrival: the latency left after the transfer is unknown (the map's prior)
 HOST_SIGMA_NS = 5_000_000
 TAI_MINUS_UTC_NS = TAI_MINUS_UTC_S * 1_000_000_000
+#: PTP's mapping and the clock map's disagreeing by more than this (the map sits above by the
+#: frames' least latency beyond their transfer, ms) means the host is not on the camera's PTP time
+PTP_MAP_DISAGREE_NS = 500_000_000
 
 
 def ptp_locked(ptp: dict[str, Any] | None) -> bool:
@@ -115,6 +118,9 @@ class DeviceClock:
             if self._source == "ptp":
                 out.update(offset_ns=-TAI_MINUS_UTC_NS, drift_ppm=0.0, sigma_ns=self._sigma_ns,
                            clockmap={k: st[k] for k in ("offset_ns", "drift_ppm", "sigma_ns")})
+                if st["offset_ns"] is not None and abs(st["offset_ns"] + TAI_MINUS_UTC_NS) > PTP_MAP_DISAGREE_NS:
+                    out["note"] = (f"PTP time and the clock map disagree by {(st['offset_ns'] + TAI_MINUS_UTC_NS) / 1e9:+.3f}"
+                                   " s: is the host's clock on the camera's PTP master? (docs/operations.md)")
             elif self._source == "host":
                 out.update(sigma_ns=self._sigma_ns,
                            note="the camera gives no device time; frames are timed by their arrival")

@@ -157,3 +157,13 @@ def test_ritad_frames_and_camera_status_carry_the_time(tmp_path: Path) -> None:
     assert st["ptp"]["status"] == "Slave" and st["applied"]["PtpEnable"] is True
     clock = st["clock"]
     assert clock["source"] == "ptp" and clock["samples"] == 3 and clock["offset_ns"] == -TAI_MINUS_UTC_S * 10**9, clock
+
+
+def test_a_host_off_the_cameras_ptp_time_is_named_in_status() -> None:
+    cam, now = sim_camera(f"{DRIFTING}&ptp=Slave", CameraSettings(ptp=True))
+    clock = DeviceClock()
+    real_device_ns = cam.clock.device_ns
+    cam.clock.device_ns = lambda h: real_device_ns(h) - TAI_MINUS_UTC_S * 10**9  # a master on UTC, not TAI
+    run(cam, now, clock, 20)
+    st = clock.status()
+    assert st["source"] == "ptp" and "disagree by +37.0" in st["note"], st
