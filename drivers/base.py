@@ -232,6 +232,8 @@ class Tracker(StreamingDevice):
 
 #: the smallest GigE packet size accepted: the IPv4 datagram size every host must be able to receive
 MIN_PACKET_BYTES = 576
+#: 1000BASE-T's line rate, bytes/s: what a GigE camera sends at without a throughput limit
+GIGE_LINE_BYTES_S = 125_000_000
 
 
 @dataclass
@@ -279,10 +281,21 @@ class Frame:
     host_monotonic_ns: int = field(default_factory=time.monotonic_ns)
     incomplete_count: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    #: for the daemon's clock map, not in the header: the payload's least time on the wire (bytes over
+    #: the link rate, ns), and the camera's PTP state when last polled (``ptp`` of the status) or None
+    transfer_ns: int = 0
+    ptp: dict[str, Any] | None = None
+    #: the exposure's mid-time on the host's clock (UTC ns), its sigma and how it was found
+    #: ("ptp", "clockmap" or "host"): set by the daemon (daemon/ritad/device_clock.py), None before
+    t_ns: int | None = None
+    t_sigma_ns: int | None = None
+    t_source: str | None = None
 
     def header(self) -> dict[str, Any]:
         """Frame metadata as sent on the bus and stored next to the image."""
         p = self.pixels
+        timed = {} if self.t_source is None else {
+            "t_ns": self.t_ns, "t_sigma_ns": self.t_sigma_ns, "t_source": self.t_source}
         return {
             "frame_id": self.frame_id,
             "camera_serial": self.camera_serial,
@@ -294,6 +307,7 @@ class Frame:
             "host_time_ns": self.host_time_ns,
             "host_monotonic_ns": self.host_monotonic_ns,
             "incomplete_count": self.incomplete_count,
+            **timed,
             **self.extra,
         }
 

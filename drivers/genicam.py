@@ -1,27 +1,27 @@
 """GenICam camera adapter over harvesters (LUCID Phoenix PHX122S through GenTL_LUCID.cti).
 
-URL: ``genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=223600123``.
-The path is the GenTL producer (.cti); the device is chosen by ``serial=``, by
-``name=`` (the user-defined name, DeviceUserID) or, as a last resort, by
-``index=`` into the producer's device list; with none of them the producer must
-offer exactly one device. Other options: ``num_buffers`` (GenTL buffers, default
-4; the settings' ``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame while streaming before the camera is
-declared lost, default 3; at least three frame periods are always allowed).
+URL: ``genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=223600123``. The path is
+the GenTL producer (.cti); the device is chosen by ``serial=``, by ``name=`` (the user-defined
+name, DeviceUserID) or, as a last resort, by ``index=`` into the producer's device list; with none
+of them the producer must offer exactly one device. Other options: ``num_buffers`` (GenTL buffers,
+default 4; the settings' ``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame
+while streaming before the camera is declared lost, default 3; at least three frame periods).
 
-Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are
-decoded from the raw GenTL buffer by :mod:`drivers.pixel_formats` and carry its name.
-``trigger()`` fires TriggerSoftware (after TriggerArmed where the device has it);
-on a device without software triggers it takes the next free-run frame instead
-and says so in ``status()["warnings"]``. ``start_stream()`` switches to free run
-and ``pump()`` emits ``camera.frame``, and ``camera.link`` (``status()["link"]``) at most once a
-second when a link counter changed; ``status()["ptp"]`` reads the PTP state. A missing device at ``open()`` and every
-transport failure raise :class:`DeviceLost`, so the daemon's reconnect loop
-retries; an ambiguous selection or bad settings raise :class:`DeviceError`.
+Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are decoded
+from the raw GenTL buffer by :mod:`drivers.pixel_formats` and carry its name. ``trigger()`` fires
+TriggerSoftware (after TriggerArmed where the device has it); on a device without software
+triggers it takes the next free-run frame instead and says so in ``status()["warnings"]``.
+``start_stream()`` switches to free run and ``pump()`` emits ``camera.frame``, and ``camera.link``
+(``status()["link"]``) at most once a second when a link counter changed; ``status()["ptp"]``
+reads the PTP state. Each frame is stamped on the host as its buffer arrives and carries, for the
+daemon's clock (daemon/ritad/device_clock.py), its payload over the link rate (``transfer_ns``)
+and the PTP state, read at most once a second. A missing device at ``open()`` and every transport
+failure raise :class:`DeviceLost`, so the daemon's reconnect loop retries; an ambiguous selection
+or bad settings raise :class:`DeviceError`.
 
-harvesters allows one Harvester per producer per process and ``update()``
-destroys live acquirers, so each adapter owns its Harvester and ``close()``
-resets it. Everything runs on the caller's (the daemon runner's) thread:
-``start(run_as_thread=True)`` would race our fetches.
+harvesters allows one Harvester per producer per process and ``update()`` destroys live
+acquirers, so each adapter owns its Harvester and ``close()`` resets it. Everything runs on the
+caller's (the daemon runner's) thread: ``start(run_as_thread=True)`` would race our fetches.
 """
 from __future__ import annotations
 
@@ -35,11 +35,12 @@ from typing import Any
 from genicam import gentl
 from harvesters.core import Harvester, ImageAcquirer
 
-from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
+from drivers.base import (GIGE_LINE_BYTES_S, Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
                           DeviceURL, Emit, Frame, no_emit)
-from drivers.genicam_device import create_acquirer, decode_buffer, select_device
+from drivers.genicam_device import create_acquirer, decode_buffer, payload_bytes, select_device
 from drivers.genicam_settings import SettingsWriter, find_node, set_trigger_mode
-from drivers.genicam_transport import IncompleteCounter, apply_all, link_stats, ptp_status, read_chunks
+from drivers.genicam_transport import (IncompleteCounter, PtpWatch, apply_all, link_rate, link_stats,
+                                       ptp_status, read_chunks)
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +82,7 @@ class GenICamCamera(Camera):
         self._next_status_poll = 0.0
         self._last_frame = 0.0
         self._exposure: float | None = None
+        self._link_rate, self._ptp = float(GIGE_LINE_BYTES_S), PtpWatch()
         self._last_link: dict[str, Any] = {}
         self.counters = {"opens": 0, "applies": 0, "writes": 0, "frames": 0, "timeouts": 0}
 
@@ -105,6 +107,7 @@ class GenICamCamera(Camera):
             self._ia.num_buffers = self.num_buffers
             self._ia.add_callback(ImageAcquirer.Events.INCOMPLETE_BUFFER, self._incomplete)
             self._access = self._ia.device.module.access_status
+            self._ptp = PtpWatch()  # a new connection: read the PTP state at the first frame
             self._apply()
             if self._software:
                 self._start_acquisition()  # armed: trigger() only has to fire
@@ -178,6 +181,7 @@ class GenICamCamera(Camera):
                                    self._set_buffers, int(minimum) if isinstance(minimum, int) else 1)
         exposure = w.read("ExposureTime")
         self._exposure = None if exposure is None else float(exposure)
+        self._link_rate = link_rate(w)
         self.counters["applies"] += 1
         self.counters["writes"] += w.writes
 
@@ -224,10 +228,11 @@ class GenICamCamera(Camera):
                 raise self._lost("fetch", exc) from exc
             if buf is not None:
                 break
+        rx_ns, rx_mono = time.time_ns(), time.monotonic_ns()  # arrival, before any decoding delays it
         try:
             try:  # pixels are decoded into a copy before the buffer goes back to the producer
                 pixels, fmt = decode_buffer(buf)
-                frame_id = int(buf.frame_id)
+                frame_id, size = int(buf.frame_id), payload_bytes(buf)
                 # chunk nodes read the held buffer's memory: only valid before the requeue
                 chunks = read_chunks(self._writer()) if self._applied.get("ChunkModeActive") else {}
                 try:
@@ -236,6 +241,7 @@ class GenICamCamera(Camera):
                     device_ns = None  # viky and some producers have no timestamps
             finally:
                 buf.parent.queue_buffer(buf)
+            ptp = self._ptp.poll(self._writer)
         except DeviceError:
             raise
         except Exception as exc:
@@ -245,7 +251,8 @@ class GenICamCamera(Camera):
         return Frame(pixels=pixels, frame_id=frame_id, pixel_format=fmt,
                      camera_serial=str(self._facts.get("serial_number")),
                      exposure_us=chunks.get("chunk_exposure_us", self._exposure), device_time_ns=device_ns,
-                     incomplete_count=self._incomplete.count, extra=chunks)
+                     host_time_ns=rx_ns, host_monotonic_ns=rx_mono, incomplete_count=self._incomplete.count,
+                     extra=chunks, transfer_ns=int(size * 1e9 / self._link_rate), ptp=ptp)
 
     def _check_access(self, force: bool = False) -> None:
         """Poll the device's access status (about once a second); a change means loss."""
@@ -381,17 +388,13 @@ class GenICamCamera(Camera):
         self._last_link = link
 
     def status(self) -> dict[str, Any]:
+        opened = self._ia is not None
         return {
-            "open": self._ia is not None,
-            "streaming": self._streaming,
-            "acquiring": self._acquiring,
-            "software_trigger": self._software,
-            "serial": self._facts.get("serial_number"),
+            "open": opened, "streaming": self._streaming, "acquiring": self._acquiring,
+            "software_trigger": self._software, "serial": self._facts.get("serial_number"),
             "settings": asdict(self.settings or CameraSettings()),
-            "applied": dict(self._applied),
-            "warnings": list(self._warnings),
-            "incomplete_count": self._incomplete.count,
-            "link": self._link() if self._ia is not None else None,
-            "ptp": ptp_status(self._writer()) if self._ia is not None else {"available": False},
+            "applied": dict(self._applied), "warnings": list(self._warnings),
+            "incomplete_count": self._incomplete.count, "link": self._link() if opened else None,
+            "ptp": ptp_status(self._writer()) if opened else {"available": False},
             **self.counters,
         }

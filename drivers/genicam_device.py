@@ -79,6 +79,11 @@ def decode_buffer(buf: Any) -> tuple[np.ndarray, str]:
         raise DeviceError(f"camera buffer: {exc}", code="bad_buffer") from None
 
 
+def payload_bytes(buf: Any) -> int:
+    """The bytes a raw GenTL buffer received (its ``size_filled``, else its length)."""
+    return _info(buf, "size_filled", len(buf.raw_buffer))
+
+
 def create_acquirer(h: Harvester, i: int) -> ImageAcquirer:
     """``h.create(i)`` without letting harvesters keep its own SIGINT handler.
 

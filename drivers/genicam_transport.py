@@ -24,12 +24,13 @@ warning naming it, never an error; an explicit packet size outside the camera's 
 """
 from __future__ import annotations
 
+import time
 from typing import Any, Callable
 
 from genicam import genapi
 from harvesters.core import Callback
 
-from drivers.base import MIN_PACKET_BYTES, CameraSettings, DeviceError
+from drivers.base import GIGE_LINE_BYTES_S, MIN_PACKET_BYTES, CameraSettings, DeviceError
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node
 
 #: chunks enabled by ``chunks = true`` -> the frame header key each one fills
@@ -37,6 +38,8 @@ CHUNKS = {"Timestamp": "chunk_timestamp_ns", "ExposureTime": "chunk_exposure_us"
 PACKET_SIZE_NODES = ("GevSCPSPacketSize", "DeviceStreamChannelPacketSize")
 PTP_STATUS_NODES = ("PtpStatus", "GevIEEE1588Status")
 PTP_OFFSET_NODES = ("PtpOffsetFromMaster", "GevIEEE1588OffsetFromMaster")
+#: how often frames' PTP state is refreshed (each reading costs GigE round trips)
+PTP_POLL_S = 1.0
 #: link statistic -> data-stream counters that may hold it (GenTL SFNC names first, then vendors')
 LINK_STATS = {
     "resend_requests": ("StreamResendRequestCount", "StreamPacketResendRequestCount", "GevResendRequestCount"),
@@ -177,6 +180,33 @@ def ptp_status(w: SettingsWriter) -> dict[str, Any]:
     offset = next((v for v in (w.read(n) for n in PTP_OFFSET_NODES) if v is not None), None)
     return {"available": True, "enabled": bool(enabled), "status": role,
             "offset_from_master_ns": None if offset is None else int(offset)}
+
+
+class PtpWatch:
+    """The camera's PTP state (:func:`ptp_status`) for its frames, read at most every ``PTP_POLL_S``."""
+
+    def __init__(self) -> None:
+        self.state: dict[str, Any] | None = None
+        self._next = 0.0
+
+    def poll(self, writer: Callable[[], SettingsWriter]) -> dict[str, Any] | None:
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + PTP_POLL_S
+            self.state = ptp_status(writer())
+        return self.state
+
+
+def link_rate(w: SettingsWriter) -> float:
+    """Bytes/s the camera sends at: its link speed (SFNC DeviceLinkSpeed, bytes/s; else GigE's line
+    rate), capped by its throughput limit when that is on. A frame's payload over it is the least
+    time the frame spends on the wire."""
+    speed = w.read("DeviceLinkSpeed")
+    rate = float(speed) if isinstance(speed, (int, float)) and speed > 0 else float(GIGE_LINE_BYTES_S)
+    limit = w.read("DeviceLinkThroughputLimit")
+    if w.read("DeviceLinkThroughputLimitMode") == "On" and isinstance(limit, (int, float)) and limit > 0:
+        rate = min(rate, float(limit))
+    return rate
 
 
 def link_stats(stream: SettingsWriter, counted: dict[str, int]) -> dict[str, Any]:

@@ -33,11 +33,14 @@ and one render may overrun ``pump``'s timeout; one camera offers both sensor
 profiles of the family, :data:`PIXEL_FORMATS` (the configured PixelFormat picks the
 mono or the RGGB Bayer colour sensor, :mod:`fakes.colour`; frames are packed into the
 format's wire layout and decoded by :mod:`drivers.pixel_formats`, like a GenICam
-camera's); Bayer ROIs need even offsets; no PTP or events (``status()["ptp"]`` says
-unavailable); with ``chunks`` on, the header's chunk values are the applied exposure and gain
-and the device timestamp; the frame is
-rendered at the pose the robot has when it is produced (no exposure time, no
-rolling shutter); device timestamps are the host's monotonic clock; frame ids
+camera's); Bayer ROIs need even offsets; no events; PTP only with the ``ptp`` option (else
+``status()["ptp"]`` says unavailable); with ``chunks`` on, the header's chunk values are the applied
+exposure and gain and the device timestamp; the frame is
+rendered at the pose the robot has when its exposure starts (no motion during the exposure, no
+rolling shutter); device timestamps come from the camera's own clock, :mod:`fakes.camera_clock`
+(options ``clock_offset_s``, ``clock_drift_ppm``, ``ptp``, ``ptp_offset_ns``, ``latency_ms``), and
+``host_time_ns`` is the simulated arrival (exposure start + exposure + wire time + latency), not
+when the render finished; the header's ``sim_t_mid_ns`` is the exposure's true mid-time; frame ids
 run on across reconnects instead of restarting. Width/Height/OffsetX/OffsetY
 crop the rendered image like a sensor ROI.
 """
@@ -56,6 +59,7 @@ import numpy as np
 from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
                           Emit, Frame, no_emit)
 from drivers import pixel_formats
+from fakes import camera_clock
 from fakes.colour import ColourRenderer, sensor_image
 from fakes.gige_link import GigELink, LinkSettings, sim_transport
 from fakes.render import Renderer
@@ -112,7 +116,7 @@ class SimCamera(Camera):
     """Renders the simulated world at the robot's pose; see the module docstring."""
 
     OPTIONS = frozenset({"size", "fps", "noise", "prerender", "serial", "drop_every", "incomplete_every",
-                         "disconnect_after", "packet_loss", "path_mtu", worlds.OPTION})
+                         "disconnect_after", "packet_loss", "path_mtu", worlds.OPTION, *camera_clock.OPTIONS})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: CameraSettings | None = None) -> None:
@@ -140,6 +144,7 @@ class SimCamera(Camera):
         self.link = GigELink(self.world.rng("camera.link"), path_mtu=self.path_mtu,
                              loss_at_line_rate=loss, loss_limited=loss / 10)
         self._link_settings = LinkSettings()
+        self.clock = camera_clock.CameraClock.from_url(url, self.world.rng("camera.latency"))
         self._next_link = 0.0
         self._last_link: dict[str, Any] = self.link.stats()
         self._rng = self.world.rng("camera.noise")
@@ -206,15 +211,19 @@ class SimCamera(Camera):
         rate = self.fps if self.fps is not None else (s.frame_rate_hz or 5.0)
         if not rate > 0:
             raise DeviceError(f"frame rate {rate!r} must be > 0", code="bad_setting")
-        if s.ptp is not None:
+        ptp: dict[str, Any] = {}
+        if s.ptp is not None and self.clock.ptp_state is None:
             warnings.append(f"camera has no PtpEnable; PtpEnable={s.ptp!r} not applied")
+        elif s.ptp is not None:
+            self.clock.ptp_enabled = bool(s.ptp)
+            ptp["PtpEnable"] = self.clock.ptp_enabled
         self._link_settings, transport = sim_transport(s, self.path_mtu, warnings)
         if fmt != self._applied.get("PixelFormat"):
             self._prerendered = []  # rendered in the previous format
         self._renderer = renderer_for(self.world, self.size, pixel_formats.lookup(fmt).colour)
         self._applied = {"PixelFormat": fmt, "Width": w, "Height": h, "OffsetX": ox, "OffsetY": oy,
                          "ExposureTime": exposure, "Gain": gain_db, "AcquisitionFrameRate": rate,
-                         "TriggerMode": "On" if s.trigger == "software" else "Off", **transport}
+                         "TriggerMode": "On" if s.trigger == "software" else "Off", **ptp, **transport}
         self._roi = (slice(oy, oy + h), slice(ox, ox + w))
         self._factor = exposure / NOMINAL_EXPOSURE_US * 10.0 ** (gain_db / 20.0)
         self._warnings = warnings
@@ -251,18 +260,21 @@ class SimCamera(Camera):
         if self.drop_every and n % self.drop_every == 0:
             self.counters["dropped"] += 1
             return None
-        t_mono = time.monotonic_ns()
+        start = self.clock.now_ns()  # the exposure starts: the pose is the one it sees
         pose = self.world.abs_H_cam()
         if self._prerendered:
             img = self._prerendered[(n - 1) % len(self._prerendered)]
         else:
             img = self._render()
         img = self._deliver(img[self._roi])
-        extra: dict[str, Any] = {"sim": True, "sim_abs_H_cam": pose.tolist()}
+        exposure, device_ns = self._applied["ExposureTime"], self.clock.device_ns(start)
+        extra: dict[str, Any] = {"sim": True, "sim_abs_H_cam": pose.tolist(),
+                                 "sim_t_mid_ns": start + int(round(exposure * 500.0))}
         if self._applied.get("ChunkModeActive"):
-            extra.update(chunk_timestamp_ns=t_mono, chunk_exposure_us=self._applied["ExposureTime"],
+            extra.update(chunk_timestamp_ns=device_ns, chunk_exposure_us=exposure,
                          chunk_gain_db=self._applied["Gain"])
-        complete, _ = self.link.send(img.nbytes, self._link_settings)
+        complete, wire_s = self.link.send(img.nbytes, self._link_settings)
+        arrived = self.clock.arrival_ns(start, exposure, wire_s)
         if not complete or (self.incomplete_every and n % self.incomplete_every == 0):
             cut = int(self._cut_rng.integers(1, max(2, img.shape[0])))
             img[cut:] = 0  # the packets of the lower rows never arrived
@@ -270,9 +282,11 @@ class SimCamera(Camera):
             extra["incomplete"] = True
         self.counters["frames"] += 1
         return Frame(pixels=img, frame_id=n, camera_serial=self.serial, pixel_format=self._applied["PixelFormat"],
-                     exposure_us=self._applied["ExposureTime"], device_time_ns=t_mono,
-                     host_monotonic_ns=t_mono, incomplete_count=self.counters["incomplete"],
-                     extra=extra)
+                     exposure_us=exposure, device_time_ns=device_ns, host_time_ns=arrived,
+                     host_monotonic_ns=arrived - (time.time_ns() - time.monotonic_ns()),
+                     incomplete_count=self.counters["incomplete"], extra=extra,
+                     transfer_ns=int(img.nbytes / self.link.rate(self._link_settings) * 1e9),
+                     ptp=self.clock.ptp_status())
 
     def _deliver(self, img: np.ndarray) -> np.ndarray:
         """Exposure and gain, then the PixelFormat's wire layout and back: a copy the daemon owns."""
@@ -353,6 +367,6 @@ class SimCamera(Camera):
             "warnings": list(self._warnings),
             "incomplete_count": self.counters["incomplete"],
             "link": self.link.stats(),
-            "ptp": {"available": False},
+            "ptp": self.clock.ptp_status(),
             **self.counters,
         }

@@ -18,6 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from fakes.camera_clock import CameraClock
+
 # GenApi principal interface types and access modes, as genicam_settings reads them
 INT, BOOL, CMD, FLOAT, ENUM = 2, 3, 4, 5, 9
 NA, RO, RW = 1, 3, 4
@@ -119,16 +121,27 @@ def _imaging(nm: FakeNodeMap) -> None:
     add(FakeNode("TriggerSoftware", CMD, access=RW))
 
 
-def _ptp(nm: FakeNodeMap) -> None:
-    enabled = nm.add(FakeNode("PtpEnable", BOOL, False))
-    nm.add(FakeNode("PtpStatus", ENUM, access=RO, symbolics=("Disabled", "Listening", "Slave", "Master"),
-                    getter=lambda: "Slave" if enabled.value else "Disabled"))
-    nm.add(FakeNode("PtpOffsetFromMaster", INT, -42, access=lambda: RO if enabled.value else NA))
+def _ptp(nm: FakeNodeMap, clock: CameraClock | None) -> None:
+    """PTP nodes: a port that locks at once with a -42 ns offset, or ``clock``'s (its state and servo)."""
+    if clock is None:
+        enabled = nm.add(FakeNode("PtpEnable", BOOL, False))
+        status: Callable[[], Any] = lambda: "Slave" if enabled.value else "Disabled"  # noqa: E731
+        offset: Callable[[], Any] = lambda: -42  # noqa: E731
+    else:
+        enabled = nm.add(FakeNode("PtpEnable", BOOL, getter=lambda: clock.ptp_enabled,
+                                  setter=lambda v: setattr(clock, "ptp_enabled", bool(v))))
+        status = lambda: clock.ptp_status()["status"]  # noqa: E731
+        offset = lambda: clock.ptp_status()["offset_from_master_ns"]  # noqa: E731
+    nm.add(FakeNode("PtpStatus", ENUM, access=RO, getter=status,
+                    symbolics=("Disabled", "Listening", "Uncalibrated", "Slave", "Master")))
+    nm.add(FakeNode("PtpOffsetFromMaster", INT, getter=offset,
+                    access=lambda: RO if enabled.value and offset() is not None else NA))
     nm.add(FakeNode("PtpDataSetLatch", CMD))
 
 
-def _chunks(nm: FakeNodeMap) -> dict[str, Any]:
-    """Chunk mode, a selector and a per-selector enable; ``values`` is what the 'held buffer' carries."""
+def _chunks(nm: FakeNodeMap, clock: CameraClock | None) -> dict[str, Any]:
+    """Chunk mode, a selector and a per-selector enable; ``values`` is what the 'held buffer' carries
+    (with a ``clock``, its Timestamp is the clock's reading now)."""
     active = nm.add(FakeNode("ChunkModeActive", BOOL, False))
     selector = nm.add(FakeNode("ChunkSelector", ENUM, "Timestamp",
                                symbolics=("Timestamp", "ExposureTime", "Gain", "Width", "Height")))
@@ -140,15 +153,19 @@ def _chunks(nm: FakeNodeMap) -> dict[str, Any]:
         def access(c: str = chunk) -> int:
             return RO if active.value and enabled.get(c) else NA
         nm.add(FakeNode(f"Chunk{chunk}", kind, access=access, getter=lambda c=chunk: values[c]))
+    if clock is not None:
+        nm.nodes["ChunkTimestamp"].getter = lambda: clock.device_ns(clock.now_ns())
     return values
 
 
-def camera_node_map(*, without: tuple[str, ...] = (), packet_max: int = 9000) -> FakeNodeMap:
-    """A PHX122S-like camera node map; ``without`` drops the named nodes."""
+def camera_node_map(*, without: tuple[str, ...] = (), packet_max: int = 9000,
+                    clock: CameraClock | None = None) -> FakeNodeMap:
+    """A PHX122S-like camera node map; ``without`` drops the named nodes; ``clock`` (fakes/camera_clock.py)
+    drives its PTP port and timestamps."""
     nm = FakeNodeMap()
     _imaging(nm)
-    _ptp(nm)
-    _chunks(nm)
+    _ptp(nm, clock)
+    _chunks(nm, clock)
     nm.add(FakeNode("GevSCPSPacketSize", INT, 1500, 576, packet_max, 4))
     nm.add(FakeNode("DeviceLinkThroughputLimitMode", ENUM, "Off", symbolics=("Off", "On")))
     nm.add(FakeNode("DeviceLinkThroughputLimit", INT, 125_000_000, 31_250_000, 125_000_000, 1))

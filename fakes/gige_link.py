@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import DeviceError
+from drivers.base import GIGE_LINE_BYTES_S, DeviceError
 
 IP_UDP_GVSP_HEADERS = 36
 ETHERNET_OVERHEAD = 38
-LINK_BYTES_S = 125_000_000.0  # 1000BASE-T line rate
+LINK_BYTES_S = float(GIGE_LINE_BYTES_S)
 
 
 @dataclass

@@ -36,8 +36,13 @@ window uses only those.
 What one-way samples cannot see: the latency's fixed part (cable, driver, the device's own
 delay before sending). ``min_latency_ns`` states it, known from elsewhere, and is subtracted.
 A lasting change of that fixed part looks the same as a clock step; the map follows it
-within one window. A device clock that steps back by more than ``RESET_BACK_S`` (a restart)
-starts the map afresh.
+within one window. A device clock that steps back by more than ``RESET_BACK_S`` (a restart),
+or forward so far that a sample arrives more than ``RESET_BACK_S`` before the lowest offset seen
+allows (a clock set to another time scale, e.g. a camera locking onto PTP time; late samples
+cannot do this, the latency is never negative), starts the map afresh.
+
+Time scales. PTP (IEEE 1588) clocks count TAI; the host's clock counts UTC. They differ by
+``TAI_MINUS_UTC_S`` whole seconds, the leap seconds inserted so far.
 
 Stdlib only: the laptop's client imports the bus library without numpy.
 """
@@ -62,6 +67,9 @@ SEGMENTS = 12
 RESET_BACK_S = 1.0
 #: a drift beyond this is no crystal's: the fit is clamped to it
 MAX_DRIFT_PPM = 1000.0
+#: TAI − UTC in seconds since 2017-01-01 (IERS Bulletin C; no leap second announced since): PTP
+#: time, which counts TAI, is this far ahead of the host's UTC clock
+TAI_MINUS_UTC_S = 37
 
 
 @dataclass(frozen=True)
@@ -215,15 +223,20 @@ class ClockMap:
         self._tx = _Bins(self.bin_ns, self.window_ns)  # send side of exchanges, y negated
         self._rx_ex = _Bins(self.bin_ns, self.window_ns)  # receive side of exchanges
         self._newest: int | None = None
+        self._floor_y: int | None = None  # the lowest received − device time since the reset
         self._fit: tuple[_Line | None, _Line | None] | None = None
 
     def add(self, device_ns: int, host_rx_ns: int, host_tx_ns: int | None = None) -> None:
         """One sample: the device's time of an event and when the host received it (and, for an
         exchange, when the host asked)."""
         d, rx = int(device_ns), int(host_rx_ns)
-        if self._newest is not None and d < self._newest - RESET_BACK_S * 1e9:
+        stepped_back = self._newest is not None and d < self._newest - RESET_BACK_S * 1e9
+        # received this much before any earlier sample's offset allows: the clock jumped ahead
+        stepped_ahead = self._floor_y is not None and rx - d < self._floor_y - RESET_BACK_S * 1e9
+        if stepped_back or stepped_ahead:
             self.reset()
             self.resets += 1
+        self._floor_y = rx - d if self._floor_y is None else min(self._floor_y, rx - d)
         if host_tx_ns is None:
             self._rx.add(d, rx - d)
         else:

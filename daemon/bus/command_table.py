@@ -88,8 +88,8 @@ TABLE: tuple[Command, ...] = (
             result="{streaming: false}"),
     Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status"),
             result="adapter status and counters; clock: the tracker clock's mapping onto the host's from its "
-                   "stream packets {offset_ns, drift_ppm, sigma_ns, samples, window_s, two_way, resets}; sigma_ns "
-                   "leaves out the latency's fixed part (docs/architecture.md, Time)",
+                   "stream packets {source (clockmap, null before the first), offset_ns, drift_ppm, sigma_ns, samples, "
+                   "window_s, two_way, resets}; sigma_ns leaves out the latency's fixed part (docs/architecture.md, Time)",
             polled=True),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
@@ -100,9 +100,13 @@ TABLE: tuple[Command, ...] = (
             cli=("camera", "stream", "start"), result="{streaming: true}"),
     Command("camera.stream.stop", "stop the free run", "operator", cli=("camera", "stream", "stop"),
             result="{streaming: false}"),
-    Command("camera.status", "applied camera settings, warnings, counters, ptp (PTP status) and link "
-            "(GigE link statistics)", cli=("camera", "status"),
-            result="applied settings, warnings, counters", polled=True),
+    Command("camera.status", "applied camera settings, warnings, counters, ptp (PTP status), link "
+            "(GigE link statistics) and clock (how frames are timed)", cli=("camera", "status"),
+            result="applied settings, warnings, counters, ptp, link; clock: how the newest frame was put on the "
+                   "host's timeline {source (ptp, clockmap or host; null before the first frame), offset_ns (host − "
+                   "device), drift_ppm, sigma_ns, samples, window_s, two_way, resets, ptp (the camera's PTP state at "
+                   "that frame), note (why PTP is not used, else null); with source ptp also clockmap {offset_ns, "
+                   "drift_ppm, sigma_ns}, the map kept as fallback} (docs/architecture.md, Time)", polled=True),
     Command("camera.preview", "the newest streamed frame, small (or a full-resolution region), as one JPEG "
             "attachment: live views over a thin link", verb="console",
             result="{header, format: jpeg, x, y, w, h, step, out_w, out_h, full_w, full_h}: the region shown "

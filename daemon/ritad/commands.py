@@ -79,12 +79,14 @@ def _camera(s: Services) -> dict[str, Handler]:
                 result["path"] = str(s.save_capture({"camera": frame}, req.args["label"]))
             return Reply(result, [frame.pixels]) if want_pixels else result
 
-        return chain(s.job("camera", lambda c: c.trigger(), timeout=30), finish, s.storage if save else None)
+        return chain(s.job("camera", lambda c: s.stamp_frame(c.trigger()), timeout=30), finish,
+                     s.storage if save else None)
 
     return {"camera.capture": capture,
             "camera.stream.start": _then(lambda: s.job("camera", lambda c: c.start_stream()), {"streaming": True}),
             "camera.stream.stop": _then(lambda: s.job("camera", lambda c: c.stop_stream()), {"streaming": False}),
-            "camera.status": lambda req: s.job("camera", lambda c: c.status())}
+            "camera.status": lambda req: chain(s.job("camera", lambda c: c.status()),
+                                               lambda st: {**st, "clock": s.clock_status("camera")})}
 
 
 def _who(req: Request) -> str:
@@ -145,7 +147,7 @@ def _robot(s: Services) -> dict[str, Handler]:
 def _capture(s: Services) -> dict[str, Handler]:
     def capture(req: Request) -> Any:
         label, dataset = req.args["label"], req.args["dataset"]
-        parts = {"camera": s.job("camera", lambda c: c.trigger(), timeout=30),
+        parts = {"camera": s.job("camera", lambda c: s.stamp_frame(c.trigger()), timeout=30),
                  "tracker": s.job("tracker", lambda t: t.measure(), timeout=60),
                  "robot": s.job("robot", lambda r: r.status())}
         return chain(gather(parts), lambda res: _captured(s, res, label, dataset), s.storage)

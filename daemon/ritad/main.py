@@ -98,7 +98,7 @@ class Daemon:
     def emit(self, topic: str, payload: Payload) -> None:
         """The sink handed to every device (thread-safe, never blocks)."""
         if isinstance(payload, Frame):
-            self.frames.publish(payload)
+            self.frames.publish(self.runners["camera"].clock.stamp_frame(payload))
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
@@ -178,7 +178,7 @@ class Daemon:
         return Services(job=self.job, motion=self.motions.start, storage=self.storage,
                         data_dir=data, private_dirs=private, auth_dir=data / auth_top, save_capture=self.save_capture,
                         abs_H_trk=self.abs_H_trk, stream_rate_hz=cfg.tracker.stream_rate_hz,
-                        robot=cfg.robot, calib=self.calib,
+                        robot=cfg.robot, calib=self.calib, stamp_frame=lambda f: self.runners["camera"].clock.stamp_frame(f),
                         device_info=lambda kind: self.runners[kind].info, hello=self.hello, health=self.health,
                         state=self.state, latest_frame=lambda: self.frames.last_frame, latch=self.latch,
                         abort_motions=self.motions.abort, clock_status=lambda kind: self.runners[kind].clock.status(),

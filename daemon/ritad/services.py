@@ -47,3 +47,4 @@ class Services:
     abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end
     clock_status: Callable[[str], dict[str, Any]] = lambda kind: {}  # a device clock's mapping (device_clock.py)
     at_time: Callable[[int], dict[str, dict[str, Any]]] = lambda t_ns: {}  # the streams at an instant (timelines.py)
+    stamp_frame: Callable[[Frame], Frame] = lambda frame: frame  # its exposure's host time (device_clock.py)

@@ -9,11 +9,14 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 import pytest
 
+from drivers import genicam_transport
 from drivers.base import CameraSettings, DeviceError
 from drivers.genicam_settings import SettingsWriter
-from drivers.genicam_transport import apply_all, link_stats, ptp_status, read_chunks
+from drivers.genicam_transport import PtpWatch, apply_all, link_rate, link_stats, ptp_status, read_chunks
+from fakes.camera_clock import CameraClock
 from fakes.genicam_nodes import FakeNodeMap, camera_node_map, stream_node_map
 
 pytestmark = pytest.mark.timeout(30)
@@ -207,3 +210,30 @@ def test_link_statistics_from_the_stream_else_the_adapters_counts() -> None:
     stats = link_stats(bare, {"incomplete_frames": 7})
     assert stats["incomplete_frames"] == 7 and stats["source"]["incomplete_frames"] == "adapter"
     assert stats["resend_requests"] is None and stats["source"]["resend_requests"] is None
+
+
+def test_ptp_state_follows_the_cameras_clock_and_is_polled_at_most_once_a_second(monkeypatch: pytest.MonkeyPatch) -> None:
+    clock = CameraClock(np.random.default_rng(0), ptp_state="Listening", now_ns=lambda: 1_800_000_000 * 10**9)
+    rig = Rig(cam=camera_node_map(clock=clock))
+    w = SettingsWriter(rig.cam, rig.warnings.append)
+    rig.apply(CameraSettings(ptp=True, chunks=True))
+    assert ptp_status(w) == {"available": True, "enabled": True, "status": "Listening", "offset_from_master_ns": None}
+    assert read_chunks(w)["chunk_timestamp_ns"] == clock.device_ns(clock.now_ns())  # its own clock, not PTP's
+    t = [100.0]
+    monkeypatch.setattr(genicam_transport.time, "monotonic", lambda: t[0])
+    watch = PtpWatch()
+    assert watch.poll(lambda: w)["status"] == "Listening"
+    clock.ptp_state = "Slave"
+    assert watch.poll(lambda: w)["status"] == "Listening"  # within the second: the last reading
+    t[0] += genicam_transport.PTP_POLL_S
+    state = watch.poll(lambda: w)
+    assert state["status"] == "Slave" and abs(state["offset_from_master_ns"]) <= 300
+    assert read_chunks(w)["chunk_timestamp_ns"] - clock.now_ns() - 37 * 10**9 == state["offset_from_master_ns"]
+
+
+def test_link_rate_is_the_line_rate_or_the_throughput_limit() -> None:
+    rig = Rig()
+    w = SettingsWriter(rig.cam, rig.warnings.append)
+    assert link_rate(w) == 125_000_000.0  # no DeviceLinkSpeed, no limit: GigE's line rate
+    rig.apply(CameraSettings(throughput_limit_bytes_s=110_000_000))
+    assert link_rate(w) == 110_000_000.0

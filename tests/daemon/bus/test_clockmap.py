@@ -145,6 +145,18 @@ def test_few_samples_say_so(n):
     assert worst <= 3.0, worst
 
 
+def test_a_clock_set_ahead_starts_afresh_and_late_samples_do_not():
+    cm = ClockMap()
+    for i in range(50):  # 10 Hz, the 10th sample 3 s late (a stalled host): no reset
+        cm.add(i * 10**8, HOST0 + i * 10**8 + (3 * 10**9 if i == 10 else 1000))
+    assert cm.status()["resets"] == 0
+    tai = 37 * 10**9 + 1_760_000_000 * 10**9  # the camera locks onto PTP time: its clock jumps ahead
+    cm.add(tai, HOST0 + 50 * 10**8)
+    st = cm.status()
+    assert st["resets"] == 1 and st["samples"] == 1, st
+    assert abs(st["offset_ns"] - (HOST0 + 50 * 10**8 - tai)) < 10**7, st
+
+
 def test_clock_restart_and_bad_input():
     cm = ClockMap()
     with pytest.raises(ValueError, match="no samples"):
@@ -154,7 +166,7 @@ def test_clock_restart_and_bad_input():
     cm.add(1_000_000, HOST0 + 10**9)  # the device clock went back by 100 s: it restarted
     st = cm.status()
     assert st["resets"] == 1 and st["samples"] == 1, st
-    cm.add(10 * 10**9, HOST0 + 2 * 10**9)
+    cm.add(2 * 10**9, HOST0 + 2 * 10**9)
     cm.add(0, HOST0 + 3 * 10**9)  # and again
     assert cm.status()["resets"] == 2
     with pytest.raises(ValueError, match="host_tx_ns 5 is after host_rx_ns 4"):
