@@ -157,8 +157,9 @@ TABLE: tuple[Command, ...] = (
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
                    "inclinometer), battery_v", polled=True),
     Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
-            verb="capture", result="{path, header, tracker, robot, at_exposure}: at_exposure holds the tracker's "
-            "stream, the base's pose and its tilt at the frame's exposure (interpolated, with the gap bridged)",
+            verb="capture", result="{path, header, tracker, robot, at_exposure}: tracker is a stationary measurement, null "
+            "while the tracker streams; at_exposure holds the tracker's stream, the base's pose and its tilt at "
+            "the frame's exposure (interpolated, with the gap bridged)",
             args=(
                 Arg("label", "str", "name of the entry", default="capture", cli="--label"),
                 Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),

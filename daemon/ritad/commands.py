@@ -22,8 +22,8 @@ from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
 from daemon.ritad.services import Services
-from daemon.ritad.timelines import frame_time
-from drivers.base import Frame, Robot, TrackerPoint
+from daemon.ritad.timelines import COVER_WAIT_S, frame_time
+from drivers.base import DeviceError, Frame, Robot, Tracker, TrackerPoint
 
 __all__ = ["build_handlers", "chain", "gather"]
 
@@ -148,11 +148,21 @@ def _capture(s: Services) -> dict[str, Handler]:
     def capture(req: Request) -> Any:
         label, dataset = req.args["label"], req.args["dataset"]
         parts = {"camera": s.job("camera", lambda c: s.stamp_frame(c.trigger()), timeout=30),
-                 "tracker": s.job("tracker", lambda t: t.measure(), timeout=60),
+                 "tracker": s.job("tracker", _standstill_point, timeout=60),
                  "robot": s.job("robot", lambda r: r.status())}
         return chain(gather(parts), lambda res: _captured(s, res, label, dataset), s.storage)
 
     return {"capture": capture}
+
+
+def _standstill_point(tracker: Tracker) -> TrackerPoint | None:
+    """The capture's stationary measurement; None while the tracker streams (at_exposure has its point)."""
+    try:
+        return tracker.measure()
+    except DeviceError as exc:
+        if exc.code == "tracker_streaming":
+            return None
+        raise
 
 
 def _captured(s: Services, res: dict[str, Any], label: str, dataset: str | None) -> dict[str, Any]:
@@ -160,9 +170,10 @@ def _captured(s: Services, res: dict[str, Any], label: str, dataset: str | None)
     header = res["camera"].header()
     when = frame_time(header)
     res["at_exposure"] = ({"error": "the frame has no exposure time on the host's timeline (t_ns)"}
-                          if when is None else s.at_time(when[0]))
+                          if when is None else s.at_time(when[0], COVER_WAIT_S))
     return {"path": str(s.save_capture(res, label, dataset)), "header": header,
-            "tracker": _point_dict(res["tracker"], s.abs_H_trk), "robot": res["robot"].to_dict(),
+            "tracker": None if res["tracker"] is None else _point_dict(res["tracker"], s.abs_H_trk),
+            "robot": res["robot"].to_dict(),
             "at_exposure": res["at_exposure"]}
 
 

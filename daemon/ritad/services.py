@@ -46,5 +46,5 @@ class Services:
     latch: StopLatch = field(default_factory=lambda: StopLatch(lambda topic, data: None))  # the latched stop
     abort_motions: Callable[[str], None] = lambda why: None  # fail every motion waiting for its end
     clock_status: Callable[[str], dict[str, Any]] = lambda kind: {}  # a device clock's mapping (device_clock.py)
-    at_time: Callable[[int], dict[str, dict[str, Any]]] = lambda t_ns: {}  # the streams at an instant (timelines.py)
+    at_time: Callable[[int, float], dict[str, dict[str, Any]]] = lambda t_ns, wait_s: {}  # streams at an instant
     stamp_frame: Callable[[Frame], Frame] = lambda frame: frame  # its exposure's host time (device_clock.py)

@@ -10,6 +10,8 @@ the two samples around the instant and reports the gap; it never reaches further
 """
 from __future__ import annotations
 
+import threading
+import time
 from typing import Any, Callable
 
 from daemon.bus.names import Topic
@@ -30,6 +32,11 @@ REACH_NS = {"tracker": 0, "robot": 500_000_000, "tilt": 500_000_000}
 #: a status from a base without a clock is timed by its arrival: it left the base one line's
 #: transfer earlier (a ~70-byte STATUS at 115200 baud: ~6 ms), so that is its time's sigma
 ARRIVAL_SIGMA_NS = 6_000_000
+#: a frame is ready before the samples after its exposure have arrived (the tracker sends a packet at
+#: >= 8 Hz, the base its status at a few Hz): a lookup waits for them at most this long (s), but only
+#: for a live stream, one with a sample less than ``LIVE_NS`` before the instant
+COVER_WAIT_S = 0.5
+LIVE_NS = 1_000_000_000
 
 
 class Timelines:
@@ -38,6 +45,7 @@ class Timelines:
     def __init__(self, clock_of: Callable[[str], DeviceClock | None]) -> None:
         self._clock_of = clock_of  # a device runner's clock map, None before the runner exists
         self.streams = {name: TimeSeries(name, fields, angles=angles) for name, (fields, angles) in STREAMS.items()}
+        self._arrived = threading.Condition()
 
     def observe(self, topic: str, payload: Any) -> None:
         """One telemetry message (the device clocks' maps are fed here too); anything malformed adds
@@ -49,8 +57,12 @@ class Timelines:
                 self._tracker(payload)
             elif topic == Topic.ROBOT_STATE:
                 self._robot(payload)
+            else:
+                return
         except (TypeError, KeyError, ValueError, IndexError, OverflowError):
             return
+        with self._arrived:
+            self._arrived.notify_all()
 
     def _tracker(self, p: dict[str, Any]) -> None:
         clock = self._clock_of("tracker")
@@ -75,8 +87,18 @@ class Timelines:
         if p.get("roll_deg") is not None and p.get("pitch_deg") is not None:
             self.streams["tilt"].add(t, (p["roll_deg"], p["pitch_deg"]), sigma)
 
-    def at(self, t_ns: int) -> dict[str, dict[str, Any]]:
-        """Every stream at ``t_ns``: its values with gap and sigma, or why it has none."""
+    def _waiting_for(self, t_ns: int) -> bool:
+        """A live stream has no sample at or after ``t_ns`` yet."""
+        spans = (series.span() for series in self.streams.values())
+        return any(span is not None and t_ns - LIVE_NS <= span[1] < t_ns for span in spans)
+
+    def at(self, t_ns: int, wait_s: float = 0.0) -> dict[str, dict[str, Any]]:
+        """Every stream at ``t_ns``: its values with gap and sigma, or why it has none. A live stream
+        is first given up to ``wait_s`` for the samples after ``t_ns`` to arrive."""
+        deadline = time.monotonic() + wait_s
+        with self._arrived:
+            while self._waiting_for(t_ns) and (left := deadline - time.monotonic()) > 0:
+                self._arrived.wait(left)
         out: dict[str, dict[str, Any]] = {}
         for name, series in self.streams.items():
             try:
@@ -92,4 +114,4 @@ def frame_time(header: dict[str, Any]) -> tuple[int, int] | None:
     return None if t is None else (int(t), int(header.get("t_sigma_ns") or 0))
 
 
-__all__ = ["ARRIVAL_SIGMA_NS", "REACH_NS", "STREAMS", "Timelines", "frame_time"]
+__all__ = ["ARRIVAL_SIGMA_NS", "COVER_WAIT_S", "LIVE_NS", "REACH_NS", "STREAMS", "Timelines", "frame_time"]
