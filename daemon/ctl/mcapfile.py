@@ -5,8 +5,9 @@ docs/operations.md ("Record and replay") documents this layout; keep the two in 
 * One channel per telemetry topic, JSON message encoding. Each message is the bus message's
   ``data`` map as JSON; the bus ``seq`` is the MCAP message's ``sequence`` (modulo 2**32), the
   daemon's ``t_ns`` its ``log_time`` and the recorder's receive time its ``publish_time``.
-  The channel's schema (``jsonschema``) is inferred from the topic's first message: top-level
-  field names and JSON types, so Foxglove's panels can offer the fields.
+  The channel's schema (``jsonschema``) is inferred from the topic's first message: field names and
+  JSON types, so Foxglove's panels can offer the fields; written in the subset of JSON Schema that
+  Foxglove's reader accepts (:func:`_json_type`), since it refuses a channel for one field outside it.
 * Frames: channel ``camera.frame`` with Foxglove's raw-image schema in its ROS 2 form
   (``foxglove_msgs/msg/RawImage``, schema encoding ``ros2msg``, messages in CDR): the pixels go in
   as they are, where JSON would base64 them: a third larger, and on the standard machine 58 ms to
@@ -92,7 +93,12 @@ def to_json(obj: Any) -> bytes:
     return text.encode()
 
 
-def _json_type(value: Any, depth: int) -> dict[str, Any]:
+def _json_type(value: Any, depth: int) -> dict[str, Any] | None:
+    """The schema of one JSON value in the subset Foxglove's JSON-schema reader takes (one type per
+    field; arrays of booleans, strings, numbers or objects), None where that subset has no word
+    for it: a null (its type is unknown), an empty array, an array of arrays or of nulls. Foxglove
+    refuses a whole channel for one such field, so it is left out of ``properties``; the messages
+    still carry it and Foxglove's Raw Messages panel shows it."""
     if isinstance(value, bool):
         return {"type": "boolean"}
     if isinstance(value, (int, float)):
@@ -100,20 +106,24 @@ def _json_type(value: Any, depth: int) -> dict[str, Any]:
     if isinstance(value, str):
         return {"type": "string"}
     if isinstance(value, (list, tuple)):
-        items = _json_type(value[0], depth + 1) if value and depth < 3 else {}
-        return {"type": "array", "items": items}
+        items = _json_type(value[0], depth + 1) if value and depth < 3 else None
+        return {"type": "array", "items": items} if items is not None and items["type"] != "array" else None
     if isinstance(value, dict):
         if depth >= 3:
             return {"type": "object"}
-        return {"type": "object", "properties": {str(k): _json_type(v, depth + 1) for k, v in value.items()}}
-    return {}  # null: any type
+        props = {str(k): _json_type(v, depth + 1) for k, v in value.items()}
+        return {"type": "object", "properties": {k: t for k, t in props.items() if t is not None}}
+    return None  # null: any type
 
 
-_NULLABLE_STR = {"type": ["string", "null"]}
-#: daemon.command's fields (docs/protocol.md, Telemetry): ``args`` is any command's, so not inferred
+#: daemon.command's fields (docs/protocol.md, Telemetry): ``args`` is any command's, so not inferred.
+#: Each field has its type when it has a value; ``args``, ``key``, ``code`` and ``message`` may be
+#: null, ``id`` is the caller's (a string or an integer). Foxglove's reader takes one type per field
+#: and no unions, so the types say the usual case.
 COMMAND_SCHEMA: dict[str, Any] = {"type": "object", "properties": {
-    "cmd": {"type": "string"}, "id": {}, "args": {"type": ["object", "null"]}, "key": _NULLABLE_STR,
-    "role": {"type": "string"}, "ok": {"type": "boolean"}, "code": _NULLABLE_STR, "message": _NULLABLE_STR,
+    "cmd": {"type": "string"}, "id": {"type": "string"}, "args": {"type": "object"},
+    "key": {"type": "string"}, "role": {"type": "string"}, "ok": {"type": "boolean"},
+    "code": {"type": "string"}, "message": {"type": "string"},
     "recv_ns": {"type": "number"}, "reply_ns": {"type": "number"}}}
 _FIXED_SCHEMAS = {str(Topic.DAEMON_COMMAND): COMMAND_SCHEMA}
 
@@ -122,7 +132,8 @@ def infer_schema(topic: str, data: Any) -> dict[str, Any]:
     """A JSON schema for a topic from one of its messages: field names and types, nothing required
     (a topic with a fixed schema, daemon.command, gets that one)."""
     fixed = _FIXED_SCHEMAS.get(topic)
-    schema = fixed if fixed is not None else _json_type(data, 0) if isinstance(data, dict) else {}
+    schema = fixed if fixed is not None else _json_type(data, 0) if isinstance(data, dict) else None
+    schema = schema if schema is not None else {"type": "object", "properties": {}}
     return {"title": topic, "description": f"ritad telemetry {topic} (docs/protocol.md)", **schema}
 
 
