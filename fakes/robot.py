@@ -48,7 +48,8 @@ from fakes.world import World, WorldParams
 log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.05
-MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving
+MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving (and samples sent while streaming)
+MAX_HELD = 64  # replies/events kept while the pty is full; older ones are lost as on a real cable
 
 
 class PtyServer:
@@ -66,14 +67,15 @@ class PtyServer:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
+        self._held: list[bytes] = []  # replies and events the full pty could not take yet
         self._pending: list[int] = []  # sizes of injected noise bursts (the rng is the thread's)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.alive = True
-        self.counters = {"tx_lines": 0, "tx_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
+        self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
         # what the base said while no port was attached is lost, as on a real cable
         base.tick()
-        self.counters["tx_dropped"] += len(base.drain())
+        self.counters["tx_dropped"] += len(base.drain()) + len(base.drain_stream())
         self._thread = threading.Thread(target=self._run, name=f"fake-robot {self.path}", daemon=True)
         self._thread.start()
 
@@ -122,7 +124,7 @@ class PtyServer:
     def _run(self) -> None:
         splitter = rp.LineSplitter()
         while not self._stop.is_set():
-            tick = MOVING_TICK_S if self.base.moving else IDLE_TICK_S
+            tick = MOVING_TICK_S if self.base.moving or self.base.streams.state_hz > 0 else IDLE_TICK_S
             try:
                 ready, _, _ = select.select([self.master, self._wake_r], [], [], tick)
             except (OSError, ValueError):
@@ -142,11 +144,12 @@ class PtyServer:
                     for line in splitter.feed(data):
                         self._guarded(self.base.handle_line, line)
             self._guarded(self.base.tick)
-            out = self.base.drain()
+            out, samples = self.base.drain(), self.base.drain_stream()
             with self._lock:
                 pending, self._pending = self._pending, []
             if not self.silent:
                 self._send([self._noise(n) for n in pending] + [self._impair(line) for line in out])
+                self._send([self._impair(line) for line in samples], samples=True)
 
     def _guarded(self, fn: Callable[..., None], *args: Any) -> None:
         # a bug in the simulated controller must show up in the log, not as a silent
@@ -169,14 +172,23 @@ class PtyServer:
             line = self._noise(int(self.rng.integers(1, 24))) + line
         return line
 
-    def _send(self, chunks: list[bytes]) -> None:
-        for chunk in chunks:
+    def _send(self, chunks: list[bytes], samples: bool = False) -> None:
+        """Write lines; when the pty is full (nobody reads) samples are dropped, like a real line's
+        overrun, but replies and events wait for room (at most MAX_HELD of them): a sample stream
+        the host reads late must never cost it the answer to a command."""
+        if not samples:
+            chunks, self._held = self._held + chunks, []
+        for i, chunk in enumerate(chunks):
             try:
                 os.write(self.master, chunk)
                 self.counters["tx_lines"] += 1
             except OSError:
-                # nobody reads the slave and the pty buffer is full: drop like a real line
-                self.counters["tx_dropped"] += 1
+                if samples:
+                    self.counters["samples_dropped"] += 1
+                    continue
+                self._held = chunks[i:][-MAX_HELD:]
+                self.counters["tx_dropped"] += len(chunks) - i - len(self._held)
+                return
 
 
 class SimRobot(SerialRobot):
