@@ -1,9 +1,8 @@
 """ritad: the acquisition daemon (entry point and supervisor).
 
-Start-up order: load config → lock the runtime and data directories (one instance
-each) → start the plugins (the simulator's world) → bind the bus → start the device runners → READY=1.
-Devices connect in the background (their state is in ``daemon.health``), so a missing
-tracker never blocks the bus. The main thread is the supervisor: it publishes health
+Start-up order: load config → lock the runtime and data directories (one instance each) → start
+the plugins (the simulator's world) → bind the bus → start the device runners → READY=1. Devices
+connect in the background (their state is in ``daemon.health``), so a missing tracker never blocks the bus. The main thread is the supervisor: it publishes health
 every second, pings the systemd watchdog only while every owner thread is responsive
 (a device waiting to reconnect is), and shuts down on SIGTERM/SIGINT.
 """
@@ -35,6 +34,7 @@ from daemon.ritad import config as config_mod
 from daemon.ritad.calib_jobs import CalibJobs  # noqa: E402
 from daemon.ritad import files  # noqa: E402
 from daemon.ritad.commands import build_handlers  # noqa: E402
+from daemon.ritad.device_clock import observe_telemetry  # noqa: E402
 from daemon.ritad.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
 from daemon.ritad.logs import setup_logging  # noqa: E402
 from daemon.ritad.notify import Notifier  # noqa: E402
@@ -102,8 +102,8 @@ class Daemon:
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
-        elif topic == Topic.TRACKER_POINT and "tracker" in self.runners:
-            self.runners["tracker"].clock.observe_tracker_packet(payload)
+        else:  # devices' clocks onto the host's (the robot's sample batches get their host times)
+            payload = observe_telemetry({k: r.clock for k, r in self.runners.items()}, topic, payload)
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:
