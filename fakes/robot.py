@@ -48,7 +48,7 @@ from fakes.world import World, WorldParams
 log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.05
-MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving (and samples sent while streaming)
+MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving
 MAX_HELD = 64  # replies/events kept while the pty is full; older ones are lost as on a real cable
 
 
@@ -124,7 +124,10 @@ class PtyServer:
     def _run(self) -> None:
         splitter = rp.LineSplitter()
         while not self._stop.is_set():
-            tick = MOVING_TICK_S if self.base.moving or self.base.streams.state_hz > 0 else IDLE_TICK_S
+            tick = MOVING_TICK_S if self.base.moving else IDLE_TICK_S
+            due = self.base.streams.next_due()  # samples leave when taken, not at the next tick
+            if due is not None:
+                tick = min(tick, max(0.0, due - self.base.clock()))
             try:
                 ready, _, _ = select.select([self.master, self._wake_r], [], [], tick)
             except (OSError, ValueError):

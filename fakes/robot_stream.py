@@ -92,6 +92,12 @@ class SampleStreams:
         self._next_incl = None if self.inclinometer is None else \
             (math.floor(d / self.incl_period_s) + 1) * self.incl_period_s
 
+    def next_due(self) -> float | None:
+        """The fake's clock time of the next sample (None while the streams are off): a real base sends
+        each sample as it takes it, so the server wakes then rather than at its next tick."""
+        nxt = [d for d in (self._next_state, self._next_incl) if d is not None]
+        return self.clock.true_time(min(nxt)) if nxt else None
+
     def due(self, now: float, source: StateSource) -> list[bytes]:
         """The lines of every sample due by ``now`` (clock time), oldest first."""
         if self._next_state is None:
