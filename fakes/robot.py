@@ -125,7 +125,10 @@ class PtyServer:
         splitter = rp.LineSplitter()
         while not self._stop.is_set():
             tick = MOVING_TICK_S if self.base.moving else IDLE_TICK_S
-            due = self.base.streams.next_due()  # samples leave when taken, not at the next tick
+            # samples leave when taken, as from a real base; at a standstill the INCL samples taken
+            # since the last STATE one go with it (a few ms late), which saves most wake-ups of the
+            # sim's fast inclinometer and keeps the STATE samples on time for the host's clock map
+            due = self.base.streams.next_due(state_only=not self.base.moving)
             if due is not None:
                 tick = min(tick, max(0.0, due - self.base.clock()))
             try:

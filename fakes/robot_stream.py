@@ -92,10 +92,10 @@ class SampleStreams:
         self._next_incl = None if self.inclinometer is None else \
             (math.floor(d / self.incl_period_s) + 1) * self.incl_period_s
 
-    def next_due(self) -> float | None:
-        """The fake's clock time of the next sample (None while the streams are off): a real base sends
-        each sample as it takes it, so the server wakes then rather than at its next tick."""
-        nxt = [d for d in (self._next_state, self._next_incl) if d is not None]
+    def next_due(self, state_only: bool = False) -> float | None:
+        """The fake's clock time of the next sample, or of the next STATE sample (None while the
+        streams are off): the server wakes then rather than at its next tick."""
+        nxt = [d for d in (self._next_state, None if state_only else self._next_incl) if d is not None]
         return self.clock.true_time(min(nxt)) if nxt else None
 
     def due(self, now: float, source: StateSource) -> list[bytes]:

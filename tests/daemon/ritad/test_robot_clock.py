@@ -1,7 +1,9 @@
 """The robot base's clock on the host's timeline, end to end on a simulated clock (fast, deterministic).
 
 The fake base (its own clock: a seeded offset and 50 ppm of drift) streams STATE and INCL samples
-for 10 simulated minutes, with a move now and then; each line reaches the host after an asymmetric
+for 10 simulated minutes, with a move now and then, sent as the fake's pty server sends them (each
+when taken while moving; at a standstill the INCL ones with the next STATE one); each line reaches
+the host after an asymmetric
 latency of 0–5 ms (5 ms × Beta(1.5, 5): mostly about 1 ms, a long tail); the host batches them as
 the driver does (drivers/robot_stream.py) and ritad's DeviceClock maps each batch as it comes
 (online: a sample's host time is what the map says when its batch arrives). The mapped times are
@@ -46,7 +48,7 @@ def _run(seed: int) -> tuple[np.ndarray, np.ndarray]:
     arrivals: list[tuple[float, bytes]] = []  # (host arrival s, line): lines in flight
     seq, next_move, flush_at = 3, 5.0 + 1000.0, 1000.0
     while now[0] < 1000.0 + RUN_S:
-        due = base.streams.next_due()
+        due = base.streams.next_due(state_only=not base.moving)  # as fakes/robot.py's server wakes
         now[0] = min(x for x in (due, next_move, flush_at) if x is not None)
         if now[0] >= next_move:  # a move now and then: the samples then come from the motion
             base.handle_line(rp.encode("MOVE", seq, 200, 100).strip())
