@@ -1,6 +1,6 @@
 """Fake robot base on a pseudo-terminal, and the ``sim:`` robot adapter.
 
-``python -m fakes.robot [--seed N] [--time-scale S] [--param key=value ...]`` starts a
+``python -m fakes.robot [--seed N] [--time-scale S] [--max-protocol 1|2] [--param key=value ...]`` starts a
 simulated base on a fresh pty, prints the device path (one line) and serves until
 killed; connect with ``serial:///dev/pts/N``. :class:`SimRobot` (URL ``sim:``) does
 the same in a background thread on its first ``open()`` and then talks to it as a
@@ -13,8 +13,10 @@ How it differs from the real base:
   distance / speed × ``time_scale`` of wall time (0 = instant);
 * drive errors and floor tilt follow the simple model of :mod:`fakes.robot_base`
   (no slip, no wheel-specific errors, the lateral error is spread linearly along
-  the path); the inclinometer reads the true tilt without noise;
+  the path); the inclinometer reads the true tilt with the error model's noise and bias (none in the ideal profile);
 * the battery voltage only drops with the distance driven;
+* its clock (protocol 2) is the host's monotonic clock with an offset and 50 ppm of drift, and
+  its inclinometer outputs 10 samples per *simulated* second (fakes/robot_stream.py);
 * the pty has no baud rate: bytes arrive at once, and output that nobody reads is
   dropped instead of blocking the controller;
 * line faults are injected on purpose: ``garbage_rate`` (noise bursts between
@@ -277,11 +279,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--garbage-rate", type=float, default=0.0)
     ap.add_argument("--corrupt-rate", type=float, default=0.0)
     ap.add_argument("--fault-rate", type=float, default=0.0)
+    ap.add_argument("--max-protocol", type=int, choices=rp.PROTOCOL_VERSIONS, default=rp.PROTOCOL_VERSION,
+                    help="the newest protocol the base speaks (1: a version-1 base)")
     ap.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE",
                     help="set a WorldParams field, e.g. drive_lateral_sigma_mm=0.05")
     args = ap.parse_args(argv)
     world = World(WorldParams(seed=args.seed).with_(**dict(args.param)))
-    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate)
+    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate, max_protocol=args.max_protocol)
     server = PtyServer(base, garbage_rate=args.garbage_rate, corrupt_rate=args.corrupt_rate)
     print(server.path, flush=True)
     done = threading.Event()
