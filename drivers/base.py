@@ -361,6 +361,8 @@ class RobotState:
     battery_v: float | None = None
     fault: str = ""
     host_time_ns: int = field(default_factory=time.time_ns)
+    #: the base's clock at the STATUS (µs, its own origin; protocol 2 with CLOCK, else None)
+    t_us: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -391,3 +393,7 @@ class Robot(Device):
     @abstractmethod
     def status(self) -> RobotState:
         """Poll the controller's state."""
+
+    def streams(self) -> list[str]:
+        """The telemetry topics of the samples the base streams (``robot.odometry``, ``robot.incl``)."""
+        return []

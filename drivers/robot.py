@@ -7,7 +7,11 @@ pyserial URL schemes ``socket://host:port``, ``rfc2217://host:port`` and ``loop:
 * ``baudrate`` (115200), ``timeout`` — seconds to wait for each reply (0.5),
 * ``retries`` — resends of an unanswered command before the base counts as lost (2),
 * ``state_hz`` — rate of STATUS polls (and ``robot.state`` telemetry) in ``pump`` (2;
-  0 = never poll).
+  0 = never poll),
+* ``protocol`` — the newest protocol version to offer in HELLO (2; 1 = behave as a version-1
+  host); a base that NAKs version 2 or answers 1 is spoken to in version 1,
+* ``stream_hz`` — the STATE sample rate asked of a base with the STATE capability (50; 0 = no
+  stream): ``robot.odometry`` and ``robot.incl`` telemetry (drivers/robot_stream.py).
 
 Robustness rules: every wait is bounded; a line with a bad checksum or no frame is
 counted and dropped, never raised; a command whose reply does not come is resent
@@ -24,10 +28,13 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
+from drivers.robot_stream import StreamBatcher
 from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
 
 #: longest single blocking read; keeps every loop responsive to its deadline
 READ_SLICE_S = 0.02
+#: the STATE stream rate asked by default (Hz of the base's clock): its samples show a move's odometry
+DEFAULT_STREAM_HZ = 50.0
 
 COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
                  "retries", "naks", "events", "recovered_events", "overflows")
@@ -37,7 +44,7 @@ class SerialRobot(Robot):
     """A differential-drive base speaking the Rita line protocol over pyserial."""
 
     #: options this adapter reads itself (removed before pyserial sees the URL)
-    OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz"})
+    OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz", "protocol", "stream_hz"})
     #: pyserial's own URL options per scheme (pyserial/urlhandler), passed on to it as given
     PYSERIAL_OPTIONS: dict[str, frozenset[str]] = {
         "socket": frozenset({"logging"}), "loop": frozenset({"logging"}),
@@ -54,10 +61,14 @@ class SerialRobot(Robot):
         self.reply_timeout: float = url.option("timeout", 0.5, float)
         self.retries: int = url.option("retries", 2, int)
         self.state_hz: float = url.option("state_hz", 2.0, float)
+        self.protocol: int = url.option("protocol", rp.PROTOCOL_VERSION, int)
+        self.stream_hz: float = url.option("stream_hz", DEFAULT_STREAM_HZ, float)
         for name, value, ok in (("baudrate", self.baudrate, self.baudrate > 0),
                                 ("timeout", self.reply_timeout, self.reply_timeout > 0),
                                 ("retries", self.retries, 0 <= self.retries <= 20),
-                                ("state_hz", self.state_hz, 0 <= self.state_hz <= 100)):
+                                ("state_hz", self.state_hz, 0 <= self.state_hz <= 100),
+                                ("protocol", self.protocol, self.protocol in rp.PROTOCOL_VERSIONS),
+                                ("stream_hz", self.stream_hz, rp.state_rate_error(self.stream_hz) is None)):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
         if url.scheme == "serial" and not url.path:
@@ -71,7 +82,9 @@ class SerialRobot(Robot):
         self._last_state: RobotState | None = None
         self._last_state_emit = 0.0
         self._version: dict[str, Any] = {}
+        self._streaming = False
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
+        self._batcher = StreamBatcher(self.emit)
 
     # ------------------------------------------------------------------ connection
 
@@ -96,23 +109,51 @@ class SerialRobot(Robot):
             self._port = None
             raise DeviceLost(f"cannot open robot port {target!r}: {exc}") from exc
         self._splitter.clear()
+        self._batcher.clear()
+        self._streaming = False
         # _moving_seq survives a reconnect on purpose: if that motion ended meanwhile,
         # the first STATUS below publishes the DONE/FAULT that was lost with the port
-        reply = self._transact("HELLO", rp.PROTOCOL_VERSION, expect="VERSION")
-        try:
-            self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
-                             "firmware": reply.field(3, "firmware"), "serial": reply.field(4, "serial"),
-                             "capabilities": [c for c in reply.field(5, "capabilities").split("+") if c]}
-        except (rp.ProtocolError, ValueError) as exc:
-            self.close()
-            raise DeviceError(f"robot base sent a malformed VERSION: {exc}", code="robot_protocol") from exc
-        if self._version["protocol"] != rp.PROTOCOL_VERSION:
-            self.close()
-            raise DeviceError(f"robot base speaks protocol {self._version['protocol']}, "
-                              f"driver speaks {rp.PROTOCOL_VERSION}", code="robot_version")
+        self._hello()
+        if self.stream_hz > 0 and rp.CAP_STATE in self._version["capabilities"]:
+            self._streaming = True  # before the ACK: samples may follow it in the same read
+            try:
+                self._transact("STATE", rp.num(self.stream_hz), expect="ACK")
+            except DeviceLost:
+                raise
+            except DeviceError:  # refused: the base is driven without its streams, as a version-1 one
+                self._streaming = False
         state = self.status()
         if state.state == "MOVING" and self._moving_seq is None:
             self._moving_seq = -1  # a motion from before we connected: wait_idle polls it out
+
+    def _hello(self) -> None:
+        """HELLO with the newest protocol offered; a base that refuses it (NAK VERSION) is asked for 1."""
+        try:
+            reply = self._transact("HELLO", self.protocol, expect="VERSION")
+        except DeviceError as exc:
+            if exc.code != "robot_version" or self.protocol == 1:
+                self.close()
+                raise
+            reply = self._transact("HELLO", 1, expect="VERSION")  # a version-1 base
+        try:
+            self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
+                             "firmware": reply.field(3, "firmware"), "serial": reply.field(4, "serial"),
+                             "capabilities": rp.capabilities(reply.field(5, "capabilities"))}
+        except (rp.ProtocolError, ValueError) as exc:
+            self.close()
+            raise DeviceError(f"robot base sent a malformed VERSION: {exc}", code="robot_protocol") from exc
+        if self._version["protocol"] not in rp.PROTOCOL_VERSIONS or self._version["protocol"] > self.protocol:
+            self.close()
+            raise DeviceError(f"robot base speaks protocol {self._version['protocol']}, "
+                              f"driver speaks {'/'.join(map(str, rp.PROTOCOL_VERSIONS))}", code="robot_version")
+        if self._version["protocol"] < 2:  # what a version-1 base may say of clock and streams is not ours
+            self._version["capabilities"] = [c for c in self._version["capabilities"] if c == rp.CAP_INCL]
+
+    def streams(self) -> list[str]:
+        """The telemetry topics of the sample streams this base sends (empty without STATE)."""
+        if not self._streaming:
+            return []
+        return ["robot.odometry"] + (["robot.incl"] if rp.CAP_INCL in self._version["capabilities"] else [])
 
     def close(self) -> None:
         port, self._port = self._port, None
@@ -123,8 +164,8 @@ class SerialRobot(Robot):
                 pass
 
     def info(self) -> dict[str, Any]:
-        return {"url": self.url.raw, "port": self._target, **self._version,
-                "counters": dict(self.counters)}
+        return {"url": self.url.raw, "port": self._target, **self._version, "streams": self.streams(),
+                "counters": {**self.counters, **self._batcher.counters}}
 
     # ------------------------------------------------------------------ commands
 
@@ -159,7 +200,8 @@ class SerialRobot(Robot):
                                roll_deg=reply.optional_number(5, "roll_deg"),
                                pitch_deg=reply.optional_number(6, "pitch_deg"),
                                battery_v=reply.optional_number(7, "battery_v"),
-                               fault=reply.fields[8] if len(reply.fields) > 8 else "")
+                               fault=reply.fields[8] if len(reply.fields) > 8 else "",
+                               t_us=rp.device_us(reply, 9) if self._clock and len(reply.fields) > 9 else None)
         except rp.ProtocolError as exc:
             raise DeviceError(f"robot base sent a malformed STATUS: {exc}", code="robot_protocol") from exc
         if state.state not in ("IDLE", "MOVING", "FAULT"):
@@ -188,6 +230,10 @@ class SerialRobot(Robot):
         self.emit("robot.event", payload)
 
     @property
+    def _clock(self) -> bool:
+        return rp.CAP_CLOCK in self._version.get("capabilities", ())
+
+    @property
     def last_state(self) -> RobotState | None:
         """The most recent STATUS reply (no I/O)."""
         return self._last_state
@@ -201,6 +247,7 @@ class SerialRobot(Robot):
                 self.status()
                 now = time.monotonic()
             if now >= deadline:
+                self._batcher.flush(force=True)
                 return
             for msg in self._receive(min(deadline, now + READ_SLICE_S)):
                 self._count_stray(msg)
@@ -285,11 +332,13 @@ class SerialRobot(Robot):
                 data = self._port.read(max(1, self._port.in_waiting))
             except (serial.SerialException, OSError) as exc:
                 raise DeviceLost(f"robot port read failed: {exc}") from exc
+            rx_ns = time.time_ns()
             for raw in self._splitter.feed(data):
                 msg = self._decode(raw)
-                if msg is not None and self._dispatch_event(msg) is not None:
+                if msg is not None and self._dispatch_event(msg, rx_ns) is not None:
                     replies.append(msg)
             self.counters["overflows"] = self._splitter.overflows
+            self._batcher.flush()
             if replies or time.monotonic() >= deadline:
                 return replies
 
@@ -306,8 +355,14 @@ class SerialRobot(Robot):
             self.counters[{"checksum": "bad_checksum", "garbage": "garbage"}.get(exc.kind, "syntax")] += 1
             return None
 
-    def _dispatch_event(self, msg: rp.Message) -> rp.Message | None:
-        """Publish DONE/FAULT events; returns the message back when it is not an event."""
+    def _dispatch_event(self, msg: rp.Message, rx_ns: int) -> rp.Message | None:
+        """Publish DONE/FAULT events and batch samples; returns the message back when it is neither."""
+        if msg.kind in rp.STREAMS and self._streaming:
+            try:
+                self._batcher.add(msg, rx_ns)
+            except rp.ProtocolError:
+                self.counters["syntax"] += 1
+            return None
         if msg.kind not in rp.EVENTS:
             return msg
         seq = msg.seq()

@@ -11,18 +11,30 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-PROTOCOL_VERSION = 1
+#: the newest protocol this codec speaks; a host or base of version 1 is served as before
+PROTOCOL_VERSION = 2
+PROTOCOL_VERSIONS = (1, 2)
 #: longest line accepted, terminator included; longer input is garbage
 MAX_LINE = 160
 #: sequence numbers run 1..SEQ_MAX and wrap back to 1 (0 is never used)
 SEQ_MAX = 9999
 
-#: host → base commands
-COMMANDS = ("HELLO", "MOVE", "TURN", "STOP", "STATUS")
+#: host → base commands (STATE since version 2)
+COMMANDS = ("HELLO", "MOVE", "TURN", "STOP", "STATUS", "STATE")
 #: base → host replies (each carries the seq of the command it answers)
 REPLIES = ("ACK", "NAK", "VERSION", "STATUS")
-#: base → host asynchronous events
+#: base → host asynchronous events (their first field is the motion's seq)
 EVENTS = ("DONE", "FAULT")
+#: base → host periodic samples (version 2, after a STATE command): no seq, the base's time first
+STREAMS = ("STATE", "INCL")
+
+#: VERSION capabilities: an inclinometer (STATUS roll/pitch; v1 too), the base's clock in STATUS
+#: (v2), the STATE command and its sample streams (v2)
+CAP_INCL, CAP_CLOCK, CAP_STATE = "INCL", "CLOCK", "STATE"
+#: STATE stream rates (Hz) a base accepts besides 0 (off): 100 Hz of ~80-byte STATE lines is
+#: 8 kB/s, under 70 % of a 115200-baud line, with room left for INCL, replies and events
+MIN_STATE_HZ = 1.0
+MAX_STATE_HZ = 100.0
 
 #: NAK reasons
 NAK_REASONS = ("CHECKSUM", "SYNTAX", "UNKNOWN", "RANGE", "BUSY", "FAULT", "VERSION")
@@ -91,6 +103,63 @@ class Message:
 
     def body(self) -> str:
         return ",".join((self.kind, *self.fields))
+
+
+@dataclass(frozen=True)
+class StateSample:
+    """A ``$STATE`` event: odometry pose and wheel speeds at the base's time ``t_us``."""
+
+    t_us: int
+    x_mm: float
+    y_mm: float
+    heading_deg: float
+    v_left_mm_s: float
+    v_right_mm_s: float
+
+    def encode(self) -> bytes:
+        return encode("STATE", self.t_us, num(self.x_mm, 4), num(self.y_mm, 4), num(self.heading_deg, 6),
+                      num(self.v_left_mm_s, 3), num(self.v_right_mm_s, 3))
+
+    @classmethod
+    def decode(cls, msg: Message) -> "StateSample":
+        return cls(device_us(msg, 0), msg.number(1, "x_mm"), msg.number(2, "y_mm"), msg.number(3, "heading_deg"),
+                   msg.number(4, "v_left_mm_s"), msg.number(5, "v_right_mm_s"))
+
+
+@dataclass(frozen=True)
+class InclSample:
+    """An ``$INCL`` event: the inclinometer's roll and pitch (deg) at the base's time ``t_us``."""
+
+    t_us: int
+    roll_deg: float
+    pitch_deg: float
+
+    def encode(self) -> bytes:
+        return encode("INCL", self.t_us, num(self.roll_deg, 6), num(self.pitch_deg, 6))
+
+    @classmethod
+    def decode(cls, msg: Message) -> "InclSample":
+        return cls(device_us(msg, 0), msg.number(1, "roll_deg"), msg.number(2, "pitch_deg"))
+
+
+def device_us(msg: Message, index: int, name: str = "t_us") -> int:
+    """Field ``index`` as the base's clock (µs): a non-negative integer, or ProtocolError."""
+    text = msg.field(index, name)
+    if not text.isdigit() or len(text) > 19:
+        raise ProtocolError("syntax", f"{msg.kind}: {name}={text!r} is not a non-negative integer (µs)")
+    return int(text)
+
+
+def state_rate_error(rate_hz: float) -> str | None:
+    """Why a STATE rate is refused (the text names the value), or None when it is 0 or in range."""
+    if rate_hz == 0 or MIN_STATE_HZ <= rate_hz <= MAX_STATE_HZ:
+        return None
+    return f"STATE rate_hz={num(rate_hz)} outside 0 (off) or {num(MIN_STATE_HZ)}..{num(MAX_STATE_HZ)}"
+
+
+def capabilities(field: str) -> list[str]:
+    """The ``+``-separated capability flags of a VERSION reply (empty field: none)."""
+    return [c for c in field.split("+") if c]
 
 
 def checksum(body: str | bytes) -> str:

@@ -1,6 +1,6 @@
 """Fake robot base on a pseudo-terminal, and the ``sim:`` robot adapter.
 
-``python -m fakes.robot [--seed N] [--time-scale S] [--param key=value ...]`` starts a
+``python -m fakes.robot [--seed N] [--time-scale S] [--max-protocol 1|2] [--param key=value ...]`` starts a
 simulated base on a fresh pty, prints the device path (one line) and serves until
 killed; connect with ``serial:///dev/pts/N``. :class:`SimRobot` (URL ``sim:``) does
 the same in a background thread on its first ``open()`` and then talks to it as a
@@ -13,8 +13,10 @@ How it differs from the real base:
   distance / speed × ``time_scale`` of wall time (0 = instant);
 * drive errors and floor tilt follow the simple model of :mod:`fakes.robot_base`
   (no slip, no wheel-specific errors, the lateral error is spread linearly along
-  the path); the inclinometer reads the true tilt without noise;
+  the path); the inclinometer reads the true tilt with the error model's noise and bias (none in the ideal profile);
 * the battery voltage only drops with the distance driven;
+* its clock (protocol 2) is the host's monotonic clock with an offset and 50 ppm of drift, and
+  its inclinometer outputs 10 samples per *simulated* second (fakes/robot_stream.py);
 * the pty has no baud rate: bytes arrive at once, and output that nobody reads is
   dropped instead of blocking the controller;
 * line faults are injected on purpose: ``garbage_rate`` (noise bursts between
@@ -49,6 +51,7 @@ log = logging.getLogger(__name__)
 
 IDLE_TICK_S = 0.05
 MOVING_TICK_S = 0.005  # how often the pose is interpolated while moving
+MAX_HELD = 64  # replies/events kept while the pty is full; older ones are lost as on a real cable
 
 
 class PtyServer:
@@ -66,14 +69,15 @@ class PtyServer:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
+        self._held: list[bytes] = []  # replies and events the full pty could not take yet
         self._pending: list[int] = []  # sizes of injected noise bursts (the rng is the thread's)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.alive = True
-        self.counters = {"tx_lines": 0, "tx_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
+        self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
         # what the base said while no port was attached is lost, as on a real cable
         base.tick()
-        self.counters["tx_dropped"] += len(base.drain())
+        self.counters["tx_dropped"] += len(base.drain()) + len(base.drain_stream())
         self._thread = threading.Thread(target=self._run, name=f"fake-robot {self.path}", daemon=True)
         self._thread.start()
 
@@ -123,6 +127,12 @@ class PtyServer:
         splitter = rp.LineSplitter()
         while not self._stop.is_set():
             tick = MOVING_TICK_S if self.base.moving else IDLE_TICK_S
+            # samples leave when taken, as from a real base; at a standstill the INCL samples taken
+            # since the last STATE one go with it (a few ms late), which saves most wake-ups of the
+            # sim's fast inclinometer and keeps the STATE samples on time for the host's clock map
+            due = self.base.streams.next_due(state_only=not self.base.moving)
+            if due is not None:
+                tick = min(tick, max(0.0, due - self.base.clock()))
             try:
                 ready, _, _ = select.select([self.master, self._wake_r], [], [], tick)
             except (OSError, ValueError):
@@ -142,11 +152,12 @@ class PtyServer:
                     for line in splitter.feed(data):
                         self._guarded(self.base.handle_line, line)
             self._guarded(self.base.tick)
-            out = self.base.drain()
+            out, samples = self.base.drain(), self.base.drain_stream()
             with self._lock:
                 pending, self._pending = self._pending, []
             if not self.silent:
                 self._send([self._noise(n) for n in pending] + [self._impair(line) for line in out])
+                self._send([self._impair(line) for line in samples], samples=True)
 
     def _guarded(self, fn: Callable[..., None], *args: Any) -> None:
         # a bug in the simulated controller must show up in the log, not as a silent
@@ -169,14 +180,23 @@ class PtyServer:
             line = self._noise(int(self.rng.integers(1, 24))) + line
         return line
 
-    def _send(self, chunks: list[bytes]) -> None:
-        for chunk in chunks:
+    def _send(self, chunks: list[bytes], samples: bool = False) -> None:
+        """Write lines; when the pty is full (nobody reads) samples are dropped, like a real line's
+        overrun, but replies and events wait for room (at most MAX_HELD of them): a sample stream
+        the host reads late must never cost it the answer to a command."""
+        if not samples:
+            chunks, self._held = self._held + chunks, []
+        for i, chunk in enumerate(chunks):
             try:
                 os.write(self.master, chunk)
                 self.counters["tx_lines"] += 1
             except OSError:
-                # nobody reads the slave and the pty buffer is full: drop like a real line
-                self.counters["tx_dropped"] += 1
+                if samples:
+                    self.counters["samples_dropped"] += 1
+                    continue
+                self._held = chunks[i:][-MAX_HELD:]
+                self.counters["tx_dropped"] += len(chunks) - i - len(self._held)
+                return
 
 
 class SimRobot(SerialRobot):
@@ -259,11 +279,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--garbage-rate", type=float, default=0.0)
     ap.add_argument("--corrupt-rate", type=float, default=0.0)
     ap.add_argument("--fault-rate", type=float, default=0.0)
+    ap.add_argument("--max-protocol", type=int, choices=rp.PROTOCOL_VERSIONS, default=rp.PROTOCOL_VERSION,
+                    help="the newest protocol the base speaks (1: a version-1 base)")
     ap.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE",
                     help="set a WorldParams field, e.g. drive_lateral_sigma_mm=0.05")
     args = ap.parse_args(argv)
     world = World(WorldParams(seed=args.seed).with_(**dict(args.param)))
-    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate)
+    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate, max_protocol=args.max_protocol)
     server = PtyServer(base, garbage_rate=args.garbage_rate, corrupt_rate=args.corrupt_rate)
     print(server.path, flush=True)
     done = threading.Event()

@@ -16,16 +16,22 @@ adds the drive errors from ``world.params``:
 * ``drive_lateral_sigma_mm`` — Gaussian sideways offset of the end point per move;
 * ``floor_tilt_sigma_mrad`` — a new Gaussian roll and pitch at every stop, reported
   in STATUS only when ``base_has_inclinometer`` is set.
+
+Protocol version 2 (a host's ``HELLO,seq,2``; ``max_protocol=1`` makes a version-1 base): the
+base's own clock (offset and drift apart from the host's) in STATUS, and the STATE/INCL sample
+streams of :mod:`fakes.robot_stream`, queued by :meth:`FakeBase.tick` apart from the replies.
 """
 from __future__ import annotations
 
 import math
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Callable
 
 from drivers import robot_protocol as rp
+from fakes.robot_motion import Motion, motion_state, unit_interval
+from fakes.robot_stream import DEFAULT_DRIFT_PPM, INCL_RATE_HZ, BaseClock, SampleStreams, seeded_offset_s
 from fakes.world import RobotPose, World
 
 MODEL = "RITA-SIM-BASE"
@@ -39,40 +45,23 @@ def _wrap_deg(angle: float) -> float:
     return math.remainder(angle, 360.0)
 
 
-#: the inclinometer's output period in robot time (Murata SCA100T: 10 Hz bandwidth, fakes/errors.py)
-IMU_PERIOD_S = 0.1
-
-
-@dataclass
-class Motion:
-    """One MOVE or TURN in progress: its start and planned end, in truth and odometry."""
-
-    seq: int
-    start: RobotPose
-    end: RobotPose
-    odo_start: tuple[float, float, float]
-    odo_end: tuple[float, float, float]
-    t0: float
-    duration: float
-    path: float  # commanded path length (mm, or deg for turns) for the battery model
-    fault_at: float | None = None  # fraction at which a simulated stall strikes
-    bend_mm: float = 0.0  # sideways offset at the end of the bent path (error model: arc or S)
-
-
-def unit_interval(name: str, value: float) -> float:
-    """A probability option (0..1), or ValueError naming it."""
-    if not 0.0 <= value <= 1.0:
-        raise ValueError(f"{name}={value!r} must be within 0..1")
-    return value
+#: the inclinometer's output period in robot time (its rate: fakes/robot_stream.py)
+IMU_PERIOD_S = 1.0 / INCL_RATE_HZ
 
 
 class FakeBase:
     """A simulated base controller driving ``world.robot``."""
 
     def __init__(self, world: World, *, time_scale: float = 0.02, fault_rate: float = 0.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, max_protocol: int = rp.PROTOCOL_VERSION,
+                 clock_offset_s: float | None = None, clock_drift_ppm: float = DEFAULT_DRIFT_PPM,
+                 incl_rate_hz: float = INCL_RATE_HZ) -> None:
         if not time_scale >= 0.0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
+        if max_protocol not in rp.PROTOCOL_VERSIONS:
+            raise ValueError(f"max_protocol={max_protocol!r} must be one of {rp.PROTOCOL_VERSIONS}")
+        self.max_protocol = max_protocol
+        self.session = 1  # the protocol of the session the last HELLO opened
         self.world = world
         self.time_scale = time_scale
         self.fault_rate = unit_interval("fault_rate", fault_rate)
@@ -101,6 +90,12 @@ class FakeBase:
             world.pose_source = self.pose_at
         self._last_motion_cmd: tuple[str, bytes] | None = None  # (body, reply) for retries
         self._out: list[bytes] = []
+        self._stream_out: list[bytes] = []
+        offset = seeded_offset_s(world.rng("robot.clock")) if clock_offset_s is None else clock_offset_s
+        self.base_clock = BaseClock(clock(), offset, clock_drift_ppm)
+        incl_rng = world.rng("robot.incl.stream")  # its own: STATUS readings stay as they were
+        self.streams = SampleStreams(self.base_clock, (lambda r, p: world.effects.inclinometer(r, p, incl_rng))
+                                     if world.params.base_has_inclinometer else None, time_scale, incl_rate_hz)
         self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0}
 
     # ------------------------------------------------------------------ I/O side
@@ -109,6 +104,12 @@ class FakeBase:
         """Lines waiting to be sent (replies and events), oldest first."""
         with self._lock:
             out, self._out = self._out, []
+            return out
+
+    def drain_stream(self) -> list[bytes]:
+        """STATE/INCL sample lines waiting to be sent, oldest first (a full line may drop these)."""
+        with self._lock:
+            out, self._stream_out = self._stream_out, []
             return out
 
     @property
@@ -142,8 +143,8 @@ class FakeBase:
                 self._nak(None, "SYNTAX", f"{msg.kind}: empty seq")
                 return
             handler = {"HELLO": self._hello, "MOVE": self._move, "TURN": self._turn,
-                       "STOP": self._stop, "STATUS": self._status}.get(msg.kind)
-            if handler is None:
+                       "STOP": self._stop, "STATUS": self._status, "STATE": self._state}.get(msg.kind)
+            if handler is None or (msg.kind == "STATE" and self.session < 2):  # STATE is unknown to v1
                 self._nak(seq, "UNKNOWN", f"unknown command {msg.kind}")
                 return
             try:
@@ -164,12 +165,27 @@ class FakeBase:
 
     def _hello(self, seq: int, msg: rp.Message) -> None:
         version = msg.field(1, "protocol")
-        if version != str(rp.PROTOCOL_VERSION):
-            self._nak(seq, "VERSION", f"base speaks protocol {rp.PROTOCOL_VERSION} not {version}")
+        spoken = [str(v) for v in rp.PROTOCOL_VERSIONS if v <= self.max_protocol]
+        if version not in spoken:
+            self._nak(seq, "VERSION", f"base speaks protocol {' '.join(spoken)} not {version}")
             return
         self._last_motion_cmd = None  # a new session: seq numbers start over
-        caps = "INCL" if self.world.params.base_has_inclinometer else ""
-        self._send("VERSION", seq, rp.PROTOCOL_VERSION, MODEL, FIRMWARE, SERIAL_NUMBER, caps)
+        self.session = int(version)
+        self.streams.set_rate(0.0, self.clock())  # and no stream until this host asks for one
+        caps = [rp.CAP_INCL] if self.world.params.base_has_inclinometer else []
+        if self.session >= 2:
+            caps += [rp.CAP_CLOCK, rp.CAP_STATE]
+        self._send("VERSION", seq, self.session, MODEL, FIRMWARE, SERIAL_NUMBER, "+".join(caps))
+
+    def _state(self, seq: int, msg: rp.Message) -> None:
+        rate = msg.number(1, "rate_hz")
+        why = rp.state_rate_error(rate)
+        if why is not None:
+            self._nak(seq, "RANGE", why)
+            return
+        self._advance()
+        self.streams.set_rate(rate, self.clock())
+        self._send("ACK", seq, "STATE")
 
     def _status(self, seq: int, msg: rp.Message) -> None:
         self._advance()
@@ -180,9 +196,10 @@ class FakeBase:
             roll, pitch = self._inclinometer(pose)
         x, y, h = self.odometry
         battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
+        clock = (self.base_clock.device_us(self.clock()),) if self.session >= 2 else ()  # CLOCK: t_us last
         self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
                    None if roll is None else rp.num(roll, 6), None if pitch is None else rp.num(pitch, 6),
-                   rp.num(battery, 3), rp.text_field(self.fault))
+                   rp.num(battery, 3), rp.text_field(self.fault), *clock)
 
     def _inclinometer(self, pose: RobotPose) -> tuple[float, float]:
         """The inclinometer's output (deg): a new sample every IMU_PERIOD_S of robot time, held between."""
@@ -286,9 +303,14 @@ class FakeBase:
     # ------------------------------------------------------------------ motion
 
     def tick(self) -> None:
-        """Advance the motion in progress to the current time (called by the server)."""
+        """Advance the motion in progress to the current time and queue the samples due (the server calls it)."""
         with self._lock:
             self._advance()
+            self._stream_out += self.streams.due(self.clock(), self)
+
+    def state_at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
+        """Odometry, wheel speeds and true tilt at clock time ``t`` (the STATE/INCL samples' source)."""
+        return motion_state(self, t)
 
     def _fraction(self) -> float:
         m = self.motion

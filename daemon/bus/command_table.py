@@ -155,7 +155,10 @@ TABLE: tuple[Command, ...] = (
             result="{released, was_latched}"),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
-                   "inclinometer), battery_v", polled=True),
+                   "inclinometer), battery_v, fault, host_time_ns, t_us (the base's clock, protocol 2; else null); "
+                   "streams: the sample topics the base sends (robot.odometry, robot.incl; [] from a version-1 "
+                   "base); clock: the base clock's mapping onto the host's from its samples, as in tracker.status",
+            polled=True),
     Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
             verb="capture", result="{path, header, tracker, robot, at_exposure}: tracker is a stationary measurement, null "
             "while the tracker streams; at_exposure holds the tracker's stream, the base's pose and its tilt at "

@@ -42,6 +42,8 @@ class Topic(StrEnum):
     TRACKER_POINT = "tracker.point"
     TRACKER_EVENT = "tracker.event"
     ROBOT_STATE = "robot.state"
+    ROBOT_ODOMETRY = "robot.odometry"
+    ROBOT_INCL = "robot.incl"
     ROBOT_EVENT = "robot.event"
     ROBOT_LATCH = "robot.latch"
     ROBOT_REFUSED = "robot.refused"

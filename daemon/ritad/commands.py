@@ -141,7 +141,9 @@ def _robot(s: Services) -> dict[str, Handler]:
         return {"released": True, "was_latched": s.latch.release(_who(req))}
 
     return {"robot.move": move, "robot.turn": turn, "robot.stop": stop, "robot.release": release,
-            "robot.status": lambda req: chain(s.job("robot", lambda r: r.status()), lambda st: st.to_dict())}
+            "robot.status": lambda req: chain(s.job("robot", lambda r: (r.status(), r.streams())),
+                                              lambda got: {**got[0].to_dict(), "streams": got[1],
+                                                           "clock": s.clock_status("robot")})}
 
 
 def _capture(s: Services) -> dict[str, Handler]:

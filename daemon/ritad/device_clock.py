@@ -4,7 +4,10 @@ The mapping itself is the bus library's (daemon/bus/clockmap.py, docs/architectu
 This holder feeds it from the device's time-stamped telemetry, in the thread that emits it
 (the adapter's reader), and hands its status to the command that reads it in another: so
 both go through one lock. The tracker's stream packets feed it (each packet's last record's
-device time against the host time it arrived); a device without a clock in its telemetry
+device time against the host time it arrived); the robot base's sample batches
+(``robot.odometry``, ``robot.incl``: every sample's ``t_us`` against the host time its line
+was read) feed it and get each sample's host-timeline ``t_ns`` and ``t_sigma_ns`` back, as do
+its STATUS polls with a ``t_us`` (``robot.state``); a device without a clock in its telemetry
 shows a map with no samples.
 
 Camera frames (:meth:`DeviceClock.stamp_frame`) get their exposure's mid-time on the host's
@@ -30,8 +33,10 @@ from typing import Any
 from daemon.bus.clockmap import TAI_MINUS_UTC_S, ClockMap
 from drivers.base import Frame
 
-#: the tracker stamps its records in µs
+#: the tracker stamps its records in µs (and the robot base its samples)
 TRACKER_RESOLUTION_NS = 1000
+#: the robot base's telemetry that carries its clock: sample batches, and the STATUS polls
+ROBOT_CLOCKED = ("robot.odometry", "robot.incl", "robot.state")
 #: PTP ports whose clock follows a master (IEEE 1588 port states; LUCID's PtpStatus names)
 PTP_LOCKED = frozenset({"Slave"})
 #: what a locked PTP port is known to, beyond its offset from master: the host's own servo to the
@@ -79,6 +84,29 @@ class DeviceClock:
             return
         with self._lock:
             self._add(times[-1], host_ns)
+
+    def observe_robot(self, topic: str, payload: Any) -> Any:
+        """The robot base's telemetry of ``topic`` (one of ROBOT_CLOCKED) fed to the map; it comes back
+        with the host-timeline ``t_ns`` and ``t_sigma_ns`` of each sample (a batch
+        ``{t_us: [...], host_time_ns: [...], ...}``: lists; a ``robot.state``, a STATUS poll with the
+        base's ``t_us``: one each). A malformed payload adds nothing and is returned unchanged."""
+        batch = topic != "robot.state"
+        try:
+            t_us, host = (payload["t_us"], payload["host_time_ns"]) if batch else \
+                ([payload["t_us"]], [payload["host_time_ns"]])
+            device_ns, host_ns = [int(t) * 1000 for t in t_us], [int(h) for h in host]
+        except (TypeError, KeyError, ValueError, OverflowError):
+            return payload
+        if not device_ns or len(device_ns) != len(host_ns):
+            return payload
+        with self._lock:
+            try:
+                for d, h in sorted(zip(device_ns, host_ns)):  # in the device's order
+                    self._map.add(d, h)
+                t, sigma = self._map.map_many(device_ns)
+            except (ValueError, OverflowError):  # a sample the map cannot take must not stop the publishing
+                return payload
+        return {**payload, "t_ns": t, "t_sigma_ns": sigma} if batch else {**payload, "t_ns": t[0], "t_sigma_ns": sigma[0]}
 
     def _add(self, device_ns: int, host_ns: int) -> bool:
         try:

@@ -1,9 +1,8 @@
 """ritad: the acquisition daemon (entry point and supervisor).
 
-Start-up order: load config → lock the runtime and data directories (one instance
-each) → start the plugins (the simulator's world) → bind the bus → start the device runners → READY=1.
-Devices connect in the background (their state is in ``daemon.health``), so a missing
-tracker never blocks the bus. The main thread is the supervisor: it publishes health
+Start-up order: load config → lock the runtime and data directories (one instance each) → start
+the plugins (the simulator's world) → bind the bus → start the device runners → READY=1. Devices
+connect in the background (their state is in ``daemon.health``), so a missing tracker never blocks the bus. The main thread is the supervisor: it publishes health
 every second, pings the systemd watchdog only while every owner thread is responsive
 (a device waiting to reconnect is), and shuts down on SIGTERM/SIGINT.
 """
@@ -102,7 +101,7 @@ class Daemon:
             return
         if topic == Topic.ROBOT_EVENT:
             self.motions.on_event(payload)
-        self.timelines.observe(topic, payload)
+        payload = self.timelines.observe(topic, payload)  # the device clocks and the streams (timelines.py)
         self.telemetry.publish(topic, payload)
 
     def _factory(self, kind: str) -> Callable[[], Device]:

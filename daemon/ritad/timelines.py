@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from daemon.bus.names import Topic
 from daemon.bus.timeline import TimeSeries
-from daemon.ritad.device_clock import DeviceClock
+from daemon.ritad.device_clock import ROBOT_CLOCKED, DeviceClock
 
 #: stream -> (fields, angle fields): tracker x y z in the tracker's frame (mm), the base's odometry
 #: pose (mm, degrees) and its inclinometer (degrees)
@@ -47,22 +47,29 @@ class Timelines:
         self.streams = {name: TimeSeries(name, fields, angles=angles) for name, (fields, angles) in STREAMS.items()}
         self._arrived = threading.Condition()
 
-    def observe(self, topic: str, payload: Any) -> None:
-        """One telemetry message (the device clocks' maps are fed here too); anything malformed adds
-        nothing: publishing must go on."""
+    def observe(self, topic: str, payload: Any) -> Any:
+        """One telemetry message, fed to its device's clock map and its stream; returns the payload to
+        publish (the base's samples gain their host-timeline ``t_ns``). Anything malformed adds nothing:
+        publishing must go on."""
         if not isinstance(payload, dict):
-            return
+            return payload
+        robot_clock = self._clock_of("robot") if topic in ROBOT_CLOCKED else None
+        if robot_clock is not None:
+            payload = robot_clock.observe_robot(topic, payload)
         try:
             if topic == Topic.TRACKER_POINT:
                 self._tracker(payload)
             elif topic == Topic.ROBOT_STATE:
                 self._robot(payload)
+            elif topic in (Topic.ROBOT_ODOMETRY, Topic.ROBOT_INCL):
+                self._samples(topic, payload)
             else:
-                return
+                return payload
         except (TypeError, KeyError, ValueError, IndexError, OverflowError):
-            return
+            return payload
         with self._arrived:
             self._arrived.notify_all()
+        return payload
 
     def _tracker(self, p: dict[str, Any]) -> None:
         clock = self._clock_of("tracker")
@@ -86,6 +93,14 @@ class Timelines:
             self.streams["robot"].add(t, (p["x_mm"], p["y_mm"], p["heading_deg"]), sigma)
         if p.get("roll_deg") is not None and p.get("pitch_deg") is not None:
             self.streams["tilt"].add(t, (p["roll_deg"], p["pitch_deg"]), sigma)
+
+    def _samples(self, topic: str, p: dict[str, Any]) -> None:
+        """A batch of the base's own samples, timed on its clock (none without that mapping)."""
+        name = "robot" if topic == Topic.ROBOT_ODOMETRY else "tilt"
+        series = self.streams[name]
+        columns = [p[f] for f in series.fields]
+        for t, sigma, *values in zip(p["t_ns"], p["t_sigma_ns"], *columns, strict=True):
+            series.add(int(t), values, int(sigma))
 
     def _waiting_for(self, t_ns: int) -> bool:
         """A live stream has no sample at or after ``t_ns`` yet."""

@@ -3,13 +3,18 @@ the inputs of the tilt and heading-fit compensations (docs/accuracy.md).
 
 The heading-fit compensation (calibration/compensation.py ``fit_heading``) needs the
 reflector's path between the two standstill points; the tilt compensation wants the
-tilt along it. The move is started without waiting; while it runs the worker polls
-``robot.status`` (tilt samples with the daemon's host time), and the tracker's
-``tracker.point`` telemetry is collected on a subscriber. Tilt samples are
-interpolated to the stream records' times: the tracker's ``device_time`` (s + µs) per
-record, put on the host clock by a clock map (daemon/bus/clockmap.py) of the packets: each
-packet's last record's device time against its arrival ``host_time_ns``; its offset, drift
-and sigma come from the least-delayed packets.
+tilt along it. The move is started without waiting, and the tracker's ``tracker.point``
+telemetry is collected on a subscriber. The records' times: the tracker's ``device_time``
+(s + µs) per record, put on the host clock by a clock map (daemon/bus/clockmap.py) of the
+packets: each packet's last record's device time against its arrival ``host_time_ns``; its
+offset, drift and sigma come from the least-delayed packets.
+
+The tilt along the move: from a base that streams its inclinometer (protocol 2, ``robot.incl``
+in ``robot.status``'s ``streams``), the ``robot.incl`` samples, subscribed before the move and
+already on the host's timeline (ritad maps the base's clock), interpolated to each record's
+host time (daemon/bus/timeline.py); from any other base, ``robot.status`` polled while the
+move runs (samples with the daemon's host time), as a version-1 base allows. The stop
+record's ``tilt_source`` says which.
 """
 from __future__ import annotations
 
@@ -21,6 +26,7 @@ import numpy as np
 from daemon.bus.client import Subscriber
 from daemon.bus.clockmap import ClockMap
 from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.bus.timeline import TimeSeries
 from daemon.worker.job import JobContext
 
 #: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
@@ -36,6 +42,11 @@ CLOCK_BIN_S = 0.01
 DEVICE_RESOLUTION_NS = 1000
 #: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
 LAST_PACKET_WAIT_S = 2.0
+#: how far past the inclinometer's first or last sample a record may take that sample's tilt (ns):
+#: a record at most one output period (0.1 s at 10 Hz) away from the samples
+INCL_REACH_NS = 150_000_000
+#: the tilt's sources in the stop record (``tilt_source``)
+TILT_FROM_INCL, TILT_FROM_STATUS = "robot.incl", "robot.status"
 
 
 def _device_ns(msg: dict[str, Any]) -> np.ndarray | None:
@@ -100,6 +111,46 @@ def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, w
                 return
 
 
+def _collect_incl(sub: Subscriber, t_end_ns: int, wait_s: float) -> list[dict[str, Any]]:
+    """The ``robot.incl`` batches read until one holds a sample at or after ``t_end_ns`` (host timeline)."""
+    msgs: list[dict[str, Any]] = []
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
+        data = got[1].get("data") if got is not None and isinstance(got[1], dict) else None
+        if isinstance(data, dict) and data.get("n") and data.get("t_ns"):
+            msgs.append(data)
+            if max(data["t_ns"]) >= t_end_ns:
+                break
+    return msgs
+
+
+def _incl_tilt(msgs: list[dict[str, Any]], t: np.ndarray, t0: int, t1: int) -> tuple[list[list[float]], int] | None:
+    """The inclinometer's samples interpolated to the record times ``t`` (host ns): (n × 2 roll,
+    pitch; the samples within the move [t0, t1]); None when they do not cover every record."""
+    series = TimeSeries(TILT_FROM_INCL, ("roll_deg", "pitch_deg"))
+    for m in msgs:
+        for tn, r, p, s in zip(m["t_ns"], m["roll_deg"], m["pitch_deg"], m["t_sigma_ns"]):
+            series.add(int(tn), (r, p), int(s))
+    try:
+        at = [series.at(int(x), reach_ns=INCL_REACH_NS).values for x in t]
+    except LookupError:
+        return None
+    during = sum(1 for m in msgs for tn in m["t_ns"] if t0 <= tn <= t1)
+    return [[a["roll_deg"], a["pitch_deg"]] for a in at], during
+
+
+def _status_tilt(tilt: list[tuple[int, float, float]], t: np.ndarray, t0: int,
+                 start_tilt: dict[str, Any] | None) -> list[list[float]]:
+    """robot.status readings polled during the move interpolated to the record times, anchored at
+    ``start_tilt`` (the standstill reading before it) at the move's start."""
+    if start_tilt:
+        tilt.insert(0, (t0, float(start_tilt["roll_deg"]), float(start_tilt["pitch_deg"])))
+    ts = np.array([s[0] for s in tilt], dtype=float)
+    return np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
+                            np.interp(t, ts, [s[2] for s in tilt])]).tolist()
+
+
 def _thin(n: int, most: int) -> np.ndarray:
     return np.arange(n) if n <= most else np.unique(np.linspace(0, n - 1, most).round().astype(int))
 
@@ -134,7 +185,10 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
     first sample taken while moving; without it the points at the start would get a
     mid-move tilt.
     """
+    streams = ctx.call("robot.status", timeout=30).get("streams") or []
     sub = ctx.client.subscriber(["tracker.point"])
+    isub = ctx.client.subscriber([TILT_FROM_INCL]) if TILT_FROM_INCL in streams else None
+    incl: list[dict[str, Any]] = []
     try:
         time.sleep(SUB_SETTLE_S)
         try:
@@ -147,10 +201,14 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
             t1 = time.time_ns()
             _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
+            if isub is not None:
+                incl = _collect_incl(isub, t1, LAST_PACKET_WAIT_S)
         finally:  # also when a STOP ended the move: past the job's stop check, the stream must end
             ctx.client.call("tracker.stream.stop", timeout=30)
     finally:
         sub.close()
+        if isub is not None:
+            isub.close()
     P, t, sigma = _abs_points(msgs, np.asarray(abs_H_trk, float))
     keep = np.flatnonzero((t >= t0) & (t <= t1))
     idx = keep[_thin(len(keep), MAX_STREAM_POINTS)]
@@ -159,10 +217,9 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
                            "host_time_ns": t.tolist(), "tilt_samples": len(tilt)}
     if sigma is not None:
         out["t_sigma_ns"] = sigma[idx].tolist()
-    if len(tilt) >= MIN_TILT_SAMPLES and len(P):
-        if start_tilt:
-            tilt.insert(0, (t0, float(start_tilt["roll_deg"]), float(start_tilt["pitch_deg"])))
-        ts = np.array([s[0] for s in tilt], dtype=float)
-        out["tilt_deg"] = np.column_stack([np.interp(t, ts, [s[1] for s in tilt]),
-                                           np.interp(t, ts, [s[2] for s in tilt])]).tolist()
+    from_incl = _incl_tilt(incl, t, t0, t1) if incl and len(P) else None
+    if from_incl is not None and from_incl[1] >= MIN_TILT_SAMPLES:
+        out.update(tilt_deg=from_incl[0], tilt_samples=from_incl[1], tilt_source=TILT_FROM_INCL)
+    elif len(tilt) >= MIN_TILT_SAMPLES and len(P):
+        out.update(tilt_deg=_status_tilt(tilt, t, t0, start_tilt), tilt_source=TILT_FROM_STATUS)
     return out, ""

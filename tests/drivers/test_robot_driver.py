@@ -63,9 +63,11 @@ def test_handshake_reports_the_base_and_its_capabilities(make_robot: Any) -> Non
     robot, _ = make_robot()
     info = robot.info()
     assert info["protocol"] == rp.PROTOCOL_VERSION and info["model"] == "RITA-SIM-BASE"
-    assert info["capabilities"] == [] and info["port"].startswith("/dev/")
+    assert info["capabilities"] == ["CLOCK", "STATE"] and info["port"].startswith("/dev/")
+    assert info["streams"] == ["robot.odometry"]  # no inclinometer: no INCL stream
     robot2, _ = make_robot(base_has_inclinometer=True)
-    assert robot2.info()["capabilities"] == ["INCL"]
+    assert robot2.info()["capabilities"] == ["INCL", "CLOCK", "STATE"]
+    assert robot2.info()["streams"] == ["robot.odometry", "robot.incl"]
 
 
 def test_move_turn_status_round_trip(make_robot: Any) -> None:
@@ -178,7 +180,7 @@ def test_controller_naks_bad_checksum_unknown_and_malformed_commands(raw: Any) -
     assert (msg.fields[1], "distance_mm='far'" in msg.fields[2]) == ("SYNTAX", True)
     msg = rp.decode(link.ask(rp.encode("MOVE", 8, 9999, 50))[0])
     assert msg.fields[1] == "RANGE"
-    msg = rp.decode(link.ask(rp.encode("HELLO", 9, 2))[0])
+    msg = rp.decode(link.ask(rp.encode("HELLO", 9, 3))[0])
     assert (msg.kind, msg.fields[1]) == ("NAK", "VERSION")
     # line noise is dropped silently, and the next good line is still understood
     link.port.write(b"\x00\x13garbage\r\n")
@@ -295,7 +297,7 @@ def test_pump_publishes_state_at_the_configured_rate(make_robot: Any) -> None:
     states = [p for t, p in sink.items if t == "robot.state"]
     assert 2 <= len(states) <= 11
     assert set(states[0]) >= {"state", "x_mm", "y_mm", "heading_deg", "battery_v"}
-    robot2, sink2 = make_robot("time_scale=0&state_hz=0")
+    robot2, sink2 = make_robot("time_scale=0&state_hz=0&stream_hz=0")
     sink2.items.clear()
     robot2.pump(0.2)
     assert sink2.items == []

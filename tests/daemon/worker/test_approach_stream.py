@@ -48,3 +48,36 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
         assert T.shape == (len(P), 2)
         # anchored at the standstill reading before the move; the floor tilts by well under 0.1° here
         assert np.abs(T[0] - [rec["imu_prev"]["roll_deg"], rec["imu_prev"]["pitch_deg"]]).max() < 0.02, T[0]
+
+
+def _approach(tmp_path, robot: str) -> tuple[dict, dict]:
+    """One recorded straight move of 150 mm at the Navigator's default speed: (stop record, its stream)."""
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", configure=_paper_imu, robot=robot) as (_, c):
+        lock_on_robot(c)
+        params = {"mark_xy": [0.0, 0.0], "imu_readings": 5, "stream_rate_hz": 1000.0}
+        job = c.call("calib.start", procedure="measure-mark", params=params)["job"]  # no worker takes it
+        ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": params}, tmp_path / "data")
+        nav = Navigator(ctx)
+        nav.straight(150.0, record=True)
+        return nav.last_record, nav.last_record["stream"]
+
+
+def test_approach_at_default_sim_speed_takes_the_tilt_from_the_inclinometer_stream(tmp_path):
+    # the sim's default fiftieth of real time: the move is over in a fraction of a second of wall
+    # time, too short for robot.status polls; the base's INCL samples (10 Hz of robot time) cover it
+    rec, s = _approach(tmp_path, "sim:")
+    assert s["tilt_source"] == "robot.incl", s.get("tilt_source")
+    assert s["tilt_samples"] >= 2 * MIN_TILT_SAMPLES, s["tilt_samples"]
+    T = np.array(s["tilt_deg"])
+    assert T.shape == (s["n"], 2) and s["n"] >= 10, (T.shape, s["n"])
+    # the inclinometer's readings: near the standstill reading before the move (the floor tilts by well
+    # under 0.1° here), with its noise
+    start = [rec["imu_prev"]["roll_deg"], rec["imu_prev"]["pitch_deg"]]
+    assert np.abs(T - start).max() < 0.05, (T[[0, -1]], start)
+    assert np.ptp(T, axis=0).max() > 0, "the tilt is the same at every point: not sampled along the move"
+
+
+def test_approach_with_a_version_1_base_polls_the_tilt_as_before(tmp_path):
+    _, s = _approach(tmp_path, "sim:?time_scale=0.1&protocol=1")
+    assert s.get("tilt_source") in ("robot.status", None), s.get("tilt_source")
+    assert s["tilt_source"] == "robot.status" if "tilt_deg" in s else s["tilt_samples"] < MIN_TILT_SAMPLES
