@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.emscon.codec import (COMMANDS, Packet, encode_answer, encode_error, encode_result,
+from drivers.emscon.codec import (COMMANDS, MEAS_VALUE, Packet, encode_answer, encode_error, encode_result,
                                   encode_status_change)
 from drivers.emscon.enums import ES_Command as C
 from drivers.emscon.enums import ES_CoordinateSystemType, ES_LTSensorType, ES_MeasMode
@@ -25,6 +25,7 @@ from fakes.tracker_model import REFLECTORS, TrackerModel
 from fakes.tracker_session import Faults, Session, bare_answer, Dropped
 
 MAX_RECORDS = 20000  # per MultiMeasResult packet (well under the 1 MiB framer limit)
+COMPUTE_STEP_S = 0.005  # a stream's records are computed this often between packets
 
 
 class FakeTrackerServer:
@@ -323,6 +324,30 @@ class FakeTrackerServer:
                             apriori_std_total=sig * math.sqrt(3), temperature=t, pressure=pr, humidity=h)
         return 0, {}, [res]
 
+    def _records(self, n: int, t_next: float, dt: float) -> np.ndarray | None:
+        return self.model.measure_records(n, t_next - self.t0, dt, self.t0)
+
+    async def _packet(self, t_next: float, dt: float, left: int) -> np.ndarray | None:
+        """One packet's records, due by the time it is sent. They are computed a few ms at a time as they
+        fall due (a moving robot's pose costs tens of µs a record), so the packet leaves right after its
+        last record's time, as a device's would, not a packet's computation later."""
+        end = time.monotonic() + 1.0 / self.packet_rate_hz
+        parts: list[np.ndarray] = []
+        t, got = t_next, 0
+        while True:
+            now = time.monotonic()
+            n = math.floor((min(now, end) - t) / dt) + 1  # records due by now
+            n = n if left < 0 else min(n, left - got)
+            if n > 0:
+                rec = self._records(min(n, MAX_RECORDS - got), t, dt)
+                if rec is None:
+                    return None
+                parts.append(rec)
+                t, got = t + len(rec) * dt, got + len(rec)
+            if now >= end or got >= MAX_RECORDS or (left >= 0 and got >= left):
+                return np.concatenate(parts) if parts else np.zeros(0, MEAS_VALUE)
+            await asyncio.sleep(min(COMPUTE_STEP_S, max(0.0, end - time.monotonic())))
+
     async def _stream(self, s: Session) -> None:
         """Continuous-time mode: batches of records at the packet rate until stopped."""
         st = self.model.state
@@ -335,19 +360,17 @@ class FakeTrackerServer:
                 if self.flood_batch > 0:
                     n = self.flood_batch
                     await asyncio.sleep(0)
+                    rec = self._records(min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS), t_next, dt)
                 else:
-                    await asyncio.sleep(1.0 / self.packet_rate_hz)
-                    n = math.floor((time.monotonic() - t_next) / dt) + 1  # records due by now
-                    if n <= 0:
-                        continue
-                n = min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS)
-                rec = self.model.measure_records(n, t_next - self.t0, dt, self.t0)
+                    rec = await self._packet(t_next, dt, left)
                 if rec is None:  # beam lost: tell the client the way a real server does
                     await s.send(encode_error(C.StartMeasurement, RS.MeasurementStatusNotReady))
                     return
-                t_next += n * dt
+                if not len(rec):
+                    continue
+                t_next += len(rec) * dt
                 await s.send(encode_result("multi", 0, rec, meas_mode=ES_MeasMode.ContinuousTime, **env))
-                left = left - n if left > 0 else left
+                left = left - len(rec) if left > 0 else left
             await s.send(encode_status_change(SSC.MeasurementCountReached))
         except (Dropped, ConnectionError, RuntimeError):
             s.abort()
