@@ -100,14 +100,17 @@ class _Bins:
         self.bin_ns, self.window_ns = bin_ns, window_ns
         self.bins: deque[list[int]] = deque()  # [key, x, y, count]
 
-    def add(self, x: int, y: int) -> None:
+    def add(self, x: int, y: int) -> bool:
+        """One point; whether the bins' minima changed (a sample above its bin's lowest one changes
+        nothing a fit reads: the map keeps its fit)."""
         key = x // self.bin_ns
         for b in reversed(self.bins):  # almost always the last bin or a new one
             if b[0] == key:
                 b[3] += 1
                 if y < b[2]:
                     b[1], b[2] = x, y
-                return
+                    return True
+                return False
             if b[0] < key:
                 break
         self.bins.append([key, x, y, 1])
@@ -116,6 +119,7 @@ class _Bins:
         newest = self.bins[-1][0]
         while self.bins and (newest - self.bins[0][0]) * self.bin_ns > self.window_ns:
             self.bins.popleft()
+        return True
 
 
 def _lower_hull(xs: Sequence[float], ys: Sequence[float]) -> list[int]:
@@ -238,15 +242,15 @@ class ClockMap:
             self.resets += 1
         self._floor_y = rx - d if self._floor_y is None else min(self._floor_y, rx - d)
         if host_tx_ns is None:
-            self._rx.add(d, rx - d)
+            changed = self._rx.add(d, rx - d)
         else:
             tx = int(host_tx_ns)
             if tx > rx:
                 raise ValueError(f"host_tx_ns {tx} is after host_rx_ns {rx}")
-            self._rx_ex.add(d, rx - d)
-            self._tx.add(d, d - tx)
+            changed = self._rx_ex.add(d, rx - d) | self._tx.add(d, d - tx)
         self._newest = d if self._newest is None else max(self._newest, d)
-        self._fit = None
+        if changed:  # the fit reads only the bins' minima: refitting after every sample cost the most
+            self._fit = None
 
     def _lines(self) -> tuple[_Line | None, _Line | None]:
         """(receive-side line, send-side line negated or None), refitted after new samples."""
