@@ -27,6 +27,7 @@ transfer), whatever the source, so a camera that loses PTP falls back on a map a
 """
 from __future__ import annotations
 
+import math
 import threading
 from typing import Any
 
@@ -117,7 +118,8 @@ class DeviceClock:
 
     def stamp_frame(self, frame: Frame) -> Frame:
         """Set the frame's ``t_ns``, ``t_sigma_ns`` and ``t_source`` (module docstring); returns it."""
-        exposure_ns = int(round((frame.exposure_us or 0.0) * 1000.0))
+        exposure_us = frame.exposure_us if frame.exposure_us and math.isfinite(frame.exposure_us) else 0.0
+        exposure_ns = int(round(exposure_us * 1000.0))  # a NaN chunk value must not stop the frame
         arrived = int(frame.host_time_ns) - max(0, int(frame.transfer_ns))
         d = frame.device_time_ns
         with self._lock:

@@ -127,15 +127,19 @@ def _collect_incl(sub: Subscriber, t_end_ns: int, wait_s: float) -> list[dict[st
 
 def _incl_tilt(msgs: list[dict[str, Any]], t: np.ndarray, t0: int, t1: int) -> tuple[list[list[float]], int] | None:
     """The inclinometer's samples interpolated to the record times ``t`` (host ns): (n × 2 roll,
-    pitch; the samples within the move [t0, t1]); None when they do not cover every record."""
+    pitch; the samples within the move [t0, t1]); None when they do not cover every record, or leave
+    a hole longer than ``INCL_REACH_NS`` around one."""
     series = TimeSeries(TILT_FROM_INCL, ("roll_deg", "pitch_deg"))
     for m in msgs:
         for tn, r, p, s in zip(m["t_ns"], m["roll_deg"], m["pitch_deg"], m["t_sigma_ns"]):
             series.add(int(tn), (r, p), int(s))
     try:
-        at = [series.at(int(x), reach_ns=INCL_REACH_NS).values for x in t]
+        found = [series.at(int(x), reach_ns=INCL_REACH_NS) for x in t]
     except LookupError:
         return None
+    if any(a.gap_ns > INCL_REACH_NS for a in found):  # a hole in the samples (a reconnect, lost batches)
+        return None  # is not bridged by a straight line: the polled readings are used instead
+    at = [a.values for a in found]
     during = sum(1 for m in msgs for tn in m["t_ns"] if t0 <= tn <= t1)
     return [[a["roll_deg"], a["pitch_deg"]] for a in at], during
 
@@ -185,7 +189,10 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
     first sample taken while moving; without it the points at the start would get a
     mid-move tilt.
     """
-    streams = ctx.call("robot.status", timeout=30).get("streams") or []
+    try:
+        streams = ctx.call("robot.status", timeout=30).get("streams") or []
+    except CommandError:  # not knowing the base's streams only means polling its status for the tilt
+        streams = []
     sub = ctx.client.subscriber(["tracker.point"])
     isub = ctx.client.subscriber([TILT_FROM_INCL]) if TILT_FROM_INCL in streams else None
     incl: list[dict[str, Any]] = []

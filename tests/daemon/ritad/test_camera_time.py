@@ -167,3 +167,14 @@ def test_a_host_off_the_cameras_ptp_time_is_named_in_status() -> None:
     run(cam, now, clock, 20)
     st = clock.status()
     assert st["source"] == "ptp" and "disagree by +37.0" in st["note"], st
+
+
+def test_a_nan_exposure_does_not_stop_the_frame():
+    """A bad chunk (NaN exposure) must not raise out of emit: the frame is stamped as if exposed instantly."""
+    from daemon.ritad.device_clock import DeviceClock
+
+    clock = DeviceClock()
+    frame = Frame(np.zeros((2, 2), np.uint8), 1, "x", "Mono8", exposure_us=float("nan"),
+                  device_time_ns=5_000_000_000, host_time_ns=1_800_000_000_000_000_000)
+    out = clock.stamp_frame(frame)
+    assert out.t_source == "clockmap" and out.t_ns is not None

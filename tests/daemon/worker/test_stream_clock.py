@@ -74,3 +74,19 @@ def test_a_late_packet_from_before_the_move_end_does_not_end_the_collection():
     assert got[-1] is not late, "the collection ended on a packet sent before the move's end"
     _, t, _ = _abs_points(got, np.eye(4))
     assert t.max() >= HOST0 + 500_000_000
+
+
+def test_incl_samples_with_a_hole_are_not_bridged():
+    """A reconnect mid-move stops the base's samples for a while: the tilt is not a straight line across it."""
+    from daemon.worker.stream import INCL_REACH_NS, _incl_tilt
+
+    def batch(ts):
+        return {"n": len(ts), "t_ns": ts, "t_sigma_ns": [1000] * len(ts), "roll_deg": [0.1] * len(ts),
+                "pitch_deg": [0.2] * len(ts)}
+
+    dense = list(range(0, 1_000_000_000, 2_000_000))
+    records = np.arange(10_000_000, 990_000_000, 1_000_000)
+    got = _incl_tilt([batch(dense)], records, 0, 1_000_000_000)
+    assert got is not None and got[1] == len(dense)
+    holed = [t for t in dense if not 300_000_000 < t < 300_000_000 + 2 * INCL_REACH_NS]
+    assert _incl_tilt([batch(holed)], records, 0, 1_000_000_000) is None
