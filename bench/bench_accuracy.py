@@ -106,6 +106,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--quick", action="store_true", help="3 seeds, no per-effect table")
+    ap.add_argument("--jobs", type=int, default=1, help="--envelope: cases run at once (processes)")
     ap.add_argument("--envelope", action="store_true", help="the default compensation's p95 goals and their "
                     "sensitivity envelope (use >= 20 seeds)")
     ap.add_argument("--png", default=str(Path(__file__).resolve().parents[1] / "docs/img/accuracy-budget.png"))
@@ -115,7 +116,7 @@ def main() -> None:
     print(f"# Accuracy budget, {len(seeds)} seeds ({seeds[0]}…), median / p95, mm\n\n{machine()}\n")
     if args.envelope:
         print("## The default compensation at p95, and its sensitivity envelope (progress on stderr)\n")
-        print(envelope(seeds))
+        print(envelope(seeds, jobs=args.jobs))
         print(f"\n({time.perf_counter() - t0:.0f} s)")
         return
     print("## Profile × compensation\n")

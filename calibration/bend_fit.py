@@ -17,6 +17,7 @@ chord too.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def _rss(A: np.ndarray, e: np.ndarray) -> float:
     return float(r @ r)
 
 
-def _shape(x: np.ndarray, e: np.ndarray) -> tuple[int, float]:
+def _shape(x: np.ndarray, e: np.ndarray, min_degree: int = 2) -> tuple[int, float]:
     """(polynomial degree, stream noise σ_s): the lowest degree the stream's residuals cannot tell from noise.
 
     The noise comes from second differences of neighbouring points (a smooth path's curvature
@@ -87,7 +88,7 @@ def _shape(x: np.ndarray, e: np.ndarray) -> tuple[int, float]:
     order = np.argsort(x)
     d2 = np.diff(e[order], 2)
     var_s = max(float(d2 @ d2) / (6.0 * max(len(d2), 1)), STREAM_SIGMA_FLOOR_MM ** 2)
-    for deg in range(2, MAX_DEGREE + 1):
+    for deg in range(min_degree, MAX_DEGREE + 1):
         dof = len(x) - deg - 1
         if dof < 3:
             break
@@ -110,7 +111,7 @@ def _end_slope(x: np.ndarray, e: np.ndarray, deg: int, sig_s: float, anchor_sigm
 
 
 def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_mm: float = 0.010,
-             significance: float = SIGNIFICANCE) -> BendFit:
+             significance: float = SIGNIFICANCE, min_degree: int = 2) -> BendFit:
     """The end tangent from the stream and the anchors, weighted by their noise; see the module's docstring.
 
     The lateral path ``e(x) = θ·basis(x)`` in the measured chord's frame is fitted by weighted
@@ -119,9 +120,11 @@ def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_
     correction and ``dᵀ(AᵀWA)⁻¹d`` its whole error variance. It is used when it is at least as
     precise as the chord's own ``2σ_a²/L²`` (then it cannot lose even on a straight drive), or when
     the bend it shows exceeds ``significance`` standard errors; else the chord stays.
+    ``min_degree`` 3 fits at least a cubic, which an S-curve's end slope needs even where the stream's noise
+    hides its asymmetry (unbiased for an arc too, but noisier).
     """
     x, e, u, n, L = _frame(points, abs_P_prev, abs_P_at)
-    deg, sig_s = _shape(x, e)
+    deg, sig_s = _shape(x, e, min_degree)
     shape = SHAPES.get(deg, "other")
     if deg == 0:
         return BendFit(np.array([u[0], u[1], 0.0]), 0.0, np.inf, shape, sig_s, False,
@@ -147,4 +150,24 @@ def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_
     return BendFit(np.array([t[0], t[1], 0.0]), slope, sigma, shape, sig_s, significant, why)
 
 
-__all__ = ["BendFit", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE", "bend_fit"]
+def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any, anchor_sigma_mm: float = 0.010) -> np.ndarray:
+    """Unit ACS direction (z = 0) of a bent move's tangent at its end; ValueError when no bend is shown.
+
+    See :func:`bend_fit` (calibration/bend_fit.py): the chord turned by the fitted end slope,
+    only when the bend is significant against the anchors' and the stream's noise.
+    """
+    fit = bend_fit(points, abs_P_prev, abs_P_at, anchor_sigma_mm)
+    if not fit.significant:
+        raise ValueError(fit.why)
+    return fit.direction
+
+
+def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: float) -> float:
+    """The heading fit's σ less the chord's tracker part 2σ_a²/L², which measure_mark's Jacobian already
+    carries through the two tracker points (the fit's σ counts its anchors' noise too)."""
+    chord_var = 2.0 * (anchor_sigma_mm / length_mm) ** 2
+    return float(np.sqrt(max(fit_sigma_rad ** 2 - chord_var, 0.0)))
+
+
+__all__ = ["BendFit", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE", "bend_fit", "fit_heading",
+           "fit_heading_sigma"]

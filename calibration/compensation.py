@@ -10,9 +10,11 @@ applied. None of them changes the paper's equations; they change their inputs:
   direction is taken between *ground points* (the reflector moved down the robot's
   tilted z axis by the reflector height): the reflector sits ~0.35 m above the floor,
   so 1 mrad of tilt moves it 0.35 mm sideways, which bends a 200 mm chord by 1.7 mrad.
-* **heading_fit** — the heading is the end tangent of a curve fitted to the tracker's
-  stream along the last part of the approach (:func:`fit_heading`), not the chord
-  P_prev→P_at, which is off the final heading by half the path's turn.
+* **heading_fit** — the chord P_prev→P_at is off the final heading by half the path's
+  turn; the end tangent of a curve fitted to the tracker's stream along the approach
+  (calibration/bend_fit.py) turns it by the share of the fitted slope an earlier experiment
+  showed to make its marks agree (calibration/heading_weight.py; without one, by the whole
+  slope when the stop's own bend is significant).
 
 Each result also says how well its heading is known beyond the two tracker points
 (``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`): the chord's
@@ -32,14 +34,15 @@ Angles follow the world's and :func:`calibration.measure.robot_pose_at`'s conven
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit
+from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, fit_heading, fit_heading_sigma
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
+from calibration.heading_weight import MODELS, HeadingWeight, weighted_slope
 from calibration.imu_mount import body_tilt, rot2
 from calibration.measure import CHORD_HEADING_SIGMA_RAD
 from calibration.mount import MountOffset
@@ -140,18 +143,6 @@ def forward_prev(abs_P_prev: Any, abs_P_at: Any, reverse: bool) -> np.ndarray:
     return 2.0 * P_at - P_prev if reverse else P_prev
 
 
-def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any, anchor_sigma_mm: float = 0.010) -> np.ndarray:
-    """Unit ACS direction (z = 0) of a bent move's tangent at its end; ValueError when no bend is shown.
-
-    See :func:`bend_fit` (calibration/bend_fit.py): the chord turned by the fitted end slope,
-    only when the bend is significant against the anchors' and the stream's noise.
-    """
-    fit = bend_fit(points, abs_P_prev, abs_P_at, anchor_sigma_mm)
-    if not fit.significant:
-        raise ValueError(fit.why)
-    return fit.direction
-
-
 def apply_bias(rob_H_scn: np.ndarray, b_mm: Any) -> np.ndarray:
     """``rob_H_scn`` with the robot-frame bias b (RCS x, y, mm) removed from what it maps."""
     H = check_H(rob_H_scn, "rob_H_scn").copy()
@@ -193,13 +184,11 @@ class Applied:
     heading_source: str = "chord"
     #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
     cov_mount_xy_mm2: np.ndarray | None = None
-
-
-def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: float) -> float:
-    """The heading fit's σ less the chord's tracker part 2σ_a²/L², which measure_mark's Jacobian already
-    carries through the two tracker points (the fit's σ counts its anchors' noise too)."""
-    chord_var = 2.0 * (anchor_sigma_mm / length_mm) ** 2
-    return float(np.sqrt(max(fit_sigma_rad ** 2 - chord_var, 0.0)))
+    #: heading_fit asked for: the chord's equivalent previous point and, per bend model whose fit succeeded
+    #: (calibration/heading_weight.py MODELS), the whole fitted slope's (point, slope, its stated σ in rad),
+    #: whatever was applied; an experiment learns the weight from them
+    chord_P_prev: np.ndarray | None = None
+    fits: dict[str, tuple[np.ndarray, float, float]] = field(default_factory=dict)
 
 
 def _standstill_tilts(stop: Stop) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -253,8 +242,10 @@ def _tilt_applied(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray
 
 
 def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
-                 height: float, anchor_sigma_mm: float, yaw: float) -> None:
-    """The end tangent of the stream's bend, only when it is shown (calibration/bend_fit.py)."""
+                 height: float, anchor_sigma_mm: float, yaw: float, weight: HeadingWeight | None) -> None:
+    """The end tangent of the stream's bend: the calibration's learned ``weight`` of the fitted slope
+    (calibration/heading_weight.py), or without one the whole slope only when the bend is shown
+    (calibration/bend_fit.py)."""
     use_tilt = "tilt" in out.applied
     pts = _ground_stream(stop, offset, height, yaw) if use_tilt else as_points(stop.stream, "stream")
     sign = -1.0 if stop.reverse else 1.0
@@ -264,17 +255,35 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
         pts = pts + (P_at - ground_point(P_at, math.degrees(math.atan2(v[1], v[0])), *at, height))
     start = P_at - sign * (P_at - out.abs_P_prev)  # the travel's start of the (ground) chord
     try:
-        fit = bend_fit(pts, start, P_at, anchor_sigma_mm)
+        fits = {m: bend_fit(pts, start, P_at, anchor_sigma_mm, min_degree=d) for m, d in MODELS.items()}
     except ValueError as exc:  # too few points between the stops: the chord stays
         out.skipped["heading_fit"] = str(exc)
         return
-    if not fit.significant:
+    length = float(np.linalg.norm((P_at - out.abs_P_prev)[:2]))
+    u = sign * (P_at - out.abs_P_prev)[:2] / length
+    n = np.array([-u[1], u[0]])
+
+    def prev_at(slope: float) -> np.ndarray:  # the equivalent previous point of the chord turned by slope
+        t = (u + slope * n) / np.hypot(1.0, slope)
+        return np.asarray(P_at - sign * length * np.array([t[0], t[1], 0.0]))
+
+    out.chord_P_prev = out.abs_P_prev
+    out.fits = {m: (prev_at(f.slope_rad), f.slope_rad, f.sigma_rad) for m, f in fits.items() if f.shape != "other"}
+    fit = fits[weight.model if weight is not None else "lowest"]
+    if weight is not None:
+        if not weight.applied or fit.shape == "other":
+            out.skipped["heading_fit"] = weight.why if not weight.applied else fit.why
+            return
+        slope, sigma = weighted_slope(weight, fit.slope_rad)
+        out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), sigma
+    elif not fit.significant:
         out.skipped["heading_fit"] = fit.why
         return
-    length = float(np.linalg.norm((P_at - out.abs_P_prev)[:2]))
-    out.abs_P_prev = P_at - sign * length * fit.direction
+    else:
+        out.abs_P_prev = P_at - sign * length * fit.direction
+        out.sigma_heading_rad = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
     out.applied.append("heading_fit")
-    out.sigma_heading_rad, out.heading_source = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length), "heading_fit"
+    out.heading_source = "heading_fit"
 
 
 def _lean_change_um(stop: Stop, height: float) -> tuple[float, float] | None:
@@ -321,10 +330,11 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None,
                anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0, mount: MountOffset | None = None,
-               abs_t_trk: Any = None) -> Applied:
+               abs_t_trk: Any = None, heading_weight: HeadingWeight | None = None) -> Applied:
     """Apply ``comp`` to one stop; a compensation without its input, or one the data contradict, is skipped
     and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured).
-    ``mount`` and ``abs_t_trk`` (the tracker's ACS position): the calibration's reflector mount offset."""
+    ``mount`` and ``abs_t_trk`` (the tracker's ACS position): the calibration's reflector mount offset;
+    ``heading_weight``: the calibration's learned share of the fitted bend (None: each stop's own test)."""
     skipped: dict[str, str] = {}
     stop, cov_mount = _mount_applied(comp, stop, mount, abs_t_trk, skipped)
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
@@ -357,7 +367,7 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         elif lean is not None and lean[0] > 3.0 * anchor_sigma_mm * 1000.0:
             out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean[0], d=lean[1], h=height)
         else:
-            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg)
+            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg, heading_weight)
     if comp.bias:
         if bias_b_mm is None:
             out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from calibration.compensation import Compensation, Stop, compensate, imu_offset_deg, reflector_height_mm, tilt_of_pose
+from calibration.heading_weight import NOT_LEARNED, HeadingWeight, learn_from_stops, stop_marks
 from calibration.imu_mount import imu_mount
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_mark, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
@@ -91,7 +92,8 @@ def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
 
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
                 bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None,
-                mount: MountOffset | None = None, imu_yaw_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                mount: MountOffset | None = None, imu_yaw_deg: float = 0.0, heading_weight: HeadingWeight | None = NOT_LEARNED,
+                learn: list[Any] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
 
     σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
@@ -100,16 +102,22 @@ def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, i
     that std_mm; the mark variance per unit tracker variance (mm²/mm², to restate σ with another
     σ_t); the mark's lever arm from the reflector (mm); the std_mm the product first stated
     (10 µm, no heading or mount term); the heading term's share (mm); the tracker σ used (mm).
+    ``heading_weight``: the calibration's learned share of the fitted bend (as the product: none learned, the chord;
+    None: each stop's own significance test); ``learn``: a list each stop's
+    chord and fitted marks are appended to (calibration/heading_weight.py ``stop_marks``), as the experiment
+    the product learns the weight from records them.
     """
     pts, heads, sig = [], [], []
     for o in val.observations:
         a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias, mount=mount,
-                       abs_t_trk=abs_t_trk, imu_yaw_deg=imu_yaw_deg)
+                       abs_t_trk=abs_t_trk, imu_yaw_deg=imu_yaw_deg, heading_weight=heading_weight)
         s_t = stated_tracker_sigma(None, _distance_mm(o, abs_t_trk))[0]
         m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, a.abs_P_at, roll_deg=a.roll_deg,
                          pitch_deg=a.pitch_deg, cov_rob_H_scn=cov, sigma_t_mm=s_t,
                          sigma_heading_rad=a.sigma_heading_rad, cov_mount_xy_mm2=a.cov_mount_xy_mm2)
         parts = m.std_parts_mm
+        if learn is not None:
+            learn.append(stop_marks(a, m.rob_P))
         unit = (parts["tracker"] / s_t) ** 2
         old = np.sqrt(m.std_mm ** 2 - parts["heading"] ** 2 - parts.get("mount", 0.0) ** 2
                       + (DEFAULT_SIGMA_T_MM ** 2 - s_t ** 2) * unit)
@@ -162,16 +170,21 @@ def run(case: Case, seed: int) -> dict[str, Any]:
     cfg = SimConfig(seed=seed, pnp_sigma_px=0.05, report_tilt=imu, mark_window_mm=case.mark_window_mm)
     sim = Simulation(world, cfg)
     cal = referencing(sim, case.reversal)
-    bias, trk = None, world.abs_H_trk[:3, 3]
-    kw = dict(abs_t_trk=trk, mount=cal.mount, imu_yaw_deg=cal.imu_yaw_deg)
-    if case.comp.bias:  # learn b on another mark, as a later job would find it in the calibration
+    # without a learning experiment the product has no weight for heading_fit: the chord
+    bias, weight, trk = None, NOT_LEARNED, world.abs_H_trk[:3, 3]
+    kw: dict[str, Any] = dict(abs_t_trk=trk, mount=cal.mount, imu_yaw_deg=cal.imu_yaw_deg)
+    if case.comp.bias:  # learn b (and heading_fit's weight) on another mark, as a later job finds them stored
         learn = Simulation(world, SimConfig(**{**cfg.__dict__, "mark": "M2"})).validation("learn-bias")
         base = Compensation(case.comp.tilt, case.comp.heading_fit, False, case.comp.mount)
-        lp, lh, _ = measure_all(learn, base, cal.scs, cal.rob_H_scn, cal.imu_offset, None, **kw)
+        stops: list[Any] = []
+        lp, lh, _ = measure_all(learn, base, cal.scs, cal.rob_H_scn, cal.imu_offset, None, learn=stops,
+                                heading_weight=NOT_LEARNED, **kw)
         fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
         bias = None if fit is None else fit.b
+        weight = learn_from_stops(stops, lh)
     val = sim.validation()
-    pts, heads, sig = measure_all(val, case.comp, cal.scs, cal.rob_H_scn, cal.imu_offset, bias, cal.cov, **kw)
+    pts, heads, sig = measure_all(val, case.comp, cal.scs, cal.rob_H_scn, cal.imu_offset, bias, cal.cov,
+                                  heading_weight=weight, **kw)
     m = experiment_metrics(pts, heads, [o.direction for o in val.observations])
     err = pts[:, :2] - val.mark_abs[:2]
     e = rob_H_cam_error(cal.rob_H_cam, world.rob_H_cam)
@@ -180,7 +193,7 @@ def run(case: Case, seed: int) -> dict[str, Any]:
             "rotation_deg": e["rot_deg"], "uv": np.array([o.uv for o in val.observations]),
             "err_mm": np.linalg.norm(err, axis=1), "std_mm": sig[:, 0], "t_unit_mm2": sig[:, 1],
             "lever_mm": sig[:, 2], "std_old_mm": sig[:, 3], "heading_mm": sig[:, 4], "sigma_t_mm": sig[:, 5],
-            "size": sim.model.size, "metrics": m}
+            "size": sim.model.size, "metrics": m, "heading_weight": weight if case.comp.heading_fit else None}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:

@@ -6,7 +6,8 @@
 * :func:`compensation_summary` — which compensations were requested, applied, skipped;
 * :func:`tracker_distance_mm` — how far the tracker stood from a stop's points (its σ grows with it);
 * :func:`tracker_position` — the tracker's ACS position a point was measured from (the mount's line of sight);
-* :func:`reflector_mount` — the reflector mount offset a calibration holds.
+* :func:`reflector_mount` — the reflector mount offset a calibration holds;
+* :func:`heading_weight` — the share of heading_fit's fitted bend a calibration holds.
 
 docs/datasets.md ("Compensations") documents every field read here.
 """
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
+from calibration.heading_weight import NOT_LEARNED, HeadingWeight
 from calibration.imu_mount import imu_mount
 from calibration.mount import MountOffset
 from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
@@ -111,6 +113,16 @@ def reflector_mount(calib: dict[str, Any]) -> tuple[MountOffset | None, str]:
         return None, str(exc)
 
 
+def heading_weight(calib: dict[str, Any]) -> tuple[HeadingWeight, str]:
+    """heading_fit's learned weight a calibration holds (an experiment stored it; none: the chord,
+    :data:`NOT_LEARNED`), and why a record it holds cannot be read ("" when it can; then the chord too)."""
+    rec = calib.get("heading_weight")
+    try:
+        return (NOT_LEARNED if not rec else HeadingWeight.from_dict(rec, "calibration: heading_weight")), ""
+    except ValueError as exc:
+        return NOT_LEARNED, str(exc)
+
+
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
     """The per-stop compensation record of a mark."""
     return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
@@ -121,7 +133,8 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     offset, bias = calibration_inputs(calib)
     out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
                            "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias,
-                           "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm")}
+                           "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm"),
+                           "heading_weight": (calib.get("heading_weight") or {}).get("weight")}
     for name in NAMES:
         if name not in out["requested"]:
             continue
@@ -132,6 +145,7 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     return out
 
 
-__all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "imu_yaw", "parse_compensation",
+__all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "heading_weight", "imu_yaw",
+           "parse_compensation",
            "plate_imu_offset", "reflector_mount", "stop_of", "stop_record", "tracker_distance_mm",
            "tracker_position"]

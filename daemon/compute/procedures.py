@@ -16,6 +16,7 @@ from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.checks import bias_model_check
 from calibration.frames import apply_H
+from calibration.heading_weight import learn_from_stops, stop_marks
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
@@ -26,9 +27,9 @@ from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
-from daemon.compute.inputs import (calibration_inputs, compensation_summary, parse_compensation,
-                                         imu_yaw, plate_imu_offset, reflector_mount, stop_of, stop_record,
-                                         tracker_distance_mm, tracker_position)
+from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
+                                   parse_compensation, plate_imu_offset, reflector_mount, stop_of, stop_record,
+                                   tracker_distance_mm, tracker_position)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -130,12 +131,14 @@ MARK_SIGMA_PX = 0.05
 
 
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
-                 size_mm: float | None, sigma_t_mm: float | None, comp: Compensation) -> dict[str, Any]:
+                 size_mm: float | None, sigma_t_mm: float | None, comp: Compensation,
+                 learn: list[Any] | None = None) -> dict[str, Any]:
     """One stop's mark in ACS with ``comp`` applied (calibration/compensation.py does the math).
 
     Its σ (docs/accuracy.md, "Coverage of the stated σ"): the tracker's σ as the dataset states it, else
     the MPE at the tracker's distance to the stop; the heading's σ beyond the two points (the chord's path
     deviation, or heading_fit's own); ``sigma`` in the mark records which, and each one's share.
+    ``learn``: a list the stop's chord and fitted marks are appended to (heading_fit's weight).
     """
     scs = Scs.from_dict(calib["scs"], source="calibration result: scs")
     cov = (calib.get("uncertainty") or {}).get("cov_rob_H_scn")
@@ -143,11 +146,14 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     # heading_fit's anchors keep the 10 µm default its significance test was built with
     anchor = DEFAULT_SIGMA_T_MM if sigma_t_mm is None else sigma_t_mm
     mount, bad_mount = reflector_mount(calib)
+    weight, bad_weight = heading_weight(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
                    bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib), mount=mount,
-                   abs_t_trk=tracker_position(stop["P_at"]))
+                   abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight)
     if bad_mount and comp.mount:  # a record no offset can be read from: measure without it, say why
         a.skipped["mount"] = bad_mount
+    if bad_weight and comp.heading_fit:  # a record no weight can be read from: the chord, say why
+        a.skipped["heading_fit"] = f"{bad_weight}: the chord is used"
     distance = tracker_distance_mm(stop)
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = a.abs_P_at
@@ -155,6 +161,8 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
                       mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
                       cov_rob_H_scn=None if cov is None else np.array(cov), cov_mount_xy_mm2=a.cov_mount_xy_mm2)
+    if learn is not None:
+        learn.append(stop_marks(a, m.rob_P))
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
     sigma = {"tracker_mm": s_t, "tracker_source": t_source, "tracker_distance_mm": distance,
@@ -179,8 +187,9 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
     kind, load = obs.get("kind", "dot"), _eight_bit(load)
     comp = parse_compensation(obs.get("compensation"))
-    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp)
-             for s in obs["stops"]]
+    stops: list[Any] = []
+    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp,
+                          stops) for s in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])
@@ -188,11 +197,24 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     # the mount's share is the same offset at every stop: no scatter between the cluster means
     scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0)) for m in marks]
     check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm, scatter)
+    messages = [] if check["ok"] else [check["message"]]
+    weight = learn_from_stops(stops, headings).to_dict() if comp.heading_fit else None
+    if weight is not None:
+        messages.append(weight_message(weight))
     return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
             "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
-            "verdict": "ok" if check["ok"] else "warn", "messages": [] if check["ok"] else [check["message"]]}
+            "heading_weight": weight, "verdict": "ok" if check["ok"] else "warn", "messages": messages}
+
+
+def weight_message(weight: dict[str, Any]) -> str:
+    """The experiment's line about heading_fit's learned weight (stored with the bias)."""
+    if not weight["applied"]:
+        return f"heading_fit: later jobs keep the chord: {weight['why']}"
+    return (f"heading_fit: the stream's fitted bend makes the marks agree best at weight {weight['weight']:.2f} "
+            f"± {weight['sigma']:.2f} ({weight['n_stops']} stops; heading σ left "
+            f"{weight['sigma_heading_rad'] * 1e6:.0f} µrad); later jobs apply it")
 
 
 #: the focal length's 1σ above which an intrinsics model is only a warn (the

@@ -46,7 +46,8 @@ def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict
 
 
 def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
-    """``active`` with the experiment ``result``'s fitted bias b added to what it already held.
+    """``active`` with the experiment ``result``'s fitted bias b added to what it already held, and the
+    heading_fit weight it learned (calibration/heading_weight.py).
 
     An experiment that already applied the calibration's bias fits only what is left,
     so the stored bias is the sum; one that did not fits the whole bias.
@@ -67,7 +68,11 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[s
     applied = held is not None
     b = np.asarray(fit["b"], float) + (np.asarray(held, float) if applied else 0.0)
     apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
-    return {**active, "robot_bias_mm": b.tolist(),
+    weight = result.get("heading_weight")
+    # the experiment's weight replaces an older one (it is learned from the chord and the whole fitted slope,
+    # whatever the experiment applied); an experiment without heading_fit leaves the held one
+    extra = {} if not weight else {"heading_weight": {**weight, "job": result.get("job")}}
+    return {**active, **extra, "robot_bias_mm": b.tolist(),
             "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit["b"]), "fit_rms_mm": fit.get("rms_mm"),
                            "added_to_mm": held if applied else None,
                            "compensation": [n for n in summary.get("requested", []) if summary["applied"].get(n)],
@@ -97,6 +102,8 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     # the copy goes beside the history, not into it: it is no new referencing result
     atomic_write_json(cdir / "history" / "bias" / f"{active.get('job')}.bias-{result.get('job')}.json", new)
     atomic_write_json(path, new)
-    b = new["robot_bias_mm"]
-    return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm stored in the active calibration {path} "
+    b, w = new["robot_bias_mm"], result.get("heading_weight")
+    weight = "" if not w else (f" and heading_fit's weight {w['weight']:.2f}" if w["applied"] else
+                               " and heading_fit's weight 0 (later jobs keep the chord)")
+    return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm{weight} stored in the active calibration {path} "
             f"(later jobs apply it with compensation 'bias')")

@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 
 from calibration.compensation import tilt_of_pose
+from calibration.heading_weight import NOT_LEARNED, HeadingWeight
 from daemon.bus.datasets import check_file, validate_folder
 from daemon.ctl import main as ctl
 from daemon.worker.compensations import store_bias
 from daemon.compute.procedures import compute_referencing
+from daemon.compute.inputs import heading_weight
 from daemon.compute.recompute import recompute
 from tests.dataset_writer import write_experiment, write_referencing
 
@@ -86,8 +88,11 @@ def test_none_all_and_skips_on_a_level_robot(exp):
     assert none["compensation"]["requested"] == [] and none["recomputed_with"] == ["compensation"]
     assert np.abs(_errors(none)).max() < 1e-3
     both = recompute(exp, compensation="tilt,heading_fit")[0]
-    assert both["compensation"]["applied"] == {"tilt": 4, "heading_fit": 3}
-    assert both["compensation"]["skipped"] == {"heading_fit": ["no tracker stream was recorded along the approach"]}
+    # the calibration holds no weight an experiment learned: the chord, with the reason at each stop
+    assert both["compensation"]["applied"] == {"tilt": 4, "heading_fit": 0}
+    assert both["compensation"]["skipped"] == {"heading_fit": sorted(["no tracker stream was recorded along the "
+                                                                      "approach", NOT_LEARNED.why])}
+    assert both["heading_weight"]["applied"] is False and ">= 8" in both["heading_weight"]["why"]
     assert np.abs(_errors(both)).max() < 1e-3  # level robot, offset removed, straight path: nothing changes
     full = recompute(exp)[0]  # the default: all
     assert full["compensation"]["applied"]["bias"] == 4
@@ -116,7 +121,7 @@ def test_ritactl_recompute_compensation_and_bad_name(exp, capsys):
     assert json.loads(capsys.readouterr().out)["compensation"]["requested"] == []
     assert ctl.main(["recompute", str(exp), "--compensation", "tilt,heading_fit"]) == 0
     shown = capsys.readouterr().out
-    assert "compensations (stops applied): tilt 4/4, heading_fit 3/4" in shown, shown
+    assert "compensations (stops applied): tilt 4/4, heading_fit 0/4" in shown, shown
     assert "heading_fit skipped: no tracker stream was recorded along the approach" in shown, shown
     assert ctl.main(["recompute", str(exp), "--compensation", "tilt,wobble"]) == 5
     err = capsys.readouterr().err
@@ -215,3 +220,21 @@ def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp
     _edit(folder, lambda s: s["obs"]["calibration"].update(reflector_mount={**shown, "cov_los_mm2": [[0, 0], [0, 0]]}))
     bad = recompute(folder, compensation="tilt,mount")[0]
     assert "reflector_mount" in bad["compensation"]["skipped"]["mount"][0] and len(bad["marks"]) == len(HEADINGS)
+
+
+def test_the_experiments_heading_weight_is_stored_with_the_bias_and_read_back(ref, tmp_path):
+    """store_bias keeps the experiment's learned weight with b; a later job reads it (calibration_inputs'
+    sibling heading_weight), and a record that cannot be read keeps the chord, naming the bad value."""
+    root, truth, calib = ref
+    data = tmp_path / "data"
+    (data / "calibration" / "history").mkdir(parents=True)
+    (data / "calibration" / "active.json").write_text(json.dumps({**calib, "job": "cal-1"}))
+    write_experiment(tmp_path / "e1", {**calib, "job": "cal-1"}, truth, MARK, headings=HEADINGS, reps=1)
+    first = {**recompute(tmp_path / "e1")[0], "job": "exp-1"}
+    learned = HeadingWeight(0.6, 0.61, 0.05, 40, 3e-4, 1.4e-4, True, "", "cubic", 0.02)
+    assert "heading_fit's weight 0.60" in store_bias(data, {**first, "heading_weight": learned.to_dict()})
+    active = json.loads((data / "calibration" / "active.json").read_text())
+    assert active["heading_weight"]["job"] == "exp-1" and check_file(active, "result", "active.json") == []
+    assert heading_weight(active) == (learned, "")
+    bad, why = heading_weight({**active, "heading_weight": {**active["heading_weight"], "weight": 7}})
+    assert bad is NOT_LEARNED and "weight=7.0" in why

@@ -1,0 +1,193 @@
+"""How much of the stream's fitted bend to apply, learned from an 8-direction experiment's own scatter.
+
+The chord P_prev→P_at is off the final heading by the path's bend; the bend fit
+(calibration/bend_fit.py) reads that bend from the tracker's stream, but with an error its
+stated σ does not hold in full (the tracker's pattern along the move, the floor's lean left
+after the tilt compensation). Which of the two headings is better, and by how much, is what
+no single stop can show; an experiment can, because all its stops see the same mark:
+
+    P_k(w) = P_k^chord + w · Δ_k,    Δ_k = P_k^fit − P_k^chord
+
+(the mark as measured with the chord, and what the full fitted slope moves it by). Fitting
+
+    P_k^chord = M + R(ψ_k)·b − w · Δ_k
+
+by least squares over the stops (M the mark, b the robot-frame bias, as
+calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes the marks agree
+best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight leaves the marks' smaller
+scatter). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
+the fit's *actual* error: on straight drives w ≈ 0 (the fit only adds noise), on bent ones it
+approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when it is
+significantly above 0; else they keep the chord and say why.
+
+The heading's σ left after applying w is the shrinkage's own: with S² the stops' mean squared
+fitted slope (= var(bend) + var(fit error)), var(bend) = w·S² and what remains is
+w·(1 − w)·S² (at least w times the fits' stated σ), plus the weight's own uncertainty σ_w² · S².
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration.measure import robot_pose_at
+
+#: the weight is applied only beyond this many standard errors above 0
+SIGNIFICANCE = 3.0
+#: the fewest stops with a fitted bend the weight is learned from
+MIN_STOPS = 8
+#: the bend fit's models an experiment chooses between, by their least polynomial degree (calibration/bend_fit.py):
+#: the lowest degree the stream's noise allows (an arc is a parabola), or at least a cubic (an S-curve's end
+#: slope is in its asymmetry, which the stream's noise can hide from the lack-of-fit test)
+MODELS = {"lowest": 2, "cubic": 3}
+
+
+@dataclass(frozen=True)
+class HeadingWeight:
+    """The fraction of the fitted end slope later jobs apply, and the heading σ it leaves."""
+
+    weight: float  # applied fraction of the fitted slope, in [0, 1] (0 when not applied)
+    weight_fit: float  # the least-squares estimate before clipping
+    sigma: float  # its standard error
+    n_stops: int  # stops whose bend was fitted
+    slope_rms_rad: float  # S: rms of the fitted end slopes against the chord
+    sigma_heading_rad: float  # the heading's 1σ when the weight is applied
+    applied: bool
+    why: str  # why later jobs keep the chord ("" when applied)
+    model: str = "lowest"  # the bend fit's model, a key of MODELS
+    rms_mm: float = math.nan  # the marks' residual rms about M + R(ψ)·b with the weight applied
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str = "heading_weight") -> "HeadingWeight":
+        """From a stored record; ValueError naming ``source`` and the bad field."""
+        if not isinstance(d, dict):
+            raise ValueError(f"{source}: expected an object, got {type(d).__name__}")
+        try:
+            w = cls(float(d["weight"]), float(d["weight_fit"]), math.inf if d["sigma"] is None else float(d["sigma"]),
+                    int(d["n_stops"]),
+                    float(d["slope_rms_rad"]), float(d["sigma_heading_rad"]), bool(d["applied"]), str(d["why"]),
+                    str(d.get("model", "lowest")), math.nan if d.get("rms_mm") is None else float(d["rms_mm"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: not a heading weight record ({exc!r})") from None
+        if w.model not in MODELS:
+            raise ValueError(f"{source}: model={w.model!r} is not a bend model ({', '.join(MODELS)})")
+        if not (0.0 <= w.weight <= 1.0) or not all(math.isfinite(v) and v >= 0 for v in
+                                                   (w.slope_rms_rad, w.sigma_heading_rad)) or not w.sigma >= 0:
+            raise ValueError(f"{source}: weight={w.weight} must lie in [0, 1] and sigma={w.sigma}, "
+                             f"slope_rms_rad={w.slope_rms_rad}, sigma_heading_rad={w.sigma_heading_rad} be >= 0")
+        return w
+
+
+#: what a calibration without a learned weight gives: the chord (a single stop cannot show which heading is better)
+NOT_LEARNED = HeadingWeight(0.0, 0.0, math.inf, 0, 0.0, 0.0, False,
+                            "the calibration holds no learned weight for the bend fit (an 8-direction experiment "
+                            "with heading_fit learns it and stores it with the bias): the chord is used")
+
+
+def _design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k), −Δ (the weight's)."""
+    psi = np.radians(headings_deg)
+    c, s = np.cos(psi), np.sin(psi)
+    A = np.zeros((2 * len(psi), 5))
+    A[0::2, 0], A[1::2, 1] = 1.0, 1.0
+    A[0::2, 2], A[0::2, 3] = c, -s
+    A[1::2, 2], A[1::2, 3] = s, c
+    A[:, 4] = -delta.reshape(-1)
+    return A
+
+
+def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
+                         fit_sigmas_rad: Any = None, model: str = "lowest") -> HeadingWeight:
+    """The weight of the fitted slope from an experiment's stops; see the module's docstring.
+
+    ``chord_xy`` (N, 2): each stop's mark with the chord's heading; ``fit_xy`` (N, 2): with the full
+    fitted slope, NaN where no bend was fitted (the stop then helps fix M and b only);
+    ``headings_deg`` (N,): the stops' headings; ``slopes_rad`` (N,): the fitted end slopes (NaN: none);
+    ``fit_sigmas_rad`` (N,): the fits' stated σ, a floor under the heading σ left (w near 1).
+    """
+    P = np.asarray(chord_xy, dtype=float).reshape(-1, 2)
+    F = np.asarray(fit_xy, dtype=float).reshape(-1, 2)
+    psi = np.asarray(headings_deg, dtype=float).reshape(-1)
+    slopes = np.asarray(slopes_rad, dtype=float).reshape(-1)
+    if not (len(P) == len(F) == len(psi) == len(slopes)):
+        raise ValueError(f"learn_heading_weight: {len(P)} chord marks, {len(F)} fitted, {len(psi)} headings, "
+                         f"{len(slopes)} slopes (need one of each per stop)")
+    fitted = np.all(np.isfinite(F), axis=1) & np.isfinite(slopes)
+    n = int(np.count_nonzero(fitted))
+    S = float(np.sqrt(np.mean(slopes[fitted] ** 2))) if n else 0.0
+    if n < MIN_STOPS:
+        return HeadingWeight(0.0, 0.0, math.inf, n, S, 0.0, False,
+                             f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS}): the chord is used",
+                             model)
+    delta = np.where(fitted[:, None], F - P, 0.0)
+    A = _design(psi, delta)
+    if np.linalg.cond(A) > 1e8:
+        return HeadingWeight(0.0, 0.0, math.inf, n, S, 0.0, False,
+                             "the stops' headings and bends do not separate the weight from the mark and the "
+                             "robot-frame bias: the chord is used", model)
+    y = P.reshape(-1)
+    theta, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ theta
+    dof = max(len(y) - A.shape[1], 1)
+    cov = np.linalg.inv(A.T @ A) * float(r @ r) / dof
+    w_fit, sigma = float(theta[4]), float(np.sqrt(cov[4, 4]))
+    if not w_fit > SIGNIFICANCE * sigma:
+        return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False,
+                             f"the bend fit does not make this experiment's marks agree better than the chord "
+                             f"(weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ): the chord is used",
+                             model)
+    w = min(w_fit, 1.0)
+    theta[4] = w
+    rms = float(np.sqrt(np.mean((y - A @ theta) ** 2) * 2.0))
+    stated = np.asarray(fit_sigmas_rad, dtype=float).reshape(-1)[fitted] if fit_sigmas_rad is not None else []
+    floor = (w * float(np.median(stated))) ** 2 if len(stated) and np.all(np.isfinite(stated)) else 0.0
+    left = max(w * (1.0 - w) * S ** 2, floor) + (sigma * S) ** 2
+    return HeadingWeight(w, w_fit, sigma, n, S, float(np.sqrt(left)), True, "", model, rms)
+
+
+#: one stop's marks for the weight: with the chord's heading, and per model (xy with the whole fitted slope,
+#: the slope, its stated σ) for the models whose bend was fitted
+StopMarks = tuple[np.ndarray, dict[str, tuple[np.ndarray, float, float]]]
+
+
+def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
+    """One stop's marks with the chord's heading and with each model's whole fitted slope.
+
+    ``applied``: the stop's :class:`calibration.compensation.Applied` (its ``chord_P_prev`` and
+    ``fits``); ``rob_P``: the mark in the robot frame as measured.
+    """
+    P_at, rob = np.asarray(applied.abs_P_at, float), np.asarray(rob_P, float).reshape(3)
+    tilt = (applied.roll_deg, applied.pitch_deg)
+
+    def at(P_prev: Any) -> np.ndarray:
+        return np.asarray((robot_pose_at(P_prev, P_at, None, *tilt) @ np.append(rob, 1.0))[:2])
+
+    chord = at(applied.abs_P_prev if applied.chord_P_prev is None else applied.chord_P_prev)
+    return chord, {m: (at(P), slope, sigma) for m, (P, slope, sigma) in applied.fits.items()}
+
+
+def learn_from_stops(stops: list[StopMarks], headings_deg: Any) -> HeadingWeight:
+    """The weight of the model that makes an experiment's marks agree best (:func:`learn_heading_weight` per
+    model, from each stop's :func:`stop_marks`); when no model's weight is shown, the lowest's reason."""
+    chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
+    found = []
+    for model in MODELS:
+        rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
+        xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
+        found.append(learn_heading_weight(chord, xy, headings_deg, [r[1] for r in rec], [r[2] for r in rec], model))
+    shown = [w for w in found if w.applied]
+    return min(shown, key=lambda w: w.rms_mm) if shown else found[0]
+
+
+def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float]:
+    """(slope to apply, the heading's 1σ) for one stop's fitted end slope."""
+    return weight.weight * slope_rad, weight.sigma_heading_rad
+
+
+__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "StopMarks", "SIGNIFICANCE", "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]
