@@ -274,7 +274,10 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
         if not weight.applied or fit.shape == "other":
             out.skipped["heading_fit"] = weight.why if not weight.applied else fit.why
             return
-        slope, sigma = weighted_slope(weight, fit.slope_rad)
+        slope, sigma, why = weighted_slope(weight, fit.slope_rad)
+        if why:
+            out.skipped["heading_fit"] = why
+            return
         out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), sigma
     elif not fit.significant:
         out.skipped["heading_fit"] = fit.why

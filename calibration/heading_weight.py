@@ -36,6 +36,8 @@ from calibration.measure import robot_pose_at
 
 #: the weight is applied only beyond this many standard errors above 0
 SIGNIFICANCE = 3.0
+#: a stop's fitted slope beyond this many times the learning experiment's rms is not applied (Gaussian: 6e-5)
+SLOPE_LIMIT = 4.0
 #: the fewest stops with a fitted bend the weight is learned from
 MIN_STOPS = 8
 #: the bend fit's models an experiment chooses between, by their least polynomial degree (calibration/bend_fit.py):
@@ -119,6 +121,8 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
         raise ValueError(f"learn_heading_weight: {len(P)} chord marks, {len(F)} fitted, {len(psi)} headings, "
                          f"{len(slopes)} slopes (need one of each per stop)")
     fitted = np.all(np.isfinite(F), axis=1) & np.isfinite(slopes)
+    if np.any(fitted):  # as later jobs will: a slope beyond SLOPE_LIMIT × the rms keeps the chord
+        fitted &= np.abs(np.nan_to_num(slopes)) <= SLOPE_LIMIT * float(np.sqrt(np.mean(slopes[fitted] ** 2)))
     n = int(np.count_nonzero(fitted))
     S = float(np.sqrt(np.mean(slopes[fitted] ** 2))) if n else 0.0
     if n < MIN_STOPS:
@@ -185,9 +189,17 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any) -> HeadingWeight
     return min(shown, key=lambda w: w.rms_mm) if shown else found[0]
 
 
-def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float]:
-    """(slope to apply, the heading's 1σ) for one stop's fitted end slope."""
-    return weight.weight * slope_rad, weight.sigma_heading_rad
+def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:
+    """(slope to apply, the heading's 1σ, why the chord is kept instead or "") for one stop's fitted end slope.
+
+    A slope beyond :data:`SLOPE_LIMIT` × the learning experiment's rms is not one of the bends the weight
+    was learned on (the fit read something else there: a lean, a jolt); that stop keeps the chord.
+    """
+    if abs(slope_rad) > SLOPE_LIMIT * weight.slope_rms_rad:
+        return 0.0, 0.0, (f"the fitted end slope {slope_rad * 1e6:.0f} µrad is beyond {SLOPE_LIMIT:g}× the rms of "
+                          f"the slopes the weight was learned on ({weight.slope_rms_rad * 1e6:.0f} µrad): the chord "
+                          f"is used")
+    return weight.weight * slope_rad, weight.sigma_heading_rad, ""
 
 
-__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "StopMarks", "SIGNIFICANCE", "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]
+__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SLOPE_LIMIT", "StopMarks", "SIGNIFICANCE", "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]

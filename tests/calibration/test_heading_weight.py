@@ -15,7 +15,7 @@ import pytest
 
 from calibration.compensation import Compensation, Stop, compensate
 from calibration.heading_weight import (NOT_LEARNED, HeadingWeight, learn_from_stops, learn_heading_weight,
-                                        stop_marks)
+                                        stop_marks, weighted_slope)
 
 L = 200.0
 R_MARK = np.array([200.0, 50.0])  # the mark in the robot frame (the camera footprint), mm
@@ -145,3 +145,17 @@ def test_a_stored_record_round_trips_and_a_bad_one_names_its_field():
         HeadingWeight.from_dict({**w.to_dict(), "model": "quartic"})
     with pytest.raises(ValueError, match="calibration: heading_weight: not a heading weight record"):
         HeadingWeight.from_dict({"weight": 0.5}, "calibration: heading_weight")
+
+
+def test_a_slope_unlike_the_learned_ones_keeps_the_chord_and_says_why():
+    """A fitted slope far beyond the learning experiment's (the fit read a lean or a jolt) is not turned by
+    the weight: one such stop on a short-correlation floor moved its mark by 0.28 mm before."""
+    w = HeadingWeight(0.7, 0.7, 0.08, 40, 350e-6, 160e-6, True, "")
+    assert weighted_slope(w, 1000e-6) == pytest.approx((700e-6, 160e-6, ""))
+    slope, sigma, why = weighted_slope(w, -1906e-6)
+    assert (slope, sigma) == (0.0, 0.0) and "-1906 µrad is beyond 4× the rms" in why
+    # and the learning leaves such a stop out, as later jobs will
+    stops, heads, _, _ = experiment("arc", 1)
+    chord, fits = stops[0]
+    wild = [(chord, {m: (xy + [0.5, 0.5], 50e-3, s) for m, (xy, _, s) in fits.items()})] + stops[1:]
+    assert learn_from_stops(wild, heads).n_stops == learned("arc", 1).n_stops - 1
