@@ -2,13 +2,14 @@
 
 Per seed, one ``ritad --sim --profile paper+imu --seed N`` at the simulator's default speed
 (the base at ``time_scale`` 0.02) runs what an operator runs: the guided intrinsics, the plate
-survey, the referencing (with its reversal, the default), a short 8 × 1 experiment on mark M2
-that stores the robot-frame bias, then the 8 × 5 experiment on mark M1 with the default
-compensations. The same stored dataset is then recomputed offline (``daemon.compute.recompute``)
-with ``none``, the default and the default plus ``heading_fit``, and each is scored against the
-world's mark (``sim.truth``: scoring only). docs/accuracy.md records the table.
+survey, the referencing (with its reversal, the default), an 8 × ``--learn-reps`` experiment on
+mark M2 that stores the robot-frame bias and heading_fit's weight, then the 8 × 5 experiment on
+mark M1 with the default compensations. The same stored dataset is then recomputed offline
+(``daemon.compute.recompute``) with ``none``, the chord (``tilt,bias,mount``) and the default, and
+each is scored against the world's mark (``sim.truth``: scoring only). docs/accuracy.md records
+the table.
 
-``.venv/bin/python bench/bench_live_heading.py --seeds 3 4 5 6 7 [--json out.json]``
+``.venv/bin/python bench/bench_live_heading.py --seeds 3 4 5 6 7 [--learn-reps 5] [--json out.json]``
 """
 from __future__ import annotations
 
@@ -68,20 +69,24 @@ def _inputs(c: Client, tmp: Path, seed: int) -> dict[str, Any]:
             "robot_approx_trk": [p["x"], p["y"], p["z"]]}
 
 
-def one_seed(seed: int, tmp: Path) -> dict[str, Any]:
+#: the comparisons: label → compensation of the recompute
+WAYS = {"none": "none", "chord": "tilt,bias,mount", "default": PARAM_DEFAULTS["compensation"]}
+
+
+def one_seed(seed: int, tmp: Path, learn_reps: int = 5) -> dict[str, Any]:
     t0 = time.monotonic()
     with start_ritad(tmp=tmp, args=["--seed", str(seed), "--profile", "paper+imu"], timeout=90) as r:
         r.wait_ready(timeout=90, worker=True)
         with r.client() as c:
             _job(c, "referencing", _inputs(c, tmp, seed))
             marks = c.call("sim.truth")["marks"]  # scoring only (and the operator's eye: rough_mark)
-            _job(c, "experiment", {"mark_xy": rough_mark(c, 1)[1], "kind": marks[1]["kind"], "repetitions": 1,
-                                   "store_bias": True})
+            _job(c, "experiment", {"mark_xy": rough_mark(c, 1)[1], "kind": marks[1]["kind"],
+                                   "repetitions": learn_reps, "store_bias": True})
+            weight = c.call("calib.results")["active"].get("heading_weight")
             exp = _job(c, "experiment", {"mark_xy": rough_mark(c, 0)[1], "repetitions": 5})
-    default = PARAM_DEFAULTS["compensation"]
-    out: dict[str, Any] = {"seed": seed, "seconds": round(time.monotonic() - t0, 1),
+    out: dict[str, Any] = {"seed": seed, "seconds": round(time.monotonic() - t0, 1), "weight": weight,
                            "stored_applied": exp.get("compensation", {}).get("applied")}
-    for label, comp in (("none", "none"), ("default", default), ("default+heading_fit", f"{default},heading_fit")):
+    for label, comp in WAYS.items():
         res, _ = recompute(Path(exp["dataset"]), compensation=comp)
         out[label] = score_experiment(res, marks[0])
         out[label]["applied"] = res.get("compensation", {}).get("applied")
@@ -90,15 +95,17 @@ def one_seed(seed: int, tmp: Path) -> dict[str, Any]:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| seed | compensation | enclosing | pairwise | abs RMS | heading_fit applied at |",
+    lines = ["| seed | compensation | enclosing | pairwise | abs RMS | heading_fit applied at (weight) |",
              "|---|---|---:|---:|---:|---|"]
     for r in rows:
-        for label in ("none", "default", "default+heading_fit"):
+        w = r.get("weight") or {}
+        for label in WAYS:
             s = r[label]
-            hf = (s.get("applied") or {}).get("heading_fit", "–") if label.endswith("heading_fit") else ""
+            hf = "" if label != "default" else (f"{(s.get('applied') or {}).get('heading_fit', '–')} "
+                                                f"({w.get('weight', 0):.2f}, {w.get('model', '–')})")
             lines.append(f"| {r['seed']} | {label} | {s['enclosing']:.3f} | {s['pairwise']:.3f} | "
                          f"{s['abs_rms']:.3f} | {hf} |")
-    for label in ("default", "default+heading_fit"):
+    for label in ("chord", "default"):
         for key in ("enclosing", "pairwise", "abs_rms"):
             v = [r[label][key] for r in rows]
             lines.append(f"| median / max | {label} {key} | {np.median(v):.3f} / {max(v):.3f} | | | |")
@@ -108,17 +115,18 @@ def table(rows: list[dict[str, Any]]) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5, 6, 7])
+    ap.add_argument("--learn-reps", type=int, default=5, help="repetitions of the learning experiment on M2")
     ap.add_argument("--json", type=Path, help="also write the rows here")
     args = ap.parse_args()
     print(machine())
     rows = []
     for seed in args.seeds:
         with tempfile.TemporaryDirectory(prefix=f"live-heading-{seed}-") as d:
-            rows.append(one_seed(seed, Path(d)))
+            rows.append(one_seed(seed, Path(d), args.learn_reps))
         r = rows[-1]
         print(f"seed {seed} ({r['seconds']} s): " + "; ".join(
             f"{k} {r[k]['enclosing']:.3f}/{r[k]['pairwise']:.3f}/{r[k]['abs_rms']:.3f}"
-            for k in ("none", "default", "default+heading_fit")), flush=True)
+            for k in WAYS), flush=True)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1, default=str))
     print(table(rows))
