@@ -151,6 +151,10 @@ class Device(ABC):
         """Service asynchronous input for at most ``timeout`` s (default: nothing to do)."""
         time.sleep(timeout)
 
+    def wake(self) -> None:
+        """Work is queued for the owner thread (called from another thread): a ``pump`` in progress may
+        return before its timeout. Default: nothing (the timeout bounds the wait). Never blocks or raises."""
+
     def info(self) -> dict[str, Any]:
         """Static facts for ``status`` (model, serial, firmware...)."""
         return {"url": self.url.raw}
