@@ -1,17 +1,15 @@
 """Device interfaces shared by every adapter and fake.
 
-Each device kind (camera, tracker, robot) has one small ABC. The daemon owns one
-instance per kind and calls it from exactly one thread (its ``DeviceRunner``), so
-adapters need no locking of their own.  Asynchronous data (tracker stream points,
-free-run frames, robot DONE/FAULT events, tracker events) is pushed through the
-``emit`` callback the daemon hands over at construction; ``emit`` is thread-safe
-and never blocks (the daemon drops and counts when a queue is full).
+Each device kind (camera, tracker, robot) has one small ABC. The daemon owns one instance per kind
+and calls it from exactly one thread (its ``DeviceRunner``; ``wake`` aside), so adapters need no
+locking of their own. Asynchronous data (tracker stream points, free-run frames, robot DONE/FAULT
+events, tracker events) is pushed through the ``emit`` callback the daemon hands over at
+construction; ``emit`` is thread-safe and never blocks (the daemon drops and counts when full).
 
 Adapters are chosen by URL (``emscon://host:700``, ``genicam:///x.cti?serial=…``,
 ``serial:///dev/ttyUSB0``, ``sim:``) through :mod:`daemon.ritad.registry`.
 
-Units: millimetres, degrees (API), seconds; times are ``time.time_ns()`` (wall)
-and ``time.monotonic_ns()`` (host monotonic).
+Units: millimetres, degrees (API), seconds; times are ``time.time_ns()`` (wall) and ``time.monotonic_ns()``.
 """
 from __future__ import annotations
 
@@ -150,6 +148,9 @@ class Device(ABC):
     def pump(self, timeout: float) -> None:
         """Service asynchronous input for at most ``timeout`` s (default: nothing to do)."""
         time.sleep(timeout)
+
+    def wake(self) -> None:
+        """Work is queued (another thread calls this): a pump may return early. Never blocks or raises."""
 
     def info(self) -> dict[str, Any]:
         """Static facts for ``status`` (model, serial, firmware...)."""

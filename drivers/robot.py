@@ -2,25 +2,19 @@
 
 URLs: ``serial:///dev/ttyUSB0?baudrate=115200`` (a local port, opened by path) and the
 pyserial URL schemes ``socket://host:port``, ``rfc2217://host:port`` and ``loop://``
-(passed to ``serial.serial_for_url`` as given, minus our own options). Our options:
+(passed to ``serial.serial_for_url`` as given, minus our own options). Our options (``baudrate``,
+``timeout``, ``retries``, ``state_hz``, ``protocol``, ``stream_hz``: STATE/INCL samples published as
+``robot.odometry``/``robot.incl``, drivers/robot_stream.py) and their defaults: docs/robot-protocol.md.
 
-* ``baudrate`` (115200), ``timeout`` — seconds to wait for each reply (0.5),
-* ``retries`` — resends of an unanswered command before the base counts as lost (2),
-* ``state_hz`` — rate of STATUS polls (and ``robot.state`` telemetry) in ``pump`` (2;
-  0 = never poll),
-* ``protocol`` — the newest protocol version to offer in HELLO (2; 1 = behave as a version-1
-  host); a base that NAKs version 2 or answers 1 is spoken to in version 1,
-* ``stream_hz`` — the STATE sample rate asked of a base with the STATE capability (50; 0 = no
-  stream): ``robot.odometry`` and ``robot.incl`` telemetry (drivers/robot_stream.py).
-
-Robustness rules: every wait is bounded; a line with a bad checksum or no frame is
-counted and dropped, never raised; a command whose reply does not come is resent
-with the *same* sequence number (the base repeats, not re-executes, a duplicate
-MOVE/TURN), and when all tries fail the base is declared lost (:class:`DeviceLost`),
-as it is when the port reports an error. See docs/robot-protocol.md.
+Robustness rules: every wait is bounded; a line with a bad checksum or no frame is counted and dropped,
+never raised; a command whose reply does not come is resent with the *same* sequence number (the base
+repeats, not re-executes, a duplicate MOVE/TURN), and when all tries fail the base is declared lost
+(:class:`DeviceLost`), as it is when the port reports an error. See docs/robot-protocol.md.
 """
 from __future__ import annotations
 
+import contextlib
+import threading
 import time
 from typing import Any
 from urllib.parse import urlencode
@@ -74,6 +68,8 @@ class SerialRobot(Robot):
         if url.scheme == "serial" and not url.path:
             raise ValueError(f"robot URL {url.raw!r} names no device path (serial:///dev/ttyUSB0)")
         self._port: Any = None
+        self._port_lock = threading.Lock()  # wake() (any thread) against close()
+        self._woken = False
         self._target = ""
         self._splitter = rp.LineSplitter()
         self._seq = 0
@@ -156,12 +152,18 @@ class SerialRobot(Robot):
         return ["robot.odometry"] + (["robot.incl"] if rp.CAP_INCL in self._version["capabilities"] else [])
 
     def close(self) -> None:
-        port, self._port = self._port, None
-        if port is not None:
-            try:
+        with self._port_lock:
+            port, self._port = self._port, None
+        with contextlib.suppress(Exception):  # close must never raise; the port may be gone
+            if port is not None:
                 port.close()
-            except Exception:  # noqa: BLE001 - close must never raise; the port may be gone
-                pass
+
+    def wake(self) -> None:
+        """A job is queued: pump returns now, its read cut short by pyserial's ``cancel_read``, not up to a
+        read slice past its timeout (a command's wait for the owner thread)."""
+        self._woken = True
+        with self._port_lock, contextlib.suppress(Exception):  # no port, or no cancel_read: pump's timeout
+            self._port.cancel_read()
 
     def info(self) -> dict[str, Any]:
         return {"url": self.url.raw, "port": self._target, **self._version, "streams": self.streams(),
@@ -246,10 +248,11 @@ class SerialRobot(Robot):
             if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
                 self.status()
                 now = time.monotonic()
-            if now >= deadline:
+            if now >= deadline or self._woken:
+                self._woken = False
                 self._batcher.flush(force=True)
                 return
-            for msg in self._receive(min(deadline, now + READ_SLICE_S)):
+            for msg in self._receive(min(deadline, now + READ_SLICE_S), wakeable=True):
                 self._count_stray(msg)
 
     def wait_idle(self, timeout: float) -> RobotState:
@@ -319,11 +322,9 @@ class SerialRobot(Robot):
         except (serial.SerialException, OSError) as exc:
             raise DeviceLost(f"robot port write failed: {exc}") from exc
 
-    def _receive(self, deadline: float) -> list[rp.Message]:
-        """Replies read before ``deadline`` (events are dispatched here, not returned).
-
-        Returns as soon as at least one reply arrived; bad lines are counted, not raised.
-        """
+    def _receive(self, deadline: float, wakeable: bool = False) -> list[rp.Message]:
+        """Replies read before ``deadline`` (events are dispatched here, not returned); returns as soon as
+        a reply arrived (or, ``wakeable``, :meth:`wake` was called). Bad lines are counted, not raised."""
         if self._port is None:
             raise DeviceLost("robot port is not open")
         replies: list[rp.Message] = []
@@ -334,18 +335,21 @@ class SerialRobot(Robot):
                 raise DeviceLost(f"robot port read failed: {exc}") from exc
             rx_ns = time.time_ns()
             for raw in self._splitter.feed(data):
-                msg = self._decode(raw)
+                msg = self._decode(raw, rx_ns)
                 if msg is not None and self._dispatch_event(msg, rx_ns) is not None:
                     replies.append(msg)
             self.counters["overflows"] = self._splitter.overflows
             self._batcher.flush()
-            if replies or time.monotonic() >= deadline:
+            if replies or time.monotonic() >= deadline or wakeable and self._woken:
                 return replies
 
-    def _decode(self, raw: bytes) -> rp.Message | None:
+    def _decode(self, raw: bytes, rx_ns: int) -> rp.Message | None:
+        """The line's message; None for a blank or a bad line (counted) and for a sample (batched)."""
         if not raw.strip():
             return None
         self.counters["rx_lines"] += 1
+        if self._streaming and self._batcher.take(raw, rx_ns):  # most lines: no Message made for them
+            return None
         try:
             msg = rp.decode(raw)
             if msg.kind in rp.REPLIES or msg.kind in rp.EVENTS:
@@ -391,9 +395,5 @@ class SerialRobot(Robot):
 
 def _check(name: str, value: float, low: float, high: float) -> None:
     """Refuse a motion argument outside the protocol limits before it is sent."""
-    try:
-        ok = low <= float(value) <= high
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise DeviceError(f"robot: {name}={value!r} is outside {low:g}..{high:g}", code="robot_range")
+    if (why := rp.range_error(name, value, low, high)) is not None:
+        raise DeviceError(f"robot: {why}", code="robot_range")

@@ -157,6 +157,16 @@ def state_rate_error(rate_hz: float) -> str | None:
     return f"STATE rate_hz={num(rate_hz)} outside 0 (off) or {num(MIN_STATE_HZ)}..{num(MAX_STATE_HZ)}"
 
 
+def range_error(name: str, value: float, low: float, high: float) -> str | None:
+    """Why a motion argument is refused (the text names it), None when it is within ``low..high``."""
+    try:
+        if low <= float(value) <= high:
+            return None
+    except (TypeError, ValueError):
+        pass
+    return f"{name}={value!r} is outside {low:g}..{high:g}"
+
+
 def capabilities(field: str) -> list[str]:
     """The ``+``-separated capability flags of a VERSION reply (empty field: none)."""
     return [c for c in field.split("+") if c]

@@ -96,6 +96,9 @@ class DeviceRunner(threading.Thread):
                 ErrorCode.NOT_READY, f"{self.kind} is {self.state.value}" + (f": {self.reason}" if self.reason else "")))
             return fut
         self._jobs.put(_Job(0 if urgent else 1, next(self._seq), fn, fut, timeout))
+        device = self.device
+        if device is not None:
+            device.wake()  # the owner picks the job up now, not when its pump times out
         return fut
 
     def alive(self, stale_after: float | None = None) -> bool:

@@ -142,3 +142,17 @@ def test_urgent_job_jumps_the_queue(events):
         assert dev.log == ["first", "STOP", "n0", "n1", "n2"]
     finally:
         r.stop()
+
+
+def test_a_queued_job_wakes_the_device(events):
+    """submit() calls the device's wake(), so a device whose pump can be cut short starts the job at once."""
+    dev = FlakyDevice()
+    woken = []
+    dev.wake = lambda: woken.append(True)
+    r = make(dev, events)
+    try:
+        assert wait_for(lambda: r.state is DeviceState.READY)
+        assert r.submit(lambda d: d.work("a")).result(5) == "a"
+        assert woken
+    finally:
+        r.stop()
