@@ -36,7 +36,8 @@ from calibration.measure import robot_pose_at
 
 #: the weight is applied only beyond this many standard errors above 0
 SIGNIFICANCE = 3.0
-#: a stop's fitted slope beyond this many times the learning experiment's rms is not applied (Gaussian: 6e-5)
+#: a stop's fitted slope beyond this many times the learning experiment's robust slope scale is not applied
+#: (a Gaussian's tail beyond 4σ: 6e-5)
 SLOPE_LIMIT = 4.0
 #: the fewest stops with a fitted bend the weight is learned from
 MIN_STOPS = 8
@@ -60,10 +61,16 @@ class HeadingWeight:
     why: str  # why later jobs keep the chord ("" when applied)
     model: str = "lowest"  # the bend fit's model, a key of MODELS
     rms_mm: float = math.nan  # the marks' residual rms about M + R(ψ)·b with the weight applied
+    slope_limit_rad: float = math.inf  # a stop's fitted slope beyond it keeps the chord (learning and use)
+    #: the robot-frame bias (RCS x, y, mm) fitted jointly with the weight, the weight as stored (0 when not
+    #: applied): the b that goes with it, beyond the bias the experiment's marks already had removed
+    b_mm: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+        d = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+        d["b_mm"] = None if self.b_mm is None else list(self.b_mm)
+        return d
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "heading_weight") -> "HeadingWeight":
@@ -71,10 +78,13 @@ class HeadingWeight:
         if not isinstance(d, dict):
             raise ValueError(f"{source}: expected an object, got {type(d).__name__}")
         try:
+            b = d.get("b_mm")
             w = cls(float(d["weight"]), float(d["weight_fit"]), math.inf if d["sigma"] is None else float(d["sigma"]),
                     int(d["n_stops"]),
                     float(d["slope_rms_rad"]), float(d["sigma_heading_rad"]), bool(d["applied"]), str(d["why"]),
-                    str(d.get("model", "lowest")), math.nan if d.get("rms_mm") is None else float(d["rms_mm"]))
+                    str(d.get("model", "lowest")), math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
+                    math.inf if d.get("slope_limit_rad") is None else float(d["slope_limit_rad"]),
+                    None if b is None else (float(b[0]), float(b[1])))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: not a heading weight record ({exc!r})") from None
         if w.model not in MODELS:
@@ -104,6 +114,34 @@ def _design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return A
 
 
+def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
+    """:data:`SLOPE_LIMIT` × a robust scale of the fitted slopes (1.4826 × their median magnitude, a zero-mean
+    Gaussian's σ), so that one wild slope cannot raise its own limit (an rms can: max|s|/rms ≤ √n)."""
+    if not np.any(fitted):
+        return math.inf
+    return SLOPE_LIMIT * 1.4826 * float(np.median(np.abs(slopes[fitted])))
+
+
+def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares and its covariance, robust to each stop's two rows sharing one error (a heading error
+    moves the mark along one direction): the sandwich over stops, with the small-sample factor."""
+    theta, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ theta
+    bread = np.linalg.inv(A.T @ A)
+    g = np.einsum("kij,ki->kj", A.reshape(-1, 2, A.shape[1]), r.reshape(-1, 2))  # per stop A_kᵀ r_k
+    n, p = len(g), A.shape[1]
+    return theta, bread @ (g.T @ g) @ bread * n / max(n - p, 1)
+
+
+def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | None:
+    """The robot-frame bias of M + R(ψ)·b fitted with the weight fixed at ``w`` (None: headings too few)."""
+    B = A[:, :4]
+    if np.linalg.cond(B) > 1e6:
+        return None
+    theta, *_ = np.linalg.lstsq(B, y - w * A[:, 4], rcond=None)
+    return float(theta[2]), float(theta[3])
+
+
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
                          fit_sigmas_rad: Any = None, model: str = "lowest") -> HeadingWeight:
     """The weight of the fitted slope from an experiment's stops; see the module's docstring.
@@ -121,38 +159,34 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
         raise ValueError(f"learn_heading_weight: {len(P)} chord marks, {len(F)} fitted, {len(psi)} headings, "
                          f"{len(slopes)} slopes (need one of each per stop)")
     fitted = np.all(np.isfinite(F), axis=1) & np.isfinite(slopes)
-    if np.any(fitted):  # as later jobs will: a slope beyond SLOPE_LIMIT × the rms keeps the chord
-        fitted &= np.abs(np.nan_to_num(slopes)) <= SLOPE_LIMIT * float(np.sqrt(np.mean(slopes[fitted] ** 2)))
+    limit = _slope_limit(slopes, fitted)
+    fitted &= np.abs(np.nan_to_num(slopes)) <= limit  # as later jobs will: such a slope keeps the chord
     n = int(np.count_nonzero(fitted))
     S = float(np.sqrt(np.mean(slopes[fitted] ** 2))) if n else 0.0
+    A, y = _design(psi, np.where(fitted[:, None], F - P, 0.0)), P.reshape(-1)
+
+    def chord(w_fit: float, sigma: float, why: str) -> HeadingWeight:
+        return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model, math.nan,
+                             limit, _bias_with(A, y, 0.0) if len(y) else None)
+
     if n < MIN_STOPS:
-        return HeadingWeight(0.0, 0.0, math.inf, n, S, 0.0, False,
-                             f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS}): the chord is used",
-                             model)
-    delta = np.where(fitted[:, None], F - P, 0.0)
-    A = _design(psi, delta)
+        return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
     if np.linalg.cond(A) > 1e8:
-        return HeadingWeight(0.0, 0.0, math.inf, n, S, 0.0, False,
-                             "the stops' headings and bends do not separate the weight from the mark and the "
-                             "robot-frame bias: the chord is used", model)
-    y = P.reshape(-1)
-    theta, *_ = np.linalg.lstsq(A, y, rcond=None)
-    r = y - A @ theta
-    dof = max(len(y) - A.shape[1], 1)
-    cov = np.linalg.inv(A.T @ A) * float(r @ r) / dof
+        return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark and "
+                                    "the robot-frame bias")
+    theta, cov = _solve(A, y)
     w_fit, sigma = float(theta[4]), float(np.sqrt(cov[4, 4]))
     if not w_fit > SIGNIFICANCE * sigma:
-        return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False,
-                             f"the bend fit does not make this experiment's marks agree better than the chord "
-                             f"(weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ): the chord is used",
-                             model)
+        return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than the "
+                                   f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ)")
     w = min(w_fit, 1.0)
-    theta[4] = w
+    b = _bias_with(A, y, w)
+    theta = np.array([*np.linalg.lstsq(A[:, :4], y - w * A[:, 4], rcond=None)[0], w])
     rms = float(np.sqrt(np.mean((y - A @ theta) ** 2) * 2.0))
     stated = np.asarray(fit_sigmas_rad, dtype=float).reshape(-1)[fitted] if fit_sigmas_rad is not None else []
     floor = (w * float(np.median(stated))) ** 2 if len(stated) and np.all(np.isfinite(stated)) else 0.0
     left = max(w * (1.0 - w) * S ** 2, floor) + (sigma * S) ** 2
-    return HeadingWeight(w, w_fit, sigma, n, S, float(np.sqrt(left)), True, "", model, rms)
+    return HeadingWeight(w, w_fit, sigma, n, S, float(np.sqrt(left)), True, "", model, rms, limit, b)
 
 
 #: one stop's marks for the weight: with the chord's heading, and per model (xy with the whole fitted slope,
@@ -192,13 +226,13 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any) -> HeadingWeight
 def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:
     """(slope to apply, the heading's 1σ, why the chord is kept instead or "") for one stop's fitted end slope.
 
-    A slope beyond :data:`SLOPE_LIMIT` × the learning experiment's rms is not one of the bends the weight
-    was learned on (the fit read something else there: a lean, a jolt); that stop keeps the chord.
+    A slope beyond the learning experiment's limit (:data:`SLOPE_LIMIT` × its slopes' robust scale) is not
+    one of the bends the weight was learned on (the fit read something else there: a lean, a jolt); that stop keeps the chord.
     """
-    if abs(slope_rad) > SLOPE_LIMIT * weight.slope_rms_rad:
-        return 0.0, 0.0, (f"the fitted end slope {slope_rad * 1e6:.0f} µrad is beyond {SLOPE_LIMIT:g}× the rms of "
-                          f"the slopes the weight was learned on ({weight.slope_rms_rad * 1e6:.0f} µrad): the chord "
-                          f"is used")
+    if abs(slope_rad) > weight.slope_limit_rad:
+        return 0.0, 0.0, (f"the fitted end slope {slope_rad * 1e6:.0f} µrad is beyond the "
+                          f"{weight.slope_limit_rad * 1e6:.0f} µrad ({SLOPE_LIMIT:g}× the robust scale) of the "
+                          f"slopes the weight was learned on: the chord is used")
     return weight.weight * slope_rad, weight.sigma_heading_rad, ""
 
 

@@ -182,6 +182,8 @@ def run(case: Case, seed: int) -> dict[str, Any]:
         fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
         bias = None if fit is None else fit.b
         weight = learn_from_stops(stops, lh)
+        if case.comp.heading_fit and weight.b_mm is not None:  # as the product stores it: b fitted with w
+            bias = list(weight.b_mm)
     val = sim.validation()
     pts, heads, sig = measure_all(val, case.comp, cal.scs, cal.rob_H_scn, cal.imu_offset, bias, cal.cov,
                                   heading_weight=weight, **kw)

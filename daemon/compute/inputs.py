@@ -123,6 +123,12 @@ def heading_weight(calib: dict[str, Any]) -> tuple[HeadingWeight, str]:
         return NOT_LEARNED, str(exc)
 
 
+def _weight_value(calib: dict[str, Any]) -> float | None:
+    """The weight later jobs apply (0 when the record says the chord), None without a readable record."""
+    w, bad = heading_weight(calib)
+    return None if bad or w is NOT_LEARNED else w.weight
+
+
 def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
     """The per-stop compensation record of a mark."""
     return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
@@ -134,7 +140,7 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
                            "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias,
                            "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm"),
-                           "heading_weight": (calib.get("heading_weight") or {}).get("weight")}
+                           "heading_weight": _weight_value(calib)}
     for name in NAMES:
         if name not in out["requested"]:
             continue

@@ -16,7 +16,7 @@ from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.checks import bias_model_check
 from calibration.frames import apply_H
-from calibration.heading_weight import learn_from_stops, stop_marks
+from calibration.heading_weight import NOT_LEARNED, learn_from_stops, stop_marks
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
 from calibration.metrics import experiment_metrics
@@ -153,7 +153,8 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     if bad_mount and comp.mount:  # a record no offset can be read from: measure without it, say why
         a.skipped["mount"] = bad_mount
     if bad_weight and comp.heading_fit:  # a record no weight can be read from: the chord, say why
-        a.skipped["heading_fit"] = f"{bad_weight}: the chord is used"
+        a.skipped["heading_fit"] = "; ".join(r for r in (a.skipped.get("heading_fit"), bad_weight) if r
+                                             and r != NOT_LEARNED.why) + ": the chord is used"
     distance = tracker_distance_mm(stop)
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = a.abs_P_at

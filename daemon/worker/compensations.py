@@ -66,14 +66,18 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[s
     # stored a bias since this one started)
     held = summary.get("robot_bias_mm") if n_applied else None
     applied = held is not None
-    b = np.asarray(fit["b"], float) + (np.asarray(held, float) if applied else 0.0)
-    apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
     weight = result.get("heading_weight")
-    # the experiment's weight replaces an older one (it is learned from the chord and the whole fitted slope,
-    # whatever the experiment applied); an experiment without heading_fit leaves the held one
-    extra = {} if not weight else {"heading_weight": {**weight, "job": result.get("job")}}
-    return {**active, **extra, "robot_bias_mm": b.tolist(),
-            "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit["b"]), "fit_rms_mm": fit.get("rms_mm"),
+    # with heading_fit the b that goes with the learned weight is the one fitted jointly with it (a bend that
+    # leans one way would otherwise be in b and in the weight twice); without it, the chord's marks' b and no
+    # weight (the held one was learned with another b)
+    fit_b = fit["b"] if not weight or weight.get("b_mm") is None else weight["b_mm"]
+    b = np.asarray(fit_b, float) + (np.asarray(held, float) if applied else 0.0)
+    apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
+    new = {k: v for k, v in active.items() if k != "heading_weight"}
+    if weight:
+        new["heading_weight"] = {**weight, "job": result.get("job")}
+    return {**new, "robot_bias_mm": b.tolist(),
+            "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit_b), "fit_rms_mm": fit.get("rms_mm"),
                            "added_to_mm": held if applied else None,
                            "compensation": [n for n in summary.get("requested", []) if summary["applied"].get(n)],
                            "stored": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}

@@ -15,7 +15,7 @@ import pytest
 
 from calibration.compensation import tilt_of_pose
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight
-from daemon.bus.datasets import check_file, validate_folder
+from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 from daemon.ctl import main as ctl
 from daemon.worker.compensations import store_bias
 from daemon.compute.procedures import compute_referencing
@@ -159,9 +159,11 @@ def test_stored_bias_round_trip(ref, tmp_path):
     again["compensation"] = {**again["compensation"], "robot_bias_mm": [0.2, 0.0]}
     store_bias(data, again)
     b = json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"]
-    assert b == pytest.approx(np.add(second["metrics"]["fit"]["b"], [0.2, 0.0]))
+    # with heading_fit (the default) the b stored is the one fitted jointly with the weight (here the chord's)
+    assert b == pytest.approx(np.add(second["heading_weight"]["b_mm"], [0.2, 0.0]))
+    assert second["heading_weight"]["b_mm"] == pytest.approx(second["metrics"]["fit"]["b"], abs=1e-6)
     # a b no calibration can have is refused before anything is written
-    bad = {**second, "job": "exp-3", "calibration_job": "cal-1",
+    bad = {**second, "job": "exp-3", "calibration_job": "cal-1", "heading_weight": None,
            "metrics": {**second["metrics"], "fit": {**second["metrics"]["fit"], "b": [7.0, 0.0]}}}
     assert "NOT stored" in store_bias(data, bad) and "7.500 mm" in store_bias(data, bad)  # 7 fitted + 0.5 applied
     assert json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"] == b
@@ -238,3 +240,24 @@ def test_the_experiments_heading_weight_is_stored_with_the_bias_and_read_back(re
     assert heading_weight(active) == (learned, "")
     bad, why = heading_weight({**active, "heading_weight": {**active["heading_weight"], "weight": 7}})
     assert bad is NOT_LEARNED and "weight=7.0" in why
+
+
+def test_a_stored_weight_is_applied_with_its_sigma_and_a_bad_one_keeps_the_chord(exp, tmp_path):
+    """The calibration's learned weight turns the chord at every stop whose bend was fitted (here straight
+    streams: slope ~0, so the marks stay), the marks state the weight's heading σ, the summary and the
+    result pass the schema; a record outside the schema makes the dataset invalid, naming the field
+    (one that passes the schema but not HeadingWeight.from_dict keeps the chord: the test above)."""
+    import shutil
+    folder = tmp_path / "exp"
+    shutil.copytree(exp, folder)
+    learned = HeadingWeight(0.5, 0.5, 0.05, 40, 3e-4, 1.2e-4, True, "", "lowest", 0.02, 5e-3, (0.0, 0.0))
+    _edit(folder, lambda s: s["obs"]["calibration"].update(heading_weight=learned.to_dict()))
+    res = recompute(folder, compensation="tilt,heading_fit")[0]
+    assert res["compensation"]["applied"]["heading_fit"] == 3 and res["compensation"]["heading_weight"] == 0.5
+    fitted = [m for m in res["marks"] if "heading_fit" in m["compensation"]["applied"]]
+    assert len(fitted) == 3 and all(m["sigma"]["heading_source"] == "heading_fit" for m in fitted)
+    assert all(m["sigma"]["heading_rad"] == pytest.approx(1.2e-4) for m in fitted)
+    assert np.abs(_errors(res)).max() < 1e-3 and check_file(res, "result", "result.json") == []
+    _edit(folder, lambda s: s["obs"]["calibration"]["heading_weight"].update(weight=7))
+    with pytest.raises(DatasetInvalid, match="calibration.heading_weight"):  # the dataset's schema names it
+        recompute(folder, compensation="tilt,heading_fit")
