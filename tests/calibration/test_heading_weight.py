@@ -43,8 +43,9 @@ def _rot(a: float) -> np.ndarray:
 
 
 def experiment(kind: str, seed: int, weight: HeadingWeight | None = NOT_LEARNED, n_stream: int = 150,
-               sigma_stream: float = 0.015, sigma_anchor: float = 0.010):
-    """(stop marks for learning, headings, heading errors in rad of the chord and of what was applied)."""
+               sigma_stream: float = 0.015, sigma_anchor: float = 0.010, reverse: bool = False):
+    """(stop marks for learning, headings, heading errors in rad of the chord and of what was applied);
+    ``reverse``: the robot drives every final move backwards (its x axis against the travel)."""
     rng = np.random.default_rng(seed)
     stops, heads, chord_err, used_err = [], [], [], []
     for k in range(8):
@@ -52,19 +53,20 @@ def experiment(kind: str, seed: int, weight: HeadingWeight | None = NOT_LEARNED,
             e = _shape(kind, rng)
             psi_c = math.radians(45.0 * k) + rng.normal(0.0, 0.01)
             h = 1e-3
-            psi_true = psi_c + float(e(np.array([L]))[0] - e(np.array([L - h]))[0]) / h
+            psi_true = psi_c + float(e(np.array([L]))[0] - e(np.array([L - h]))[0]) / h + (math.pi if reverse else 0)
             P_at = M_TRUE - _rot(psi_true) @ (R_MARK - B_TRUE)
             u, n = np.array([math.cos(psi_c), math.sin(psi_c)]), np.array([-math.sin(psi_c), math.cos(psi_c)])
             s = np.linspace(0.0, L, n_stream)
             xy = P_at - L * u + np.outer(s, u) + np.outer(e(s), n) + rng.normal(0.0, sigma_stream, (n_stream, 2))
             noisy = [P_at - L * u + rng.normal(0.0, sigma_anchor, 2), P_at + rng.normal(0.0, sigma_anchor, 2)]
-            stop = Stop(*(np.append(p, 0.0) for p in noisy), stream=np.column_stack([xy, np.zeros(n_stream)]))
+            stop = Stop(*(np.append(p, 0.0) for p in noisy), stream=np.column_stack([xy, np.zeros(n_stream)]),
+                        reverse=reverse)
             a = compensate(Compensation(heading_fit=True), stop, np.eye(4), heading_weight=weight)
             rob_P = np.append(_rot(psi_true).T @ (M_TRUE - P_at) + B_TRUE, 0.0)
             stops.append(stop_marks(a, rob_P))
             v, c = a.abs_P_at - a.abs_P_prev, noisy[1] - noisy[0]
             heads.append(math.degrees(math.atan2(v[1], v[0])))
-            chord_err.append(math.atan2(c[1], c[0]) - psi_true)
+            chord_err.append(math.atan2(c[1], c[0]) + (math.pi if reverse else 0) - psi_true)
             used_err.append(math.atan2(v[1], v[0]) - psi_true)
     return stops, np.array(heads), np.array(chord_err), np.array(used_err)
 
@@ -180,3 +182,15 @@ def test_the_bias_stored_with_the_weight_is_fitted_with_it():
     chord_b = fit_bias(np.array([c for c, _ in stops]), heads).b
     assert np.hypot(*(np.array(w.b_mm) - B_TRUE)) < 0.012, w.b_mm
     assert np.hypot(*(np.array(chord_b) - B_TRUE)) > 0.04, chord_b  # the chord's b carries the mean bend
+
+
+def test_driving_backwards_learns_and_applies_the_same_weight():
+    """The same bends and noise driven backwards onto the stops (the robot's x axis against the travel, so
+    the mark lies on the other side and the experiment's marks differ): the weight agrees within its σ and
+    the heading error left is the forward one's, well under the chord's."""
+    fw, rv = learned("arc", 1), learn_from_stops(*experiment("arc", 1, reverse=True)[:2])
+    assert rv.applied and abs(rv.weight - fw.weight) < 2 * math.hypot(fw.sigma, rv.sigma), (fw, rv)
+    _, _, chord_f, used_f = experiment("arc", 101, fw)
+    _, _, chord_r, used_r = experiment("arc", 101, rv, reverse=True)
+    assert rms(chord_r) == pytest.approx(rms(chord_f), rel=1e-6)
+    assert rms(used_r) == pytest.approx(rms(used_f), rel=0.15) and rms(used_r) < 0.7 * rms(chord_r)
