@@ -133,13 +133,18 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return theta, bread @ (g.T @ g) @ bread * n / max(n - p, 1)
 
 
-def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | None:
-    """The robot-frame bias of M + R(ψ)·b fitted with the weight fixed at ``w`` (None: headings too few)."""
+def _with_weight(A: np.ndarray, y: np.ndarray, w: float) -> np.ndarray | None:
+    """(M_x, M_y, b_x, b_y, w): M + R(ψ)·b fitted with the weight fixed at ``w`` (None: headings too few)."""
     B = A[:, :4]
     if np.linalg.cond(B) > 1e6:
         return None
-    theta, *_ = np.linalg.lstsq(B, y - w * A[:, 4], rcond=None)
-    return float(theta[2]), float(theta[3])
+    return np.append(np.linalg.lstsq(B, y - w * A[:, 4], rcond=None)[0], w)
+
+
+def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | None:
+    """The robot-frame bias b fitted with the weight fixed at ``w`` (None: headings too few)."""
+    theta = _with_weight(A, y, w)
+    return None if theta is None else (float(theta[2]), float(theta[3]))
 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
@@ -171,7 +176,7 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
-    if np.linalg.cond(A) > 1e8:
+    if np.linalg.cond(A) > 1e6:  # as fit_bias; then its four columns (_with_weight) are at most as ill-conditioned
         return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark and "
                                     "the robot-frame bias")
     theta, cov = _solve(A, y)
@@ -180,9 +185,10 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
         return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than the "
                                    f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ)")
     w = min(w_fit, 1.0)
-    b = _bias_with(A, y, w)
-    theta = np.array([*np.linalg.lstsq(A[:, :4], y - w * A[:, 4], rcond=None)[0], w])
-    rms = float(np.sqrt(np.mean((y - A @ theta) ** 2) * 2.0))
+    fixed = _with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
+    assert fixed is not None
+    b = (float(fixed[2]), float(fixed[3]))
+    rms = float(np.sqrt(np.mean((y - A @ fixed) ** 2) * 2.0))
     stated = np.asarray(fit_sigmas_rad, dtype=float).reshape(-1)[fitted] if fit_sigmas_rad is not None else []
     floor = (w * float(np.median(stated))) ** 2 if len(stated) and np.all(np.isfinite(stated)) else 0.0
     left = max(w * (1.0 - w) * S ** 2, floor) + (sigma * S) ** 2
@@ -227,7 +233,8 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
     """(slope to apply, the heading's 1σ, why the chord is kept instead or "") for one stop's fitted end slope.
 
     A slope beyond the learning experiment's limit (:data:`SLOPE_LIMIT` × its slopes' robust scale) is not
-    one of the bends the weight was learned on (the fit read something else there: a lean, a jolt); that stop keeps the chord.
+    one of the bends the weight was learned on (the fit read something else there: a lean, a jolt); that
+    stop keeps the chord.
     """
     if abs(slope_rad) > weight.slope_limit_rad:
         return 0.0, 0.0, (f"the fitted end slope {slope_rad * 1e6:.0f} µrad is beyond the "
@@ -236,4 +243,5 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
     return weight.weight * slope_rad, weight.sigma_heading_rad, ""
 
 
-__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SLOPE_LIMIT", "StopMarks", "SIGNIFICANCE", "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]
+__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SIGNIFICANCE", "SLOPE_LIMIT", "StopMarks",
+           "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]

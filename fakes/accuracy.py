@@ -92,8 +92,8 @@ def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
 
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
                 bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None,
-                mount: MountOffset | None = None, imu_yaw_deg: float = 0.0, heading_weight: HeadingWeight | None = NOT_LEARNED,
-                learn: list[Any] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                mount: MountOffset | None = None, imu_yaw_deg: float = 0.0,
+                heading_weight: HeadingWeight | None = NOT_LEARNED, learn: list[Any] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
 
     σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
