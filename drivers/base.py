@@ -22,6 +22,8 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from drivers.motion_gate import MotionGate
+
 def no_emit(topic: str, payload: Payload) -> None:
     """Default sink used when a device runs outside the daemon (tests, scripts)."""
 
@@ -152,6 +154,9 @@ class Device(ABC):
     def wake(self) -> None:
         """Work is queued (another thread calls this): a pump may return early. Never blocks or raises."""
 
+    def park(self) -> None:
+        """Leave the device safe before its owner exits (a moving robot halts); the connection may be gone."""
+
     def info(self) -> dict[str, Any]:
         """Static facts for ``status`` (model, serial, firmware...)."""
         return {"url": self.url.raw}
@@ -231,12 +236,6 @@ class Tracker(StreamingDevice):
 # --------------------------------------------------------------------------- camera
 
 
-#: the smallest GigE packet size accepted: the IPv4 datagram size every host must be able to receive
-MIN_PACKET_BYTES = 576
-#: 1000BASE-T's line rate, bytes/s: what a GigE camera sends at without a throughput limit
-GIGE_LINE_BYTES_S = 125_000_000
-
-
 @dataclass
 class CameraSettings:
     """Desired camera settings ("daemon is master"); ``None`` leaves a feature alone."""
@@ -264,8 +263,9 @@ class CameraSettings:
     stream_buffers: int | None = None
 
 
-#: what ritad hands an adapter to apply on open: a camera's desired settings; the other kinds get None
-DeviceSettings = CameraSettings | None
+#: what ritad hands an adapter to apply on open: a camera's desired settings, the robot's motion gate
+#: (a latched STOP is the first command of every connect: drivers/motion_gate.py); the tracker gets None
+DeviceSettings = CameraSettings | MotionGate | None
 
 
 @dataclass

@@ -35,12 +35,12 @@ from typing import Any
 from genicam import gentl
 from harvesters.core import Harvester, ImageAcquirer
 
-from drivers.base import (GIGE_LINE_BYTES_S, Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout,
-                          DeviceURL, Emit, Frame, no_emit)
+from drivers.base import Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Frame
+from drivers.base import no_emit
 from drivers.genicam_device import create_acquirer, decode_buffer, payload_bytes, select_device
 from drivers.genicam_settings import SettingsWriter, find_node, set_trigger_mode
-from drivers.genicam_transport import (IncompleteCounter, PtpWatch, apply_all, link_rate, link_stats,
-                                       ptp_status, read_chunks)
+from drivers.genicam_transport import (GIGE_LINE_BYTES_S, IncompleteCounter, PtpWatch, apply_all, link_rate,
+                                       link_stats, ptp_status, read_chunks)
 
 log = logging.getLogger(__name__)
 

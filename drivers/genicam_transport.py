@@ -30,7 +30,8 @@ from typing import Any, Callable
 from genicam import genapi
 from harvesters.core import Callback
 
-from drivers.base import GIGE_LINE_BYTES_S, MIN_PACKET_BYTES, CameraSettings, DeviceError
+from drivers.base import CameraSettings, DeviceError
+from drivers.gige import GIGE_LINE_BYTES_S, MIN_PACKET_BYTES
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node
 
 #: chunks enabled by ``chunks = true`` -> the frame header key each one fills

@@ -10,10 +10,17 @@ Robustness rules: every wait is bounded; a line with a bad checksum or no frame 
 never raised; a command whose reply does not come is resent with the *same* sequence number (the base
 repeats, not re-executes, a duplicate MOVE/TURN), and when all tries fail the base is declared lost
 (:class:`DeviceLost`), as it is when the port reports an error. See docs/robot-protocol.md.
+
+Stop rules (the motion gate, drivers/motion_gate.py, is this adapter's ``settings``): a halt the gate
+owes goes out ahead of any pending reply (drivers/robot_line.py); while latched, STOP is the first
+command after HELLO on every connect and no motion line is written. A version-3 base gets the host
+timeout at HELLO and a line at least every third of it while a motion runs; a base found MOVING at
+connect with no motion of this adapter's is halted; :meth:`SerialRobot.park` halts a moving base.
 """
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 import time
 from typing import Any
@@ -22,23 +29,26 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
-from drivers.robot_stream import StreamBatcher
-from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot, RobotState, no_emit
+from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot
+from drivers.base import RobotState, no_emit
+from drivers.motion_gate import MotionGate
+from drivers.robot_line import READ_SLICE_S, RobotLine
 
-#: longest single blocking read; keeps every loop responsive to its deadline
-READ_SLICE_S = 0.02
+log = logging.getLogger(__name__)
+
 #: the STATE stream rate asked by default (Hz of the base's clock): its samples show a move's odometry
 DEFAULT_STREAM_HZ = 50.0
+#: keep-alive lines per host timeout while a motion runs: two may be late or lost without a false halt
+KEEPALIVES_PER_TIMEOUT = 3
+NO_WATCHDOG = "this base has no host watchdog: a daemon crash lets a move finish"
 
-COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
-                 "retries", "naks", "events", "recovered_events", "overflows")
 
-
-class SerialRobot(Robot):
+class SerialRobot(RobotLine, Robot):
     """A differential-drive base speaking the Rita line protocol over pyserial."""
 
     #: options this adapter reads itself (removed before pyserial sees the URL)
-    OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz", "protocol", "stream_hz"})
+    OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz", "protocol", "stream_hz",
+                         "host_timeout"})
     #: pyserial's own URL options per scheme (pyserial/urlhandler), passed on to it as given
     PYSERIAL_OPTIONS: dict[str, frozenset[str]] = {
         "socket": frozenset({"logging"}), "loop": frozenset({"logging"}),
@@ -57,30 +67,26 @@ class SerialRobot(Robot):
         self.state_hz: float = url.option("state_hz", 2.0, float)
         self.protocol: int = url.option("protocol", rp.PROTOCOL_VERSION, int)
         self.stream_hz: float = url.option("stream_hz", DEFAULT_STREAM_HZ, float)
+        self.host_timeout: float = url.option("host_timeout", rp.DEFAULT_HOST_TIMEOUT_MS / 1000.0, float)
         for name, value, ok in (("baudrate", self.baudrate, self.baudrate > 0),
                                 ("timeout", self.reply_timeout, self.reply_timeout > 0),
                                 ("retries", self.retries, 0 <= self.retries <= 20),
                                 ("state_hz", self.state_hz, 0 <= self.state_hz <= 100),
                                 ("protocol", self.protocol, self.protocol in rp.PROTOCOL_VERSIONS),
-                                ("stream_hz", self.stream_hz, rp.state_rate_error(self.stream_hz) is None)):
+                                ("stream_hz", self.stream_hz, rp.state_rate_error(self.stream_hz) is None),
+                                ("host_timeout", self.host_timeout,
+                                 rp.host_timeout_error(self.host_timeout * 1000.0) is None)):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
         if url.scheme == "serial" and not url.path:
             raise ValueError(f"robot URL {url.raw!r} names no device path (serial:///dev/ttyUSB0)")
-        self._port: Any = None
+        self._init_line(settings if isinstance(settings, MotionGate) else MotionGate())
+        self.gate.bind(self.wake)
         self._port_lock = threading.Lock()  # wake() (any thread) against close()
-        self._woken = False
         self._target = ""
-        self._splitter = rp.LineSplitter()
-        self._seq = 0
-        self._moving_seq: int | None = None
-        self._finished_seq: int | None = None
         self._last_state: RobotState | None = None
         self._last_state_emit = 0.0
         self._version: dict[str, Any] = {}
-        self._streaming = False
-        self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
-        self._batcher = StreamBatcher(self.emit)
 
     # ------------------------------------------------------------------ connection
 
@@ -94,8 +100,10 @@ class SerialRobot(Robot):
         return f"{base}?{urlencode(rest)}" if rest else base
 
     def open(self) -> None:
-        """Open the port, drop stale input, shake hands (HELLO/VERSION) and read STATUS."""
+        """Open the port, drop stale input, shake hands (HELLO/VERSION), STOP first while latched, halt a
+        motion that is not ours, start the streams and read STATUS."""
         self.close()
+        self._version = {}  # no halt is written before the HELLO of this connection (robot_line.py)
         target = self._target = self.port_target()
         try:
             self._port = serial.serial_for_url(target, baudrate=self.baudrate, timeout=READ_SLICE_S,
@@ -110,6 +118,10 @@ class SerialRobot(Robot):
         # _moving_seq survives a reconnect on purpose: if that motion ended meanwhile,
         # the first STATUS below publishes the DONE/FAULT that was lost with the port
         self._hello()
+        self._halt_first()
+        state = self.status()
+        if state.state == "MOVING" and self._moving_seq is None:
+            self._halt_unowned(state)
         if self.stream_hz > 0 and rp.CAP_STATE in self._version["capabilities"]:
             self._streaming = True  # before the ACK: samples may follow it in the same read
             try:
@@ -118,23 +130,35 @@ class SerialRobot(Robot):
                 raise
             except DeviceError:  # refused: the base is driven without its streams, as a version-1 one
                 self._streaming = False
-        state = self.status()
-        if state.state == "MOVING" and self._moving_seq is None:
-            self._moving_seq = -1  # a motion from before we connected: wait_idle polls it out
+
+    def _halt_unowned(self, state: RobotState) -> None:
+        """A base MOVING at connect with no motion of ours (a previous daemon's, or a crashed one's) is
+        driving unowned: halt it, and say so in the journal and on the bus."""
+        why = ("robot base was MOVING at connect with no motion of this daemon's (a previous daemon's "
+               "move?): halted")
+        log.warning("%s at odometry (%.1f, %.1f) mm", why, state.x_mm, state.y_mm)
+        self._moving_seq = -1  # its DONE STOPPED (or a recovered one) ends it
+        self.emit("robot.event", {"event": "HALTED", "reason": "unowned_motion", "text": why,
+                                  "host_time_ns": time.time_ns()})  # before the DONE the STOP brings
+        self._transact("STOP", expect="ACK")
 
     def _hello(self) -> None:
-        """HELLO with the newest protocol offered; a base that refuses it (NAK VERSION) is asked for 1."""
-        try:
-            reply = self._transact("HELLO", self.protocol, expect="VERSION")
-        except DeviceError as exc:
-            if exc.code != "robot_version" or self.protocol == 1:
-                self.close()
-                raise
-            reply = self._transact("HELLO", 1, expect="VERSION")  # a version-1 base
+        """HELLO with the newest protocol offered; a base that refuses it (NAK VERSION) is asked for the
+        next older one. Version 3 also agrees the host timeout; an older base is warned about."""
+        for protocol in range(self.protocol, 0, -1):
+            extra = (rp.num(self.host_timeout * 1000.0, 0),) if protocol >= 3 else ()
+            try:
+                reply = self._transact("HELLO", protocol, *extra, expect="VERSION")
+                break
+            except DeviceError as exc:
+                if exc.code != "robot_version" or protocol == 1:
+                    self.close()
+                    raise
         try:
             self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
                              "firmware": reply.field(3, "firmware"), "serial": reply.field(4, "serial"),
-                             "capabilities": rp.capabilities(reply.field(5, "capabilities"))}
+                             "capabilities": rp.capabilities(reply.field(5, "capabilities")),
+                             "host_timeout_ms": reply.optional_number(6, "host_timeout_ms")}
         except (rp.ProtocolError, ValueError) as exc:
             self.close()
             raise DeviceError(f"robot base sent a malformed VERSION: {exc}", code="robot_protocol") from exc
@@ -144,6 +168,19 @@ class SerialRobot(Robot):
                               f"driver speaks {'/'.join(map(str, rp.PROTOCOL_VERSIONS))}", code="robot_version")
         if self._version["protocol"] < 2:  # what a version-1 base may say of clock and streams is not ours
             self._version["capabilities"] = [c for c in self._version["capabilities"] if c == rp.CAP_INCL]
+        if self._watchdog_s is None:
+            self._version["host_timeout_ms"] = None
+            log.warning("%s (protocol %s, %s)", NO_WATCHDOG, self._version["protocol"],
+                        self._version["model"])
+
+    @property
+    def _watchdog_s(self) -> float | None:
+        """The host timeout the base halts a motion after (s), None for a base without the watchdog."""
+        ms = self._version.get("host_timeout_ms")
+        caps = self._version.get("capabilities", ())
+        if self._version.get("protocol", 0) < 3 or rp.CAP_WATCHDOG not in caps:
+            return None
+        return self.host_timeout if ms is None else ms / 1000.0
 
     def streams(self) -> list[str]:
         """The telemetry topics of the sample streams this base sends (empty without STATE)."""
@@ -167,6 +204,7 @@ class SerialRobot(Robot):
 
     def info(self) -> dict[str, Any]:
         return {"url": self.url.raw, "port": self._target, **self._version, "streams": self.streams(),
+                "host_watchdog": self._watchdog_s is not None,
                 "counters": {**self.counters, **self._batcher.counters}}
 
     # ------------------------------------------------------------------ commands
@@ -184,6 +222,8 @@ class SerialRobot(Robot):
         self._start_motion("TURN", float(angle_deg), float(speed_deg_s))
 
     def _start_motion(self, kind: str, value: float, speed: float) -> None:
+        if self.gate.latched:  # the device unit's own gate, whoever queued the motion
+            raise DeviceError(f"robot: {kind} refused: the stop is latched", code="stopped")
         reply = self._transact(kind, rp.num(value), rp.num(speed), expect="ACK")
         seq = reply.seq()
         # with an instant base the DONE may already have been read while waiting
@@ -240,12 +280,23 @@ class SerialRobot(Robot):
         """The most recent STATUS reply (no I/O)."""
         return self._last_state
 
+    def park(self) -> None:
+        """Before the daemon exits: a base that may be moving is halted (STOP; the gate's owed halt too)."""
+        if self._port is None or self._moving_seq is None and not self.gate.pending:
+            return
+        log.warning("robot halted: the daemon is exiting with a motion under way")
+        self._transact("STOP", expect="ACK")
+
     def pump(self, timeout: float) -> None:
-        """Read events for ``timeout`` s, polling STATUS when a ``state_hz`` slot is due."""
+        """Read events for ``timeout`` s, polling STATUS when a ``state_hz`` slot is due, and while a motion
+        runs often enough to keep a version-3 base's host watchdog fed."""
         deadline = time.monotonic() + max(0.0, timeout)
         while True:
             now = time.monotonic()
-            if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
+            watchdog = self._watchdog_s
+            keepalive = (watchdog is not None and self._moving_seq is not None
+                         and now - self._last_tx >= watchdog / KEEPALIVES_PER_TIMEOUT)
+            if keepalive or self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
                 self.status()
                 now = time.monotonic()
             if now >= deadline or self._woken:
@@ -277,121 +328,6 @@ class SerialRobot(Robot):
                 raise DeviceTimeout(f"robot base still moving after {timeout:.3g} s")
             for msg in self._receive(min(deadline, next_check, time.monotonic() + 0.05)):
                 self._count_stray(msg)
-
-    # ------------------------------------------------------------------ line level
-
-    def _transact(self, kind: str, *fields: object, expect: str) -> rp.Message:
-        """Send one command and return its positive reply; NAK → DeviceError."""
-        self._seq = rp.next_seq(self._seq)
-        seq = self._seq
-        line = rp.encode(kind, seq, *fields)
-        for attempt in range(self.retries + 1):
-            if attempt:
-                self.counters["retries"] += 1
-            self._write(line)
-            deadline = time.monotonic() + self.reply_timeout
-            resend = False
-            while not resend and time.monotonic() < deadline:
-                got = self._receive(deadline)
-                for i, msg in enumerate(got):
-                    reply_seq = msg.seq() if msg.kind in rp.REPLIES else -1
-                    if reply_seq is None and msg.fields[1:2] == ("CHECKSUM",):
-                        resend = True  # the base got a corrupted line, most likely ours
-                    elif reply_seq != seq:
-                        self._count_stray(msg)
-                    elif msg.kind == "NAK":
-                        self.counters["naks"] += 1
-                        reason = msg.fields[1] if len(msg.fields) > 1 else "?"
-                        text = msg.fields[2] if len(msg.fields) > 2 else ""
-                        raise DeviceError(f"robot base refused {line.decode().strip()}: {reason} {text}".strip(),
-                                          code=f"robot_{reason.lower()}")
-                    elif msg.kind != expect:
-                        self.counters["unexpected"] += 1
-                    else:
-                        for rest in got[i + 1:]:  # read in the same chunk after our reply: strays, counted
-                            self._count_stray(rest)
-                        return msg
-        raise DeviceLost(f"robot base did not answer {kind} (seq {seq}) in "
-                         f"{self.retries + 1} tries of {self.reply_timeout:.3g} s")
-
-    def _write(self, line: bytes) -> None:
-        if self._port is None:
-            raise DeviceLost("robot port is not open")
-        try:
-            self._port.write(line)
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceLost(f"robot port write failed: {exc}") from exc
-
-    def _receive(self, deadline: float, wakeable: bool = False) -> list[rp.Message]:
-        """Replies read before ``deadline`` (events are dispatched here, not returned); returns as soon as
-        a reply arrived (or, ``wakeable``, :meth:`wake` was called). Bad lines are counted, not raised."""
-        if self._port is None:
-            raise DeviceLost("robot port is not open")
-        replies: list[rp.Message] = []
-        while True:
-            try:
-                data = self._port.read(max(1, self._port.in_waiting))
-            except (serial.SerialException, OSError) as exc:
-                raise DeviceLost(f"robot port read failed: {exc}") from exc
-            rx_ns = time.time_ns()
-            for raw in self._splitter.feed(data):
-                msg = self._decode(raw, rx_ns)
-                if msg is not None and self._dispatch_event(msg, rx_ns) is not None:
-                    replies.append(msg)
-            self.counters["overflows"] = self._splitter.overflows
-            self._batcher.flush()
-            if replies or time.monotonic() >= deadline or wakeable and self._woken:
-                return replies
-
-    def _decode(self, raw: bytes, rx_ns: int) -> rp.Message | None:
-        """The line's message; None for a blank or a bad line (counted) and for a sample (batched)."""
-        if not raw.strip():
-            return None
-        self.counters["rx_lines"] += 1
-        if self._streaming and self._batcher.take(raw, rx_ns):  # most lines: no Message made for them
-            return None
-        try:
-            msg = rp.decode(raw)
-            if msg.kind in rp.REPLIES or msg.kind in rp.EVENTS:
-                msg.seq()  # validate early so callers can rely on it
-            return msg
-        except rp.ProtocolError as exc:
-            self.counters[{"checksum": "bad_checksum", "garbage": "garbage"}.get(exc.kind, "syntax")] += 1
-            return None
-
-    def _dispatch_event(self, msg: rp.Message, rx_ns: int) -> rp.Message | None:
-        """Publish DONE/FAULT events and batch samples; returns the message back when it is neither."""
-        if msg.kind in rp.STREAMS and self._streaming:
-            try:
-                self._batcher.add(msg, rx_ns)
-            except rp.ProtocolError:
-                self.counters["syntax"] += 1
-            return None
-        if msg.kind not in rp.EVENTS:
-            return msg
-        seq = msg.seq()
-        payload: dict[str, Any] = {"event": msg.kind, "seq": seq, "host_time_ns": time.time_ns()}
-        try:
-            if msg.kind == "DONE":
-                payload.update(result=msg.field(1, "result"), x_mm=msg.number(2, "x_mm"),
-                               y_mm=msg.number(3, "y_mm"), heading_deg=msg.number(4, "heading_deg"))
-            else:
-                payload.update(reason=msg.field(1, "reason"),
-                               text=msg.fields[2] if len(msg.fields) > 2 else "")
-        except rp.ProtocolError:
-            self.counters["syntax"] += 1
-            return None
-        self.counters["events"] += 1
-        self._finished_seq = seq
-        if seq is None or seq == self._moving_seq or self._moving_seq == -1:
-            self._moving_seq = None  # (-1: a motion started before we connected)
-        self.emit("robot.event", payload)
-        return None
-
-    def _count_stray(self, msg: rp.Message) -> None:
-        # a late reply to a command we already gave up on, or something not for us
-        self.counters["stale" if msg.kind in rp.REPLIES else "unexpected"] += 1
-
 
 def _check(name: str, value: float, low: float, high: float) -> None:
     """Refuse a motion argument outside the protocol limits before it is sent."""

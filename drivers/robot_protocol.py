@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-#: the newest protocol this codec speaks; a host or base of version 1 is served as before
-PROTOCOL_VERSION = 2
-PROTOCOL_VERSIONS = (1, 2)
+#: the newest protocol this codec speaks; a host or base of version 1 or 2 is served as before
+PROTOCOL_VERSION = 3
+PROTOCOL_VERSIONS = (1, 2, 3)
 #: longest line accepted, terminator included; longer input is garbage
 MAX_LINE = 160
 #: sequence numbers run 1..SEQ_MAX and wrap back to 1 (0 is never used)
@@ -31,6 +31,17 @@ STREAMS = ("STATE", "INCL")
 #: VERSION capabilities: an inclinometer (STATUS roll/pitch; v1 too), the base's clock in STATUS
 #: (v2), the STATE command and its sample streams (v2)
 CAP_INCL, CAP_CLOCK, CAP_STATE = "INCL", "CLOCK", "STATE"
+#: VERSION capability (v3): the host watchdog; a motion halts with FAULT HOST_LOST when no valid host
+#: line came within the host timeout agreed at HELLO
+CAP_WATCHDOG = "WATCHDOG"
+#: the host timeout (ms) a version-3 HELLO asks when it names none, and the range a base accepts.
+#: 300 ms: a host that keeps the link alive every 100 ms may miss two of them under load without a
+#: false halt, and a base whose host died drives at most 0.3 s on (15 mm at the procedures' 50 mm/s,
+#: 90 mm at the protocol's 300 mm/s limit) before it halts itself
+DEFAULT_HOST_TIMEOUT_MS = 300
+MIN_HOST_TIMEOUT_MS, MAX_HOST_TIMEOUT_MS = 50, 5000
+#: the FAULT reason of a motion the host watchdog halted
+FAULT_HOST_LOST = "HOST_LOST"
 #: STATE stream rates (Hz) a base accepts besides 0 (off): 100 Hz of ~80-byte STATE lines is
 #: 8 kB/s, under 70 % of a 115200-baud line, with room left for INCL, replies and events
 MIN_STATE_HZ = 1.0
@@ -155,6 +166,13 @@ def state_rate_error(rate_hz: float) -> str | None:
     if rate_hz == 0 or MIN_STATE_HZ <= rate_hz <= MAX_STATE_HZ:
         return None
     return f"STATE rate_hz={num(rate_hz)} outside 0 (off) or {num(MIN_STATE_HZ)}..{num(MAX_STATE_HZ)}"
+
+
+def host_timeout_error(timeout_ms: float) -> str | None:
+    """Why a HELLO's host timeout is refused (the text names the value), or None when in range."""
+    if MIN_HOST_TIMEOUT_MS <= timeout_ms <= MAX_HOST_TIMEOUT_MS:
+        return None
+    return f"HELLO host_timeout_ms={num(timeout_ms)} outside {MIN_HOST_TIMEOUT_MS}..{MAX_HOST_TIMEOUT_MS}"
 
 
 def range_error(name: str, value: float, low: float, high: float) -> str | None:

@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import GIGE_LINE_BYTES_S, DeviceError
+from drivers.base import DeviceError
+from drivers.gige import GIGE_LINE_BYTES_S
 
 IP_UDP_GVSP_HEADERS = 36
 ETHERNET_OVERHEAD = 38

@@ -20,6 +20,8 @@ adds the drive errors from ``world.params``:
 Protocol version 2 (a host's ``HELLO,seq,2``; ``max_protocol=1`` makes a version-1 base): the
 base's own clock (offset and drift apart from the host's) in STATUS, and the STATE/INCL sample
 streams of :mod:`fakes.robot_stream`, queued by :meth:`FakeBase.tick` apart from the replies.
+Version 3 (``HELLO,seq,3[,host_timeout_ms]``) adds the host watchdog: a motion halts itself, FAULT
+HOST_LOST, when no valid host line came within the agreed timeout.
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ from dataclasses import replace
 from typing import Callable
 
 from drivers import robot_protocol as rp
-from fakes.robot_motion import Motion, motion_state, unit_interval
+from fakes.robot_motion import HostWatchdog, Motion, fraction_at, motion_state, pose_on_path, unit_interval
 from fakes.robot_stream import DEFAULT_DRIFT_PPM, INCL_RATE_HZ, BaseClock, SampleStreams, seeded_offset_s
 from fakes.world import RobotPose, World
 
@@ -62,6 +64,7 @@ class FakeBase:
             raise ValueError(f"max_protocol={max_protocol!r} must be one of {rp.PROTOCOL_VERSIONS}")
         self.max_protocol = max_protocol
         self.session = 1  # the protocol of the session the last HELLO opened
+        self.watchdog = HostWatchdog()  # armed by a version-3 HELLO
         self.world = world
         self.time_scale = time_scale
         self.fault_rate = unit_interval("fault_rate", fault_rate)
@@ -134,6 +137,7 @@ class FakeBase:
                 else:
                     self.counters["garbage"] += 1  # line noise: nothing to answer
                 return
+            self.watchdog.heard(self.clock())  # a valid line: the host is alive, whatever it says
             try:
                 seq = msg.seq()
             except rp.ProtocolError as exc:
@@ -169,13 +173,20 @@ class FakeBase:
         if version not in spoken:
             self._nak(seq, "VERSION", f"base speaks protocol {' '.join(spoken)} not {version}")
             return
+        timeout_ms = msg.optional_number(2, "host_timeout_ms") if version == "3" else None
+        timeout_ms = rp.DEFAULT_HOST_TIMEOUT_MS if timeout_ms is None and version == "3" else timeout_ms
+        if timeout_ms is not None and (why := rp.host_timeout_error(timeout_ms)) is not None:
+            self._nak(seq, "RANGE", why)
+            return
         self._last_motion_cmd = None  # a new session: seq numbers start over
         self.session = int(version)
+        self.watchdog.timeout_s = None if timeout_ms is None else timeout_ms / 1000.0
         self.streams.set_rate(0.0, self.clock())  # and no stream until this host asks for one
         caps = [rp.CAP_INCL] if self.world.params.base_has_inclinometer else []
-        if self.session >= 2:
-            caps += [rp.CAP_CLOCK, rp.CAP_STATE]
-        self._send("VERSION", seq, self.session, MODEL, FIRMWARE, SERIAL_NUMBER, "+".join(caps))
+        caps += [rp.CAP_CLOCK, rp.CAP_STATE] if self.session >= 2 else []
+        caps += [rp.CAP_WATCHDOG] if self.session >= 3 else []
+        agreed = () if timeout_ms is None else (rp.num(timeout_ms, 0),)  # v3: the timeout the base uses
+        self._send("VERSION", seq, self.session, MODEL, FIRMWARE, SERIAL_NUMBER, "+".join(caps), *agreed)
 
     def _state(self, seq: int, msg: rp.Message) -> None:
         rate = msg.number(1, "rate_hz")
@@ -315,16 +326,19 @@ class FakeBase:
     def _fraction(self) -> float:
         m = self.motion
         assert m is not None
-        if m.duration <= 0.0:
-            return 1.0
-        return min(1.0, (self.clock() - m.t0) / m.duration)
+        return fraction_at(m, self.clock())
 
     def _advance(self) -> None:
         m = self.motion
         if m is None:
             return
         f = self._fraction()
-        if m.fault_at is not None and f >= m.fault_at:
+        expiry = self.watchdog.expiry()
+        if expiry is not None and self.clock() >= expiry and (lost := fraction_at(m, expiry)) < min(
+                1.0, 1.0 if m.fault_at is None else m.fault_at):
+            m.fault_at = lost  # the wheels stop where the timer fired: the path ends there too (pose_at)
+            self._finish(lost, "FAULT", rp.FAULT_HOST_LOST, "no host line within the host timeout")
+        elif m.fault_at is not None and f >= m.fault_at:
             self._finish(m.fault_at, "FAULT", "STALL")
         elif f >= 1.0:
             self._finish(1.0, "OK")
@@ -332,21 +346,7 @@ class FakeBase:
             self._place(f)
 
     def _pose(self, m: Motion, f: float) -> RobotPose:
-        """The true pose at fraction ``f`` of motion ``m`` (linear in time, on its bent path)."""
-        if f >= 1.0:
-            return m.end
-        s, e = m.start, m.end
-        pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
-                       heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
-        if m.bend_mm:  # on the bent path (arc or S), not the chord
-            a = math.radians(s.heading_deg)
-            side, dh = self.world.effects.bend_profile(f, m.bend_mm, max(m.path, 1e-9))
-            pose = replace(pose, x_mm=pose.x_mm - float(side) * math.sin(a),
-                           y_mm=pose.y_mm + float(side) * math.cos(a),
-                           heading_deg=pose.heading_deg + math.degrees(float(dh)))
-        if self.world.effects.settles:  # on an uneven surface the tilt changes along the path
-            pose = self.world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
-        return pose
+        return pose_on_path(self.world, m, f)
 
     def pose_at(self, t: float) -> RobotPose | None:
         """The true pose at clock time ``t`` during the motion in progress or the last one until it was
@@ -370,7 +370,7 @@ class FakeBase:
         self.odometry = odo  # type: ignore[assignment]
         return pose, odo  # type: ignore[return-value]
 
-    def _finish(self, f: float, result: str, reason: str = "") -> None:
+    def _finish(self, f: float, result: str, reason: str = "", text: str = "simulated wheel stall") -> None:
         """End the motion at fraction ``f``: settle (new tilt), report DONE or FAULT."""
         m = self.motion
         assert m is not None
@@ -389,7 +389,7 @@ class FakeBase:
         self._imu_held = None
         if result == "FAULT":
             self.state, self.fault = "FAULT", reason
-            self._send("FAULT", m.seq, reason, "simulated wheel stall")
+            self._send("FAULT", m.seq, reason, text)
         else:
             self.state = "IDLE"
             self._send("DONE", m.seq, result, rp.num(ox, 4), rp.num(oy, 4), rp.num(_wrap_deg(oh), 6))

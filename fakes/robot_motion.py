@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
-from fakes.world import RobotPose
+from fakes.world import RobotPose, World
 
 #: the wheels' distance apart (mm): a turn on the spot shows as opposite wheel speeds in STATE
 TRACK_MM = 400.0
@@ -59,3 +59,43 @@ def motion_state(base: Any, t: float) -> tuple[tuple[float, float, float], tuple
     with base.world.lock:
         pose = base.world.robot
     return base.odometry, (0.0, 0.0), (pose.roll_rad, pose.pitch_rad)
+
+
+@dataclass
+class HostWatchdog:
+    """Protocol 3's host watchdog (docs/robot-protocol.md, "Host watchdog"): a motion halts on its own
+    when no valid host line came within ``timeout_s``, as a base whose host died must. Off (None) in a
+    version-1 or 2 session, whose host does not keep the link alive."""
+
+    timeout_s: float | None = None
+    heard_at: float = -math.inf  # clock time of the last valid host line
+
+    def heard(self, now: float) -> None:
+        self.heard_at = now
+
+    def expiry(self) -> float | None:
+        """The clock time at which a motion under way must halt, None while off."""
+        return None if self.timeout_s is None else self.heard_at + self.timeout_s
+
+
+def fraction_at(m: Motion, t: float) -> float:
+    """The fraction of motion ``m`` done at clock time ``t`` (linear in time, 0..1)."""
+    return 1.0 if m.duration <= 0.0 else min(1.0, max(0.0, (t - m.t0) / m.duration))
+
+
+def pose_on_path(world: World, m: Motion, f: float) -> RobotPose:
+    """The true pose at fraction ``f`` of motion ``m`` (linear in time, on its bent path)."""
+    if f >= 1.0:
+        return m.end
+    s, e = m.start, m.end
+    pose = replace(s, x_mm=s.x_mm + f * (e.x_mm - s.x_mm), y_mm=s.y_mm + f * (e.y_mm - s.y_mm),
+                   heading_deg=s.heading_deg + f * (e.heading_deg - s.heading_deg))
+    if m.bend_mm:  # on the bent path (arc or S), not the chord
+        a = math.radians(s.heading_deg)
+        side, dh = world.effects.bend_profile(f, m.bend_mm, max(m.path, 1e-9))
+        pose = replace(pose, x_mm=pose.x_mm - float(side) * math.sin(a),
+                       y_mm=pose.y_mm + float(side) * math.cos(a),
+                       heading_deg=pose.heading_deg + math.degrees(float(dh)))
+    if world.effects.settles:  # on an uneven surface the tilt changes along the path
+        pose = world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
+    return pose

@@ -10,8 +10,11 @@ storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent and 
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import threading
 import time
+from concurrent.futures import Future, InvalidStateError
 from typing import Any, Callable
 
 from daemon.bus.command_table import COMMANDS, help_entry, moves, validate
@@ -129,13 +132,14 @@ def _robot(s: Services) -> dict[str, Handler]:
         return motion(req, "angle_deg", "speed_deg_s", lambda r, a, v: r.turn(a, v))
 
     def stop(req: Request) -> Any:
-        """Latch first (this thread serves every request in order), stop the jobs, then halt the base."""
+        """Latch and request the halt first (this thread serves every request in order: no motion slips in
+        between), then stop the jobs. Accepted whatever the robot's state: the gate sends the halt as soon
+        as the base answers; the reply says whether the base has acknowledged it yet."""
         who = _who(req)
-        s.latch.engage(who)
+        halted, persisted = s.latch.engage(who)
         stopped = s.calib.stop_moving_jobs(who)
-        halted = s.job("robot", lambda r: r.stop(), urgent=True)
         s.abort_motions(s.latch.message("the motion"))
-        return chain(halted, lambda _: {"stopped": True, "latched": True, "jobs_stopped": stopped})
+        return halt_reply(halted, persisted, stopped, s.halt_wait_s)
 
     def release(req: Request) -> Any:
         return {"released": True, "was_latched": s.latch.release(_who(req))}
@@ -144,6 +148,35 @@ def _robot(s: Services) -> dict[str, Handler]:
             "robot.status": lambda req: chain(s.job("robot", lambda r: (r.status(), r.streams())),
                                               lambda got: {**got[0].to_dict(), "streams": got[1],
                                                            "clock": s.clock_status("robot")})}
+
+
+def halt_reply(halted: Future, persisted: Future, jobs_stopped: int, wait_s: float) -> Future:
+    """The STOP's reply once the latch is on disk and the base acknowledged the halt, or after ``wait_s``
+    without that acknowledgement (link down, base off): latched all the same, the halt still owed."""
+    out: Future = Future()
+    expired = threading.Event()
+
+    def answer(*_: Any) -> None:
+        acked = halted.done()
+        if not persisted.done() or out.done() or not (acked or expired.is_set()):
+            return
+        reply: dict[str, Any] = {"stopped": acked, "latched": True, "jobs_stopped": jobs_stopped}
+        if not acked:
+            reply["message"] = "latched; the halt is sent as soon as the base answers"
+        with contextlib.suppress(InvalidStateError):  # the timer and the halt may answer together
+            out.set_result(reply)
+
+    def expire() -> None:
+        expired.set()
+        answer()
+
+    timer = threading.Timer(wait_s, expire)
+    timer.daemon = True
+    halted.add_done_callback(answer)
+    persisted.add_done_callback(answer)
+    timer.start()
+    out.add_done_callback(lambda _: timer.cancel())
+    return out
 
 
 def _capture(s: Services) -> dict[str, Handler]:

@@ -9,7 +9,6 @@ every second, pings the systemd watchdog only while every owner thread is respon
 from __future__ import annotations
 
 import argparse
-import enum
 import logging
 import os
 import signal
@@ -32,6 +31,7 @@ except ModuleNotFoundError as _exc:
 from daemon import __version__  # noqa: E402
 from daemon.ritad import config as config_mod, files, plugins  # noqa: E402
 from daemon.ritad.calib_jobs import CalibJobs  # noqa: E402
+from daemon.ritad.check import RitadExit, check_config, insecure_tcp  # noqa: E402
 from daemon.ritad.commands import build_handlers  # noqa: E402
 from daemon.ritad.instance import AlreadyRunning, InstanceLock, lock_dirs, remove_socket_files  # noqa: E402
 from daemon.ritad.logs import setup_logging  # noqa: E402
@@ -54,15 +54,6 @@ if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
     from daemon.bus.auth import Security
 
 log = logging.getLogger("ritad")
-
-
-class RitadExit(enum.IntEnum):
-    """ritad's exit codes (docs/operations.md, "Exit codes (ritad)")."""
-
-    OK = 0  #: clean stop, or --check-config found the file valid
-    CANNOT_START = 1  #: a bind or the server key failed at start
-    CONFIG = 2  #: bad configuration (the message names the file and key); not worth a restart
-    ALREADY_RUNNING = 3  #: another ritad holds the runtime or data directory lock
 
 
 class Daemon:
@@ -106,7 +97,7 @@ class Daemon:
 
     def _factory(self, kind: str) -> Callable[[], Device]:
         url = self.device_urls[kind]
-        settings = self.config.camera if kind == "camera" else None
+        settings = {"camera": self.config.camera, "robot": self.latch.gate}.get(kind)  # the gate: STOP first
         return lambda: open_device(kind, url, emit=self.emit, settings=settings)
 
     def _start_plugins(self, data: Path) -> None:
@@ -152,9 +143,12 @@ class Daemon:
                 "--data-dir", str(Path(self.config.daemon.data_dir).resolve())]
 
     def stop(self) -> None:
+        if "robot" in self.runners:  # first: a moving base halts (park) before anything is torn down
+            self.runners["robot"].stop()
         self.worker.stop()
         for runner in self.runners.values():
             runner.stop()
+        self.latch.close()
         bound: list[str] = []
         for t in (getattr(self, "server", None), getattr(self, "frames", None), getattr(self, "telemetry", None)):
             if t is not None:
@@ -287,51 +281,6 @@ def load_config(args: argparse.Namespace) -> config_mod.Config:
     return cfg
 
 
-def check_config(cfg: config_mod.Config) -> int:
-    """``--check-config``: the file passed every check ritad makes before it binds, each device's
-    adapter accepts its URL; the key files exist."""
-    from daemon.ritad.keycheck import key_problems
-
-    try:
-        device_warnings = config_mod.check_devices(cfg)
-    except config_mod.ConfigError as exc:
-        print(f"ritad: configuration error: {exc}", file=sys.stderr)
-        return RitadExit.CONFIG
-    errors, warnings = key_problems(cfg)
-    try:
-        _, where = station.abs_H_trk(cfg.tracker.abs_H_trk, Path(cfg.daemon.data_dir))
-    except station.StationError as exc:
-        print(f"ritad: {exc}", file=sys.stderr)
-        return RitadExit.CONFIG
-    warnings = device_warnings + warnings
-    for e in errors:
-        print(f"ritad: {cfg.source}: {e}", file=sys.stderr)
-    if errors:
-        return RitadExit.CANNOT_START  # what a start with this file would exit with
-    d = cfg.daemon
-    print(f"ritad: {cfg.source}: configuration OK")
-    for key in ("command_endpoints", "telemetry_endpoints", "frame_endpoints"):
-        print(f"  daemon.{key} = {getattr(d, key)}")
-    for kind in KINDS:
-        print(f"  devices.{kind} = {getattr(cfg.devices, kind)!r}")
-    print(f"  data_dir = {d.data_dir}, start_worker = {d.start_worker}, curve = {cfg.security.curve}")
-    if cfg.plugins:
-        print(f"  plugin sections: {', '.join(f'[{n}]' for n in sorted(cfg.plugins))}")
-    print(f"  tracker station abs_H_trk: {where}")
-    for w in warnings:
-        print(f"  WARNING: {w}")
-    if insecure := _insecure_tcp(cfg):
-        print(f"  WARNING: insecure_tcp = true: {', '.join(insecure)} accept clients without CURVE")
-    return RitadExit.OK
-
-
-def _insecure_tcp(cfg: config_mod.Config) -> list[str]:
-    if cfg.security.curve:
-        return []
-    d = cfg.daemon
-    return [e for e in d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints if e.startswith("tcp://")]
-
-
 def serve(daemon: Daemon, notifier: Notifier) -> int:
     """Bind, run until SIGTERM/SIGINT, tear down."""
     try:
@@ -386,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         log.error("cannot start: lock: %s", exc)
         return RitadExit.CANNOT_START
-    if insecure := _insecure_tcp(cfg):
+    if insecure := insecure_tcp(cfg):
         log.warning("insecure_tcp = true: %s accept any client without CURVE; anyone who reaches these ports "
                     "can move the robot (docs/operations.md, Keys)", ", ".join(insecure))
     try:

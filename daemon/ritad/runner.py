@@ -228,6 +228,13 @@ class DeviceRunner(threading.Thread):
         self._busy_deadline = None
         self._set_state(DeviceState.READY)
 
+    def _park(self) -> None:
+        """Leave the device safe before the owner exits (a moving robot halts); a failure is logged only."""
+        try:
+            self._connected().park()
+        except Exception as exc:  # the port may be gone: nothing more can be done from here
+            log.error("%s: could not be left safe at exit: %s", self.kind, describe(exc))
+
     def _backoff(self, seconds: float) -> None:
         """Wait before the next connect attempt, beating so the watchdog sees a responsive thread."""
         end = time.monotonic() + seconds
@@ -264,6 +271,8 @@ class DeviceRunner(threading.Thread):
                 log.exception("%s: pump failed", self.kind)
                 self._lost(exc)
         self._fail_queued("daemon stopping")
+        if self.state in (DeviceState.READY, DeviceState.BUSY):
+            self._park()
         self._close()
         shutdown = getattr(self.device, "shutdown", None)  # simulated devices also stop their fake peer
         if callable(shutdown):

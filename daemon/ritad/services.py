@@ -48,3 +48,4 @@ class Services:
     clock_status: Callable[[str], dict[str, Any]] = lambda kind: {}  # a device clock's mapping (device_clock.py)
     at_time: Callable[[int, float], dict[str, dict[str, Any]]] = lambda t_ns, wait_s: {}  # streams at an instant
     stamp_frame: Callable[[Frame], Frame] = lambda frame: frame  # its exposure's host time (device_clock.py)
+    halt_wait_s: float = 2.0  # how long robot.stop's reply waits for the base to acknowledge the halt

@@ -1,12 +1,13 @@
 """The latched stop: one meaning for every STOP, whoever sends it.
 
-``robot.stop`` (any key, viewers included) engages the latch before the base is told
-to halt, in the ROUTER thread, so no later request can slip a motion in between. While
-latched every motion command is refused with ``stopped``, also a motion already queued
-in the robot's runner (``guard`` runs again in the owner thread just before the line is
-written). Only an operator's ``robot.release`` clears it. The latch survives a daemon
-restart (a file in the data dir): a watchdog restart must not turn a stopped robot into
-one that drives on.
+``robot.stop`` (any key, viewers included) engages the latch in the ROUTER thread, so no later
+request can slip a motion in between, and with it the robot's motion gate (drivers/motion_gate.py):
+the halt is requested of the robot's owner thread before anything is written to disk, and it reaches
+the base whatever the link does (first after the HELLO of every connect while latched). While latched
+every motion command is refused with ``stopped``, also a motion already queued in the robot's runner
+(``guard`` runs again in the owner thread, and the gate refuses the line). Only an operator's
+``robot.release`` clears it. The latch survives a daemon restart (a file in the data dir, written
+afterwards in the latch's own thread): a restarted ritad starts latched and halts the base first.
 """
 from __future__ import annotations
 
@@ -14,12 +15,14 @@ import json
 import logging
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_json
 from daemon.bus.names import Topic
+from drivers.motion_gate import MotionGate
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +43,10 @@ class StopLatch:
         self.since_ns: int | None = None
         self.refused = 0
         self._load()
+        #: the robot's motion gate (ritad hands it to the robot adapter); latched at start owes the base a halt
+        self.gate = MotionGate(latched=self.latched)
+        self.gate.on_halted(lambda: self._publish(Topic.ROBOT_LATCH, self.snapshot()))
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="latch-file")  # in order, off the bus
 
     def _load(self) -> None:
         try:
@@ -55,24 +62,36 @@ class StopLatch:
 
     def snapshot(self) -> dict[str, Any]:
         with self._lock:
-            return {"latched": self.latched, "by": self.by, "since_ns": self.since_ns, "reason": self.reason,
+            snap = {"latched": self.latched, "by": self.by, "since_ns": self.since_ns, "reason": self.reason,
                     "refused": self.refused}
+        return {**snap, "halt_pending": self.gate.pending}
 
-    def _changed(self) -> None:
+    def _changed(self) -> Future:
+        """Publish now; write the file in the latch's thread (the Future is done once it is on disk)."""
         snap = self.snapshot()
-        if self._path is not None:
-            try:
-                atomic_write_json(self._path, snap)
-            except OSError as exc:  # the latch still holds in memory
-                log.error("cannot persist the stop latch to %s: %s", self._path, exc)
         self._publish(Topic.ROBOT_LATCH, snap)
+        return self._writer.submit(self._persist)
 
-    def engage(self, by: str, reason: str = "robot.stop") -> None:
-        """Latch (again): a second STOP re-stamps who and when, and still halts the base."""
+    def _persist(self) -> None:
+        if self._path is None:
+            return
+        try:  # the newest state, whatever the order of the requests that queued the writes
+            atomic_write_json(self._path, self.snapshot())
+        except OSError as exc:  # the latch still holds in memory
+            log.error("cannot persist the stop latch to %s: %s", self._path, exc)
+
+    def engage(self, by: str, reason: str = "robot.stop") -> tuple[Future, Future]:
+        """Latch (again): a second STOP re-stamps who and when, and still halts the base. Returns the halt
+        (done when the base acknowledged a STOP) and the file write (done when the latch is on disk)."""
+        halted = self.gate.engage()  # first: the robot's owner writes STOP at its next read slice
         with self._lock:
             self.latched, self.by, self.reason, self.since_ns = True, by, reason, time.time_ns()
         log.warning("robot STOP by %s (%s): motion latched off until `ritactl robot release`", by, reason)
-        self._changed()
+        return halted, self._changed()
+
+    def close(self) -> None:
+        """Finish the file writes queued (the daemon's stop)."""
+        self._writer.shutdown(wait=True)
 
     def release(self, by: str) -> bool:
         """Clear the latch; returns whether it was latched."""
@@ -80,6 +99,7 @@ class StopLatch:
             was = self.latched
             self.latched, self.reason, self.since_ns = False, "", None
             self.by = by if was else self.by
+        self.gate.release()
         if was:
             log.warning("robot stop released by %s: motion allowed again", by)
             self._changed()

@@ -71,7 +71,7 @@ def test_v2_host_with_a_v1_base_falls_back(served: Any) -> None:
     robot, sink = served(base)
     info = robot.info()
     assert info["protocol"] == 1 and info["capabilities"] == ["INCL"] and info["streams"] == []
-    assert base.counters["naks"] == 1  # HELLO,2 refused, then HELLO,1
+    assert base.counters["naks"] == 2  # HELLO,3 and HELLO,2 refused, then HELLO,1
     st = robot.status()
     assert st.t_us is None and st.roll_deg is not None
     robot.move(100.0, 50.0)
@@ -152,7 +152,7 @@ def test_state_command_range_and_v1_sessions() -> None:
 def test_url_options_accept_the_new_ones_and_refuse_typos() -> None:
     r = SerialRobot(DeviceURL.parse("serial:///dev/ttyUSB0?protocol=1&stream_hz=20"))
     assert (r.protocol, r.stream_hz) == (1, 20.0)
-    for query, fragment in (("stream_hzz=5", "stream_hzz"), ("stream_hz=500", "stream_hz"), ("protocol=3", "protocol")):
+    for query, fragment in (("stream_hzz=5", "stream_hzz"), ("stream_hz=500", "stream_hz"), ("protocol=4", "protocol")):
         with pytest.raises(ValueError, match=fragment):
             SerialRobot.check_url(DeviceURL.parse(f"serial:///dev/ttyUSB0?{query}")) if "hzz" in query else \
                 SerialRobot(DeviceURL.parse(f"serial:///dev/ttyUSB0?{query}"))

@@ -99,15 +99,20 @@ def test_a_job_adopted_after_a_restart_that_the_stop_ended_is_stopped_not_failed
 def test_the_latch_survives_a_restart_and_refuses_with_who_and_how(tmp_path):
     got = []
     latch = StopLatch(lambda t, d: got.append((t, d)), tmp_path / LATCH_FILE)
-    latch.engage("vic (viewer)")
+    halted, persisted = latch.engage("vic (viewer)")
     assert got[-1][0] == "robot.latch" and got[-1][1]["latched"] and got[-1][1]["by"] == "vic (viewer)"
+    assert got[-1][1]["halt_pending"] and not halted.done()  # no robot here: the halt stays owed
+    persisted.result(timeout=10)  # written in the latch's own thread, after the halt was requested
     again = StopLatch(lambda t, d: None, tmp_path / LATCH_FILE)  # a watchdog restart of ritad
     assert again.latched and again.by == "vic (viewer)"
+    assert again.gate.latched and again.gate.pending  # the restarted daemon owes the base a halt
     with pytest.raises(CommandError) as e:
         again.guard("robot.move", "worker (operator)")
     assert e.value.code == "stopped" and "vic (viewer)" in e.value.args[0] and "robot release" in e.value.args[0]
     assert again.snapshot()["refused"] == 1
-    assert again.release("ole (operator)") and not StopLatch(lambda t, d: None, tmp_path / LATCH_FILE).latched
+    assert again.release("ole (operator)")
+    again.close()  # the queued write done
+    assert not StopLatch(lambda t, d: None, tmp_path / LATCH_FILE).latched
     assert not again.release("ole (operator)")  # releasing twice is harmless
 
 
