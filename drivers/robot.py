@@ -103,7 +103,7 @@ class SerialRobot(RobotLine, Robot):
         """Open the port, drop stale input, shake hands (HELLO/VERSION), STOP first while latched, halt a
         motion that is not ours, start the streams and read STATUS."""
         self.close()
-        self._version = {}  # no halt is written before the HELLO of this connection (robot_line.py)
+        self._version = {}
         target = self._target = self.port_target()
         try:
             self._port = serial.serial_for_url(target, baudrate=self.baudrate, timeout=READ_SLICE_S,

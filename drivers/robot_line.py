@@ -22,6 +22,9 @@ from drivers.robot_stream import StreamBatcher
 
 #: longest single blocking read; keeps every loop responsive to its deadline (and to a STOP)
 READ_SLICE_S = 0.02
+#: how often an owed STOP is written again while its ACK is missing: a link that comes back carries it
+#: within this (STOP is safe to execute any number of times, and is accepted before a HELLO too)
+HALT_RESEND_S = 0.05
 
 COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
                  "retries", "naks", "events", "recovered_events", "overflows", "halts")
@@ -34,6 +37,7 @@ class _Halt:
     seq: int
     line: bytes
     request: int
+    first_at: float
     tries: int = 0
     resend_at: float = 0.0
 
@@ -63,21 +67,22 @@ class RobotLine:
     # ------------------------------------------------------------------ the halt the gate owes
 
     def _service_halt(self) -> None:
-        """Write the STOP the gate owes, ahead of any awaited reply; resend it while its ACK is late."""
+        """Write the STOP the gate owes, ahead of any awaited reply (also before a HELLO: while connecting);
+        resend it every HALT_RESEND_S while its ACK is missing."""
         due = self.gate.halt_due()
-        if due is None or not self._version:  # the HELLO first: a session before the STOP
+        if due is None:
             return
         halt, now = self._halt, time.monotonic()
         if halt is not None and halt.request >= due and now < halt.resend_at:
             return
         if halt is None or halt.request < due:  # a newer request: a new STOP line
             self._seq = rp.next_seq(self._seq)
-            halt = self._halt = _Halt(self._seq, rp.encode("STOP", self._seq), due)
-        elif halt.tries > self.retries:
-            raise DeviceLost(f"robot base did not acknowledge STOP (seq {halt.seq}) in {halt.tries} tries of "
-                             f"{self.reply_timeout:.3g} s")
+            halt = self._halt = _Halt(self._seq, rp.encode("STOP", self._seq), due, now)
+        elif now - halt.first_at > (self.retries + 1) * self.reply_timeout and self._version:
+            raise DeviceLost(f"robot base did not acknowledge STOP (seq {halt.seq}) in "
+                             f"{(self.retries + 1) * self.reply_timeout:.3g} s")
         halt.tries += 1
-        halt.resend_at = now + self.reply_timeout
+        halt.resend_at = now + HALT_RESEND_S
         self.counters["halts" if halt.tries == 1 else "retries"] += 1
         self._write(halt.line)
 
@@ -94,7 +99,8 @@ class RobotLine:
         return True
 
     def _halt_first(self) -> None:
-        """At connect, while latched: STOP before anything else, and its ACK awaited."""
+        """At connect, while latched: STOP before anything else, and its ACK awaited (one may have gone out
+        before the HELLO already: that one is written blind, to reach a base the moment the link is back)."""
         if self.gate.latched:
             self.gate.owe()
         self._halt = None  # a STOP written on the old connection is not known to have arrived
@@ -115,6 +121,8 @@ class RobotLine:
         for attempt in range(self.retries + 1):
             if attempt:
                 self.counters["retries"] += 1
+            if self._port is not None:
+                self._service_halt()  # an owed STOP goes out before this command's line too
             self._write(line)
             deadline = time.monotonic() + self.reply_timeout
             resend = False

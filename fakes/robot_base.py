@@ -119,6 +119,11 @@ class FakeBase:
     def moving(self) -> bool:
         return self.motion is not None
 
+    @property
+    def last_halt(self) -> float:
+        """Clock time of the tick that ended the last motion (0 before any): when its wheels stopped."""
+        return self._last_motion[1]
+
     def handle_line(self, line: bytes) -> None:
         """Process one received line (terminator removed); replies go to the outbox."""
         with self._lock:

@@ -109,7 +109,8 @@ def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> i
         return Exit.INTERRUPTED
     if yes_after_ctrl_c(f"job {job} moves the robot. stop the robot (and the job)?", as_json):
         r = c.call("robot.stop")  # the one latched stop, as `ritactl robot stop` and the console's STOP
-        say(f"\nrobot stopped and latched; stopped job(s): {', '.join(r.get('jobs_stopped') or []) or 'none'}. "
+        halted = "stopped and latched" if r.get("stopped") else r.get("message")  # latched; halt still owed
+        say(f"\nrobot {halted}; stopped job(s): {', '.join(r.get('jobs_stopped') or []) or 'none'}. "
             f"`ritactl robot release`, then `ritactl resume {job}` continues it.", as_json)
     else:
         say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl robot stop` stops the robot and "

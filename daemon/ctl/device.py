@@ -159,8 +159,8 @@ def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
 
 def _interrupted_motion(c: Client, cmd: Command, as_json: bool) -> int:
     if yes_after_ctrl_c(f"{cmd.name} may still be moving the robot. stop the robot?", as_json):
-        c.call("robot.stop")
-        say("robot stopped", as_json)
+        r = c.call("robot.stop")
+        say("robot stopped" if r.get("stopped") else f"robot stop {r.get('message')}", as_json)
     else:
         say("the motion goes on; `ritactl robot stop` stops the robot", as_json)
     return Exit.INTERRUPTED

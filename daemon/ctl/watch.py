@@ -60,12 +60,13 @@ class LiveStatus:
             self.robot = d
         elif topic == "robot.latch":
             self.latch = d
-            return (f"robot STOP LATCHED by {d.get('by')}: no motion until `ritactl robot release`"
+            owed = "; the halt is NOT yet acknowledged by the base" if d.get("halt_pending") else ""
+            return (f"robot STOP LATCHED by {d.get('by')}: no motion until `ritactl robot release`{owed}"
                     if d.get("latched") else f"robot stop released by {d.get('by')}")
         elif topic == "robot.refused":
             return f"refused: {d.get('message')}"
-        elif topic == "robot.event" and d.get("event") == "FAULT":
-            return f"robot motion FAULT: {d.get('reason') or d.get('result') or d}"
+        elif topic == "robot.event" and d.get("event") in ("FAULT", "HALTED"):
+            return f"robot motion {d['event']}: {d.get('reason') or d.get('result') or d} {d.get('text', '')}"
         elif topic.startswith("calib."):
             return self._calib(topic, d)
         elif topic == "log":

@@ -150,7 +150,7 @@ def _robot(s: Services) -> dict[str, Handler]:
                                                            "clock": s.clock_status("robot")})}
 
 
-def halt_reply(halted: Future, persisted: Future, jobs_stopped: int, wait_s: float) -> Future:
+def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_s: float) -> Future:
     """The STOP's reply once the latch is on disk and the base acknowledged the halt, or after ``wait_s``
     without that acknowledgement (link down, base off): latched all the same, the halt still owed."""
     out: Future = Future()

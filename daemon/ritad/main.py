@@ -134,7 +134,8 @@ class Daemon:
         for kind in KINDS:
             self.runners[kind] = runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
-                                  heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s)
+                                  heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s,
+                                  urgent=(lambda: self.latch.gate.pending) if kind == "robot" else lambda: False)
             runner.start()
 
     def _worker_cmd(self) -> list[str]:

@@ -43,6 +43,9 @@ def describe(exc: BaseException) -> str:
 
 PUMP_S = 0.02  # how long pump may block: bounds job latency while idle
 BEAT_S = 0.5  # longest wait between heartbeats while the runner waits in backoff
+#: the wait between connect attempts while the device owes a halt (``urgent``): a link that comes back
+#: must carry the STOP at once, not after a backoff grown while it was down
+URGENT_RETRY_S = 0.05
 
 
 @dataclass(order=True)
@@ -59,11 +62,12 @@ class DeviceRunner(threading.Thread):
 
     def __init__(self, kind: str, factory: Callable[[], Device], publish: Callable[[str, Any], None],
                  backoff_min: float = 0.5, backoff_max: float = 30.0, heartbeat_timeout: float = 10.0,
-                 open_timeout: float = 120.0) -> None:
+                 open_timeout: float = 120.0, urgent: Callable[[], bool] = lambda: False) -> None:
         super().__init__(name=f"device-{kind}", daemon=True)
         self.kind = kind
         self._factory = factory
         self._publish = publish
+        self._urgent = urgent  # the device owes a halt (the robot's motion gate): reconnect without backoff
         self._jobs: queue.PriorityQueue[_Job] = queue.PriorityQueue()
         self._seq = itertools.count()
         self._stop_evt = threading.Event()
@@ -253,7 +257,7 @@ class DeviceRunner(threading.Thread):
                     backoff = self.backoff_min
                     continue
                 self._fail_queued(self.reason)
-                self._backoff(backoff)
+                self._backoff(URGENT_RETRY_S if self._urgent() else backoff)
                 backoff = min(backoff * 2, self.backoff_max)
                 continue
             try:

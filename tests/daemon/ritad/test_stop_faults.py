@@ -1,0 +1,144 @@
+"""STOP through faults: a cut serial link, a killed or restarted ritad, a base that stops itself.
+
+As a safety tester would set it up (tools/harness/stop_rig.py): the fake base on its own pty at
+real-time speed (its thread here, apart from ritad's process), a link proxy between it and ritad that
+can cut the cable (fakes/link_proxy.py), and ritad as a process on that proxy's pty. Each
+test drives a long move and asserts how far the base went after the STOP or the fault, from the
+base's own odometry: after the link is back, at most the braking distance (the fake stops at once)
+plus 0.2 s at the speed; a version-3 base halts on its own within its host timeout + 0.1 s of the host
+going quiet. Waits have generous timeouts that only catch hangs; what is asserted is distance.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.bus.client import Client
+from drivers import robot_protocol as rp
+from tools.harness.stop_rig import SPEED, StopRig as Rig, wait_for
+
+pytestmark = pytest.mark.timeout(120)
+
+MARGIN_MM = 0.2 * SPEED  # the acceptance's 0.2 s at the speed (the fake's braking distance is 0)
+WATCHDOG_MM = (rp.DEFAULT_HOST_TIMEOUT_MS / 1000.0 + 0.1) * SPEED
+
+
+@pytest.fixture
+def rig(tmp_path: Path, request: Any) -> Iterator[Rig]:
+    r = Rig(tmp_path, getattr(request, "param", 3))
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+def _stop(c: Client) -> dict[str, Any]:
+    reply = c.call("robot.stop", timeout=10)
+    assert reply["latched"] is True
+    return reply
+
+
+@pytest.mark.parametrize("rig", [2, 3], indirect=True)
+def test_f1_stop_while_the_link_is_down_halts_the_base_when_it_is_back(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    rig.proxy.cut()
+    t_cut, x_cut = time.monotonic(), rig.x()
+    if rig.base.max_protocol >= 3:  # the base halts itself: its host went quiet
+        x_self = rig.halted(timeout=5)
+        assert x_self - x_cut <= WATCHDOG_MM, f"drove {x_self - x_cut:.1f} mm after the link dropped"
+        assert rig.base.fault == rp.FAULT_HOST_LOST
+    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] != "READY", 10, "ritad sees the loss")
+    time.sleep(max(0.0, t_cut + 2.5 - time.monotonic()))  # the tester's 2.5 s outage (not a limit)
+    reply = _stop(c)
+    assert reply["stopped"] is False and "sent as soon as the base answers" in reply["message"]
+    x_back = rig.x()
+    rig.proxy.restore()
+    x_end = rig.halted()
+    assert x_end - x_back <= MARGIN_MM, f"drove {x_end - x_back:.1f} mm after the link came back"
+    wait_for(lambda: not c.call("state")["latch"]["halt_pending"], 20, "the halt acknowledged")
+    with pytest.raises(Exception, match="stopped|latched"):
+        c.call("robot.move", distance_mm=10.0, speed_mm_s=SPEED, confirm=True)
+
+
+@pytest.mark.parametrize("rig", [2], indirect=True)
+def test_f1b_stop_just_after_the_drop_is_not_lost_behind_retries(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    rig.proxy.cut()
+    time.sleep(0.3)  # ritad not yet aware: its STATUS polls go unanswered
+    _stop(c)
+    time.sleep(1.5)  # the pending transaction's retries run out meanwhile (not a limit)
+    x_back = rig.x()
+    rig.proxy.restore()
+    x_end = rig.halted()
+    assert x_end - x_back <= MARGIN_MM, f"drove {x_end - x_back:.1f} mm after the link came back"
+
+
+@pytest.mark.parametrize("rig", [2], indirect=True)
+def test_stop_while_ritad_reconnects(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    rig.proxy.cut()
+    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] in ("CONNECTING", "FAULT"), 10,
+             "ritad reconnecting")
+    _stop(c)
+    x_back = rig.x()
+    rig.proxy.restore()
+    x_end = rig.halted()
+    assert x_end - x_back <= MARGIN_MM, f"drove {x_end - x_back:.1f} mm after the link came back"
+
+
+@pytest.mark.parametrize("rig", [2, 3], indirect=True)
+def test_f2_a_latch_persisted_before_a_kill_halts_the_base_at_restart(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    rig.proxy.cut()
+    _stop(c)
+    assert rig.ritad is not None
+    rig.ritad.kill()  # SIGKILL: nothing of ritad's runs after this
+    rig.proxy.restore()
+    c.close()
+    if rig.base.max_protocol >= 3:  # a quiet host: the base halted itself long ago
+        assert not rig.moving() and rig.base.fault == rp.FAULT_HOST_LOST
+        return
+    assert rig.moving()  # a version-2 base drives on with nobody to stop it: the restart must
+    rig.start()
+    x_ready = rig.x()
+    x_end = rig.halted()
+    assert x_end - x_ready <= MARGIN_MM, f"drove {x_end - x_ready:.1f} mm after the new ritad was up"
+
+
+@pytest.mark.parametrize("rig", [3], indirect=True)
+def test_f3_sigkill_mid_move_the_base_halts_itself(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    assert rig.ritad is not None
+    x_kill = rig.x()
+    os.kill(rig.ritad.proc.pid, signal.SIGKILL)
+    x_end = rig.halted(timeout=5)
+    assert x_end - x_kill <= WATCHDOG_MM, f"drove {x_end - x_kill:.1f} mm after ritad was killed"
+    assert rig.base.fault == rp.FAULT_HOST_LOST
+
+
+@pytest.mark.parametrize("rig", [2, 3], indirect=True)
+def test_f3_sigterm_mid_move_halts_the_base_before_ritad_exits(rig: Rig) -> None:
+    rig.start()
+    c = rig.client()
+    rig.move(c)
+    assert rig.ritad is not None
+    rig.ritad.proc.send_signal(signal.SIGTERM)
+    rig.ritad.proc.wait(timeout=30)
+    assert not rig.moving(), "the base still drives after ritad exited"
+    assert rig.base.state == "IDLE" and rig.base.fault == ""  # ritad's STOP, not the watchdog
