@@ -18,7 +18,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine  # noqa: E402
 
-from drivers.base import CameraSettings, DeviceURL, Frame  # noqa: E402
+from drivers.base import DeviceURL, Frame  # noqa: E402
+from drivers.camera_settings import CameraSettings  # noqa: E402
 from fakes.camera import SimCamera, renderer_for  # noqa: E402
 from fakes.world import World  # noqa: E402
 from fakes.worlds import sim_url  # noqa: E402

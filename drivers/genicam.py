@@ -35,8 +35,8 @@ from typing import Any
 from genicam import gentl
 from harvesters.core import Harvester, ImageAcquirer
 
-from drivers.base import Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Frame
-from drivers.base import no_emit
+from drivers.base import Camera, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Frame, no_emit
+from drivers.camera_settings import CameraSettings, desired
 from drivers.genicam_device import create_acquirer, decode_buffer, payload_bytes, select_device
 from drivers.genicam_settings import SettingsWriter, find_node, set_trigger_mode
 from drivers.genicam_transport import (GIGE_LINE_BYTES_S, IncompleteCounter, PtpWatch, apply_all, link_rate,
@@ -177,7 +177,7 @@ class GenICamCamera(Camera):
         self._applied = {}
         w = self._writer()
         minimum = getattr(self._ia, "min_num_buffers", 1)  # harvesters: STREAM_INFO_BUF_ANNOUNCE_MIN
-        self._software = apply_all(w, self._stream_writer(), self.settings or CameraSettings(),
+        self._software = apply_all(w, self._stream_writer(), desired(self.settings),
                                    self._set_buffers, int(minimum) if isinstance(minimum, int) else 1)
         exposure = w.read("ExposureTime")
         self._exposure = None if exposure is None else float(exposure)
@@ -392,7 +392,7 @@ class GenICamCamera(Camera):
         return {
             "open": opened, "streaming": self._streaming, "acquiring": self._acquiring,
             "software_trigger": self._software, "serial": self._facts.get("serial_number"),
-            "settings": asdict(self.settings or CameraSettings()),
+            "settings": asdict(desired(self.settings)),
             "applied": dict(self._applied), "warnings": list(self._warnings),
             "incomplete_count": self._incomplete.count, "link": self._link() if opened else None,
             "ptp": ptp_status(self._writer()) if opened else {"available": False},

@@ -31,7 +31,8 @@ from typing import Any, Callable
 from genicam import genapi
 
 from drivers import pixel_formats
-from drivers.base import CameraSettings, DeviceError
+from drivers.base import DeviceError
+from drivers.camera_settings import CameraSettings
 
 Warn = Callable[[str], None]
 

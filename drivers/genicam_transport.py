@@ -30,7 +30,8 @@ from typing import Any, Callable
 from genicam import genapi
 from harvesters.core import Callback
 
-from drivers.base import CameraSettings, DeviceError
+from drivers.base import DeviceError
+from drivers.camera_settings import CameraSettings
 from drivers.gige import GIGE_LINE_BYTES_S, MIN_PACKET_BYTES
 from drivers.genicam_settings import SettingsWriter, apply_settings, find_node
 

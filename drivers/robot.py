@@ -145,6 +145,7 @@ class SerialRobot(RobotLine, Robot):
     def _hello(self) -> None:
         """HELLO with the newest protocol offered; a base that refuses it (NAK VERSION) is asked for the
         next older one. Version 3 also agrees the host timeout; an older base is warned about."""
+        reply: rp.Message | None = None
         for protocol in range(self.protocol, 0, -1):
             extra = (rp.num(self.host_timeout * 1000.0, 0),) if protocol >= 3 else ()
             try:
@@ -154,6 +155,7 @@ class SerialRobot(RobotLine, Robot):
                 if exc.code != "robot_version" or protocol == 1:
                     self.close()
                     raise
+        assert reply is not None  # the loop ends on a reply or raises
         try:
             self._version = {"protocol": int(reply.field(1, "protocol")), "model": reply.field(2, "model"),
                              "firmware": reply.field(3, "firmware"), "serial": reply.field(4, "serial"),

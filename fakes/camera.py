@@ -56,8 +56,8 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import (Camera, CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL,
-                          Emit, Frame, no_emit)
+from drivers.base import Camera, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Frame, no_emit
+from drivers.camera_settings import CameraSettings, desired
 from drivers import pixel_formats
 from fakes import camera_clock
 from fakes.colour import ColourRenderer, sensor_image
@@ -186,7 +186,7 @@ class SimCamera(Camera):
                 self._prerendered = [self._render() for _ in range(self.prerender)]
 
     def _apply(self) -> None:
-        s = self.settings or CameraSettings()
+        s = desired(self.settings)
         warnings: list[str] = []
         fmt = s.pixel_format or "Mono8"
         if fmt not in PIXEL_FORMATS:
@@ -362,7 +362,7 @@ class SimCamera(Camera):
             "software_trigger": True,
             "serial": self.serial,
             "size": list(self.size),
-            "settings": asdict(self.settings or CameraSettings()),
+            "settings": asdict(desired(self.settings)),
             "applied": dict(self._applied),
             "warnings": list(self._warnings),
             "incomplete_count": self.counters["incomplete"],

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from daemon.bus.names import KINDS, ROLES
 from daemon.bus import station
 from daemon.ritad.registry import AdapterError, build_device, schemes
-from drivers.base import CameraSettings, DeviceURL
+from drivers.base import DeviceURL
+from drivers.camera_settings import CameraSettings
 from drivers.gige import MIN_PACKET_BYTES
 
 if TYPE_CHECKING:

@@ -47,7 +47,7 @@ from daemon.ritad.services import Services  # noqa: E402
 from daemon.ritad.stop_latch import LATCH_FILE, StopLatch  # noqa: E402
 from daemon.ritad.timelines import Timelines  # noqa: E402
 from daemon.ritad.worker_supervisor import WorkerSupervisor  # noqa: E402
-from drivers.base import Device, Frame, Payload  # noqa: E402
+from drivers.base import Device, DeviceSettings, Frame, Payload  # noqa: E402
 from daemon.bus.names import KINDS, Topic  # noqa: E402
 
 if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
@@ -97,7 +97,8 @@ class Daemon:
 
     def _factory(self, kind: str) -> Callable[[], Device]:
         url = self.device_urls[kind]
-        settings = {"camera": self.config.camera, "robot": self.latch.gate}.get(kind)  # the gate: STOP first
+        settings: DeviceSettings = (self.config.camera if kind == "camera"  # the robot's gate: STOP first
+                                    else self.latch.gate if kind == "robot" else None)
         return lambda: open_device(kind, url, emit=self.emit, settings=settings)
 
     def _start_plugins(self, data: Path) -> None:

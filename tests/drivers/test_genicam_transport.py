@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from drivers import genicam_transport
-from drivers.base import CameraSettings, DeviceError
+from drivers.base import DeviceError
+from drivers.camera_settings import CameraSettings
 from drivers.genicam_settings import SettingsWriter
 from drivers.genicam_transport import PtpWatch, apply_all, link_rate, link_stats, ptp_status, read_chunks
 from fakes.camera_clock import CameraClock

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from daemon.ritad.registry import adapter_class
-from drivers.base import CameraSettings, DeviceError, DeviceLost, DeviceURL, Frame
+from drivers.base import DeviceError, DeviceLost, DeviceURL, Frame
+from drivers.camera_settings import CameraSettings
 from drivers.genicam import GenICamCamera, select_device
 
 pytestmark = pytest.mark.timeout(60)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from daemon.ritad.registry import adapter_class, open_device
-from drivers.base import CameraSettings, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
+from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
+from drivers.camera_settings import CameraSettings
 from fakes import camera as camera_module
 from fakes.camera import SimCamera, renderer_for
 from fakes.world import RobotPose, World, WorldParams

@@ -9,7 +9,8 @@ import pytest
 
 from calibration.frames import apply_H, inv_H
 from calibration.image import to_rgb
-from drivers.base import CameraSettings, DeviceError, DeviceURL
+from drivers.base import DeviceError, DeviceURL
+from drivers.camera_settings import CameraSettings
 from fakes.camera import PIXEL_FORMATS, SimCamera
 from fakes.colour import RING_RGB, ColourRenderer
 from fakes.render import Renderer, world_camera_model

@@ -7,7 +7,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.base import CameraSettings, DeviceError, DeviceURL
+from drivers.base import DeviceError, DeviceURL
+from drivers.camera_settings import CameraSettings
 from fakes.camera import SimCamera
 from fakes.gige_link import GigELink, LinkSettings
 

@@ -17,7 +17,8 @@ import pytest
 from daemon.bus.clockmap import TAI_MINUS_UTC_S
 from daemon.ritad import config
 from daemon.ritad.device_clock import PTP_FLOOR_NS, DeviceClock
-from drivers.base import CameraSettings, DeviceURL, Frame
+from drivers.base import DeviceURL, Frame
+from drivers.camera_settings import CameraSettings
 from fakes.camera import SimCamera
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
