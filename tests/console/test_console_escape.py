@@ -47,20 +47,28 @@ def text(drv, element_id: str) -> str:
     return drv.execute_script("return document.getElementById(arguments[0]).textContent", element_id)
 
 
+INJECTED = """({elements: document.querySelectorAll('[data-xss]').length,
+    handlers: [...document.querySelectorAll('[onerror]')].filter(e => e.id !== 'canary').length,
+    ran: window.__xss !== undefined})"""
+NOTHING = {"elements": 0, "handlers": 0, "ran": False}
+
+
 def injected(drv) -> dict:
     """What of the payload became markup: elements or attributes it named, and whether its handler ran."""
-    return drv.execute_script("""return {elements: document.querySelectorAll('[data-xss]').length,
-        handlers: [...document.querySelectorAll('[onerror]')].filter(e => e.id !== 'canary').length,
-        ran: window.__xss !== undefined};""")
+    return drv.execute_script(f"return {INJECTED};")
 
 
 def report(c: Client, job: str, kind: str, data: dict) -> None:
     c.call("calib.report", job=job, kind=kind, data=data, procedure="intrinsics")  # as the worker reports
 
 
-def forward(drv, message: dict) -> None:
-    """A message into the page's WebSocket handler, as the console forwards the daemon's telemetry."""
-    drv.execute_script("window.rita.ws.onmessage({data: arguments[0]})", json.dumps(message))
+def forward(drv, message: dict, shown: tuple[str, ...]) -> dict:
+    """A message into the page's WebSocket handler, as the console forwards the daemon's telemetry, and the
+    text of the ``shown`` elements read in the same script (the next real state message cannot interleave)."""
+    return drv.execute_script("""window.rita.ws.onmessage({data: arguments[0]});
+        const text = (id) => document.getElementById(id).textContent;
+        return {injected: %s, ...Object.fromEntries(arguments[1].map(id => [id, text(id)]))};"""
+                              % INJECTED, json.dumps(message), list(shown))
 
 
 def crafted_state() -> dict:
@@ -70,13 +78,15 @@ def crafted_state() -> dict:
     survey = {"state": "done", "out": P, "took_s": 1, "version": 10 ** 6, "percent": 100, "step": P,
               "result": {"verdict": P, "message": P, "skipped": {P: P},
                          "nests": {P: {"ref_P_nst_mm": [1, 2, 3], "sigma_mm": [0.001] * 3, "views": P}},
-                         "views": [{"image": P, "corners": P, "corner_rms_px": 0.1, "rings_missing": {P: 1}}]}}
+                         "views": [{"image": P, "corners": P, "corner_rms_px": 0.1,
+                                    "rings_missing": {P: 1}}]}}
     topic = lambda data: {"seq": 10 ** 6, "t_ns": 0, "data": data}  # noqa: E731
     return {"type": "state", "link": {"bus": "up", "error": P}, "survey": survey,
             "console": {"frames_sent": P, "tabs": P, "preview_error": P},
             "topics": {"daemon.health": topic(health), "robot.state": topic({"state": P, "fault": P}),
                        "robot.latch": topic({"latched": True, "by": P, "reason": P, "since_ns": 1})},
-            "events": [{"no": 10 ** 6, "topic": "robot.event", "data": {"event": P, "result": P, "reason": P}}]}
+            "events": [{"no": 10 ** 6, "topic": "robot.event",
+                        "data": {"event": P, "result": P, "reason": P}}]}
 
 
 def crafted_form(drv) -> None:
@@ -84,7 +94,8 @@ def crafted_form(drv) -> None:
     base = {"help": P, "unit": P, "required": True, "default": P, "default_text": P, "lo": None, "hi": None,
             "lo_open": False, "range": P, "choices": [], "length": 2, "installed": P}
     params = [dict(base, name=P, kind="float"), dict(base, name="k", kind="str", choices=[P, "b"]),
-              dict(base, name="f", kind="file"), dict(base, name="v", kind="vec"), dict(base, name="b", kind="bool")]
+              dict(base, name="f", kind="file"), dict(base, name="v", kind="vec"),
+              dict(base, name="b", kind="bool")]
     drv.execute_script("""const S = window.rita, sel = document.getElementById('proc');
         S.ws.onmessage({data: JSON.stringify({type: 'hello', role: S.role, commands: S.commands,
             procedures: S.procedures, procedure_params: {...S.procParams, [sel.value]: arguments[0]},
@@ -103,22 +114,25 @@ def test_daemon_text_from_every_source_is_shown_as_text_and_never_runs(robot):
         report(c, "xss-1", "progress", {"step": P, "percent": 10, "waiting_for": P})
         wait_for("the job's step", lambda: P in text(drv, "job-step"), 10)
         report(c, "xss-1", "prompt", {"question": P, "choices": [P, "ok"]})
-        wait_for("the prompt", lambda: text(drv, "prompt-question") == P and P in text(drv, "prompt-choices"), 10)
+        wait_for("the prompt",
+                 lambda: text(drv, "prompt-question") == P and P in text(drv, "prompt-choices"), 10)
         table = f"| {P} | b |\n|---|---|\n| **{P}** | *{P}* |\n{P}"
         report(c, "xss-1", "result", {"procedure": P, "verdict": P, "messages": [P], "table_markdown": table,
                                       "dataset": f"procedures/{P}", "files": [P]})
-        wait_for("the result", lambda: text(drv, "result-messages") == P and text(drv, "result-table").count(P) == 4, 10)
+        wait_for("the result",
+                 lambda: text(drv, "result-messages") == P and text(drv, "result-table").count(P) == 4, 10)
         assert P in text(drv, "result-files") and text(drv, "result-verdict") == P
         report(c, "xss-2", "error", {"message": P})
         wait_for("the job's error", lambda: P in text(drv, "job-state"), 10)
-        forward(drv, crafted_state())
-        for element_id in ("daemon-health", "robot-state", "latch", "toast", "survey-nests", "survey-views",
-                           "survey-message", "console-stats"):
-            assert P in text(drv, element_id), element_id
+        panels = ("daemon-health", "robot-state", "latch", "toast", "survey-nests", "survey-views",
+                  "survey-message", "console-stats")
+        shown = forward(drv, crafted_state(), panels)
+        assert shown.pop("injected") == NOTHING
+        assert {k: P in v for k, v in shown.items()} == dict.fromkeys(shown, True), shown
         crafted_form(drv)
         wait_for("the crafted form", lambda: text(drv, "proc-form").count(P) >= 2, 5)
         drv.execute_script("document.body.insertAdjacentHTML('beforeend', "
                            "'<img id=canary src=x onerror=\"window.__canary = 1\">')")
         wait_for("the canary's handler ran (handlers do run on this page)",
                  lambda: drv.execute_script("return window.__canary") == 1, 10)
-        assert injected(drv) == {"elements": 0, "handlers": 0, "ran": False}
+        assert injected(drv) == NOTHING

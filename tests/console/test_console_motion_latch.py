@@ -57,7 +57,8 @@ def released(robot, page):
 
 
 def click(drv, element_id: str) -> None:
-    el = wait_for(f"#{element_id} enabled", lambda: (e := drv.find_element("id", element_id)).is_enabled() and e, 10)
+    el = wait_for(f"#{element_id} enabled",
+                  lambda: (e := drv.find_element("id", element_id)).is_enabled() and e, 10)
     drv.execute_script("arguments[0].scrollIntoView({block: 'center'})", el)  # not under the sticky header
     el.click()
 
@@ -98,7 +99,8 @@ def test_a_dialog_opened_before_a_stop_is_closed_and_never_sends_after_the_relea
     assert outcome.startswith("STOP latched"), outcome
     wait_for("Move… enabled after the release", lambda: all(motion_buttons_enabled(page)), 10)
     # the dialog's own Move, however it is reached now, sends nothing
-    page.execute_script("window.__staleMove && window.__staleMove(); document.getElementById('confirm-yes').click();")
+    page.execute_script("window.__staleMove && window.__staleMove();"
+                        "document.getElementById('confirm-yes').click();")
     assert page.execute_async_script(LAST_MOTION) == outcome
     assert motions_sent(page) == []
     assert pose(c) == before and c.call("robot.status")["state"] == "IDLE"
@@ -116,7 +118,8 @@ def test_move_and_turn_are_disabled_while_latched_and_both_panels_say_so(page, r
              lambda: same() and "STOP latched" in page.find_element("id", "robot-state").text, 5)
     c.call("robot.release")
     wait_for("enabled after the release", lambda: motion_buttons_enabled(page) == [True, True], 5)
-    wait_for("both panels released", lambda: same() and "latched" not in page.find_element("id", "robot-state").text, 5)
+    wait_for("both panels released",
+             lambda: same() and "latched" not in page.find_element("id", "robot-state").text, 5)
 
 
 def test_a_page_that_has_not_yet_seen_the_latch_checks_the_daemon_at_the_click(page, released):
@@ -135,7 +138,8 @@ def test_a_page_that_has_not_yet_seen_the_latch_checks_the_daemon_at_the_click(p
         page.execute_script("window.__resume()")
     assert "latched" in outcome, outcome
     assert motions_sent(page) == []
-    wait_for("the latch shown once the state arrives", lambda: page.find_element("id", "latch").is_displayed(), 5)
+    wait_for("the latch shown once the state arrives",
+             lambda: page.find_element("id", "latch").is_displayed(), 5)
     assert pose(c) == before
 
 
@@ -150,7 +154,8 @@ def test_a_job_that_drives_closes_the_dialog_and_disables_move_and_turn(page, re
         wait_for("Move… and Turn… disabled", lambda: motion_buttons_enabled(page) == [False, False], 5)
         assert job in page.find_element("id", "motion-note").text
         page.execute_script("document.getElementById('robot-move').onclick()")  # past the disabled button
-        assert page.execute_async_script(LAST_MOTION).endswith("drives the robot")  # refused before any dialog
+        # refused before any dialog opens
+        assert page.execute_async_script(LAST_MOTION).endswith("drives the robot")
         assert not dialog_open(page)
         assert motions_sent(page) == []
     finally:

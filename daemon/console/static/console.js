@@ -88,12 +88,13 @@ function applyRole() {
   for (const el of document.querySelectorAll("input.ctl, select.ctl, textarea.ctl")) el.disabled = !canOperate;
   $("proc-cancel").disabled = $("proc-cancel").disabled || !S.job || !["queued", "running", "waiting"].includes(S.job.state);
   const chosenRuns = (S.jobs || []).some((j) => j.procedure === $("proc").value && ["queued", "running", "waiting"].includes(j.state));
+  // one job of a procedure at a time; one that drives not while the STOP is latched (ritad refuses it)
   const chosenDrives = ((S.procInfo || {})[$("proc").value] || {}).moves !== false;
-  // one job of a procedure at a time; a procedure that drives not while the STOP is latched (ritad refuses it)
-  $("proc-start").disabled = $("proc-start").disabled || chosenRuns || (chosenDrives && !!S.latch && S.latch.latched);
+  const latched = !!S.latch && S.latch.latched;
+  $("proc-start").disabled = $("proc-start").disabled || chosenRuns || (chosenDrives && latched);
   $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled", "stopped"].includes(S.job.state)
     || (S.job.state === "stopped" && S.latch && S.latch.latched);
-  gateMotions();   // robot.js: Move…/Turn… and the dialog's Move only when neither the latch nor a job forbids
+  gateMotions();   // robot.js: Move…/Turn… and the dialog's Move only when no latch and no driving job
 }
 function onHello(m) {
   S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params; S.procInfo = m.procedure_info || {};
@@ -125,14 +126,17 @@ function showHealth(h) {   // built as elements: device names, states and reason
     const state = el("span", { className: `st st-${s.state}`, textContent: s.state });
     if (k === "robot") state.dataset.robotState = "";   // robot.js writes the Robot panel's state here too
     return el("tr", {}, el("th", { textContent: k }), el("td", {}, state),
-              el("td", { textContent: `reconnects ${s.reconnects}` }), el("td", { textContent: s.reason || "" }));
+              el("td", { textContent: `reconnects ${s.reconnects}` }),
+              el("td", { textContent: s.reason || "" }));
   });
   const drops = Object.values((h.telemetry || {}).dropped || {}).reduce((a, b) => a + b, 0);
   const frames = h.frames || {};
+  const alive = el("b", { textContent: String(h.alive), dataset: { live: "" } });
   $("daemon-health").replaceChildren(
-    el("div", {}, `up ${fmt(h.uptime_s, 0)} s, alive `, el("b", { textContent: String(h.alive), dataset: { live: "" } })),
+    el("div", {}, `up ${fmt(h.uptime_s, 0)} s, alive `, alive),
     el("table", {}, ...rows),
-    el("div", { textContent: `telemetry dropped ${drops}; frames sent ${frames.sent}, dropped ${frames.dropped}` }));
+    el("div", { textContent: `telemetry dropped ${drops}; frames sent ${frames.sent}, ` +
+                             `dropped ${frames.dropped}` }));
   renderRobotState();
 }
 function showRobot(r) {
@@ -143,7 +147,9 @@ function showRobot(r) {
 }
 function stopNow() { act("robot.stop", {}, 10).then(() => toast("robot stopped and latched")).catch(() => {}); }
 function closeDialogs() {  // Esc: each open dialog's Cancel
-  for (const d of document.querySelectorAll(".modal")) if (!d.hidden) d.querySelector(".view, button:last-child")?.click();
+  for (const d of document.querySelectorAll(".modal")) {
+    if (!d.hidden) d.querySelector(".view, button:last-child")?.click();
+  }
 }
 function onKey(ev) {  // capture phase: before a focused button or field sees the key
   const typing = ev.target instanceof HTMLElement && ev.target.matches("input, textarea, select");

@@ -11,7 +11,8 @@ function pathUrl(path) {  // a data-dir path as a URL path: each name percent-en
   return rel(path).split("/").map(encodeURIComponent).join("/");
 }
 function fileLink(path, text) {  // an <a> element downloading a data-dir file
-  return el("a", { href: `/files/${pathUrl(path)}?download=1`, download: "", textContent: text || rel(path) });
+  const href = `/files/${pathUrl(path)}?download=1`;
+  return el("a", { href, download: "", textContent: text || rel(path) });
 }
 function datasetLink(dataset, text) {  // the dataset's listing in a new tab
   return el("a", { href: `/list/${pathUrl(dataset)}`, target: "_blank", textContent: text });
@@ -30,7 +31,7 @@ async function fetchJson(path) {
 async function refreshJobs() {
   let r;
   try { await ensureDataDir(); r = await call("calib.jobs", {}, 5); } catch (e) { return; }
-  S.jobs = r.jobs || [];   // its latch is not read: robot.latch telemetry is the page's one latch state (robot.js)
+  S.jobs = r.jobs || [];   // not its latch: robot.latch telemetry is the page's one latch state (robot.js)
   // follow the newest job, wherever it was started (a second tab, ritactl), unless the operator picked one from the list
   if (S.jobs.length && (!S.job || !S.pinned)) S.job = S.jobs[S.jobs.length - 1];
   const mine = S.job && S.jobs.find((j) => j.job === S.job.job);
@@ -40,9 +41,11 @@ async function refreshJobs() {
 }
 function showJobs(jobs) {   // the last eight jobs, each a link that pins the job panel to it
   const items = jobs.slice(-8).map((j, i) => {
-    const pick = (ev) => { ev.preventDefault(); S.pinned = true; S.job = j; S.shownResult = null; showJob(j); };
-    return [i ? " · " : "", el("a", { href: "#", dataset: { job: j.job }, textContent: j.job, onclick: pick }),
-            ` ${j.procedure} ${j.state}`];
+    const pick = (ev) => {
+      ev.preventDefault(); S.pinned = true; S.job = j; S.shownResult = null; showJob(j);
+    };
+    const link = el("a", { href: "#", dataset: { job: j.job }, textContent: j.job, onclick: pick });
+    return [i ? " · " : "", link, ` ${j.procedure} ${j.state}`];
   });
   $("jobs").replaceChildren("jobs: ", ...items.flat());
 }
@@ -91,9 +94,10 @@ function showResult(r) {
   $("result-messages").replaceChildren(...(r.messages || []).map((t) => el("li", { textContent: t })));
   $("result-table").innerHTML = markdownTable(r.table_markdown || "");
   if (viewOf(r.procedure) === "camera_model" && r.dataset) showIntrinsics(r.dataset);
-  const files = ["result.json", "result.yaml", ...(r.files || [])].map((f) => [" ", fileLink(`${r.dataset}/${f}`, f)]);
-  $("result-files").replaceChildren(...(r.dataset ? ["dataset ", datasetLink(r.dataset, rel(r.dataset)), ":", ...files.flat()]
-                                                  : []));
+  const names = ["result.json", "result.yaml", ...(r.files || [])];
+  const files = names.flatMap((f) => [" ", fileLink(`${r.dataset}/${f}`, f)]);
+  const listing = r.dataset ? datasetLink(r.dataset, rel(r.dataset)) : null;
+  $("result-files").replaceChildren(...(r.dataset ? ["dataset ", listing, ":", ...files] : []));
   plotResult(r);
   refreshResults();
 }
@@ -106,7 +110,7 @@ async function showIntrinsics(dataset) {  // f, principal point, RMS and σ at a
     `principal point ${fmt(K[0][2], 1)}, ${fmt(K[1][2], 1)} px (1σ ${fmt(sd.cx, 2)}, ${fmt(sd.cy, 2)}), ` +
     `RMS ${fmt(cal.rms_px, 3)} px over ${cal.n_views ?? "?"} views`;
 }
-function markdownTable(text) {  // the paper's table (a Markdown pipe table) as an HTML table; other lines as text
+function markdownTable(text) {  // the paper's table (a Markdown pipe table) as HTML; other lines as text
   // escaped first (dom.js esc), then the only markup: **bold** and *italic*, around text already escaped
   const inline = (t) => esc(t).replace(/\*\*(.+?)\*\*/g, "<b>$1</b>").replace(/\*(.+?)\*/g, "<i>$1</i>");
   const out = [];
@@ -120,7 +124,8 @@ function markdownTable(text) {  // the paper's table (a Markdown pipe table) as 
     rows = [];
   };
   for (const line of text.split("\n")) {
-    if (line.trim().startsWith("|")) rows.push(line); else { flush(); if (line.trim()) out.push(`<p>${inline(line)}</p>`); }
+    if (line.trim().startsWith("|")) rows.push(line);
+    else { flush(); if (line.trim()) out.push(`<p>${inline(line)}</p>`); }
   }
   flush();
   return out.join("");
@@ -164,8 +169,10 @@ async function refreshResults() {
   let r;
   try { await ensureDataDir(); r = await call("calib.results", {}, 10); } catch (e) { return; }
   const a = r.active;
-  $("calib-active").replaceChildren(...(a ? [`active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, `,
-                                             fileLink(`${a.dataset}/result.yaml`, "result.yaml")] : ["no active calibration"]));
+  $("calib-active").replaceChildren(...(a
+    ? [`active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, `,
+       fileLink(`${a.dataset}/result.yaml`, "result.yaml")]
+    : ["no active calibration"]));
   const td = (...c) => el("td", {}, ...c);
   $("history").replaceChildren(el("table", {}, ...r.history.slice(0, 30).map((h) => el("tr", {},
     td(h.created || ""), td(h.job ?? ""), td(h.procedure ?? ""), td(h.verdict ?? h.error ?? ""),

@@ -5,25 +5,32 @@
 
 function fieldId(name, i) { return `pp-${name}${i === undefined ? "" : "-" + i}`; }
 
-function paramInput(p) {   // the input element(s) of one parameter, as HTML: every value from the hello through esc()
+// the input element(s) of one parameter, as HTML: every value from the hello goes through esc()
+function paramInput(p) {
   const title = esc(`${p.help}${p.range ? "; range " + p.range : ""}${p.unit ? " " + p.unit : ""}`);
   const shown = esc(p.default === null || p.default === undefined ? "" : String(p.default));
   const hint = esc(p.default_text || (p.required ? "required" : ""));
   const id = (i) => esc(fieldId(p.name, i));
-  if (p.kind === "bool") return `<input type="checkbox" id="${id()}" class="ctl" title="${title}"${p.default ? " checked" : ""}>`;
+  if (p.kind === "bool") {
+    return `<input type="checkbox" id="${id()}" class="ctl" title="${title}"${p.default ? " checked" : ""}>`;
+  }
   if (p.choices.length) {
     return `<select id="${id()}" class="ctl" title="${title}">` +
-      p.choices.map((c) => `<option${c === p.default ? " selected" : ""}>${esc(c)}</option>`).join("") + "</select>";
+      p.choices.map((c) => `<option${c === p.default ? " selected" : ""}>${esc(c)}</option>`).join("") +
+      "</select>";
   }
   if (p.kind === "vec") {
-    return `<span class="vec">` + [...Array(p.length).keys()].map((i) => `<input id="${id(i)}" class="ctl" size="7" ` +
-      `inputmode="decimal" title="${title}" placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("") + "</span>";
+    return `<span class="vec">` + [...Array(p.length).keys()].map((i) =>
+      `<input id="${id(i)}" class="ctl" size="7" inputmode="decimal" title="${title}" ` +
+      `placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("") + "</span>";
   }
   if (p.kind === "file") {
-    return `<input id="${id()}" class="ctl" size="28" list="robot-json" title="${title}; a data-dir path on the robot" ` +
+    return `<input id="${id()}" class="ctl" size="28" list="robot-json" ` +
+      `title="${title}; a data-dir path on the robot" ` +
       `placeholder="${p.installed ? esc(p.installed) + " (installed)" : hint}">`;
   }
-  return `<input id="${id()}" class="ctl" size="8" inputmode="decimal" title="${title}" value="${shown}" placeholder="${hint}">`;
+  return `<input id="${id()}" class="ctl" size="8" inputmode="decimal" title="${title}" value="${shown}" ` +
+    `placeholder="${hint}">`;
 }
 
 function renderProcForm() {

@@ -64,7 +64,7 @@ function showLatch(l) {   // the latched STOP, plainly: who, since when; Release
   renderRobotState();
   applyRole();
 }
-function followJobs() {   // after each calib.jobs: a job that drives ends the dialog and disables Move…/Turn…
+function followJobs() {   // after each calib.jobs: a job that drives ends the dialog, disables Move…/Turn…
   const j = drivingJob(S.jobs);
   if (j) closeMotionDialog(`job ${j.job} (${j.procedure}) drives the robot: the motion dialog was closed`);
   applyRole();
@@ -104,7 +104,9 @@ function closeMotionDialog(why) {
 async function recheck(epoch) {   // at the click, the daemon's own latch and jobs: the page's may lag
   if (S.latchEpoch !== epoch) return "a STOP latched after the dialog opened";
   let now;
-  try { now = await call("calib.jobs", {}, 5); } catch (e) { return `the latch's state is unknown: ${e.message}`; }
+  try {
+    now = await call("calib.jobs", {}, 5);
+  } catch (e) { return `the latch's state is unknown: ${e.message}`; }
   if (S.latchEpoch !== epoch) return "a STOP latched after the dialog opened";
   if (!now.latch || now.latch.latched) return "the STOP is latched: no motion until Release";
   const j = drivingJob(now.jobs);
@@ -114,7 +116,8 @@ async function move(kind) {   // Move… / Turn…: confirm, check again, send; 
   const done = (outcome) => { S.motions.push({ kind, outcome }); return outcome; };
   const blocked = motionBlocked();
   if (blocked) { toast(`robot.${kind} not sent: ${blocked}`); return done(blocked); }
-  const mm = Number($("move-mm").value), deg = Number($("turn-deg").value), speed = Number($("move-speed").value);
+  const mm = Number($("move-mm").value), deg = Number($("turn-deg").value);
+  const speed = Number($("move-speed").value);
   const turnRate = 20;  // robot.turn's default rate (°/s)
   const text = kind === "move"
     ? `Drive ${mm < 0 ? "BACKWARDS" : "forwards"} ${Math.abs(mm)} mm at ${speed} mm/s ` +

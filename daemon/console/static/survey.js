@@ -29,11 +29,14 @@ function showSurvey(s) {
                                         ` ${r.message}; wrote `, el("code", { textContent: s.out }));
     const td = (text) => el("td", { textContent: text });
     $("survey-nests").replaceChildren(
-      el("tr", {}, ...["nest", "seat x, y, z (mm, PCS)", "1σ x, y, z (µm)", "photos"].map((h) => el("th", { textContent: h }))),
-      ...Object.entries(r.nests).map(([c, n]) => el("tr", {}, td(c), td(n.ref_P_nst_mm.map((v) => fmt(v, 3)).join(", ")),
-                                                    td(n.sigma_mm.map((v) => fmt(v * 1000, 0)).join(", ")), td(n.views))));
+      el("tr", {}, ...["nest", "seat x, y, z (mm, PCS)", "1σ x, y, z (µm)", "photos"]
+        .map((h) => el("th", { textContent: h }))),
+      ...Object.entries(r.nests).map(([c, n]) => el("tr", {}, td(c),
+        td(n.ref_P_nst_mm.map((v) => fmt(v, 3)).join(", ")),
+        td(n.sigma_mm.map((v) => fmt(v * 1000, 0)).join(", ")), td(n.views))));
     const lines = r.views.map((v) => `${v.image}: ${v.corners} corners, RMS ${fmt(v.corner_rms_px, 3)} px` +
-      (Object.keys(v.rings_missing || {}).length ? `; missing ${Object.keys(v.rings_missing).join(", ")}` : ""))
+      (Object.keys(v.rings_missing || {}).length
+        ? `; missing ${Object.keys(v.rings_missing).join(", ")}` : ""))
       .concat(Object.entries(r.skipped || {}).map(([n, why]) => `${n}: skipped, ${why}`));
     $("survey-views").replaceChildren(...lines.flatMap((t, i) => (i ? [el("br"), t] : [t])));
   } else {
