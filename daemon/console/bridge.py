@@ -22,6 +22,10 @@ from daemon.bus.names import Topic
 
 #: topics whose every message matters to the page (prompts, results, motion ends), not just the last
 EVENT_TOPICS = (Topic.CALIB_PROMPT, Topic.CALIB_RESULT, Topic.ROBOT_EVENT, Topic.TRACKER_EVENT, Topic.LOG)
+#: kept as the latest value (the page's latch banner) and also sent as an event: a STOP and its release
+#: within one state period would coalesce into "released", and a page must still close a motion dialog
+#: opened before that STOP (it may not send a motion confirmed across a latch)
+LATCH_EVENT_TOPICS = (Topic.ROBOT_LATCH,)
 EVENT_RING = 200
 
 
@@ -114,7 +118,7 @@ class Bridge:
             entry = {"seq": body.get("seq"), "t_ns": body.get("t_ns"), "data": body.get("data")}
             with self._lock:
                 self.latest[topic] = entry
-                if topic in EVENT_TOPICS or topic.startswith("calib."):
+                if topic in EVENT_TOPICS or topic in LATCH_EVENT_TOPICS or topic.startswith("calib."):
                     self.event_no += 1
                     self.events.append({"no": self.event_no, "topic": topic, **entry})
         sub.close()

@@ -71,6 +71,7 @@ function markStale() {
       if (el.dataset.was === undefined && el.textContent && el.textContent !== "?") { el.dataset.was = el.textContent; el.textContent = `unknown (was ${el.dataset.was})`; }
     }
   }
+  renderRobotState();   // robot.js: says unknown by itself when its sources are silent
 }
 
 // ------------------------------------------------------------------ roles
@@ -87,9 +88,13 @@ function applyRole() {
   for (const el of document.querySelectorAll("input.ctl, select.ctl, textarea.ctl")) el.disabled = !canOperate;
   $("proc-cancel").disabled = $("proc-cancel").disabled || !S.job || !["queued", "running", "waiting"].includes(S.job.state);
   const chosenRuns = (S.jobs || []).some((j) => j.procedure === $("proc").value && ["queued", "running", "waiting"].includes(j.state));
-  $("proc-start").disabled = $("proc-start").disabled || chosenRuns;   // one job of a procedure at a time
+  // one job of a procedure at a time; one that drives not while the STOP is latched (ritad refuses it)
+  const chosenDrives = ((S.procInfo || {})[$("proc").value] || {}).moves !== false;
+  const latched = !!S.latch && S.latch.latched;
+  $("proc-start").disabled = $("proc-start").disabled || chosenRuns || (chosenDrives && latched);
   $("proc-resume").disabled = $("proc-resume").disabled || !S.job || !["failed", "cancelled", "stopped"].includes(S.job.state)
     || (S.job.state === "stopped" && S.latch && S.latch.latched);
+  gateMotions();   // robot.js: Move…/Turn… and the dialog's Move only when no latch and no driving job
 }
 function onHello(m) {
   S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params; S.procInfo = m.procedure_info || {};
@@ -107,39 +112,45 @@ function onState(m) {
   if (t["daemon.health"]) showHealth(t["daemon.health"].data);
   if (t["robot.state"]) showRobot(t["robot.state"].data);
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
-  if (t["robot.latch"]) showLatch(t["robot.latch"].data);
+  if (t["robot.latch"]) showLatch(t["robot.latch"].data);   // robot.js: the one latch state
   for (const e of m.events) onEvent(e);
+  renderRobotState();   // robot.js: the Robot and Daemon panels' one robot state
   if (m.survey) showSurvey(m.survey);   // survey.js: sent when it changed
   const c = m.console;
   $("console-stats").textContent = `console: pictures to pages ${c.frames_sent}, tabs ${c.tabs}; ` +
     `this page drew ${S.framesDrawn}${c.preview_error ? "; camera: " + c.preview_error : ""}`;
 }
-function showHealth(h) {
-  const rows = Object.entries(h.devices || {}).map(([k, s]) =>
-    `<tr><th>${k}</th><td><span class="st st-${s.state}">${s.state}</span></td><td>reconnects ${s.reconnects}</td><td>${s.reason || ""}</td></tr>`);
+function showHealth(h) {   // built as elements: device names, states and reasons are text, never markup
+  S.robotDevice = (h.devices || {}).robot || null;
+  const rows = Object.entries(h.devices || {}).map(([k, s]) => {
+    const state = el("span", { className: `st st-${s.state}`, textContent: s.state });
+    if (k === "robot") state.dataset.robotState = "";   // robot.js writes the Robot panel's state here too
+    return el("tr", {}, el("th", { textContent: k }), el("td", {}, state),
+              el("td", { textContent: `reconnects ${s.reconnects}` }),
+              el("td", { textContent: s.reason || "" }));
+  });
   const drops = Object.values((h.telemetry || {}).dropped || {}).reduce((a, b) => a + b, 0);
-  $("daemon-health").innerHTML = `<div>up ${fmt(h.uptime_s, 0)} s, alive <b data-live>${h.alive}</b></div><table>${rows.join("")}</table>` +
-    `<div>telemetry dropped ${drops}; frames sent ${(h.frames || {}).sent}, dropped ${(h.frames || {}).dropped}</div>`;
+  const frames = h.frames || {};
+  const alive = el("b", { textContent: String(h.alive), dataset: { live: "" } });
+  $("daemon-health").replaceChildren(
+    el("div", {}, `up ${fmt(h.uptime_s, 0)} s, alive `, alive),
+    el("table", {}, ...rows),
+    el("div", { textContent: `telemetry dropped ${drops}; frames sent ${frames.sent}, ` +
+                             `dropped ${frames.dropped}` }));
+  renderRobotState();
 }
 function showRobot(r) {
-  live("robot-state", r.state + (r.fault ? ` (${r.fault})` : ""));
-  $("robot-state").className = `st st-${S.latch && S.latch.latched ? "LATCHED" : r.state}`;
+  S.robotBase = r;   // its state: robotSummary (robot.js), with the device's and the latch's
   $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
 }
-function showLatch(l) {  // the latched STOP, plainly: who, since when; Release for an operator
-  S.latch = l;
-  $("latch").hidden = !l.latched;
-  $("release").hidden = !l.latched;
-  if (l.latched) {
-    const since = l.since_ns ? new Date(l.since_ns / 1e6).toLocaleTimeString() : "?";
-    $("latch").textContent = `STOPPED (latched by ${l.by} at ${since}): no motion until Release`;
-  }
-  applyRole();
-}
 function stopNow() { act("robot.stop", {}, 10).then(() => toast("robot stopped and latched")).catch(() => {}); }
-function closeDialogs() { for (const d of document.querySelectorAll(".modal")) if (!d.hidden) d.querySelector(".view, button:last-child")?.click(); }
+function closeDialogs() {  // Esc: each open dialog's Cancel
+  for (const d of document.querySelectorAll(".modal")) {
+    if (!d.hidden) d.querySelector(".view, button:last-child")?.click();
+  }
+}
 function onKey(ev) {  // capture phase: before a focused button or field sees the key
   const typing = ev.target instanceof HTMLElement && ev.target.matches("input, textarea, select");
   if (ev.code === "Space" && (ev.ctrlKey || !typing)) { ev.preventDefault(); ev.stopPropagation(); if (ev.type === "keydown" && !ev.repeat) stopNow(); }
@@ -158,6 +169,7 @@ function onEvent(e) {
     toast(r.event ? `robot: ${r.event}${r.result ? " " + r.result : ""}${r.reason ? " (" + r.reason + ")" : ""}` : `robot: ${JSON.stringify(r).slice(0, 120)}`);
   }
   const d = e.data || {};
+  if (e.topic === "robot.latch") noteLatch(d);   // every engagement, even one released within a state period
   if (e.topic === "calib.prompt" && d.job && (!S.pinned || (S.job && S.job.job === d.job))) {
     showPrompt({ job: d.job, state: "waiting", prompt: d });   // at once, even when another client answers quickly
   }
@@ -230,25 +242,6 @@ function zoomAt(ev) {
 }
 
 // ------------------------------------------------------------------ controls
-function confirmMotion(text) {
-  return new Promise((resolve) => {
-    $("confirm-text").textContent = text;
-    $("confirm").hidden = false;
-    $("confirm-yes").onclick = () => { $("confirm").hidden = true; resolve(true); };
-    $("confirm-no").onclick = () => { $("confirm").hidden = true; resolve(false); };
-  });
-}
-async function move(kind) {
-  const mm = Number($("move-mm").value), deg = Number($("turn-deg").value), speed = Number($("move-speed").value);
-  const turnRate = 20;  // robot.turn's default rate (°/s)
-  const text = kind === "move"
-    ? `Drive ${mm < 0 ? "BACKWARDS" : "forwards"} ${Math.abs(mm)} mm at ${speed} mm/s (about ${fmt(Math.abs(mm) / speed, 1)} s)?`
-    : `Turn ${deg < 0 ? "clockwise" : "counter-clockwise"} ${Math.abs(deg)}° at ${turnRate}°/s (about ${fmt(Math.abs(deg) / turnRate, 1)} s)?`;
-  if (!(await confirmMotion(text))) return;
-  const args = kind === "move" ? { distance_mm: mm, speed_mm_s: speed, confirm: true, wait: false }
-                               : { angle_deg: deg, confirm: true, wait: false };
-  act(`robot.${kind}`, args).catch(() => {});
-}
 function bind() {
   $("stop").onclick = stopNow;
   $("release").onclick = () => act("robot.release").then(() => toast("STOP released: motions allowed again")).catch(() => {});
@@ -274,8 +267,6 @@ function bind() {
     $("tracker-point").textContent = `${fmt(p.x)}, ${fmt(p.y)}, ${fmt(p.z)} mm (measure, σ ${fmt(sd, 4)} mm)`;
     $("tracker-env").textContent = `${fmt(p.temperature_c, 1)} °C, ${fmt(p.pressure_mbar, 1)} mbar, ${fmt(p.humidity_rh, 0)} % RH`;
   }).catch(() => {});
-  $("robot-move").onclick = () => move("move");
-  $("robot-turn").onclick = () => move("turn");
   $("proc-start").onclick = startJob;
   $("proc-cancel").onclick = () => S.job && act("calib.cancel", { job: S.job.job }).then(refreshJobs).catch(() => {});
   $("proc-resume").onclick = () => S.job && act("calib.resume", { job: S.job.job }).then(refreshJobs).catch(() => {});

@@ -1,13 +1,21 @@
 // Procedures, results and history panels of the Rita console (uses call/act/S/$ from console.js).
+// Job ids, procedures, states, messages, file and dataset names are the daemon's data: built as elements
+// (dom.js el) or through esc(), never spliced into markup as they came.
 "use strict";
 
 function rel(path) {  // a robot path under its data dir, as files.read wants it
   if (!path) return "";
   return S.dataDir && path.startsWith(S.dataDir + "/") ? path.slice(S.dataDir.length + 1) : path;
 }
-function fileLink(path, text) {
-  const r = encodeURI(rel(path));
-  return `<a href="/files/${r}?download=1" download>${text || r}</a>`;
+function pathUrl(path) {  // a data-dir path as a URL path: each name percent-encoded (`#`, `?` and `"` too)
+  return rel(path).split("/").map(encodeURIComponent).join("/");
+}
+function fileLink(path, text) {  // an <a> element downloading a data-dir file
+  const href = `/files/${pathUrl(path)}?download=1`;
+  return el("a", { href, download: "", textContent: text || rel(path) });
+}
+function datasetLink(dataset, text) {  // the dataset's listing in a new tab
+  return el("a", { href: `/list/${pathUrl(dataset)}`, target: "_blank", textContent: text });
 }
 // what a procedure's result shows (daemon/bus/procedures.py: pose, camera_model, mark, clusters)
 const viewOf = (procedure) => ((S.procInfo || {})[procedure] || {}).view;
@@ -15,7 +23,7 @@ async function ensureDataDir() {  // links name data-dir paths: know the data di
   if (!S.dataDir) S.dataDir = (await call("data.dir", {}, 5)).data_dir;
 }
 async function fetchJson(path) {
-  const resp = await fetch(`/files/${encodeURI(rel(path))}`);
+  const resp = await fetch(`/files/${pathUrl(path)}`);
   if (!resp.ok) throw new Error(`${path}: HTTP ${resp.status}`);
   return resp.json();
 }
@@ -23,17 +31,23 @@ async function fetchJson(path) {
 async function refreshJobs() {
   let r;
   try { await ensureDataDir(); r = await call("calib.jobs", {}, 5); } catch (e) { return; }
-  S.jobs = r.jobs || [];
-  S.latch = r.latch || S.latch;
+  S.jobs = r.jobs || [];   // not its latch: robot.latch telemetry is the page's one latch state (robot.js)
   // follow the newest job, wherever it was started (a second tab, ritactl), unless the operator picked one from the list
   if (S.jobs.length && (!S.job || !S.pinned)) S.job = S.jobs[S.jobs.length - 1];
   const mine = S.job && S.jobs.find((j) => j.job === S.job.job);
   if (mine) { S.job = mine; showJob(mine); }
-  $("jobs").innerHTML = "jobs: " + S.jobs.slice(-8).map((j) =>
-    `<a href="#" data-job="${j.job}">${j.job}</a> ${j.procedure} ${j.state}`).join(" · ");
-  for (const a of $("jobs").querySelectorAll("a[data-job]")) {
-    a.onclick = (ev) => { ev.preventDefault(); S.pinned = true; S.job = S.jobs.find((j) => j.job === a.dataset.job); S.shownResult = null; showJob(S.job); };
-  }
+  showJobs(S.jobs);
+  followJobs();   // robot.js: a job that drives closes the motion dialog and disables Move…/Turn…
+}
+function showJobs(jobs) {   // the last eight jobs, each a link that pins the job panel to it
+  const items = jobs.slice(-8).map((j, i) => {
+    const pick = (ev) => {
+      ev.preventDefault(); S.pinned = true; S.job = j; S.shownResult = null; showJob(j);
+    };
+    const link = el("a", { href: "#", dataset: { job: j.job }, textContent: j.job, onclick: pick });
+    return [i ? " · " : "", link, ` ${j.procedure} ${j.state}`];
+  });
+  $("jobs").replaceChildren("jobs: ", ...items.flat());
 }
 
 function showJob(j) {
@@ -56,7 +70,7 @@ function showPrompt(j) {
   S.promptsSeen = (S.promptsSeen || 0) + 1;
   $("prompt-question").textContent = j.prompt.question;
   const choices = $("prompt-choices");
-  choices.innerHTML = "";
+  choices.replaceChildren();
   for (const c of j.prompt.choices || []) {
     const b = document.createElement("button");
     b.textContent = c; b.id = `prompt-choice-${c}`; b.dataset.cmd = "calib.answer";
@@ -77,11 +91,13 @@ function showResult(r) {
     $("result-rob-H-cam").textContent = `rob_H_cam =\n${m}\n1σ translation (mm): ${(u.std_t_mm || []).map((v) => fmt(v, 4)).join(", ")}` +
       `\n1σ rotation (°): ${(u.std_rot_deg || []).map((v) => fmt(v, 4)).join(", ")}`;
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
-  $("result-messages").innerHTML = (r.messages || []).map((t) => `<li>${t.replace(/</g, "&lt;")}</li>`).join("");
+  $("result-messages").replaceChildren(...(r.messages || []).map((t) => el("li", { textContent: t })));
   $("result-table").innerHTML = markdownTable(r.table_markdown || "");
   if (viewOf(r.procedure) === "camera_model" && r.dataset) showIntrinsics(r.dataset);
-  $("result-files").innerHTML = r.dataset ? `dataset <a href="/list/${encodeURI(rel(r.dataset))}" target="_blank">${rel(r.dataset)}</a>: ` +
-    ["result.json", "result.yaml", ...(r.files || [])].map((f) => fileLink(`${r.dataset}/${f}`, f)).join(" ") : "";
+  const names = ["result.json", "result.yaml", ...(r.files || [])];
+  const files = names.flatMap((f) => [" ", fileLink(`${r.dataset}/${f}`, f)]);
+  const listing = r.dataset ? datasetLink(r.dataset, rel(r.dataset)) : null;
+  $("result-files").replaceChildren(...(r.dataset ? ["dataset ", listing, ":", ...files] : []));
   plotResult(r);
   refreshResults();
 }
@@ -94,21 +110,22 @@ async function showIntrinsics(dataset) {  // f, principal point, RMS and σ at a
     `principal point ${fmt(K[0][2], 1)}, ${fmt(K[1][2], 1)} px (1σ ${fmt(sd.cx, 2)}, ${fmt(sd.cy, 2)}), ` +
     `RMS ${fmt(cal.rms_px, 3)} px over ${cal.n_views ?? "?"} views`;
 }
-function markdownTable(md) {  // the paper's table (a Markdown pipe table) as an HTML table; other lines as text
-  const esc = (t) => t.replace(/&/g, "&amp;").replace(/</g, "&lt;")
-    .replace(/\*\*(.+?)\*\*/g, "<b>$1</b>").replace(/\*(.+?)\*/g, "<i>$1</i>");
+function markdownTable(text) {  // the paper's table (a Markdown pipe table) as HTML; other lines as text
+  // escaped first (dom.js esc), then the only markup: **bold** and *italic*, around text already escaped
+  const inline = (t) => esc(t).replace(/\*\*(.+?)\*\*/g, "<b>$1</b>").replace(/\*(.+?)\*/g, "<i>$1</i>");
   const out = [];
   let rows = [];
   const flush = () => {
     if (!rows.length) return;
-    const cells = (l) => l.trim().replace(/^\||\|$/g, "").split("|").map((c) => esc(c.trim()));
+    const cells = (l) => l.trim().replace(/^\||\|$/g, "").split("|").map((c) => inline(c.trim()));
     const body = rows.filter((l) => !/^\s*\|?\s*:?-{2,}/.test(l)).map(cells);
     out.push("<table class=\"paper\"><thead><tr>" + body[0].map((c) => `<th>${c}</th>`).join("") + "</tr></thead><tbody>" +
       body.slice(1).map((r) => "<tr>" + r.map((c) => `<td>${c}</td>`).join("") + "</tr>").join("") + "</tbody></table>");
     rows = [];
   };
-  for (const line of md.split("\n")) {
-    if (line.trim().startsWith("|")) rows.push(line); else { flush(); if (line.trim()) out.push(`<p>${esc(line)}</p>`); }
+  for (const line of text.split("\n")) {
+    if (line.trim().startsWith("|")) rows.push(line);
+    else { flush(); if (line.trim()) out.push(`<p>${inline(line)}</p>`); }
   }
   flush();
   return out.join("");
@@ -152,12 +169,15 @@ async function refreshResults() {
   let r;
   try { await ensureDataDir(); r = await call("calib.results", {}, 10); } catch (e) { return; }
   const a = r.active;
-  $("calib-active").innerHTML = a ? `active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, ${fileLink(`${a.dataset}/result.yaml`, "result.yaml")}`
-                                  : "no active calibration";
-  $("history").innerHTML = "<table>" + r.history.slice(0, 30).map((h) =>
-    `<tr><td>${h.created || ""}</td><td>${h.job}</td><td>${h.procedure}</td><td>${h.verdict}</td>` +
-    `<td>${h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""}</td>` +
-    `<td>${h.dataset ? `<a href="/list/${encodeURI(rel(h.dataset))}" target="_blank">dataset</a>` : ""}</td></tr>`).join("") + "</table>";
+  $("calib-active").replaceChildren(...(a
+    ? [`active calibration: job ${a.job} (${a.created}), verdict ${a.verdict}, `,
+       fileLink(`${a.dataset}/result.yaml`, "result.yaml")]
+    : ["no active calibration"]));
+  const td = (...c) => el("td", {}, ...c);
+  $("history").replaceChildren(el("table", {}, ...r.history.slice(0, 30).map((h) => el("tr", {},
+    td(h.created || ""), td(h.job ?? ""), td(h.procedure ?? ""), td(h.verdict ?? h.error ?? ""),
+    td(h.dataset ? fileLink(`${h.dataset}/result.json`, "result.json") : ""),
+    td(h.dataset ? datasetLink(h.dataset, "dataset") : "")))));
   const refs = r.history.filter((h) => viewOf(h.procedure) === "pose" && h.job).slice(0, 40).reverse();
   const series = [];
   for (const h of refs) {

@@ -5,31 +5,40 @@
 
 function fieldId(name, i) { return `pp-${name}${i === undefined ? "" : "-" + i}`; }
 
-function paramInput(p) {   // the input element(s) of one parameter, as HTML
-  const title = `${p.help}${p.range ? "; range " + p.range : ""}${p.unit ? " " + p.unit : ""}`.replace(/"/g, "&quot;");
-  const shown = p.default === null || p.default === undefined ? "" : String(p.default);
-  const hint = (p.default_text || (p.required ? "required" : "")).replace(/"/g, "&quot;");
-  if (p.kind === "bool") return `<input type="checkbox" id="${fieldId(p.name)}" class="ctl" title="${title}"${p.default ? " checked" : ""}>`;
+// the input element(s) of one parameter, as HTML: every value from the hello goes through esc()
+function paramInput(p) {
+  const title = esc(`${p.help}${p.range ? "; range " + p.range : ""}${p.unit ? " " + p.unit : ""}`);
+  const shown = esc(p.default === null || p.default === undefined ? "" : String(p.default));
+  const hint = esc(p.default_text || (p.required ? "required" : ""));
+  const id = (i) => esc(fieldId(p.name, i));
+  if (p.kind === "bool") {
+    return `<input type="checkbox" id="${id()}" class="ctl" title="${title}"${p.default ? " checked" : ""}>`;
+  }
   if (p.choices.length) {
-    return `<select id="${fieldId(p.name)}" class="ctl" title="${title}">` +
-      p.choices.map((c) => `<option${c === p.default ? " selected" : ""}>${c}</option>`).join("") + "</select>";
+    return `<select id="${id()}" class="ctl" title="${title}">` +
+      p.choices.map((c) => `<option${c === p.default ? " selected" : ""}>${esc(c)}</option>`).join("") +
+      "</select>";
   }
   if (p.kind === "vec") {
-    return `<span class="vec">` + [...Array(p.length).keys()].map((i) => `<input id="${fieldId(p.name, i)}" class="ctl" size="7" ` +
-      `inputmode="decimal" title="${title}" placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("") + "</span>";
+    return `<span class="vec">` + [...Array(p.length).keys()].map((i) =>
+      `<input id="${id(i)}" class="ctl" size="7" inputmode="decimal" title="${title}" ` +
+      `placeholder="${"xyz"[i]}${p.required ? " (required)" : ""}">`).join("") + "</span>";
   }
   if (p.kind === "file") {
-    return `<input id="${fieldId(p.name)}" class="ctl" size="28" list="robot-json" title="${title}; a data-dir path on the robot" ` +
-      `placeholder="${p.installed ? p.installed + " (installed)" : hint}">`;
+    return `<input id="${id()}" class="ctl" size="28" list="robot-json" ` +
+      `title="${title}; a data-dir path on the robot" ` +
+      `placeholder="${p.installed ? esc(p.installed) + " (installed)" : hint}">`;
   }
-  return `<input id="${fieldId(p.name)}" class="ctl" size="8" inputmode="decimal" title="${title}" value="${shown}" placeholder="${hint}">`;
+  return `<input id="${id()}" class="ctl" size="8" inputmode="decimal" title="${title}" value="${shown}" ` +
+    `placeholder="${hint}">`;
 }
 
 function renderProcForm() {
   const params = (S.procParams || {})[$("proc").value] || [];
   $("proc-form").dataset.procedure = $("proc").value;
   $("proc-form").innerHTML = params.map((p) =>
-    `<label class="field" data-param="${p.name}"><span>${p.name}${p.required ? " *" : ""}${p.unit ? " (" + p.unit + ")" : ""}</span>` +
+    `<label class="field" data-param="${esc(p.name)}"><span>${esc(p.name)}${p.required ? " *" : ""}` +
+    `${p.unit ? " (" + esc(p.unit) + ")" : ""}</span>` +
     `${paramInput(p)}</label>`).join("");
   $("proc-error").textContent = "";
   if (S.role !== "unknown") applyRole();
@@ -43,7 +52,8 @@ async function fillRobotFiles() {   // the file choices: JSON definitions on the
     const r = await call("files.list", {}, 15);
     S.robotFiles = r.files.map((f) => f.path).filter((p) => p.endsWith(".json") && !/^(procedures|calibration\/history)\//.test(p));
   } catch (e) { S.robotFiles = null; return; }   // try again at the next render
-  $("robot-json").innerHTML = S.robotFiles.map((p) => `<option value="${p}">`).join("");
+  // file names are the robot's data: option elements with the name as their value, never markup
+  $("robot-json").replaceChildren(...S.robotFiles.map((p) => el("option", { value: p })));
 }
 
 function checkNumber(p, text) {   // a number inside the parameter's range, or throws naming the field
@@ -87,7 +97,7 @@ function collectParams() {   // {params} or throws {field, message}
 function showParamError(e) {
   for (const el of document.querySelectorAll("#proc-form .bad-field")) el.classList.remove("bad-field");
   $("proc-error").textContent = e ? e.message : "";
-  const label = e && e.field && document.querySelector(`#proc-form [data-param="${e.field}"]`);
+  const label = e && e.field && document.querySelector(`#proc-form [data-param="${CSS.escape(e.field)}"]`);
   if (label) { label.classList.add("bad-field"); const input = label.querySelector("input, select"); if (input) input.focus(); }
 }
 

@@ -23,17 +23,25 @@ function showSurvey(s) {
   const r = s.result;
   $("survey-message").className = s.state === "failed" ? "err" : "";
   if (s.state === "done" && r) {
-    $("survey-message").innerHTML = `<b class="pill ${r.verdict === "ok" ? "ok" : "bad"}">${r.verdict}</b> ` +
-      `${esc(r.message)}; wrote <code>${esc(s.out)}</code>`;
-    $("survey-nests").innerHTML = "<tr><th>nest</th><th>seat x, y, z (mm, PCS)</th><th>1σ x, y, z (µm)</th><th>photos</th></tr>" +
-      Object.entries(r.nests).map(([c, n]) => `<tr><td>${c}</td><td>${n.ref_P_nst_mm.map((v) => fmt(v, 3)).join(", ")}</td>` +
-        `<td>${n.sigma_mm.map((v) => fmt(v * 1000, 0)).join(", ")}</td><td>${n.views}</td></tr>`).join("");
-    $("survey-views").innerHTML = r.views.map((v) => `${esc(v.image)}: ${v.corners} corners, RMS ${fmt(v.corner_rms_px, 3)} px` +
-      (Object.keys(v.rings_missing || {}).length ? `; missing ${esc(Object.keys(v.rings_missing).join(", "))}` : "")).join("<br>") +
-      Object.entries(r.skipped || {}).map(([n, why]) => `<br>${esc(n)}: skipped, ${esc(why)}`).join("");
+    // the verdict, nest names, photo names and reasons come from the survey's report: elements, not markup
+    $("survey-message").replaceChildren(el("b", { className: `pill ${r.verdict === "ok" ? "ok" : "bad"}`,
+                                                  textContent: r.verdict }),
+                                        ` ${r.message}; wrote `, el("code", { textContent: s.out }));
+    const td = (text) => el("td", { textContent: text });
+    $("survey-nests").replaceChildren(
+      el("tr", {}, ...["nest", "seat x, y, z (mm, PCS)", "1σ x, y, z (µm)", "photos"]
+        .map((h) => el("th", { textContent: h }))),
+      ...Object.entries(r.nests).map(([c, n]) => el("tr", {}, td(c),
+        td(n.ref_P_nst_mm.map((v) => fmt(v, 3)).join(", ")),
+        td(n.sigma_mm.map((v) => fmt(v * 1000, 0)).join(", ")), td(n.views))));
+    const lines = r.views.map((v) => `${v.image}: ${v.corners} corners, RMS ${fmt(v.corner_rms_px, 3)} px` +
+      (Object.keys(v.rings_missing || {}).length
+        ? `; missing ${Object.keys(v.rings_missing).join(", ")}` : ""))
+      .concat(Object.entries(r.skipped || {}).map(([n, why]) => `${n}: skipped, ${why}`));
+    $("survey-views").replaceChildren(...lines.flatMap((t, i) => (i ? [el("br"), t] : [t])));
   } else {
     if (s.state !== "idle") $("survey-message").textContent = running ? `surveying ${s.folder}` : s.message;
-    if (running) { $("survey-nests").innerHTML = ""; $("survey-views").innerHTML = ""; }
+    if (running) { $("survey-nests").replaceChildren(); $("survey-views").replaceChildren(); }
   }
 }
 function uploadPlate() {   // the output file (on this laptop) to calibration/NAME on the robot; referencing then names it
@@ -49,7 +57,6 @@ function uploadPlate() {   // the output file (on this laptop) to calibration/NA
     })
     .catch((e) => { $("survey-uploaded").textContent = `plate upload: ${e.message}`; });
 }
-function esc(t) { return String(t ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;"); }
 
 document.addEventListener("DOMContentLoaded", () => {
   $("survey-start").onclick = startSurvey;
