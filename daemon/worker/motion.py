@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from daemon.worker.job import StepFailed
+from daemon.worker.job import JobContext, StepFailed
 
 #: how far a completed move's odometry may lie from its command (mm): the base reports odometry to
 #: 0.1 µm and integrates the commanded motion, so only rounding separates them
@@ -81,4 +81,16 @@ def check_motion(kind: str, commanded: float, start: dict[str, Any] | None, done
                            driven)
 
 
-__all__ = ["HEADING_TOL_DEG", "ODOMETRY_TOL_MM", "MotionIncomplete", "check_motion", "odometry_delta"]
+def confirm_done(ctx: JobContext, kind: str, commanded: float, start: dict[str, Any] | None,
+                 done: dict[str, Any] | None, end: dict[str, Any] | None = None) -> None:
+    """:func:`check_motion` in a job: a motion a latched STOP cut short ends the job as stopped (Stopped),
+    whether the worker heard of the STOP first or of the move's end (DONE STOPPED) first."""
+    try:
+        check_motion(kind, commanded, start, done, end)
+    except MotionIncomplete:
+        ctx.check_cancel()
+        raise
+
+
+__all__ = ["HEADING_TOL_DEG", "ODOMETRY_TOL_MM", "MotionIncomplete", "check_motion", "confirm_done",
+           "odometry_delta"]

@@ -17,7 +17,7 @@ import numpy as np
 from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
 from daemon.worker.job import JobContext
-from daemon.worker.motion import check_motion
+from daemon.worker.motion import confirm_done
 from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move
 
 MIN_HEADING_MOVE_MM = 20.0
@@ -62,7 +62,7 @@ class Navigator:
             start = self.ctx.call("robot.status")  # how far a move cut short went: odometry from here
             done = self.ctx.call("robot.move", timeout=600, distance_mm=step, speed_mm_s=self.speed,
                                  confirm=True)
-            check_motion("move", step, start, done)
+            confirm_done(self.ctx, "move", step, start, done)
             distance_mm -= step
 
     def turn(self, angle_deg: float) -> None:
@@ -71,7 +71,7 @@ class Navigator:
         start = self.ctx.call("robot.status")
         done = self.ctx.call("robot.turn", timeout=600, angle_deg=angle_deg, speed_deg_s=self.turn_speed,
                              confirm=True)
-        check_motion("turn", angle_deg, start, done)  # cut short: the heading is unknown, no step goes on
+        confirm_done(self.ctx, "turn", angle_deg, start, done)  # cut short: the heading is unknown
         if self.nav["heading_deg"] is not None:
             self.nav["heading_deg"] = wrap_deg(self.nav["heading_deg"] + angle_deg)
 

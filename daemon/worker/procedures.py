@@ -125,6 +125,11 @@ def _back_to_p0(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) -> N
     ctx.progress(f"{tag}: back to P0", base_pct, f"the drive was cut short after {along:.1f} mm: "
                  f"driving back to redo it from P0")
     nav.move(-along)
+    back = float(np.hypot(*(nav.where()[0][:2] - np.asarray(run["P0"]["abs_xyz"], float)[:2])))
+    if back > BACK_AGREE_MM + BACK_AGREE_REL * abs(along):  # the odometry misled the way back: stop here
+        raise StepFailed(f"{tag}: driven back {along:.1f} mm, the robot is {back:.1f} mm from P0, not at it "
+                         f"(was the base restarted?). Start a new referencing with the robot on the plate",
+                         resumable=False)
     ctx.state["done"].remove(f"{tag}.image")  # image and P0 are taken again at the new standstill
     runs[:] = [r for r in runs if r["tag"] != tag]
     ctx.checkpoint()

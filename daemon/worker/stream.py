@@ -28,7 +28,7 @@ from daemon.bus.clockmap import ClockMap
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.timeline import TimeSeries
 from daemon.worker.job import JobContext
-from daemon.worker.motion import check_motion
+from daemon.worker.motion import confirm_done
 
 #: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
 DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
@@ -235,7 +235,7 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
         esub.close()
         if isub is not None:
             isub.close()
-    check_motion("move", distance_mm, start, done, last)  # a move cut short is not the approach's final move
+    confirm_done(ctx, "move", distance_mm, start, done, last)  # cut short, it is not the approach's final move
     P, t, sigma = _abs_points(msgs, np.asarray(abs_H_trk, float))
     keep = np.flatnonzero((t >= t0) & (t <= t1))
     idx = keep[_thin(len(keep), MAX_STREAM_POINTS)]

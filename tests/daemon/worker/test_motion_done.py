@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import pytest
 
+from daemon.worker.job import Stopped
 from daemon.worker.motion import MotionIncomplete, check_motion, odometry_delta
 from daemon.worker.nav import Navigator
 
@@ -51,8 +52,8 @@ def test_a_turn_is_judged_by_its_heading():
 class Bus:
     """robot.status and a robot.move whose DONE is ``result``; what the Navigator sends is recorded."""
 
-    def __init__(self, result: str, along: float) -> None:
-        self.result, self.along, self.sent = result, along, []
+    def __init__(self, result: str, along: float, latched: bool = False) -> None:
+        self.result, self.along, self.latched, self.sent = result, along, latched, []
         self.state = {"nav": {"heading_deg": 0.0}}
         self.params: dict = {}
         self.resumed = False
@@ -63,10 +64,17 @@ class Bus:
             return {"state": "IDLE", **START}
         return {"event": "DONE", "result": self.result, **at(self.along)}
 
+    def check_cancel(self) -> None:
+        if self.latched:
+            raise Stopped("job stopped: the robot's stop is latched")
+
 
 def test_the_navigator_does_not_return_from_a_move_cut_short():
     nav = Navigator(Bus("STOPPED", 93.2))  # type: ignore[arg-type]
     with pytest.raises(MotionIncomplete, match="after 93.2 mm"):
+        nav.move(400.0)
+    nav = Navigator(Bus("STOPPED", 93.2, latched=True))  # type: ignore[arg-type]
+    with pytest.raises(Stopped):  # the STOP was latched: the job is stopped, not failed
         nav.move(400.0)
     nav = Navigator(Bus("OK", 400.0))  # type: ignore[arg-type]
     nav.move(400.0)
