@@ -17,6 +17,7 @@ import numpy as np
 from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
 from daemon.worker.job import JobContext
+from daemon.worker.motion import confirm_done
 from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move
 
 MIN_HEADING_MOVE_MM = 20.0
@@ -55,15 +56,22 @@ class Navigator:
         return np.asarray(p["abs_xyz"], dtype=float), p
 
     def move(self, distance_mm: float) -> None:
+        """Drive straight; returns only once the base executed all of it (else MotionIncomplete, Stopped)."""
         while abs(distance_mm) > 1e-3:
             step = math.copysign(min(abs(distance_mm), 1900.0), distance_mm)
-            self.ctx.call("robot.move", timeout=600, distance_mm=step, speed_mm_s=self.speed, confirm=True)
+            start = self.ctx.call("robot.status")  # how far a move cut short went: odometry from here
+            done = self.ctx.call("robot.move", timeout=600, distance_mm=step, speed_mm_s=self.speed,
+                                 confirm=True)
+            confirm_done(self.ctx, "move", step, start, done)
             distance_mm -= step
 
     def turn(self, angle_deg: float) -> None:
         if abs(angle_deg) < 1e-3:
             return
-        self.ctx.call("robot.turn", timeout=600, angle_deg=angle_deg, speed_deg_s=self.turn_speed, confirm=True)
+        start = self.ctx.call("robot.status")
+        done = self.ctx.call("robot.turn", timeout=600, angle_deg=angle_deg, speed_deg_s=self.turn_speed,
+                             confirm=True)
+        confirm_done(self.ctx, "turn", angle_deg, start, done)  # cut short: the heading is unknown
         if self.nav["heading_deg"] is not None:
             self.nav["heading_deg"] = wrap_deg(self.nav["heading_deg"] + angle_deg)
 
@@ -88,8 +96,9 @@ class Navigator:
         tracker's stream along the move go to ``last_record`` (the compensations' inputs).
         """
         a, pa = self.where()
-        if record:
-            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings, self.imu_interval_s)}
+        if record:  # robot_prev: the odometry at P_prev, so the dataset shows the move the base executed
+            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings, self.imu_interval_s),
+                                "robot_prev": self.ctx.call("robot.status")}
         if (record and pa.get("abs_H_trk") is not None and (self.stream_rate_hz is None or self.stream_rate_hz > 0)
                 and abs(distance_mm) <= 1900):
             stream, why = record_move(self.ctx, distance_mm, self.approach_speed, pa["abs_H_trk"], self.stream_rate_hz,

@@ -18,7 +18,8 @@ from daemon.compute.inputs import parse_compensation
 from daemon.worker.compensations import read_tilt
 from daemon.compute.procedures import footprint_abs
 from daemon.worker.guided_intrinsics import guided_intrinsics
-from daemon.worker.job import JobContext
+from daemon.worker.job import JobContext, StepFailed
+from daemon.worker.motion import HEADING_TOL_DEG, ODOMETRY_TOL_MM, odometry_delta
 from daemon.worker.nav import Navigator
 from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
@@ -26,6 +27,14 @@ from daemon.bus.protocol import CommandError
 
 #: default parameters (mm, degrees): declared with the procedures' parameters in the bus library
 DEFAULTS = PARAM_DEFAULTS
+#: a referencing drive cut short is driven back when the odometry since P0 shows the robot on its line
+#: (a straight move does not turn it or put it sideways) and the tracker agrees on the distance from P0
+#: within the drive's errors (scale, slip, lateral: a few mm over the plate): otherwise the odometry
+#: is not the robot's (a restarted base starts at 0, 0, 0; a robot moved by hand) and driving back is blind
+BACK_ACROSS_MM, BACK_TURNED_DEG = 5.0, 1.0
+BACK_AGREE_MM, BACK_AGREE_REL = 5.0, 0.05
+#: unmoved by odometry, the tracker must find the reflector at P0 within this (mm) for P0 to hold
+BACK_STILL_MM = 0.5
 
 
 def param(ctx: JobContext, key: str) -> Any:
@@ -57,31 +66,73 @@ def _measure_reflector(ctx: JobContext, name: str, approx_trk: list[float] | Non
 
 
 def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) -> None:
-    """Image + P0 at one standstill, drive d straight, P1 (paper: Robot pose estimation)."""
+    """Image + P0 at one standstill, drive d straight, P1 (paper: Robot pose estimation).
+
+    The pose belongs to P0 and the image taken at the same standstill; P1 only gives the direction
+    of the drive, whose length ``move_mm`` records. The drive is recorded only once the base executed
+    all of it; a resume finds a drive that is not done and redoes the run from P0 (:func:`_back_to_p0`).
+    """
     runs = ctx.obs.setdefault("runs", [])
+    if ctx.done(f"{tag}.image") and not ctx.done(f"{tag}.drive"):
+        _back_to_p0(ctx, nav, tag, base_pct)
     if not ctx.done(f"{tag}.image"):
         ctx.progress(f"{tag}: image and P0", base_pct, "camera + tracker at standstill")
-        file, header, _ = ctx.capture_image(f"{tag}-p0")
+        taken = sum(1 for e in ctx.dataset.manifest["entries"] if str(e["name"]).startswith(f"{tag}-p0"))
+        file, header, _ = ctx.capture_image(f"{tag}-p0" + (f"-{taken + 1}" if taken else ""))  # a retake
         P0 = ctx.call("tracker.measure", timeout=60)
         robot = ctx.call("robot.status")
         imu = read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s"))  # None: no tilt
+        runs[:] = [r for r in runs if r["tag"] != tag]
         runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot,
                      **({"imu0": imu} if imu else {})})
         ctx.mark_done(f"{tag}.image")
     run = next(r for r in runs if r["tag"] == tag)
     if not ctx.done(f"{tag}.drive"):
         ctx.progress(f"{tag}: drive {param(ctx, 'distance_mm'):.0f} mm", base_pct + 10, "robot moving")
-        if not run.get("drive_started"):
-            run["drive_started"] = True  # never drive twice after a crash mid-move
-            ctx.checkpoint()
-            nav.move(param(ctx, "distance_mm"))
+        nav.move(param(ctx, "distance_mm"))  # returns once all of it is driven, else raises
+        run["robot1"] = ctx.call("robot.status")  # the odometry at P1: the dataset shows the executed drive
+        run["move_mm"] = float(param(ctx, "distance_mm"))
         ctx.mark_done(f"{tag}.drive")
     if not ctx.done(f"{tag}.P1"):
         run["P1"] = ctx.call("tracker.measure", timeout=60)
-        run["move_mm"] = float(param(ctx, "distance_mm"))
         v = np.asarray(run["P1"]["abs_xyz"]) - np.asarray(run["P0"]["abs_xyz"])
         nav.nav["heading_deg"] = math.degrees(math.atan2(v[1], v[0]))
         ctx.mark_done(f"{tag}.P1")
+
+
+def _back_to_p0(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) -> None:
+    """A run whose drive is not done (stopped, cut short, or its end not recorded): back to a defined state.
+
+    Where the robot stands is found from its odometry since P0 (``robot0``), checked against the
+    tracker. Unmoved, image and P0 still hold. Otherwise it drives back the distance the odometry shows
+    (to the standstill whose view of the target was good; driving on could leave the plate) and the
+    run starts afresh: image and P0 again, since the robot never comes back exactly to the same pose.
+    """
+    runs = ctx.obs["runs"]
+    run = next(r for r in runs if r["tag"] == tag)
+    along, across, turned = odometry_delta(run["robot0"], ctx.call("robot.status"))
+    still = max(abs(along), abs(across)) <= ODOMETRY_TOL_MM and abs(turned) <= HEADING_TOL_DEG
+    P_now, _ = nav.where()
+    moved = float(np.hypot(*(P_now[:2] - np.asarray(run["P0"]["abs_xyz"], float)[:2])))
+    agree = BACK_STILL_MM if still else BACK_AGREE_MM + BACK_AGREE_REL * abs(along)
+    if abs(across) > BACK_ACROSS_MM or abs(turned) > BACK_TURNED_DEG or abs(moved - abs(along)) > agree:
+        raise StepFailed(f"{tag}: cannot return to P0 to redo the drive: the odometry since P0 says "
+                         f"{along:.1f} mm along the drive, {across:.1f} mm across, {turned:.2f}° turned, "
+                         f"the tracker {moved:.1f} mm from P0 (was the base restarted or moved by hand?). "
+                         f"Start a new referencing with the robot on the plate", resumable=False)
+    if still:  # stopped before the drive began: image and P0 hold
+        return
+    ctx.progress(f"{tag}: back to P0", base_pct, f"the drive was cut short after {along:.1f} mm: "
+                 f"driving back to redo it from P0")
+    nav.move(-along)
+    back = float(np.hypot(*(nav.where()[0][:2] - np.asarray(run["P0"]["abs_xyz"], float)[:2])))
+    if back > BACK_AGREE_MM + BACK_AGREE_REL * abs(along):  # the odometry misled the way back: stop here
+        raise StepFailed(f"{tag}: driven back {along:.1f} mm, the robot is {back:.1f} mm from P0, not at it "
+                         f"(was the base restarted?). Start a new referencing with the robot on the plate",
+                         resumable=False)
+    ctx.state["done"].remove(f"{tag}.image")  # image and P0 are taken again at the new standstill
+    runs[:] = [r for r in runs if r["tag"] != tag]
+    ctx.checkpoint()
 
 
 def referencing(ctx: JobContext) -> None:

@@ -28,6 +28,7 @@ from daemon.bus.clockmap import ClockMap
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.timeline import TimeSeries
 from daemon.worker.job import JobContext
+from daemon.worker.motion import confirm_done
 
 #: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
 DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
@@ -159,9 +160,21 @@ def _thin(n: int, most: int) -> np.ndarray:
     return np.arange(n) if n <= most else np.unique(np.linspace(0, n - 1, most).round().astype(int))
 
 
+def _done_event(sub: Subscriber, wait_s: float) -> dict[str, Any] | None:
+    """The move's DONE event (its ``result`` says whether the base executed all of it), or None."""
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
+        data = got[1].get("data") if got is not None and isinstance(got[1], dict) else None
+        if isinstance(data, dict) and data.get("event") == "DONE":
+            return data
+    return None
+
+
 def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, timeout_s: float
-                        ) -> list[tuple[int, float, float]]:
-    """Start the move, poll robot.status until the base is idle; the tilt samples (host ns, roll, pitch)."""
+                        ) -> tuple[list[tuple[int, float, float]], dict[str, Any]]:
+    """Start the move, poll robot.status until the base is idle: the tilt samples (host ns, roll, pitch)
+    and the last status (the odometry where the move ended)."""
     ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True, wait=False)
     samples: list[tuple[int, float, float]] = []
     end = time.monotonic() + timeout_s
@@ -172,7 +185,7 @@ def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, 
         if st.get("state") == "FAULT":
             raise CommandError(ErrorCode.DEVICE_ERROR, f"robot FAULT during the approach: {st.get('fault')}")
         if st.get("state") == "IDLE":
-            return samples
+            return samples, st
         if time.monotonic() > end:
             raise CommandError(ErrorCode.TIMEOUT, f"robot still moving {timeout_s:.0f} s after the approach started")
 
@@ -189,11 +202,14 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
     first sample taken while moving; without it the points at the start would get a
     mid-move tilt.
     """
+    start: dict[str, Any] | None = None  # the odometry before the move: how far it went, if cut short
     try:
-        streams = ctx.call("robot.status", timeout=30).get("streams") or []
+        start = ctx.call("robot.status", timeout=30)
+        streams = start.get("streams") or []
     except CommandError:  # not knowing the base's streams only means polling its status for the tilt
         streams = []
     sub = ctx.client.subscriber(["tracker.point"])
+    esub = ctx.client.subscriber(["robot.event"])  # the move's DONE: was all of it executed?
     isub = ctx.client.subscriber([TILT_FROM_INCL]) if TILT_FROM_INCL in streams else None
     incl: list[dict[str, Any]] = []
     try:
@@ -205,8 +221,10 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
         t0 = time.time_ns()
         msgs: list[dict[str, Any]] = []
         try:
-            tilt = _drive_polling_tilt(ctx, distance_mm, speed_mm_s, 60.0 + 2 * abs(distance_mm) / speed_mm_s)
+            tilt, last = _drive_polling_tilt(ctx, distance_mm, speed_mm_s,
+                                             60.0 + 2 * abs(distance_mm) / speed_mm_s)
             t1 = time.time_ns()
+            done = _done_event(esub, LAST_PACKET_WAIT_S)
             _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
             if isub is not None:
                 incl = _collect_incl(isub, t1, LAST_PACKET_WAIT_S)
@@ -214,8 +232,10 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             ctx.client.call("tracker.stream.stop", timeout=30)
     finally:
         sub.close()
+        esub.close()
         if isub is not None:
             isub.close()
+    confirm_done(ctx, "move", distance_mm, start, done, last)  # cut short, it is not the approach's final move
     P, t, sigma = _abs_points(msgs, np.asarray(abs_H_trk, float))
     keep = np.flatnonzero((t >= t0) & (t <= t1))
     idx = keep[_thin(len(keep), MAX_STREAM_POINTS)]
