@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 DEFAULT_STREAM_HZ = 50.0
 #: keep-alive lines per host timeout while a motion runs: two may be late or lost without a false halt
 KEEPALIVES_PER_TIMEOUT = 3
+#: the shortest host timeout this host asks: a third of it is still a few read slices
+MIN_HOST_TIMEOUT_S = 0.15
 NO_WATCHDOG = "this base has no host watchdog: a daemon crash lets a move finish"
 
 
@@ -74,8 +76,8 @@ class SerialRobot(RobotLine, Robot):
                                 ("state_hz", self.state_hz, 0 <= self.state_hz <= 100),
                                 ("protocol", self.protocol, self.protocol in rp.PROTOCOL_VERSIONS),
                                 ("stream_hz", self.stream_hz, rp.state_rate_error(self.stream_hz) is None),
-                                ("host_timeout", self.host_timeout,
-                                 rp.host_timeout_error(self.host_timeout * 1000.0) is None)):
+                                ("host_timeout", self.host_timeout,  # kept alive at a third of it
+                                 MIN_HOST_TIMEOUT_S <= self.host_timeout <= rp.MAX_HOST_TIMEOUT_MS / 1000)):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
         if url.scheme == "serial" and not url.path:
@@ -83,6 +85,7 @@ class SerialRobot(RobotLine, Robot):
         self._init_line(settings if isinstance(settings, MotionGate) else MotionGate())
         self.gate.bind(self.wake)
         self._port_lock = threading.Lock()  # wake() (any thread) against close()
+        self._starting = False  # a MOVE/TURN written, its ACK not yet read
         self._target = ""
         self._last_state: RobotState | None = None
         self._last_state_emit = 0.0
@@ -175,6 +178,12 @@ class SerialRobot(RobotLine, Robot):
             log.warning("%s (protocol %s, %s)", NO_WATCHDOG, self._version["protocol"],
                         self._version["model"])
 
+    def _keepalive_period(self) -> float | None:
+        watchdog = self._watchdog_s
+        if watchdog is None or self._moving_seq is None and not self._starting:
+            return None
+        return watchdog / KEEPALIVES_PER_TIMEOUT
+
     @property
     def _watchdog_s(self) -> float | None:
         """The host timeout the base halts a motion after (s), None for a base without the watchdog."""
@@ -224,9 +233,12 @@ class SerialRobot(RobotLine, Robot):
         self._start_motion("TURN", float(angle_deg), float(speed_deg_s))
 
     def _start_motion(self, kind: str, value: float, speed: float) -> None:
-        if self.gate.latched:  # the device unit's own gate, whoever queued the motion
-            raise DeviceError(f"robot: {kind} refused: the stop is latched", code="stopped")
-        reply = self._transact(kind, rp.num(value), rp.num(speed), expect="ACK")
+        self._finished_seq = None  # a DONE read from now on is this motion's (seqs wrap at 9999)
+        self._starting = True  # the base may be moving before its ACK arrives: keep it alive meanwhile
+        try:
+            reply = self._transact(kind, rp.num(value), rp.num(speed), expect="ACK")
+        finally:
+            self._starting = False
         seq = reply.seq()
         # with an instant base the DONE may already have been read while waiting
         self._moving_seq = None if self._finished_seq == seq else seq
@@ -290,15 +302,12 @@ class SerialRobot(RobotLine, Robot):
         self._transact("STOP", expect="ACK")
 
     def pump(self, timeout: float) -> None:
-        """Read events for ``timeout`` s, polling STATUS when a ``state_hz`` slot is due, and while a motion
-        runs often enough to keep a version-3 base's host watchdog fed."""
+        """Read events for ``timeout`` s, polling STATUS when a ``state_hz`` slot is due (each read slice
+        also keeps a version-3 base's host watchdog fed while a motion runs: robot_line.py)."""
         deadline = time.monotonic() + max(0.0, timeout)
         while True:
             now = time.monotonic()
-            watchdog = self._watchdog_s
-            keepalive = (watchdog is not None and self._moving_seq is not None
-                         and now - self._last_tx >= watchdog / KEEPALIVES_PER_TIMEOUT)
-            if keepalive or self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
+            if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
                 self.status()
                 now = time.monotonic()
             if now >= deadline or self._woken:

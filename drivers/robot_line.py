@@ -60,6 +60,7 @@ class RobotLine:
         self._finished_seq: int | None = None
         self._streaming = False
         self._halt: _Halt | None = None
+        self._keepalive_seq: int | None = None  # the last keep-alive STATUS: its reply is not a stray
         self._last_tx = 0.0  # monotonic time of the last line written (the host watchdog's keep-alive)
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
         self._batcher = StreamBatcher(self.emit)
@@ -91,7 +92,7 @@ class RobotLine:
         halt = self._halt
         if halt is None or msg.kind not in rp.REPLIES or msg.seq() != halt.seq:
             return False
-        if msg.kind == "ACK":
+        if msg.kind == "ACK" and msg.fields[1:2] == ("STOP",):
             self._halt = None
             self.gate.halted(halt.request)
         else:  # STOP is always accepted: a NAK is a line fault; it is resent on time
@@ -111,10 +112,28 @@ class RobotLine:
             for msg in self._receive(min(deadline, time.monotonic() + READ_SLICE_S)):
                 self._count_stray(msg)
 
+    # ------------------------------------------------------------------ the host watchdog's keep-alive
+
+    def _keepalive_period(self) -> float | None:
+        """How often a line must go out now (s), None when nothing needs keeping alive (the adapter's)."""
+        return None
+
+    def _keepalive(self) -> None:
+        """While a motion of ours runs on a base with the host watchdog, a line at least every period, also
+        while a transaction waits for a late reply: a STATUS with its own seq, its answer dropped unread."""
+        period = self._keepalive_period()
+        if period is None or time.monotonic() - self._last_tx < period or self._port is None:
+            return
+        self._seq = rp.next_seq(self._seq)
+        self._keepalive_seq = self._seq
+        self._write(rp.encode("STATUS", self._seq))
+
     # ------------------------------------------------------------------ transactions
 
     def _transact(self, kind: str, *fields: object, expect: str) -> rp.Message:
-        """Send one command and return its positive reply; NAK → DeviceError."""
+        """Send one command and return its positive reply; NAK → DeviceError. A motion line is checked
+        against the gate before *every* write, its resends included, after any owed STOP went out: a
+        STOP requested after that check is written after the line (the owner writes both)."""
         self._seq = rp.next_seq(self._seq)
         seq = self._seq
         line = rp.encode(kind, seq, *fields)
@@ -123,6 +142,8 @@ class RobotLine:
                 self.counters["retries"] += 1
             if self._port is not None:
                 self._service_halt()  # an owed STOP goes out before this command's line too
+            if kind in rp.MOTIONS and self.gate.latched:
+                raise DeviceError(f"robot: {kind} refused: the stop is latched", code="stopped")
             self._write(line)
             deadline = time.monotonic() + self.reply_timeout
             resend = False
@@ -167,6 +188,7 @@ class RobotLine:
         replies: list[rp.Message] = []
         while True:
             self._service_halt()
+            self._keepalive()
             halting = self._halt is not None
             try:
                 data = self._port.read(max(1, self._port.in_waiting))
@@ -177,6 +199,8 @@ class RobotLine:
                 msg = self._decode(raw, rx_ns)
                 if msg is None or self._dispatch_event(msg, rx_ns) is None or self._halt_reply(msg):
                     continue  # a bad line, an event or sample, or the owed STOP's answer: not a reply
+                if msg.kind == "STATUS" and msg.seq() == self._keepalive_seq:
+                    continue  # a keep-alive's answer: only the line mattered
                 replies.append(msg)
             self.counters["overflows"] = self._splitter.overflows
             self._batcher.flush()

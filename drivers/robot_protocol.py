@@ -21,6 +21,8 @@ SEQ_MAX = 9999
 
 #: host → base commands (STATE since version 2)
 COMMANDS = ("HELLO", "MOVE", "TURN", "STOP", "STATUS", "STATE")
+#: the commands that start a motion (refused by the host while its stop is latched)
+MOTIONS = ("MOVE", "TURN")
 #: base → host replies (each carries the seq of the command it answers)
 REPLIES = ("ACK", "NAK", "VERSION", "STATUS")
 #: base → host asynchronous events (their first field is the motion's seq)

@@ -32,7 +32,8 @@ from dataclasses import replace
 from typing import Callable
 
 from drivers import robot_protocol as rp
-from fakes.robot_motion import HostWatchdog, Motion, fraction_at, motion_state, pose_on_path, unit_interval
+from fakes.robot_motion import (HostWatchdog, Motion, fraction_at, motion_state, pose_on_path, unit_interval,
+                                 wrap_deg)
 from fakes.robot_stream import DEFAULT_DRIFT_PPM, INCL_RATE_HZ, BaseClock, SampleStreams, seeded_offset_s
 from fakes.world import RobotPose, World
 
@@ -41,10 +42,6 @@ FIRMWARE = "sim-1.0"
 SERIAL_NUMBER = "SIM-0001"
 BATTERY_FULL_V = 25.2
 BATTERY_V_PER_M = 0.002  # volts lost per metre driven (keeps the number alive)
-
-
-def _wrap_deg(angle: float) -> float:
-    return math.remainder(angle, 360.0)
 
 
 #: the inclinometer's output period in robot time (its rate: fakes/robot_stream.py)
@@ -383,9 +380,9 @@ class FakeBase:
         p = self.world.params
         roll, pitch = self._tilt_rng.standard_normal(2) * p.floor_tilt_sigma_mrad * 1e-3
         # settle adds the surface's tilt under the wheels to the random settling tilt
-        self.world.set_robot(self.world.settle(replace(pose, heading_deg=_wrap_deg(pose.heading_deg),
+        self.world.set_robot(self.world.settle(replace(pose, heading_deg=wrap_deg(pose.heading_deg),
                                                        roll_rad=float(roll), pitch_rad=float(pitch), z_mm=None)))
-        self.odometry = (ox, oy, _wrap_deg(oh))
+        self.odometry = (ox, oy, wrap_deg(oh))
         self.travelled_mm += f * m.path
         self._last_motion = (m, self.clock())  # pose_at answers for it up to this tick
         self.motion = None
@@ -397,4 +394,4 @@ class FakeBase:
             self._send("FAULT", m.seq, reason, text)
         else:
             self.state = "IDLE"
-            self._send("DONE", m.seq, result, rp.num(ox, 4), rp.num(oy, 4), rp.num(_wrap_deg(oh), 6))
+            self._send("DONE", m.seq, result, rp.num(ox, 4), rp.num(oy, 4), rp.num(wrap_deg(oh), 6))

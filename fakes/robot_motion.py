@@ -27,6 +27,11 @@ class Motion:
     bend_mm: float = 0.0  # sideways offset at the end of the bent path (error model: arc or S)
 
 
+def wrap_deg(angle: float) -> float:
+    """A heading wrapped to [-180, 180] (the protocol's convention)."""
+    return math.remainder(angle, 360.0)
+
+
 def unit_interval(name: str, value: float) -> float:
     """A probability option (0..1), or ValueError naming it."""
     if not 0.0 <= value <= 1.0:
@@ -65,7 +70,9 @@ def motion_state(base: Any, t: float) -> tuple[tuple[float, float, float], tuple
 class HostWatchdog:
     """Protocol 3's host watchdog (docs/robot-protocol.md, "Host watchdog"): a motion halts on its own
     when no valid host line came within ``timeout_s``, as a base whose host died must. Off (None) in a
-    version-1 or 2 session, whose host does not keep the link alive."""
+    version-1 or 2 session, whose host does not keep the link alive. A line counts when the fake reads it:
+    one that waited in the pty while the fake's own thread was late re-arms the timer, as it would have on
+    time on a real base (whose receive interrupt is never late), so a busy test machine halts nothing."""
 
     timeout_s: float | None = None
     heard_at: float = -math.inf  # clock time of the last valid host line

@@ -80,8 +80,8 @@ def cmd_status(c: Client, a: argparse.Namespace) -> int:
     if latch.get("latched"):  # plainly: the robot will not move until someone releases it
         print(f"  STOP LATCHED by {latch.get('by')}: no motion until `ritactl robot release` "
               f"({latch.get('refused', 0)} motion(s) refused)")
-        if latch.get("halt_pending"):  # latched is not halted: say so until the base has acknowledged it
-            print("  HALT NOT YET ACKNOWLEDGED by the base: STOP is sent as soon as it answers")
+    if latch.get("halt_pending"):  # latched is not halted: say so until the base has acknowledged it
+        print("  HALT NOT YET ACKNOWLEDGED by the base: STOP is sent as soon as it answers")
     t, f, cm = h["telemetry"], h["frames"], h["commands"]
     print(f"  telemetry sent={t['sent']} dropped={sum(t['dropped'].values())}   frames sent={f['sent']} "
           f"dropped={f['dropped']}   commands={cm['requests']} errors={cm['errors']}")

@@ -152,13 +152,13 @@ def _robot(s: Services) -> dict[str, Handler]:
 
 def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_s: float) -> Future:
     """The STOP's reply once the latch is on disk and the base acknowledged the halt, or after ``wait_s``
-    without that acknowledgement (link down, base off): latched all the same, the halt still owed."""
+    without both (link down, base off, a slow disk): latched all the same, the halt still owed."""
     out: Future = Future()
     expired = threading.Event()
 
     def answer(*_: Any) -> None:
         acked = halted.done()
-        if not persisted.done() or out.done() or not (acked or expired.is_set()):
+        if out.done() or not (acked and persisted.done() or expired.is_set()):
             return
         reply: dict[str, Any] = {"stopped": acked, "latched": True, "jobs_stopped": jobs_stopped}
         if not acked:

@@ -150,13 +150,13 @@ class Daemon:
         self.worker.stop()
         for runner in self.runners.values():
             runner.stop()
-        self.latch.close()
         bound: list[str] = []
         for t in (getattr(self, "server", None), getattr(self, "frames", None), getattr(self, "telemetry", None)):
             if t is not None:
                 t.stop()
                 bound += t.endpoints
         self.storage.shutdown(wait=True)
+        self.latch.close()  # after the command server: no STOP can come later
         if self.security is not None:
             self.security.stop()
         self.ctx.term()  # every socket was closed by its owner with LINGER 0

@@ -161,7 +161,8 @@ class DeviceRunner(threading.Thread):
     def _connect(self) -> bool:
         if self._retrying:
             self.reconnects += 1
-        self._set_state(DeviceState.CONNECTING)
+        if not (self._retrying and self._urgent()):  # urgent retries every 50 ms: FAULT stays, unrepeated
+            self._set_state(DeviceState.CONNECTING)
         self._busy_deadline = time.monotonic() + self.open_timeout  # open() blocks: it has its own limit
         try:
             if self.device is None:
@@ -240,13 +241,15 @@ class DeviceRunner(threading.Thread):
             log.error("%s: could not be left safe at exit: %s", self.kind, describe(exc))
 
     def _backoff(self, seconds: float) -> None:
-        """Wait before the next connect attempt, beating so the watchdog sees a responsive thread."""
-        end = time.monotonic() + seconds
+        """Wait before the next connect attempt, beating so the watchdog sees a responsive thread; cut short
+        when the device comes to owe a halt meanwhile (a STOP must not wait out a backoff grown long)."""
+        start = time.monotonic()
+        end = start + seconds
         while not self._stop_evt.is_set():
             self.heartbeat = now = time.monotonic()
-            if now >= end:
+            if now >= end or now - start >= URGENT_RETRY_S and self._urgent():
                 return
-            self._stop_evt.wait(min(BEAT_S, end - now))
+            self._stop_evt.wait(min(BEAT_S, end - now, URGENT_RETRY_S))
 
     def run(self) -> None:
         backoff = self.backoff_min

@@ -45,7 +45,8 @@ class StopLatch:
         self._load()
         #: the robot's motion gate (ritad hands it to the robot adapter); latched at start owes the base a halt
         self.gate = MotionGate(latched=self.latched)
-        self.gate.on_halted(lambda: self._publish(Topic.ROBOT_LATCH, self.snapshot()))
+        self._pub_lock = threading.Lock()  # a snapshot and its publication in one step: the last one is newest
+        self.gate.on_halted(self._announce)
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="latch-file")  # in order, off the bus
 
     def _load(self) -> None:
@@ -66,11 +67,21 @@ class StopLatch:
                     "refused": self.refused}
         return {**snap, "halt_pending": self.gate.pending}
 
+    def _announce(self) -> None:
+        with self._pub_lock:
+            self._publish(Topic.ROBOT_LATCH, self.snapshot())
+
     def _changed(self) -> Future:
-        """Publish now; write the file in the latch's thread (the Future is done once it is on disk)."""
-        snap = self.snapshot()
-        self._publish(Topic.ROBOT_LATCH, snap)
-        return self._writer.submit(self._persist)
+        """Publish now; write the file in the latch's thread (the Future is done once it is on disk), or here
+        once that thread has ended (a STOP while the daemon stops)."""
+        self._announce()
+        try:
+            return self._writer.submit(self._persist)
+        except RuntimeError:  # the writer is shut down: the latch must still reach the disk
+            self._persist()
+            done: Future = Future()
+            done.set_result(None)
+            return done
 
     def _persist(self) -> None:
         if self._path is None:

@@ -259,14 +259,14 @@ def test_motion_finished_while_disconnected_still_reports_done(make_robot: Any) 
 def test_a_motion_started_by_an_earlier_session_is_halted_once(protocol: int) -> None:
     base = FakeBase(World(WorldParams(start_pose=(0.0, 0.0, 0.0))), time_scale=1.0)
     server = PtyServer(base)
-    url = DeviceURL.parse(f"serial://{server.path}?state_hz=0&protocol={protocol}")
+    url = DeviceURL.parse(f"serial://{server.path}?state_hz=0&protocol={protocol}&host_timeout=5")
     first, sink = SerialRobot(url), Sink()
     second = SerialRobot(url, emit=sink)
     try:
         first.open()
         first.move(1000.0, 100.0)  # 10 s of motion nobody owns once ``first`` is gone
         first.close()
-        second.open()  # the base is still moving (within its host timeout): not this session's motion
+        second.open()  # the base is still moving (within its long host timeout): not this session's motion
         assert second.last_state is not None and second.last_state.state == "MOVING"
         assert second.wait_idle(5.0).x_mm < 100.0
         events = sink.events()

@@ -40,6 +40,7 @@ class StopRig:
         self.server = PtyServer(self.base)
         self.proxy = LinkProxy(self.server.path)
         self.ritad: RitadProcess | None = None
+        self._clients: list[Client] = []
 
     def x(self) -> float:
         """The base's odometry x (mm) now."""
@@ -52,8 +53,9 @@ class StopRig:
             self.base.tick()
             return self.base.moving
 
-    def start(self) -> RitadProcess:
-        devices = {**NO_DEVICES, "robot": f"serial://{self.proxy.path}"}
+    def start(self, query: str = "") -> RitadProcess:
+        """ritad on the cable's pty (``query``: robot URL options, e.g. ``host_timeout=5``)."""
+        devices = {**NO_DEVICES, "robot": f"serial://{self.proxy.path}" + (f"?{query}" if query else "")}
         self.ritad = start_ritad(ritad_toml(devices=devices, log_level="INFO"), tmp=self.tmp, timeout=60)
         return self.ritad
 
@@ -61,6 +63,7 @@ class StopRig:
         """A client of the running ritad, once its robot is READY."""
         assert self.ritad is not None
         c = self.ritad.client(timeout=10)
+        self._clients.append(c)  # closed with the rig
         c.wait_ready(devices=["robot"], timeout=60)
         return c
 
@@ -75,6 +78,8 @@ class StopRig:
         return self.x()
 
     def close(self) -> None:
+        for c in self._clients:
+            c.close()
         if self.ritad is not None:
             self.ritad.kill()
         self.proxy.close()

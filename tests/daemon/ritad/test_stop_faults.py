@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,6 +22,9 @@ import pytest
 
 from daemon.bus.client import Client
 from drivers import robot_protocol as rp
+from daemon.ritad.runner import URGENT_RETRY_S, DeviceRunner
+from drivers.base import DeviceLost
+from fakes.link_proxy import TO_BASE
 from tools.harness.stop_rig import SPEED, StopRig as Rig, wait_for
 
 pytestmark = pytest.mark.timeout(120)
@@ -55,7 +59,8 @@ def test_f1_stop_while_the_link_is_down_halts_the_base_when_it_is_back(rig: Rig)
         x_self = rig.halted(timeout=5)
         assert x_self - x_cut <= WATCHDOG_MM, f"drove {x_self - x_cut:.1f} mm after the link dropped"
         assert rig.base.fault == rp.FAULT_HOST_LOST
-    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] != "READY", 10, "ritad sees the loss")
+    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] != "READY", 10, "ritad sees the loss",
+             0.05)
     time.sleep(max(0.0, t_cut + 2.5 - time.monotonic()))  # the tester's 2.5 s outage (not a limit)
     reply = _stop(c)
     assert reply["stopped"] is False and "sent as soon as the base answers" in reply["message"]
@@ -63,7 +68,7 @@ def test_f1_stop_while_the_link_is_down_halts_the_base_when_it_is_back(rig: Rig)
     rig.proxy.restore()
     x_end = rig.halted()
     assert x_end - x_back <= MARGIN_MM, f"drove {x_end - x_back:.1f} mm after the link came back"
-    wait_for(lambda: not c.call("state")["latch"]["halt_pending"], 20, "the halt acknowledged")
+    wait_for(lambda: not c.call("state")["latch"]["halt_pending"], 20, "the halt acknowledged", 0.05)
     with pytest.raises(Exception, match="stopped|latched"):
         c.call("robot.move", distance_mm=10.0, speed_mm_s=SPEED, confirm=True)
 
@@ -90,7 +95,7 @@ def test_stop_while_ritad_reconnects(rig: Rig) -> None:
     rig.move(c)
     rig.proxy.cut()
     wait_for(lambda: c.call("health")["devices"]["robot"]["state"] in ("CONNECTING", "FAULT"), 10,
-             "ritad reconnecting")
+             "ritad reconnecting", 0.05)
     _stop(c)
     x_back = rig.x()
     rig.proxy.restore()
@@ -108,15 +113,23 @@ def test_f2_a_latch_persisted_before_a_kill_halts_the_base_at_restart(rig: Rig) 
     assert rig.ritad is not None
     rig.ritad.kill()  # SIGKILL: nothing of ritad's runs after this
     rig.proxy.restore()
-    c.close()
     if rig.base.max_protocol >= 3:  # a quiet host: the base halted itself long ago
         assert not rig.moving() and rig.base.fault == rp.FAULT_HOST_LOST
-        return
-    assert rig.moving()  # a version-2 base drives on with nobody to stop it: the restart must
+    else:
+        assert rig.moving()  # a version-2 base drives on with nobody to stop it: the restart must
+    restarted_at = time.monotonic()
     rig.start()
-    x_ready = rig.x()
+    x_ready = rig.x()  # the new ritad's bus is up (READY=1): from here its robot connects at once
     x_end = rig.halted()
     assert x_end - x_ready <= MARGIN_MM, f"drove {x_end - x_ready:.1f} mm after the new ritad was up"
+    with rig.client() as c2:
+        wait_for(lambda: not c2.call("state")["latch"]["halt_pending"], 20, "the owed halt acknowledged",
+                 0.05)
+    sent = [line.split(b",", 1)[0] for t, line in rig.proxy.lines(TO_BASE) if t >= restarted_at]
+    handshake = sent[:next(i for i, k in enumerate(sent) if k not in (b"$HELLO", b"$STOP"))]
+    last_hello = len(handshake) - 1 - handshake[::-1].index(b"$HELLO")  # (a v2 base refuses HELLO,3 first)
+    assert handshake[last_hello + 1:] and set(handshake[last_hello + 1:]) == {b"$STOP"}, sent[:8]
+    assert rig.base.state == "IDLE"  # a HOST_LOST fault is cleared by that STOP too
 
 
 @pytest.mark.parametrize("rig", [3], indirect=True)
@@ -134,7 +147,7 @@ def test_f3_sigkill_mid_move_the_base_halts_itself(rig: Rig) -> None:
 
 @pytest.mark.parametrize("rig", [2, 3], indirect=True)
 def test_f3_sigterm_mid_move_halts_the_base_before_ritad_exits(rig: Rig) -> None:
-    rig.start()
+    rig.start(query="host_timeout=5")  # a version-3 base's watchdog kept out: ritad's own STOP is tested
     c = rig.client()
     rig.move(c)
     assert rig.ritad is not None
@@ -142,3 +155,30 @@ def test_f3_sigterm_mid_move_halts_the_base_before_ritad_exits(rig: Rig) -> None
     rig.ritad.proc.wait(timeout=30)
     assert not rig.moving(), "the base still drives after ritad exited"
     assert rig.base.state == "IDLE" and rig.base.fault == ""  # ritad's STOP, not the watchdog
+
+
+def test_a_halt_owed_during_a_long_backoff_cuts_it_short() -> None:
+    """A STOP while the runner waits out a backoff grown long (a base gone for minutes) does not wait."""
+    owed, attempts = threading.Event(), []
+
+    class Gone:  # a device whose port does not open
+        url = type("U", (), {"raw": "serial:///dev/gone"})()
+
+        def open(self) -> None:
+            attempts.append(time.monotonic())
+            raise DeviceLost("cannot open robot port '/dev/gone'")
+
+        def close(self) -> None:
+            pass
+
+    runner = DeviceRunner("robot", Gone, lambda topic, data: None, backoff_min=60.0, backoff_max=60.0,
+                          urgent=owed.is_set)
+    runner.start()
+    try:
+        wait_for(lambda: len(attempts) == 1, 10, "the first attempt", 0.01)
+        owed.set()  # robot.stop: the gate now owes the base a halt
+        wait_for(lambda: len(attempts) >= 3, 30, "attempts every URGENT_RETRY_S, not after 60 s", 0.01)
+        assert URGENT_RETRY_S < 1.0
+    finally:
+        runner.stop()
+
