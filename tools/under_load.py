@@ -54,9 +54,11 @@ def stop_spinners(spinners: list[subprocess.Popen[bytes]]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--spinners", type=int, default=2 * (os.cpu_count() or 1), help="busy processes (2 × cores)")
+    ap.add_argument("--spinners", type=int, default=2 * (os.cpu_count() or 1), 
+                    help="busy processes (2 × cores)")
     ap.add_argument("--nice", type=int, default=0, help="niceness added to the spinners (0: the command's)")
-    ap.add_argument("--max-s", type=float, default=3600.0, help="the spinners stop after this long regardless")
+    ap.add_argument("--max-s", type=float, default=3600.0, 
+                    help="the spinners stop after this long regardless")
     ap.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
     a = ap.parse_args(argv)
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
