@@ -53,7 +53,8 @@ def main() -> None:
             assert code == 0, code
         finally:
             r.stop()
-    print(f"| SIGTERM → exit 0, devices READY, `ritad --sim` (median of 3; min–max) | {sorted(exits)[1]:.2f} s "
+    print(f"| SIGTERM → exit 0, devices READY, `ritad --sim` (median of 3; min–max) | "
+          f"{sorted(exits)[1]:.2f} s "
           f"({min(exits):.2f}–{max(exits):.2f}) | ≤ 5 s |")
     r = start_ritad()
     ep = r.endpoint

@@ -50,7 +50,7 @@ def main(n: int = 50) -> None:
         public, secret = load_keypair(base / "laptop" / f"{name}.key_secret")
         keys[name] = {"public": public, "secret": secret, "server": server}
     create_keypair(base / "other", "server")  # a server key from another robot
-    wrong_server = load_public(base / "other" / "server.key")
+    wrong = {**keys["alice"], "server": load_public(base / "other" / "server.key")}
     r = start_ritad(CONFIG, tmp=base)  # data in base/data, where the keys are
     ep = r.endpoint
     try:
@@ -59,7 +59,7 @@ def main(n: int = 50) -> None:
         for label, curve, goal in (("allowed key (ping answered)", keys["alice"], "–"),
                                    ("unknown key", keys["mallory"], "≤ 1 s"),
                                    ("no keys (plaintext)", None, "≤ 1 s"),
-                                   ("wrong server key", {**keys["alice"], "server": wrong_server}, "≤ 1 s")):
+                                   ("wrong server key", wrong, "≤ 1 s")):
             t, refused = first_answer(ep, curve, n)
             print(f"| {label}, n={n} | p50 {pct(t, 50):.1f} ms, p99 {pct(t, 99):.1f} ms, max {max(t):.1f} ms "
                   f"| {refused}/{n} | {goal} |")

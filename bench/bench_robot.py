@@ -106,7 +106,7 @@ def bench_noisy_line(n: int) -> list[tuple[str, str]]:
 
 def bench_silent_base(n: int) -> list[tuple[str, str]]:
     """A base that stops answering: STATUS → DeviceLost with timeout 0.1 s and one retry (two tries: 0.2 s
-    at least). tests/drivers/test_robot_driver.py asserts the two tries ended it; how soon is measured here."""
+    at least). tests/drivers/test_robot_driver.py asserts the two tries ended it; how soon: here."""
     robot = _robot("time_scale=0&timeout=0.1&retries=1")
     times = []
     try:
@@ -120,8 +120,8 @@ def bench_silent_base(n: int) -> list[tuple[str, str]]:
                 times.append(time.perf_counter() - t)
     finally:
         robot.shutdown()
-    return [(f"silent base: STATUS → DeviceLost (timeout 0.1 s, 1 retry), p50/p95/p99/max (n={n}, all lost: "
-             f"{len(times) == n})", _ms(times) + f" / {max(times) * 1e3:.1f} ms")]
+    return [(f"silent base: STATUS → DeviceLost (timeout 0.1 s, 1 retry), p50/p95/p99/max "
+             f"(n={n}, all lost: {len(times) == n})", _ms(times) + f" / {max(times) * 1e3:.1f} ms")]
 
 
 def main() -> int:
