@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-$(shell cksum pyproject.toml | cut -d' ' -f1)
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-under-load bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,12 @@ demo: $(STAMP)
 # go first (tests/conftest.py LONGEST_FIRST; xdist's reordering by test count off) so none starts last.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder --durations=15
+
+# The suite beside 2 × cores pure CPU spinners (tools/under_load.py; they stop with the suite or when it is
+# killed): the check to run before a stop that the suite stays green on a busy machine (tests/README.md).
+SPINNERS ?= $(shell echo $$((2 * $$(nproc))))
+test-under-load: $(STAMP)
+	$(PY) tools/under_load.py --spinners $(SPINNERS) -- $(MAKE) --no-print-directory test
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py

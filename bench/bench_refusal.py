@@ -1,7 +1,9 @@
 """How fast a refused client is told so, against a CURVE ritad on loopback.
 
 Goal: a key the daemon does not allow is reported as refused "within a
-second" instead of after the 5 s no-answer timeout; the same for a client without keys.
+second" instead of after the 5 s no-answer timeout; the same for a client without keys and for a client
+holding a wrong server key (the handshake dropped). tests/daemon/bus/test_curve.py asserts that each is
+refused (``ClientRefused``, never the timeout's "no answer"); how soon is measured here.
 Each sample is a fresh Client (new connection and handshake), as one ritactl run is.
 """
 from __future__ import annotations
@@ -47,6 +49,8 @@ def main(n: int = 50) -> None:
     for name in ("alice", "mallory"):
         public, secret = load_keypair(base / "laptop" / f"{name}.key_secret")
         keys[name] = {"public": public, "secret": secret, "server": server}
+    create_keypair(base / "other", "server")  # a server key from another robot
+    wrong = {**keys["alice"], "server": load_public(base / "other" / "server.key")}
     r = start_ritad(CONFIG, tmp=base)  # data in base/data, where the keys are
     ep = r.endpoint
     try:
@@ -54,7 +58,8 @@ def main(n: int = 50) -> None:
         print("| client, fresh connection each time | first answer or refusal | refused | goal |\n|---|---|---|---|")
         for label, curve, goal in (("allowed key (ping answered)", keys["alice"], "–"),
                                    ("unknown key", keys["mallory"], "≤ 1 s"),
-                                   ("no keys (plaintext)", None, "≤ 1 s")):
+                                   ("no keys (plaintext)", None, "≤ 1 s"),
+                                   ("wrong server key", wrong, "≤ 1 s")):
             t, refused = first_answer(ep, curve, n)
             print(f"| {label}, n={n} | p50 {pct(t, 50):.1f} ms, p99 {pct(t, 99):.1f} ms, max {max(t):.1f} ms "
                   f"| {refused}/{n} | {goal} |")

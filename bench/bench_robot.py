@@ -104,11 +104,32 @@ def bench_noisy_line(n: int) -> list[tuple[str, str]]:
              f"{c['garbage']} / {c['bad_checksum']} / {c['retries']} / {c['stale']}")]
 
 
+def bench_silent_base(n: int) -> list[tuple[str, str]]:
+    """A base that stops answering: STATUS → DeviceLost with timeout 0.1 s and one retry (two tries: 0.2 s
+    at least). tests/drivers/test_robot_driver.py asserts the two tries ended it; how soon: here."""
+    robot = _robot("time_scale=0&timeout=0.1&retries=1")
+    times = []
+    try:
+        robot.open()
+        robot.set_line_faults(silent=True)
+        for _ in range(n):
+            t = time.perf_counter()
+            try:
+                robot.status()
+            except DeviceLost:
+                times.append(time.perf_counter() - t)
+    finally:
+        robot.shutdown()
+    return [(f"silent base: STATUS → DeviceLost (timeout 0.1 s, 1 retry), p50/p95/p99/max "
+             f"(n={n}, all lost: {len(times) == n})", _ms(times) + f" / {max(times) * 1e3:.1f} ms")]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=2000, help="round trips per measurement")
     args = ap.parse_args()
-    rows = bench_codec(20000) + bench_round_trips(args.n) + bench_noisy_line(args.n // 4)
+    rows = (bench_codec(20000) + bench_round_trips(args.n) + bench_noisy_line(args.n // 4)
+            + bench_silent_base(max(5, args.n // 100)))
     print("| robot benchmark | result |")
     print("|---|---|")
     for name, value in rows:

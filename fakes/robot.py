@@ -71,6 +71,7 @@ class PtyServer:
         self._wake_r, self._wake_w = os.pipe()
         self._held: list[bytes] = []  # replies and events the full pty could not take yet
         self._pending: list[int] = []  # sizes of injected noise bursts (the rng is the thread's)
+        self._injected = b""  # bytes given to inject(), not yet written
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.alive = True
@@ -89,6 +90,16 @@ class PtyServer:
             return
         with self._lock:
             self._pending.append(nbytes)
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass  # shut down meanwhile
+
+    def inject(self, data: bytes) -> None:
+        """``data`` sent to the host as if from the base: written whole by the server's own thread, in order,
+        before any line the base sends after this call and never interleaved with one (the fuzz tests' lines)."""
+        with self._lock:
+            self._injected += data
         try:
             os.write(self._wake_w, b"x")
         except OSError:
@@ -135,7 +146,8 @@ class PtyServer:
             if due is not None:
                 tick = min(tick, max(0.0, due - self.base.clock()))
             try:
-                ready, _, _ = select.select([self.master, self._wake_r], [], [], tick)
+                writable = [self.master] if self._injected else []  # (only this thread empties it)
+                ready, _, _ = select.select([self.master, self._wake_r], writable, [], tick)
             except (OSError, ValueError):
                 return
             if self._stop.is_set():
@@ -156,9 +168,26 @@ class PtyServer:
             out, samples = self.base.drain(), self.base.drain_stream()
             with self._lock:
                 pending, self._pending = self._pending, []
-            if not self.silent:
+            if not self._write_injected():  # the base's lines wait behind injected bytes the pty could not take
+                self._held += out
+                self.counters["samples_dropped"] += len(samples)
+            elif not self.silent:
                 self._send([self._noise(n) for n in pending] + [self._impair(line) for line in out])
                 self._send([self._impair(line) for line in samples], samples=True)
+
+    def _write_injected(self) -> bool:
+        """Write what the pty takes of the injected bytes; True once none are left."""
+        with self._lock:
+            data = self._injected
+        sent = 0
+        while sent < len(data):
+            try:
+                sent += os.write(self.master, data[sent:])
+            except OSError:
+                break  # full: the rest at the next wake-up (select waits for room)
+        with self._lock:
+            self._injected = self._injected[sent:]
+            return not self._injected
 
     def _guarded(self, fn: Callable[..., None], *args: Any) -> None:
         # a bug in the simulated controller must show up in the log, not as a silent

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 from daemon.bus.client import Client
-from tools.harness.browser import browser_available, console_session, start_robot, wait_for
+from tools.harness.browser import browser_available, console_session, start_robot
+from tools.harness.browser import wait_for as _wait_for
+from tools.harness.load import hang_s
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
                                                    reason=browser_available() or "")]
@@ -44,6 +46,12 @@ def page(session):
     return session[1]
 
 
+def wait_for(what: str, fn, timeout: float, poll: float = 0.1):
+    """The harness's wait, its bound (what the step takes on a quiet machine, with room) times the load
+    factor: a wait here only catches a hang (tools/harness/load.py)."""
+    return _wait_for(what, fn, hang_s(timeout), poll)
+
+
 def js(drv, script: str):
     return drv.execute_script(script)
 
@@ -52,10 +60,25 @@ def text(drv, element_id: str) -> str:
     return drv.find_element("id", element_id).text
 
 
+#: true when the element is shown, enabled and what a click at its centre would reach (not covered by a dialog
+#: or the sticky header); scrolled to the middle of the window first
+CLICKABLE = """const e = arguments[0]; e.scrollIntoView({block: 'center'});
+    const r = e.getBoundingClientRect(), x = r.left + r.width / 2, y = r.top + r.height / 2;
+    const top = document.elementFromPoint(x, y);
+    return r.width > 0 && r.height > 0 && !e.disabled && top !== null && (top === e || e.contains(top));"""
+
+
 def click(drv, element_id: str) -> None:
-    el = wait_for(f"#{element_id} enabled", lambda: (e := drv.find_element("id", element_id)).is_enabled() and e, 10)
-    drv.execute_script("arguments[0].scrollIntoView({block: 'center'})", el)  # not under the sticky header
+    """Click once the page is ready for it: the element shown, enabled and not covered (no race)."""
+    el = wait_for(f"#{element_id} shown, enabled and not covered",
+                  lambda: drv.execute_script(CLICKABLE, e := drv.find_element("id", element_id)) and e,
+                  10)
     el.click()
+
+
+def dialog_open(drv) -> bool:
+    """The motion confirmation shown with its text filled in (console.js confirmMotion)."""
+    return drv.find_element("id", "confirm").is_displayed() and bool(text(drv, "confirm-text"))
 
 
 def non_blank(png: bytes) -> float:
@@ -81,16 +104,15 @@ def install_camera_model(c: Client, robot) -> None:
     assert r.get("verdict") in ("ok", "warn"), r
 
 
-def test_camera_panel_shows_a_frame_within_5_s(page, robot):
+def test_camera_panel_shows_a_frame(page, robot):
+    """A frame drawn after Start (how soon: bench/bench_console_latency.py)."""
+    drawn = js(page, "return window.rita.framesDrawn")
     click(page, "stream-start")
-    t0 = time.monotonic()
     try:
-        wait_for("a frame drawn", lambda: js(page, "return window.rita.framesDrawn") >= 1, 5.0)
-        took = time.monotonic() - t0
+        wait_for("a frame drawn", lambda: js(page, "return window.rita.framesDrawn") > drawn, 5)
         shot = page.find_element("id", "cam").screenshot_as_png
     finally:
         robot["client"].call("camera.stream.stop")
-    assert took < 5.0
     assert non_blank(shot) > 10, "the camera canvas is blank"
     assert "frame" in text(page, "cam-info") and "exposure" in text(page, "cam-info")
 
@@ -179,9 +201,10 @@ def camera_model(robot):
     return True
 
 
-def test_a_second_tab_follows_a_job_run_from_the_bus_within_2_s(session, robot):
+def test_a_second_tab_follows_a_job_run_from_the_bus(session, robot):
     """A job started and finished by another client (ritactl, a script): the page follows it, its prompts
-    included, shows it done within 2 s of its end and refreshes the history."""
+    included, shows it done and refreshes the history (how soon after the job's end:
+    bench/bench_console_latency.py)."""
     con, drv = session
     original = drv.current_window_handle
     drv.switch_to.new_window("tab")
@@ -191,10 +214,9 @@ def test_a_second_tab_follows_a_job_run_from_the_bus_within_2_s(session, robot):
         history0 = len(js(drv, "return [...document.querySelectorAll('#history tr')]") or [])
         install_camera_model(robot["client"], robot)
         robot["model_installed"] = True
-        done_at = time.monotonic()
         job = robot["client"].call("calib.jobs")["jobs"][-1]
-        wait_for("the job shown done", lambda: text(drv, "job-id") == job["job"] and "done" in text(drv, "job-state"), 5)
-        assert time.monotonic() - done_at <= 2.0, f"shown {time.monotonic() - done_at:.2f} s after the job ended"
+        wait_for("the job shown done",
+                 lambda: text(drv, "job-id") == job["job"] and "done" in text(drv, "job-state"), 5)
         assert js(drv, "return window.rita.promptsSeen") >= 1  # the job's prompts were shown as it asked them
         wait_for("the history refreshed",
                  lambda: len(js(drv, "return [...document.querySelectorAll('#history tr')]")) > history0, 5)
@@ -309,27 +331,28 @@ def test_stop_during_a_move_stops_the_robot(page, robot):
     for el, v in (("move-mm", "300"), ("move-speed", "1")):
         page.find_element("id", el).clear()
         page.find_element("id", el).send_keys(v)
+    before = c.call("robot.status")
     click(page, "robot-move")
-    wait_for("the confirmation", lambda: page.find_element("id", "confirm").is_displayed(), 5)
+    wait_for("the confirmation", lambda: dialog_open(page), 5)
     click(page, "confirm-no")  # no confirmation, no motion
-    time.sleep(0.5)
-    assert c.call("robot.status")["state"] == "IDLE"
+    wait_for("the dialog closed", lambda: not page.find_element("id", "confirm").is_displayed(), 5)
     start = c.call("robot.status")
+    assert start["state"] == "IDLE" and (start["x_mm"], start["y_mm"]) == (before["x_mm"], before["y_mm"])
     click(page, "robot-move")
+    wait_for("the confirmation", lambda: dialog_open(page), 5)
     click(page, "confirm-yes")
     wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
-    time.sleep(0.5)
+    wait_for("the robot on its way", lambda: c.call("robot.status")["x_mm"] != start["x_mm"], 5)
     click(page, "stop")
-    t0 = time.monotonic()
-    wait_for("the robot stopped", lambda: c.call("robot.status")["state"] != "MOVING", 3)
-    stopped_after = time.monotonic() - t0
+    wait_for("the robot stopped", lambda: c.call("robot.status")["state"] == "IDLE", 5)
     a = c.call("robot.status")
-    time.sleep(0.5)
+    assert c.call("state")["latch"]["latched"]  # the page's STOP is the latched stop
+    wait_for("the latch shown", lambda: "STOPPED (latched by" in text(page, "latch"), 5)
     b = c.call("robot.status")
     assert (a["x_mm"], a["y_mm"]) == (b["x_mm"], b["y_mm"]), "the robot still moves after STOP"
     driven = float(np.hypot(b["x_mm"] - start["x_mm"], b["y_mm"] - start["y_mm"]))
     assert driven < 200, f"STOP came too late: the robot drove {driven:.0f} of 300 mm"
-    assert stopped_after < 2.0
+    c.call("robot.release")
 
 
 def _moving_with_the_dialog_open(page, c: Client) -> None:
@@ -340,17 +363,21 @@ def _moving_with_the_dialog_open(page, c: Client) -> None:
         page.find_element("id", el).clear()
         page.find_element("id", el).send_keys(v)
     click(page, "robot-move")
+    wait_for("the confirmation", lambda: dialog_open(page), 5)
     assert "forwards 300 mm at 1 mm/s (about 300.0 s)" in text(page, "confirm-text")  # direction, distance, speed, time
     click(page, "confirm-yes")
+    wait_for("the confirmation closed", lambda: not page.find_element("id", "confirm").is_displayed(), 5)
     wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
-    click(page, "robot-move")
-    wait_for("the dialog open again", lambda: page.find_element("id", "confirm").is_displayed(), 5)
+    click(page, "robot-move")  # waits until nothing covers the button
+    wait_for("the dialog open again", lambda: dialog_open(page), 5)
 
 
-def _stopped_within(c: Client, t0: float, limit_s: float = 0.5) -> None:
-    wait_for("the base idle", lambda: c.call("robot.status")["state"] == "IDLE", 3)
-    assert time.monotonic() - t0 <= limit_s, f"idle {time.monotonic() - t0:.2f} s after STOP"
+def _stopped(c: Client) -> dict:
+    """The base idle after the STOP and the stop latched; the base's state then (how soon after the STOP:
+    bench/bench_console_latency.py)."""
+    wait_for("the base idle", lambda: c.call("robot.status")["state"] == "IDLE", 5)
     assert c.call("state")["latch"]["latched"]
+    return c.call("robot.status")
 
 
 @pytest.mark.parametrize("how", ["shortcut", "button"])
@@ -361,16 +388,17 @@ def test_stop_works_with_the_confirmation_dialog_open(page, robot, how):
 
     c: Client = robot["client"]
     _moving_with_the_dialog_open(page, c)
-    t0 = time.monotonic()
     if how == "shortcut":
         ActionChains(page).key_down(Keys.CONTROL).send_keys(" ").key_up(Keys.CONTROL).perform()
     else:
         page.find_element("id", "stop").click()  # a real click at its place on the screen: nothing covers it
-    _stopped_within(c, t0)
+    idle = _stopped(c)
     wait_for("the latch shown", lambda: "STOPPED (latched by" in text(page, "latch"), 5)
     ActionChains(page).send_keys(Keys.ESCAPE).perform()
     wait_for("Esc closed the dialog", lambda: not page.find_element("id", "confirm").is_displayed(), 5)
-    assert c.call("robot.status")["state"] == "IDLE"  # closing the dialog moved nothing
+    after = c.call("robot.status")  # no motion after the STOP, closing the dialog moved nothing
+    assert after["state"] == "IDLE", after
+    assert (after["x_mm"], after["y_mm"]) == (idle["x_mm"], idle["y_mm"]), (idle, after)
     click(page, "release")
     wait_for("released", lambda: not c.call("state")["latch"]["latched"], 5)
     wait_for("the banner gone", lambda: not page.find_element("id", "latch").is_displayed(), 5)
@@ -460,12 +488,13 @@ def test_viewer_key_page_has_no_enabled_control(page, robot):
             c.call("robot.release")
         c.call("robot.move", distance_mm=300.0, speed_mm_s=1.0, confirm=True, wait=False)
         wait_for("the robot moving", lambda: c.call("robot.status")["state"] == "MOVING", 10)
-        t0 = time.monotonic()
         drv.find_element("id", "stop").click()
-        _stopped_within(c, t0)
+        idle = _stopped(c)
         assert "vic (viewer)" in c.call("state")["latch"]["by"]
         wait_for("the latch shown", lambda: drv.find_element("id", "latch").is_displayed(), 5)
         assert not drv.find_element("id", "release").is_enabled()  # a viewer may stop, not release
+        after = c.call("robot.status")
+        assert (after["x_mm"], after["y_mm"]) == (idle["x_mm"], idle["y_mm"]), "the robot moved after STOP"
         c.call("robot.release")
         # it still sees everything: telemetry arrives
         wait_for("robot state shown", lambda: text(drv, "robot-state") not in ("", "?"), 10)

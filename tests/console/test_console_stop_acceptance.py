@@ -4,7 +4,7 @@ One simulated ritad with its worker, a referencing through the bus (the world's 
 model and the plate's design file: this is about stopping, not accuracy), then an
 8-direction experiment per case, stopped from a page in headless chromium at a random
 moment of one of its moves: by the shortcut on an operator's page, by the button on a
-viewer key's page. The robot must be idle within 0.5 s and stay still for 10 s, the job
+viewer key's page. The robot must reach idle and stay still for 10 s, the job
 ``stopped``; resume is refused until an operator releases the latch, then the job completes.
 """
 from __future__ import annotations
@@ -18,6 +18,7 @@ import pytest
 
 from daemon.bus.client import Client
 from fakes.operator import lock_on_robot, rough_mark
+from tools.harness.load import hang_s
 from tools.harness.browser import browser_available, console_session, start_robot, wait_for
 from tests.system.test_stop_latch import _jobs, assert_still, code_of, wait_end
 
@@ -44,8 +45,9 @@ def robot(tmp_path_factory):
         r.stop()
 
 
-def _stop_from_the_page(drv: Any, c: Client, how: str, rng: random.Random) -> tuple[str, float]:
-    """An experiment started; STOP from the page at a random moment of one of its moves."""
+def _stop_from_the_page(drv: Any, c: Client, how: str, rng: random.Random) -> str:
+    """An experiment started; STOP from the page at a random moment of one of its moves; the base idle after
+    it (how soon: bench/bench_console_latency.py)."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
 
@@ -57,18 +59,17 @@ def _stop_from_the_page(drv: Any, c: Client, how: str, rng: random.Random) -> tu
         wait_for("the motion ends", lambda: not moving(), 120, poll=0.01)
     wait_for("the experiment moves the robot", moving, 120, poll=0.005)
     time.sleep(rng.uniform(0.0, 0.05))  # a random moment of the move (the fake base runs 50x real time)
-    t0 = time.monotonic()
     if how == "shortcut":
         ActionChains(drv).key_down(Keys.CONTROL).send_keys(" ").key_up(Keys.CONTROL).perform()
     else:
         drv.find_element("id", "stop").click()
-    wait_for("the base idle after STOP", lambda: c.call("robot.status")["state"] == "IDLE", 5, poll=0.005)
-    return job, time.monotonic() - t0
+    wait_for("the base idle after STOP", lambda: c.call("robot.status")["state"] == "IDLE", hang_s(5),
+             poll=0.005)
+    return job
 
 
-def _stopped_and_still(drv: Any, c: Client, job: str, idle_s: float) -> None:
-    assert idle_s <= 0.5, f"robot idle {idle_s:.3f} s after STOP (goal 0.5 s)"
-    assert_still(c, 10.0)
+def _stopped_and_still(drv: Any, c: Client, job: str) -> None:
+    assert_still(c, 10.0)  # no motion after the STOP
     assert _jobs(c)[job]["state"] == "stopped"
     wait_for("the page shows the job stopped", lambda: drv.find_element("id", "job-id").text == job
              and "stopped" in drv.find_element("id", "job-state").text, 5)
@@ -85,8 +86,8 @@ def test_stop_from_the_page_during_an_experiment_latches_and_the_job_resumes_aft
         args = ["--endpoint", robot["ritad"].endpoints[1], "--keys", str(robot["laptop"]), "--key", "vic"]
     with console_session(args, robot["tmp"] / key) as (_, drv):
         assert drv.execute_script("return window.rita.role") == key
-        job, idle_s = _stop_from_the_page(drv, c, how, random.Random(19 if key == "operator" else 7))
-        _stopped_and_still(drv, c, job, idle_s)
+        job = _stop_from_the_page(drv, c, how, random.Random(19 if key == "operator" else 7))
+        _stopped_and_still(drv, c, job)
         if key == "operator":  # Release, then Resume, from the page
             drv.find_element("id", "release").click()
             wait_for("released", lambda: not c.call("state")["latch"]["latched"], 5)

@@ -14,8 +14,6 @@ still answers.
 """
 from __future__ import annotations
 
-import os
-import select
 import socket
 import struct
 import time
@@ -34,6 +32,7 @@ from fakes.robot import SimRobot
 from fakes.world import World
 from fakes.worlds import sim_url
 from tests.fuzzscale import cases, scaled
+from tools.harness.load import hang_s
 
 STREAMS = (1100, 300)  # hypothesis examples: full run, make-test sample
 LINES = (560, 160)
@@ -234,15 +233,6 @@ def robot_line(draw: st.DrawFn) -> tuple[bytes, str | None]:
 COUNTED = ("garbage", "bad_checksum", "syntax", "stale", "unexpected", "events", "overflows")
 
 
-def write_all(fd: int, data: bytes) -> None:
-    while data:
-        select.select([], [fd], [], 2.0)
-        try:
-            data = data[os.write(fd, data):]
-        except BlockingIOError:
-            continue
-
-
 def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int], after: dict[str, int]) -> None:
     want = {k: sum(1 for _, c in lines if c == k) for k in COUNTED}
     got = {k: after[k] - before[k] for k in COUNTED}
@@ -257,8 +247,11 @@ def test_robot_lines_into_the_driver() -> None:
     events: list[dict[str, Any]] = []
     world = World()  # registered weakly: held here for as long as the robot lives
     # no sample streams: the base's STATE lines would fill the pty between examples (the driver reads
-    # it only in status()), and a drawn "$STATE"/"$INCL" line is a sample then, not an unknown kind
-    robot = SimRobot(sim_url(world, "state_hz=0&stream_hz=0&timeout=0.3"),
+    # it only in status()), and a drawn "$STATE"/"$INCL" line is a sample then, not an unknown kind.
+    # Deterministic counters: the lines go out through the fake's own thread (PtyServer.inject: whole, in
+    # order, ahead of the STATUS reply, never interleaved with a line of the base's), and the reply timeout
+    # only catches a hang: a reply late on a busy machine is never retried and counted stale.
+    robot = SimRobot(sim_url(world, f"state_hz=0&stream_hz=0&timeout={hang_s(10):g}"),
                      emit=lambda t, p: events.append(p) if t == "robot.event" else None)
     robot.open()
     n = [0]
@@ -269,8 +262,9 @@ def test_robot_lines_into_the_driver() -> None:
         @given(lines=st.lists(robot_line(), min_size=24, max_size=24, unique_by=lambda x: x[0]))
         def run(lines: list[tuple[bytes, str | None]]) -> None:
             before, n_events = dict(robot.counters), len(events)
-            write_all(robot.server.master, b"".join(line for line, _ in lines))
+            robot.server.inject(b"".join(line for line, _ in lines))
             assert robot.status().state == "IDLE"  # the reply comes after every injected line
+            assert robot.counters["retries"] == before["retries"]
             expect_counts(lines, before, robot.counters)
             assert len(events) - n_events == robot.counters["events"] - before["events"]
             n[0] += len(lines)

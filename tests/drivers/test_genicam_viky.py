@@ -19,6 +19,7 @@ from daemon.ritad.registry import adapter_class
 from drivers.base import DeviceError, DeviceLost, DeviceURL, Frame
 from drivers.camera_settings import CameraSettings
 from drivers.genicam import GenICamCamera, select_device
+from tools.harness.load import hang_s
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -72,8 +73,8 @@ def cam(frames: list[Frame]) -> Iterator[GenICamCamera]:
         c.close()
 
 
-def pump_until(cam: GenICamCamera, frames: list[Frame], n: int, limit_s: float = 5.0) -> None:
-    end = time.monotonic() + limit_s
+def pump_until(cam: GenICamCamera, frames: list[Frame], n: int, limit_s: float = hang_s(5.0)) -> None:
+    end = time.monotonic() + limit_s  # only catches a hang (tools/harness/load.py)
     while len(frames) < n:
         assert time.monotonic() < end, f"only {len(frames)} of {n} frames within {limit_s} s"
         cam.pump(0.05)

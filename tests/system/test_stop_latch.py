@@ -20,6 +20,7 @@ from daemon.bus.protocol import CommandError
 from fakes.demo import operator_files
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
+from tools.harness.load import hang_s
 
 pytestmark = pytest.mark.slow
 
@@ -67,8 +68,9 @@ def rig(tmp_path_factory):
             yield r, c
 
 
-def stop_mid_move(c: Client, stopper: Client, rng: random.Random) -> tuple[str, float]:
-    """Start an experiment, STOP at a random moment of one of its moves; (job, seconds until IDLE)."""
+def stop_mid_move(c: Client, stopper: Client, rng: random.Random) -> str:
+    """Start an experiment, STOP at a random moment of one of its moves, wait for the base idle; the job.
+    How soon the base is idle after the STOP: bench/bench_console_latency.py (and bench/bench_stop.py)."""
     _, mark = rough_mark(c)
     job = c.call("calib.start", procedure="experiment", params={"mark_xy": mark, "repetitions": 1})["job"]
     for _ in range(rng.randint(1, 3)):  # past a few motions: the STOP lands inside the procedure
@@ -76,11 +78,11 @@ def stop_mid_move(c: Client, stopper: Client, rng: random.Random) -> tuple[str, 
         wait_for(lambda: c.call("robot.status")["state"] == "IDLE", 120, "the motion ends")
     wait_for(lambda: c.call("robot.status")["state"] == "MOVING", 120, "the experiment moves the robot")
     time.sleep(rng.uniform(0.0, 0.05))  # a random moment of the move (the fake base runs 50x real time)
-    t0 = time.monotonic()
     reply = stopper.call("robot.stop")
     assert reply["latched"] and job in reply["jobs_stopped"], reply
-    wait_for(lambda: c.call("robot.status")["state"] == "IDLE", 5, "the base idle after STOP", poll=0.005)
-    return job, time.monotonic() - t0
+    wait_for(lambda: c.call("robot.status")["state"] == "IDLE", hang_s(5), "the base idle after STOP",
+             poll=0.005)
+    return job
 
 
 def assert_still(c: Client, seconds: float) -> None:
@@ -102,9 +104,8 @@ def code_of(c: Client, cmd: str, **args: Any) -> str:
     return "ok"
 
 
-def check_stopped_then_resume(c: Client, job: str, idle_after_s: float) -> None:
-    assert idle_after_s <= 0.5, f"robot idle {idle_after_s:.3f} s after STOP (goal 0.5 s)"
-    assert_still(c, 10.0)
+def check_stopped_then_resume(c: Client, job: str) -> None:
+    assert_still(c, 10.0)  # no motion after the STOP
     j = _jobs(c)[job]
     assert j["state"] == "stopped", j
     assert c.call("state")["latch"]["latched"]
@@ -119,8 +120,8 @@ def check_stopped_then_resume(c: Client, job: str, idle_after_s: float) -> None:
 
 def test_stop_from_an_operator_latches_and_the_job_resumes_after_release(rig):
     _, c = rig
-    job, idle_s = stop_mid_move(c, c, random.Random(19))
-    check_stopped_then_resume(c, job, idle_s)
+    job = stop_mid_move(c, c, random.Random(19))
+    check_stopped_then_resume(c, job)
 
 
 def test_ritactl_robot_stop_latches_the_same_way(rig):
@@ -134,8 +135,8 @@ def test_ritactl_robot_stop_latches_the_same_way(rig):
             assert ctl.main(["--endpoint", r.endpoint, "robot", "stop"]) == 0
             return {"latched": True, "jobs_stopped": [j for j, v in _jobs(c).items() if v["state"] == "stopped"]}
 
-    job, idle_s = stop_mid_move(c, Ritactl(), random.Random(7))
+    job = stop_mid_move(c, Ritactl(), random.Random(7))
     assert ctl.main(["--endpoint", r.endpoint, "robot", "release"]) == 0
     assert not c.call("state")["latch"]["latched"]
     c.call("robot.stop")  # latched again: the helper below releases it itself
-    check_stopped_then_resume(c, job, idle_s)
+    check_stopped_then_resume(c, job)

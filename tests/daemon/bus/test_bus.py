@@ -1,4 +1,5 @@
 """Command server and client: bad requests get error replies and the server keeps serving."""
+import threading
 import time
 from concurrent.futures import Future
 
@@ -11,6 +12,7 @@ from daemon.bus.protocol import CommandError, ErrorCode, make_request, unpack
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher
 from daemon.ritad.server import CommandServer, Reply
 from drivers.base import Frame
+from tools.harness.load import hang_s
 
 import numpy as np
 
@@ -106,9 +108,9 @@ def test_future_replies_and_late_reply_discarded(server):
 def test_unreachable_daemon_times_out(tmp_path):
     t0 = time.monotonic()
     with Client(f"ipc://{tmp_path}/nobody", timeout=0.3) as c:
-        with pytest.raises(ClientTimeout, match="no answer from ritad"):
-            c.call("ping")
-    assert time.monotonic() - t0 < 2.0
+        with pytest.raises(ClientTimeout, match=r"no answer from ritad .* within 0.3 s"):
+            c.call("ping")  # the client's own 0.3 s ended it (a hang: pytest-timeout)
+    assert time.monotonic() - t0 >= 0.3
 
 
 def test_a_send_that_cannot_go_out_still_ends_at_the_timeout():
@@ -120,10 +122,8 @@ def test_a_send_that_cannot_go_out_still_ends_at_the_timeout():
         sock.setsockopt(zmq.IMMEDIATE, 1)  # before connect: no pipe until a connection completes
         sock.connect("tcp://127.0.0.1:9")
         c.sock = sock
-        t0 = time.monotonic()
-        with pytest.raises(ClientTimeout):
-            c.call("ping")
-        assert time.monotonic() - t0 < 5.0
+        with pytest.raises(ClientTimeout, match=r"nothing from ritad .* within 0.3 s"):
+            c.call("ping")  # the send's bound is the call's 0.3 s (a send blocked for good: pytest-timeout)
 
 
 def test_telemetry_snapshot_and_frames(tmp_path):
@@ -158,10 +158,11 @@ def test_frame_queue_drops_instead_of_blocking(tmp_path):
     ctx = zmq.Context()
     frm = FramePublisher(ctx, [f"ipc://{tmp_path}/frm"], queue_size=2)  # not started: nothing drains
     px = np.zeros((10, 10), np.uint8)
-    t0 = time.monotonic()
-    for i in range(50):
-        frm.publish(Frame(px, i, "S", "Mono8"))
-    assert time.monotonic() - t0 < 0.5
+    publisher = threading.Thread(target=lambda: [frm.publish(Frame(px, i, "S", "Mono8")) for i in range(50)],
+                                 daemon=True)
+    publisher.start()
+    publisher.join(hang_s(10))  # a publish that blocked would wait for good: nothing drains
+    assert not publisher.is_alive(), "publish blocked on a full queue"
     assert frm.counters()["dropped"] == 48
     for s in frm.socks:
         s.close()

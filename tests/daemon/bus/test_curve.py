@@ -69,13 +69,13 @@ def test_allowed_key_works_and_is_logged(secured):
     wait_for_log(secured["log"], alice["public"].decode(), 30)  # audit trail: the key id of who asked
 
 
-def test_unknown_key_is_refused_within_a_second_and_logged(secured):
+def test_unknown_key_is_refused_and_logged(secured):
     mallory = curve(secured["keys"], "mallory", secured["server"])
     with Client(secured["tcp"], timeout=5.0, curve=mallory, key_id="mallory") as c:
-        t0 = time.monotonic()
+        # ClientRefused comes only from the socket's handshake report (ZAP), never from the 5 s deadline,
+        # which raises a plain ClientTimeout "no answer" (client.py); its latency: bench/bench_refusal.py
         with pytest.raises(ClientRefused) as e:
             c.call("ping")
-        assert time.monotonic() - t0 < 1.5  # the ZAP refusal, not the 5 s timeout
     assert str(e.value).startswith("refused: key mallory is not allowed by the daemon")
     assert "--role operator" in str(e.value)  # the hint is the whole command to run on the robot
     assert isinstance(e.value, ClientTimeout)  # existing handlers map it to exit 3
@@ -100,10 +100,8 @@ def test_plaintext_attempt_is_refused_and_logged(secured):
     assert "requires CURVE" in line
     # ritactl without keys is told at once (its repeat is counted into the next log line)
     with Client(secured["tcp"], timeout=5.0) as c:
-        t0 = time.monotonic()
-        with pytest.raises(ClientRefused) as e:
+        with pytest.raises(ClientRefused) as e:  # the refusal, not the deadline (bench/bench_refusal.py)
             c.call("ping")
-        assert time.monotonic() - t0 < 1.5
     assert "requires CURVE keys" in str(e.value)
 
 
@@ -232,7 +230,5 @@ def test_wrong_server_key_is_named(secured):
 
     alice = {**curve(secured["keys"], "alice", secured["server"]), "server": zmq.curve_keypair()[0]}
     with Client(secured["tcp"], timeout=5, curve=alice, key_id="alice") as c:
-        t0 = time.monotonic()
         with pytest.raises(ClientRefused, match="dropped the CURVE handshake.*server.key"):
-            c.call("ping")
-        assert time.monotonic() - t0 < 1.5
+            c.call("ping")  # the handshake's failure, not the deadline (bench/bench_refusal.py)

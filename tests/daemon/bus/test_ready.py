@@ -22,7 +22,7 @@ def test_waits_for_the_named_devices_and_names_the_ones_not_ready(tmp_path: Path
         t0 = time.monotonic()
         with pytest.raises(ClientTimeout) as err:
             c.wait_ready(timeout=1.0)
-        assert time.monotonic() - t0 < 5.0
+        assert time.monotonic() - t0 >= 1.0  # its own deadline ended it (named below)
         assert "devices not READY within 1 s" in str(err.value) and "'tracker'" in str(err.value)
         with pytest.raises(ClientTimeout, match="worker"):  # no worker runs here
             c.wait_ready(["camera"], timeout=0.5, worker=True)
@@ -31,9 +31,9 @@ def test_waits_for_the_named_devices_and_names_the_ones_not_ready(tmp_path: Path
 def test_no_daemon_is_a_bounded_timeout_and_a_dead_process_ends_the_wait_early(tmp_path: Path) -> None:
     with Client(f"ipc://{tmp_path}/nobody", timeout=1) as c:
         t0 = time.monotonic()
-        with pytest.raises(ClientTimeout, match="no answer"):
-            c.wait_ready(timeout=0.6)
-        assert time.monotonic() - t0 < 4.0
+        with pytest.raises(ClientTimeout, match=r"not READY within 0.6 s .*: no answer"):
+            c.wait_ready(timeout=0.6)  # its own 0.6 s ended it, not the client's 1 s per call
+        assert time.monotonic() - t0 >= 0.6
         with pytest.raises(ClientTimeout, match="went away"):
             c.wait_ready(timeout=30, alive=lambda: False)
 

@@ -26,9 +26,11 @@ from daemon.worker.job import JobContext
 from daemon.worker.nav import Navigator
 from fakes.operator import lock_on_robot
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
+from tools.harness.load import hang_s
 
 pytestmark = pytest.mark.timeout(120)
 PERIOD_US = 1000  # the stream's 1 kHz
+RECORD_S = hang_s(4 / 3)  # 4 s at the default load factor: outlasts the ~1 s procedure on a busy machine
 
 
 def _procedure(c, data: Path) -> None:
@@ -49,20 +51,20 @@ def test_recording_during_a_procedure_has_every_record_frames_and_the_motions(tm
         c.call("camera.stream.start")
         result: list[int] = []
         rec = threading.Thread(target=lambda: result.append(ctl.main(
-            ["--endpoint", d.server.endpoints[0], "record", "--out", str(out), "--duration", "4",
+            ["--endpoint", d.server.endpoints[0], "record", "--out", str(out),
+             "--duration", f"{RECORD_S:.2f}",
              "--frames", "every", "1"])), daemon=True)
         rec.start()
         end = time.monotonic() + 20
         while not (tmp_path / ".proc.mcap.partial").exists() and time.monotonic() < end:
             time.sleep(0.02)
         time.sleep(0.3)  # subscribed
-        t0 = time.monotonic()
         _procedure(c, tmp_path / "data")
-        took = time.monotonic() - t0
-        rec.join(30)
+        recording = rec.is_alive()
+        rec.join(hang_s(30))
         c.call("tracker.stream.stop")
         c.call("camera.stream.stop")
-    assert result == [Exit.OK] and took < 3.0, (result, took)  # the procedure ran inside the recording
+    assert result == [Exit.OK] and recording  # the procedure ended inside the recording (its motions below)
 
     with open(out, "rb") as f:
         reader = make_reader(f, validate_crcs=True)

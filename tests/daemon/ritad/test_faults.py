@@ -16,13 +16,14 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from daemon.bus.client import Client, Subscriber
+from daemon.bus.client import Client, ClientTimeout, Subscriber
 from fakes.operator import lock_on_robot
 from daemon.ritad.main import Daemon
 from daemon.ritad.notify import Notifier
 from daemon.bus.protocol import CommandError
 from drivers.emscon.enums import ES_Command
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
+from tools.harness.load import hang_s
 
 
 
@@ -102,13 +103,14 @@ def test_tracker_server_killed_mid_measurement(make_daemon) -> None:
     wait_for(lambda: ES_Command.StartMeasurement in fake.server.commands_seen[seen_before:], 10,
              "StartMeasurement at the server")
     time.sleep(0.2)  # in flight: the fake answers only after 1 s
-    t_kill = time.monotonic()
     fake.stop()
-    t.join(10)
+    t.join(hang_s(10))
+    assert not t.is_alive()
     assert "result" not in out, "the measurement cannot succeed when the server died under it"
-    assert out["error"].code == "device_lost"
+    # the loss answered the call, not its 30 s deadline: a deadline raises ClientTimeout ("no answer", code
+    # no_answer/timeout), never a device_lost error naming the tracker
+    assert not isinstance(out["error"], ClientTimeout) and out["error"].code == "device_lost"
     assert "tracker" in str(out["error"]) and "lost" in str(out["error"])
-    assert time.monotonic() - t_kill < 5  # the error came promptly, not after the 30 s timeout
     down = states(sub, "tracker", "FAULT", 10)  # reconnecting against a dead server fails
     assert [s["state"] for s in down] == ["DISCONNECTED", "CONNECTING", "FAULT"]
     assert down[0]["reconnects"] == 1 and "EOF" in down[0]["reason"]

@@ -10,6 +10,7 @@ import pytest
 from daemon.bus.client import Client
 from fakes.operator import lock_on_robot
 from fakes.launch import start_ritad
+from tools.harness.load import hang_s
 
 
 @pytest.fixture
@@ -45,10 +46,8 @@ def test_ready_status_capture_and_clean_sigterm(ritad):
         except socket.timeout:
             pass
     assert pings >= 2
-    t0 = time.monotonic()
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(10) == 0
-    assert time.monotonic() - t0 < 5.0
+    assert proc.wait(hang_s(10)) == 0  # a clean exit; how soon: bench/bench_daemon.py (SIGTERM → exit)
     rest = []
     while True:
         try:
