@@ -30,7 +30,7 @@ from daemon.ritad.main import Daemon
 from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
-from tests.drivers.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line, write_all
+from tests.drivers.test_fuzz_devices import FUZZ, emscon_stream, expect_counts, robot_line
 from tests.fuzzscale import cases
 
 
@@ -193,7 +193,7 @@ def test_robot_lines_under_a_daemon(emscon_daemon: tuple[Daemon, InjectingProxy]
         @given(lines=st.lists(robot_line(), min_size=24, max_size=24))
         def run(lines: list[tuple[bytes, str | None]]) -> None:
             before = dict(robot.counters)
-            write_all(robot.server.master, b"".join(line for line, _ in lines))
+            robot.server.inject(b"".join(line for line, _ in lines))  # by the base's own thread, in order
             assert c.call("robot.status")["state"] == "IDLE"
             expect_counts(lines, before, robot.counters)
             assert c.call("status")["devices"]["robot"]["state"] in ("READY", "BUSY")
