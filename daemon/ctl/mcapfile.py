@@ -238,5 +238,6 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
 
 
 __all__ = ["COMMAND_SCHEMA", "END_METADATA_NAME", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME",
-           "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame", "drop_typed_nulls",
-           "infer_schema", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls", "to_json"]
+           "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame",
+           "drop_typed_nulls", "infer_schema", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
+           "to_json"]

@@ -7,7 +7,8 @@ command is refused with ``forbidden``, as a viewer's would be: a replay can be w
 (``[topic, msgpack {v, seq, t_ns, data}]`` with the recorded t_ns and the replay's own seq, one
 counter across topics as ritad's: the file's sequences count each channel's messages), frames on a
 frame socket. A null the recorder left out of a message (its schema has a type for the field:
-mcapfile.drop_typed_nulls) is put back. Messages keep the file's order; pacing follows their log times divided by ``--speed``.
+mcapfile.drop_typed_nulls) is put back. Messages keep the file's order; pacing follows their log
+times divided by ``--speed``.
 
 Only 127.0.0.1 and ipc endpoints are accepted: a replay is for this computer.
 """

@@ -240,7 +240,7 @@ def test_replay_into_ritactl_watch(session, tmp_path: Path, capsys) -> None:
         assert ctl.main(["--endpoint", cmd, "--json", "watch", "--duration", "2"]) == Exit.OK
         lines = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
         seqs = [m["seq"] for m in lines if m["topic"] == "tracker.point"]  # the snapshot's, then the updates
-        tel = [t for t, _, _ in _read(out) if not t.startswith("camera.")]  # the replay numbers these 1, 2, ...
+        tel = [t for t, _, _ in _read(out) if not t.startswith("camera.")]  # the replay numbers these
         last = max(n for n, t in enumerate(tel, start=1) if t == "tracker.point")
         assert len(seqs) >= 2 and seqs == sorted(set(seqs)) and seqs[-1] == last  # in order, to the end
     finally:

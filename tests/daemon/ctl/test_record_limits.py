@@ -42,12 +42,14 @@ def _end_record(path: Path) -> dict[str, str]:
 
 
 def test_sizes_parse_and_errors_name_the_value(tmp_path: Path) -> None:
-    assert parse_size("500M", "--max-size") == 500_000_000 and parse_size("1.5g", "--min-free") == 1_500_000_000
+    assert parse_size("500M", "--max-size") == 500_000_000
+    assert parse_size("1.5g", "--min-free") == 1_500_000_000
     assert parse_size("123", "--min-free") == 123 and parse_size("2GB", "--min-free") == 2_000_000_000
     for bad in ("", "lots", "-1G", "5X"):
         with pytest.raises(CtlError) as e:
             parse_size(bad, "--min-free")
-        assert e.value.exit == Exit.USAGE and repr(bad) in e.value.args[0] and "--min-free" in e.value.args[0]
+        assert e.value.exit == Exit.USAGE and f"--min-free must be a size such as 500M or 2G, got {bad!r}" \
+            in e.value.args[0]
     with pytest.raises(CtlError, match="--max-size must be at least 10M, got '1M'"):
         Limits.from_options(tmp_path, None, "1M")
 
@@ -123,7 +125,8 @@ def test_duration_ends_a_recording_at_the_cameras_top_rate_and_counts_the_drops(
     assert dropped >= 1 and f"{end['frames']} frames ({dropped} dropped)" in line
 
 
-def test_a_floor_above_the_free_space_ends_the_recording_at_once_cleanly(fast, tmp_path: Path, capsys) -> None:
+def test_a_floor_above_the_free_space_ends_the_recording_at_once_cleanly(fast, tmp_path: Path,
+                                                                         capsys) -> None:
     _, _, ep = fast
     out = tmp_path / "floor.mcap"
     floor = shutil.disk_usage(tmp_path).free + 10**9  # above what any writer on this machine frees meanwhile
@@ -136,9 +139,10 @@ def test_a_floor_above_the_free_space_ends_the_recording_at_once_cleanly(fast, t
     assert end["ended"] == "min_free" and end["messages"] == "0" and not list(tmp_path.glob(".*"))
 
 
-def test_max_size_ends_the_recording_before_the_file_passes_it(fast, tmp_path: Path, capsys, monkeypatch) -> None:
+def test_max_size_ends_the_recording_before_the_file_passes_it(fast, tmp_path: Path, capsys,
+                                                              monkeypatch) -> None:
     _, _, ep = fast
-    monkeypatch.setattr(reclimits, "MIN_MAX_SIZE", 0)  # 5 MB: 1 MB past the reserve, a few hundred tiny frames
+    monkeypatch.setattr(reclimits, "MIN_MAX_SIZE", 0)  # 5 MB: 1 MB past the reserve, hundreds of tiny frames
     out = tmp_path / "cap.mcap"
     assert ctl.main(["--endpoint", ep, "record", "--out", str(out), "--frames", "every", "1",
                      "--duration", "60", "--max-size", "5M", "--compression", "none"]) == Exit.OK
