@@ -80,7 +80,7 @@ class Limits:
     def describe(self, why: str) -> str:
         """Why the recording ended, for the operator."""
         if why == "max_size":
-            return f"the file reached --max-size {self.max_size / 1e6:.1f} MB"
+            return f"the file reached --max-size {(self.max_size or 0) / 1e6:.1f} MB"
         return (f"free space on {self.folder} fell to the floor (--min-free {self.min_free / 1e6:.1f} MB; "
                 f"{self._free / 1e6:.1f} MB free at the last probe)")
 
