@@ -3,8 +3,9 @@
 docs/operations.md ("Record and replay") documents this layout; keep the two in step.
 
 * One channel per telemetry topic, JSON message encoding. Each message is the bus message's
-  ``data`` map as JSON; the bus ``seq`` is the MCAP message's ``sequence`` (modulo 2**32), the
-  daemon's ``t_ns`` its ``log_time`` and the recorder's receive time its ``publish_time``.
+  ``data`` map as JSON, less the nulls its schema has a type for (:func:`drop_typed_nulls`); the
+  MCAP ``sequence`` counts the channel's messages from 1 (modulo 2**32), the daemon's ``t_ns`` is
+  its ``log_time`` and the recorder's receive time its ``publish_time``.
   The channel's schema (``jsonschema``) is inferred from the topic's first message: field names and
   JSON types, so Foxglove's panels can offer the fields; written in the subset of JSON Schema that
   Foxglove's reader accepts (:func:`_json_type`), since it refuses a channel for one field outside it.
@@ -17,8 +18,8 @@ docs/operations.md ("Record and replay") documents this layout; keep the two in 
   ``daemon.command`` telemetry), with the fixed schema :data:`COMMAND_SCHEMA` instead of an
   inferred one, since ``args`` differs from one command to the next.
 * Metadata record ``ritactl.record``: who recorded what (ritad's ``hello``, the options); record
-  ``ritactl.record.end``: how the recording ended (``duration``, ``interrupted`` or ``error`` and
-  the error), written just before the summary.
+  ``ritactl.record.end``: how the recording ended (``duration``, ``interrupted``, ``max_size``,
+  ``min_free`` or ``error`` and the error) and what it lost, written just before the summary.
 
 Imports only the standard library (and the bus's names) so the thin client stays thin; the ``mcap``
 package is imported by the verbs that write and read.
@@ -117,11 +118,12 @@ def _json_type(value: Any, depth: int) -> dict[str, Any] | None:
 
 
 #: daemon.command's fields (docs/protocol.md, Telemetry): ``args`` is any command's, so not inferred.
-#: Each field has its type when it has a value; ``args``, ``key``, ``code`` and ``message`` may be
-#: null, ``id`` is the caller's (a string or an integer). Foxglove's reader takes one type per field
-#: and no unions, so the types say the usual case.
+#: ``args``, ``key``, ``code`` and ``message`` are null when they have no value: the recorder leaves
+#: such a null out of the message (:func:`drop_typed_nulls`) rather than leave the field out of the
+#: schema, as Foxglove's reader takes one type per field and no unions. ``id`` is the caller's, a
+#: string or an integer, so it has no type here (a strict reader then takes either).
 COMMAND_SCHEMA: dict[str, Any] = {"type": "object", "properties": {
-    "cmd": {"type": "string"}, "id": {"type": "string"}, "args": {"type": "object"},
+    "cmd": {"type": "string"}, "args": {"type": "object"},
     "key": {"type": "string"}, "role": {"type": "string"}, "ok": {"type": "boolean"},
     "code": {"type": "string"}, "message": {"type": "string"},
     "recv_ns": {"type": "number"}, "reply_ns": {"type": "number"}}}
@@ -135,6 +137,33 @@ def infer_schema(topic: str, data: Any) -> dict[str, Any]:
     schema = fixed if fixed is not None else _json_type(data, 0) if isinstance(data, dict) else None
     schema = schema if schema is not None else {"type": "object", "properties": {}}
     return {"title": topic, "description": f"ritad telemetry {topic} (docs/protocol.md)", **schema}
+
+
+def drop_typed_nulls(value: Any, schema: dict[str, Any]) -> Any:
+    """``value`` without the nulls where ``schema`` gives the field a type (in objects, nested and
+    in arrays): a strict JSON-schema check refuses null for "number" or "string", and Foxglove's
+    reader has no way to say "or null". Nothing is lost: the field's absence says null, and a
+    replay puts it back (:func:`restore_nulls`). A null the schema has no type for stays."""
+    props = schema.get("properties")
+    if isinstance(value, dict) and props:
+        return {k: drop_typed_nulls(v, props[k]) if k in props else v
+                for k, v in value.items() if v is not None or k not in props}
+    items = schema.get("items")
+    if isinstance(value, list) and isinstance(items, dict) and "properties" in items:
+        return [drop_typed_nulls(v, items) for v in value]
+    return value
+
+
+def restore_nulls(value: Any, schema: dict[str, Any]) -> Any:
+    """The inverse of :func:`drop_typed_nulls`: a field the schema types and the message lacks is null."""
+    props = schema.get("properties")
+    if isinstance(value, dict) and props:
+        out = {k: restore_nulls(v, props[k]) if k in props else v for k, v in value.items()}
+        return {**out, **{k: None for k in props if k not in value}}
+    items = schema.get("items")
+    if isinstance(value, list) and isinstance(items, dict) and "properties" in items:
+        return [restore_nulls(v, items) for v in value]
+    return value
 
 
 def raw_image_encoding(header: dict[str, Any]) -> str:
@@ -208,6 +237,7 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
     return view[off:off + n]
 
 
-__all__ = ["COMMAND_SCHEMA", "END_METADATA_NAME", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG",
-           "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame", "infer_schema", "pixels_of", "raw_image",
-           "raw_image_encoding", "to_json"]
+__all__ = ["COMMAND_SCHEMA", "END_METADATA_NAME", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME",
+           "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame",
+           "drop_typed_nulls", "infer_schema", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
+           "to_json"]

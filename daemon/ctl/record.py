@@ -30,11 +30,16 @@ from daemon.bus.protocol import CommandError, unpack
 from daemon.bus.storage import fsync_dir
 from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
+from daemon.ctl.reclimits import DEFAULT_MIN_FREE, Limits
 from daemon.ctl.watch import NO_FRAMES, Screen
 
 #: deep enough for many seconds of 1 kHz tracker packets while a chunk is compressed or the disk stalls
 TELEMETRY_HWM = 200_000
 FRAME_HWM = 4
+#: frames written per turn of the loop before telemetry, the clock and Ctrl-C are looked at again
+FRAME_BATCH = 2
+#: the most the end waits on writing what was queued when the recording was stopped
+FINAL_DRAIN_S = 1.0
 COMPRESSIONS = ("auto", "zstd", "lz4", "none")
 
 
@@ -43,15 +48,19 @@ class Counts:
     messages: int = 0
     frames: int = 0
     missed: int = 0          # telemetry messages lost before they reached the recorder (seq gaps)
-    frames_missed: int = 0   # frames the frame socket dropped for this subscriber (not the ones --frames skips)
+    frames_missed: int = 0   # frames dropped for this subscriber (not the ones --frames skips): see FRAME_HWM
     unsupported: int = 0     # frames with no RawImage encoding: only their header is recorded
     topics: dict[str, int] = field(default_factory=dict)
 
 
 class Recorder:
-    """Bus messages in, MCAP out (no sockets: the benchmark drives it directly)."""
+    """Bus messages in, MCAP out (no sockets: the benchmark drives it directly).
 
-    def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd") -> None:
+    With ``limits``, a message that would take the file past ``--max-size`` or the disk under
+    ``--min-free`` is not written: ``ended`` says which, and the caller finishes the file."""
+
+    def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd",
+                 limits: Limits | None = None) -> None:
         try:
             from mcap.writer import CompressionType, Writer
         except ImportError as exc:
@@ -64,7 +73,11 @@ class Recorder:
         self.writer.start(profile=fmt.PROFILE, library=f"ritactl {__version__}")
         self.writer.add_metadata(fmt.METADATA_NAME, metadata)
         self.channels: dict[str, int] = {}
+        self.schemas: dict[str, dict[str, Any]] = {}
+        self.sequences: dict[int, int] = {}  # channel → the last MCAP sequence written on it
         self.counts = Counts()
+        self.limits = limits
+        self.ended: str | None = None  # "max_size" / "min_free": a limit stopped the writing
         self._seq: int | None = None
         self._frame_seq: int | None = None  # the last frame seen
         self.kept_seq: int | None = None  # the last frame written (--frames every N counts from it)
@@ -77,31 +90,52 @@ class Recorder:
                 schema = self.writer.register_schema(fmt.RAW_IMAGE_SCHEMA, "ros2msg", fmt.RAW_IMAGE_ROS2MSG.encode())
                 ch = self.channels[topic] = self.writer.register_channel(topic, "cdr", schema)
                 return ch
-            schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(fmt.infer_schema(topic, sample)))
+            inferred = self.schemas[topic] = fmt.infer_schema(topic, sample)
+            schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(inferred))
             ch = self.channels[topic] = self.writer.register_channel(topic, "json", schema)
         return ch
 
+    def _json(self, topic: str, data: Any) -> bytes:
+        """``data`` as JSON that its channel's schema accepts: a null where the schema has a type is
+        left out (a replay puts it back), since a strict reader refuses a null "string"."""
+        body = fmt.to_json(data)
+        if b"null" in body:  # rare: the walk only for messages that may hold one
+            body = fmt.to_json(fmt.drop_typed_nulls(data, self.schemas[topic]))
+        return body
+
+    def allowed(self, incoming: int) -> bool:
+        """False once the limits end the recording (``ended`` says why)."""
+        if self.ended is None and self.limits is not None:
+            self.ended = self.limits.reason(self.stream.tell(), incoming)
+        return self.ended is None
+
     def telemetry(self, topic: str, msg: dict[str, Any], recv_ns: int) -> None:
         seq = int(msg.get("seq") or 0)
+        data = msg.get("data")
+        ch = self._channel(topic, data)
+        body = self._json(topic, data)
+        if not self.allowed(len(body)):
+            return
         if self._seq is not None and seq > self._seq + 1:
             self.counts.missed += seq - self._seq - 1
         self._seq = seq
-        data = msg.get("data")
-        self._write(topic, data, fmt.to_json(data), int(msg.get("t_ns") or recv_ns), recv_ns, seq)
+        self._write(topic, ch, body, int(msg.get("t_ns") or recv_ns), recv_ns)
 
     def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
-        seq = int(header.get("seq") or 0)
-        if self._frame_seq is not None and seq > self._frame_seq + 1:
-            self.counts.frames_missed += seq - self._frame_seq - 1
-        self._frame_seq = self.kept_seq = seq
+        hch = self._channel(fmt.FRAME_HEADER_TOPIC, header)
+        head = self._json(fmt.FRAME_HEADER_TOPIC, header)
+        if not self.allowed(len(head) + len(pixels) + 256):  # 256: the RawImage's own fields
+            return
+        self.note_frame_seen(int(header.get("seq") or 0))
+        self.kept_seq = self._frame_seq
         t = int(header.get("host_time_ns") or recv_ns)
-        self._write(fmt.FRAME_HEADER_TOPIC, header, fmt.to_json(header), t, recv_ns, seq)
+        self._write(fmt.FRAME_HEADER_TOPIC, hch, head, t, recv_ns)
         try:
             image = fmt.raw_image(header, pixels)
         except fmt.UnsupportedFrame:
             self.counts.unsupported += 1
             return
-        self._write(fmt.FRAME_TOPIC, None, image, t, recv_ns, seq)
+        self._write(fmt.FRAME_TOPIC, self._channel(fmt.FRAME_TOPIC, None), image, t, recv_ns)
         self.counts.frames += 1
 
     def note_frame_seen(self, seq: int) -> None:
@@ -110,20 +144,25 @@ class Recorder:
             self.counts.frames_missed += seq - self._frame_seq - 1
         self._frame_seq = seq
 
-    def _write(self, topic: str, sample: Any, data: bytes, log_ns: int, recv_ns: int, seq: int) -> None:
-        ch = self.channels.get(topic)
-        self.writer.add_message(self._channel(topic, sample) if ch is None else ch, log_time=log_ns, data=data,
-                                publish_time=recv_ns, sequence=seq % fmt.SEQ_MOD)
+    def _write(self, topic: str, ch: int, data: bytes, log_ns: int, recv_ns: int) -> None:
+        # the MCAP sequence counts this channel's messages (1, 2, ...): a reader's gap check per
+        # channel finds none; the bus seq, one counter across topics, gave every channel false gaps
+        seq = self.sequences[ch] = self.sequences.get(ch, 0) + 1
+        self.writer.add_message(ch, log_time=log_ns, data=data, publish_time=recv_ns,
+                                sequence=seq % fmt.SEQ_MOD)
         self.counts.messages += 1
         topics = self.counts.topics
         topics[topic] = topics.get(topic, 0) + 1
 
     def finish(self, ended: str = "", error: str = "") -> None:
-        """The end record (how it ended), then the summary; call once."""
+        """The end record (how it ended, what was lost), then the summary; call once."""
         self.finishing = True
         if ended:
-            self.writer.add_metadata(fmt.END_METADATA_NAME, {"ended": ended, "error": error,
-                                                             "messages": str(self.counts.messages)})
+            c = self.counts
+            self.writer.add_metadata(fmt.END_METADATA_NAME, {
+                "ended": ended, "error": error, "messages": str(c.messages), "frames": str(c.frames),
+                "frames_dropped": str(c.frames_missed), "telemetry_missed": str(c.missed),
+                "frames_unsupported": str(c.unsupported)})
         self.writer.finish()  # type: ignore[no-untyped-call]  # mcap 1.6 leaves finish() unannotated
 
 
@@ -165,15 +204,19 @@ def _mb(n: int) -> str:
 
 
 def progress_line(path: Path, seconds: float, size: int, c: Counts, frames: bool) -> str:
-    fr = f", {c.frames} frames" + (f" ({c.frames_missed} dropped by the frame socket)" if c.frames_missed else "") \
-        if frames else ""
+    fr = f", {c.frames} frames ({c.frames_missed} dropped)" if frames else ""
     lost = f", {c.missed} telemetry messages MISSED" if c.missed else ""
     return f"recording {path.name}: {seconds:.1f} s, {_mb(size)}, {c.messages} messages{fr}{lost}"
 
 
-def _drain(sub: Subscriber, rec: Recorder, every: int, limit: int = 2000) -> None:
-    """Write what has arrived (at most ``limit`` messages, so the progress line keeps moving)."""
+def _drain(sub: Subscriber, rec: Recorder, every: int, until: float, stop: threading.Event | None,
+           limit: int) -> None:
+    """Write what has arrived: at most ``limit`` messages, and never past ``until``, a stop or a
+    limit. Frames that come faster than they are written wait in the socket, which keeps FRAME_HWM
+    and drops the rest (counted from the gaps in their seq): nothing queues without bound."""
     for _ in range(limit):
+        if rec.ended is not None or time.monotonic() >= until or stop is not None and stop.is_set():
+            return
         try:
             frames = sub.sock.recv_multipart(zmq.NOBLOCK, copy=False)
         except zmq.Again:
@@ -197,15 +240,18 @@ def _record_loop(subs: list[tuple[Subscriber, int]], rec: Recorder, a: argparse.
     screen = Screen(sys.stderr, sys.stderr.isatty(), every=5.0)
     start = time.monotonic()
     end = start + (a.duration if a.duration is not None else float("inf"))
-    while not stop.is_set() and (now := time.monotonic()) < end:
+    while not stop.is_set() and (now := time.monotonic()) < end and rec.allowed(0):
         ready = dict(poller.poll(int(min(200.0, max(0.0, (end - now) * 1000)))))
-        for s, every in subs:
+        for s, every in subs:  # a few frames a turn: telemetry and the clock get their turn between
             if s.sock in ready:
-                _drain(s, rec, every)
+                _drain(s, rec, every, end, stop, FRAME_BATCH if every else 2000)
         screen.status(progress_line(path, time.monotonic() - start, rec.stream.tell(), rec.counts, len(subs) > 1),
                       time.monotonic())
-    for s, every in subs:  # what arrived before the stop belongs to the recording
-        _drain(s, rec, every, limit=1_000_000)
+    # what arrived before the stop belongs to the recording: the queues as they are, within a
+    # bounded time (a stream that keeps coming must not hold the end up)
+    last = time.monotonic() + FINAL_DRAIN_S
+    for s, every in subs:
+        _drain(s, rec, every, last, None, FRAME_HWM if every else TELEMETRY_HWM)
     screen.close()
     return time.monotonic() - start
 
@@ -222,6 +268,7 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
     if a.duration is not None and not 0 < a.duration < 1e7:
         raise CtlError(Exit.USAGE, "usage", f"--duration must be more than 0 seconds, got {a.duration:g}")
     out = check_out(Path(a.out), a.force)
+    limits = Limits.from_options(out.parent, a.min_free, a.max_size)
     tmp = out.parent / f".{out.name}.partial"
     subs = [(c.subscriber(hwm=TELEMETRY_HWM), 0)]  # subscribed before the first message we want
     if every:
@@ -232,15 +279,16 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
     # (bench/bench_record.py); telemetry alone is small and shrinks to 40 % with zstd
     compression = ("none" if every else "zstd") if a.compression == "auto" else a.compression
     meta = {"hello": json.dumps(c.hello(), default=str), "frames": f"every {every}" if every else "off",
-            "compression": compression, "endpoint": c.endpoint}
+            "compression": compression, "endpoint": c.endpoint, "min_free": str(limits.min_free),
+            "max_size": str(limits.max_size or "")}
     stop = threading.Event()
     rec: Recorder | None = None
     try:
         with open(tmp, "wb") as f, _stop_on_sigint(stop):
-            rec = Recorder(f, meta, compression)
+            rec = Recorder(f, meta, compression, limits)
             try:
                 seconds = _record_loop(subs, rec, a, out, stop)
-                rec.finish("interrupted" if stop.is_set() else "duration")
+                rec.finish(rec.ended or ("interrupted" if stop.is_set() else "duration"))
                 f.flush()
                 os.fsync(f.fileno())
             except BaseException as exc:
@@ -258,7 +306,12 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
     finally:
         for s, _ in subs:
             s.close()
-    return _report(out, seconds, rec.counts, bool(every), a.json, stop.is_set())
+    code = _report(out, seconds, rec.counts, bool(every), a.json, stop.is_set())
+    if rec.ended is not None:
+        print(f"ritactl: WARNING: the recording ended early: {limits.describe(rec.ended)}; {out} is complete",
+              file=sys.stderr, flush=True)
+    # the floor is the disk running out (exit 5, as a full disk's error); --max-size is the size asked for
+    return Exit.BAD_INPUT if rec.ended == "min_free" else code
 
 
 def partial_name(out: Path) -> Path:
@@ -306,8 +359,9 @@ def _report(out: Path, seconds: float, cnt: Counts, frames: bool, as_json: bool,
                           "missed": cnt.missed, "frames_missed": cnt.frames_missed,
                           "frames_unsupported": cnt.unsupported}), flush=True)
     else:
+        fr = f", {cnt.frames} frames ({cnt.frames_missed} dropped)" if frames else ""
         print(f"recorded {out}: {seconds:.1f} s, {_mb(size)}, {cnt.messages} messages on {len(cnt.topics)} "
-              f"topics" + (f", {cnt.frames} frames" if frames else ""), flush=True)
+              f"topics{fr}", flush=True)
     if cnt.missed:
         print(f"ritactl: WARNING: {cnt.missed} telemetry messages were lost before they reached the recorder "
               f"(gaps in seq)", file=sys.stderr, flush=True)
@@ -327,6 +381,9 @@ def add_parser(sub: Any) -> None:
                    help="record one camera frame in N ('every 1': all of them), or none (default: off)")
     p.add_argument("--compression", choices=COMPRESSIONS, default="auto", help="MCAP chunk compression "
                    "(default auto: none when frames are recorded, else zstd)")
+    p.add_argument("--max-size", metavar="SIZE", help="end the recording before the file passes SIZE (500M)")
+    p.add_argument("--min-free", metavar="SIZE", help="end the recording before the disk's free space falls "
+                   f"under SIZE (default {DEFAULT_MIN_FREE // 10**9}G)")
     p.add_argument("--force", action="store_true", help="replace FILE.mcap if it exists")
     p.set_defaults(fn=cmd_record)
 

@@ -4,8 +4,11 @@ It binds the three bus endpoints a client expects (docs/protocol.md): a command 
 answers ``hello`` (which names the other two), ``ping``, ``state`` (the Clone snapshot, as of the
 replay's position) and ``status``/``health`` (the last ``daemon.health`` replayed); every other
 command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not driven. Telemetry goes out on a PUB socket in the bus's own format
-(``[topic, msgpack {v, seq, t_ns, data}]`` with the recorded seq and t_ns), frames on a frame
-socket. Messages keep the file's order; pacing follows their log times divided by ``--speed``.
+(``[topic, msgpack {v, seq, t_ns, data}]`` with the recorded t_ns and the replay's own seq, one
+counter across topics as ritad's: the file's sequences count each channel's messages), frames on a
+frame socket. A null the recorder left out of a message (its schema has a type for the field:
+mcapfile.drop_typed_nulls) is put back. Messages keep the file's order; pacing follows their log
+times divided by ``--speed``.
 
 Only 127.0.0.1 and ipc endpoints are accepted: a replay is for this computer.
 """
@@ -176,8 +179,8 @@ class ReplayServer:
             s.close()
 
 
-def messages(f: IO[bytes]) -> Iterator[tuple[str, str, int, int, bytes]]:
-    """``(topic, message encoding, sequence, log_time, data)`` in the file's order (the order received)."""
+def messages(f: IO[bytes]) -> Iterator[tuple[str, str, bytes, int, bytes]]:
+    """``(topic, message encoding, schema data, log_time, data)`` in the file's order (the order received)."""
     try:
         from mcap.exceptions import McapError
         from mcap.reader import make_reader
@@ -185,22 +188,32 @@ def messages(f: IO[bytes]) -> Iterator[tuple[str, str, int, int, bytes]]:
         raise CtlError(Exit.BAD_INPUT, "missing_package", f"replay needs the mcap package ({exc.name} is not "
                                                           f"installed): pip install --upgrade rita") from None
     try:
-        for _, channel, m in make_reader(f).iter_messages(log_time_order=False):
-            yield channel.topic, channel.message_encoding, m.sequence, m.log_time, m.data
+        for schema, channel, m in make_reader(f).iter_messages(log_time_order=False):
+            yield channel.topic, channel.message_encoding, schema.data if schema else b"", m.log_time, m.data
     except (McapError, OSError, ValueError, struct.error) as exc:  # a truncated file fails its seeks too
         raise bad_input(f"{getattr(f, 'name', 'the file')} is not a readable MCAP recording: {exc}") from None
 
 
-def _decoded(topic: str, encoding: str, data: bytes) -> Any:
+def _decoded(topic: str, encoding: str, data: bytes, schema: dict[str, Any]) -> Any:
     """A message's content, or None for one not in ritad's layout (another tool's channel, bad JSON)."""
     if topic == fmt.FRAME_TOPIC:
         return data if encoding == "cdr" else None
     if encoding != "json":
         return None
     try:
-        return json.loads(data)
+        return fmt.restore_nulls(json.loads(data), schema)
     except ValueError:
         return None
+
+
+def _schema(cache: dict[bytes, dict[str, Any]], data: bytes) -> dict[str, Any]:
+    if data not in cache:
+        try:
+            parsed = json.loads(data) if data else {}
+        except ValueError:
+            parsed = {}
+        cache[data] = parsed if isinstance(parsed, dict) else {}
+    return cache[data]
 
 
 def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, int]:
@@ -210,14 +223,15 @@ def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, 
     first: int | None = None
     due = 0.0
     header: dict[str, Any] | None = None
-    for topic, encoding, seq, log_ns, data in messages(f):
+    schemas: dict[bytes, dict[str, Any]] = {}
+    for topic, encoding, schema, log_ns, data in messages(f):
         first = log_ns if first is None else first
         if speed is not None:
             due = max(due, (log_ns - first) / 1e9 / speed)
             server.serve(max(0.0, start + due - time.monotonic()))
         elif n % 256 == 0:
             server.serve(0)
-        content = _decoded(topic, encoding, data)
+        content = _decoded(topic, encoding, data, _schema(schemas, schema) if encoding == "json" else {})
         if content is None:
             skipped += 1
             continue
@@ -228,7 +242,7 @@ def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, 
                 server.publish_frame(header, fmt.pixels_of(data))
             header = None
         else:
-            server.publish(topic, seq, log_ns, content)
+            server.publish(topic, server.seq + 1, log_ns, content)
         n += 1
     return n, skipped
 

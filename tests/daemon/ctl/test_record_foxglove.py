@@ -101,3 +101,28 @@ def test_a_recording_has_only_channels_foxglove_reads() -> None:
     assert len(schemas) == len(SAMPLES) + 1
     for s in schemas:
         assert foxglove_refusal(json.loads(s.data)) is None, (s.name, foxglove_refusal(json.loads(s.data)))
+
+
+def test_typed_nulls_are_left_out_of_messages_and_a_replay_puts_them_back() -> None:
+    import jsonschema  # the strict check an independent consumer makes
+
+    buf = io.BytesIO()
+    rec = Recorder(buf, {"test": "1"}, "none")
+    first = {"x_mm": 1.0, "roll_deg": None, "latch": {"since_ns": 5, "latched": True}}
+    later = {"x_mm": None, "roll_deg": 0.5, "latch": {"since_ns": None, "latched": False}}  # NaN became null
+    command = {"cmd": "robot.move", "id": 7, "args": None, "key": None, "role": "operator", "ok": False,
+               "code": "bad_args", "message": None, "recv_ns": 1, "reply_ns": 2}
+    rec.telemetry("robot.state", {"seq": 1, "t_ns": 1, "data": first}, 1)
+    rec.telemetry("robot.state", {"seq": 2, "t_ns": 2, "data": later}, 2)
+    rec.telemetry(str(Topic.DAEMON_COMMAND), {"seq": 3, "t_ns": 3, "data": command}, 3)
+    rec.finish()
+    reader = make_reader(io.BytesIO(buf.getvalue()))
+    got = [(json.loads(s.data), json.loads(m.data)) for s, _, m in reader.iter_messages()]
+    for schema, data in got:
+        assert foxglove_refusal(schema) is None
+        jsonschema.validate(data, schema)
+    assert got[0][1] == first  # roll_deg: null in the first message, so untyped, so kept
+    assert got[1][1] == {"roll_deg": 0.5, "latch": {"latched": False}}
+    assert got[2][1] == {"cmd": "robot.move", "id": 7, "role": "operator", "ok": False, "code": "bad_args",
+                         "recv_ns": 1, "reply_ns": 2}
+    assert [fmt.restore_nulls(d, s) for s, d in got] == [first, later, command]
