@@ -166,8 +166,11 @@ class ExperimentMetrics:
     fit: BiasFit | None
     extra: dict[str, Any] = field(default_factory=dict)
     #: the robot-frame bias already subtracted at every stop (the calibration's b), or None: the fitted b is
-    #: then what is left of the bias after it, not the bias itself, and the table says so
+    #: then what is left of the bias after it, not the bias itself, and the table says so (not in to_dict:
+    #: the result has it as compensation.robot_bias_mm, and recompute compares metrics key by key)
     applied_b: list[float] | None = None
+    #: a bias applied at some stops only: said under the table (the fit mixes both), not in to_dict either
+    partly_applied: str = ""
 
     @property
     def enclosing_diameter_mm(self) -> float:
@@ -179,7 +182,7 @@ class ExperimentMetrics:
         return {"clusters": [asdict(c) for c in self.clusters], "all": asdict(self.all),
                 "enclosing_diameter_mm": self.enclosing_diameter_mm, "pairwise_mean_mm": self.pairwise_mean_mm,
                 "centroid_mean_mm": self.centroid_mean_mm, "fit": None if self.fit is None else asdict(self.fit),
-                "applied_b_mm": self.applied_b, **self.extra}
+                **self.extra}
 
     def rows(self) -> list[list[str]]:
         """Table rows (header first), numbers formatted as in the paper."""
@@ -200,6 +203,8 @@ class ExperimentMetrics:
         if self.applied_b is not None:
             s += [("Robot-frame bias b applied at every stop, the calibration's (x, y) [mm]",
                    f"{self.applied_b[0]:.4f}, {self.applied_b[1]:.4f}")]
+        if self.partly_applied:
+            s += [("Robot-frame bias b applied at", self.partly_applied)]
         if self.fit is not None:
             # with a bias applied, the fit sees only what is left of it: named so, never as "the" bias
             b = "b left after the applied b" if self.applied_b is not None else "b"

@@ -31,7 +31,7 @@ class Goal:
         if self.op not in _OPS:
             raise ValueError(f"Goal: op {self.op!r} is not one of {', '.join(_OPS)}")
 
-    def met(self, value: float) -> bool:
+    def met(self, value: float | None) -> bool:
         """Whether ``value`` meets the goal (NaN or None never does)."""
         return value is not None and math.isfinite(value) and bool(_OPS[self.op](value, self.limit))
 
@@ -49,7 +49,7 @@ def verdict(ok: bool) -> str:
     return "met" if ok else "MISSED"
 
 
-def goal_text(value: float, goal: Goal, fmt: str = ".3f", label: str = "") -> str:
+def goal_text(value: float | None, goal: Goal, fmt: str = ".3f", label: str = "") -> str:
     """``label value unit (goal …): met`` or ``…: MISSED``; the value in the goal's unit."""
     shown = "nan" if value is None or not math.isfinite(value) else format(value, fmt)
     head = f"{label} " if label else ""

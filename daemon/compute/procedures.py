@@ -217,7 +217,7 @@ def _label_bias(metrics: ExperimentMetrics, summary: dict[str, Any]) -> None:
     if n and n == stops and summary.get("robot_bias_mm") is not None:
         metrics.applied_b = list(summary["robot_bias_mm"])
     elif n:
-        metrics.extra["Robot-frame bias b applied at"] = f"{n} of {stops} stops only: the fitted b mixes both"
+        metrics.partly_applied = f"{n} of {stops} stops only: the fitted b mixes both"
 
 
 def weight_message(weight: dict[str, Any]) -> str:

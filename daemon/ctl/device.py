@@ -53,7 +53,7 @@ def motion_text(verb: str, r: dict[str, Any]) -> tuple[str, Exit]:
     if r.get("started"):
         return (f"robot {verb} started; not waiting for its end (`ritactl robot status` shows the robot)",
                 Exit.OK)
-    result = r.get("result")
+    result = str(r.get("result"))
     if r.get("recovered"):  # the base's DONE was lost: the end was read from STATUS, not how it ended
         how = "ended (its DONE event was lost: whether it completed is not known)"
     else:

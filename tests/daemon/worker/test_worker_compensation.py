@@ -158,12 +158,12 @@ def test_stored_bias_round_trip(ref, tmp_path):
     assert np.abs(_errors(second)).max() < 2e-3 and np.hypot(*second["metrics"]["fit"]["b"]) < 2e-3
     # the table shows the b it applied (the stored one) and names its fit for what it is: the b left
     b0 = active["robot_bias_mm"]
-    assert second["metrics"]["applied_b_mm"] == pytest.approx(b0)
+    assert second["compensation"]["robot_bias_mm"] == pytest.approx(b0)
     table = second["table_markdown"]
     assert f"*Robot-frame bias b applied at every stop, the calibration's (x, y) [mm]*: {b0[0]:.4f}, " \
            f"{b0[1]:.4f}" in table
     assert "*Robot-frame bias b left after the applied b, fitted to these marks (x, y) [mm]*" in table
-    assert "applied at every stop" not in first["table_markdown"] and first["metrics"]["applied_b_mm"] is None
+    assert "applied at every stop" not in first["table_markdown"] and "b left" not in first["table_markdown"]
     # a bias belongs to the calibration it was measured with
     other = {**first, "calibration_job": "cal-0"}
     assert "NOT stored" in store_bias(data, other)
