@@ -165,6 +165,12 @@ class ExperimentMetrics:
     centroid_mean_mm: float  # mean distance of the cluster means to their centroid
     fit: BiasFit | None
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the robot-frame bias already subtracted at every stop (the calibration's b), or None: the fitted b is
+    #: then what is left of the bias after it, not the bias itself, and the table says so (not in to_dict:
+    #: the result has it as compensation.robot_bias_mm, and recompute compares metrics key by key)
+    applied_b: list[float] | None = None
+    #: a bias applied at some stops only: said under the table (the fit mixes both), not in to_dict either
+    partly_applied: str = ""
 
     @property
     def enclosing_diameter_mm(self) -> float:
@@ -194,10 +200,19 @@ class ExperimentMetrics:
         s = [("Enclosing diameter, all points [mm]", f"{self.enclosing_diameter_mm:.3f}"),
              ("Mean L2 distance between cluster means, over pairs [mm]", f"{self.pairwise_mean_mm:.3f}"),
              ("Mean L2 distance of cluster means to their centroid [mm]", f"{self.centroid_mean_mm:.3f}")]
+        if self.applied_b is not None:
+            s += [("Robot-frame bias b applied at every stop, the calibration's (x, y) [mm]",
+                   f"{self.applied_b[0]:.4f}, {self.applied_b[1]:.4f}")]
+        if self.partly_applied:
+            s += [("Robot-frame bias b applied at", self.partly_applied)]
         if self.fit is not None:
+            # with a bias applied, the fit sees only what is left of it: named so, never as "the" bias
+            b = "b left after the applied b" if self.applied_b is not None else "b"
             s += [("Fitted mark M (x, y) [mm]", f"{self.fit.M[0]:.3f}, {self.fit.M[1]:.3f}"),
-                  ("Robot-frame bias b (x, y) [mm]", f"{self.fit.b[0]:.4f}, {self.fit.b[1]:.4f}"),
-                  ("|b| [mm]", f"{self.fit.b_norm_mm:.4f}"), ("Fit residual RMS [mm]", f"{self.fit.rms_mm:.4f}")]
+                  (f"Robot-frame bias {b}, fitted to these marks (x, y) [mm]",
+                   f"{self.fit.b[0]:.4f}, {self.fit.b[1]:.4f}"),
+                  (f"|{b}| [mm]", f"{self.fit.b_norm_mm:.4f}"),
+                  ("Fit residual RMS [mm]", f"{self.fit.rms_mm:.4f}")]
         s += [(k, f"{v:.4f}" if isinstance(v, float) else str(v)) for k, v in self.extra.items()]
         return s
 

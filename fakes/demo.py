@@ -24,6 +24,7 @@ from pathlib import Path
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
 from fakes.launch import start_ritad
+from daemon.figures import Goal, goal_text
 from fakes.operator import lock_on_robot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,6 +60,34 @@ def ritactl(endpoint: str, *args: str, timeout: float = 600) -> int:
     return subprocess.run(cmd, cwd=ROOT, timeout=timeout).returncode
 
 
+def intrinsics_goals(err: dict[str, float]) -> list[str]:
+    """The intrinsics' errors against truth, each with its goal and verdict (docs/accuracy.md)."""
+    return [goal_text(err["df_rel"] * 100, Goal("<=", 0.1, "%"), label="focal length off by"),
+            goal_text(err["pp_full_px"], Goal("<=", 1.5, "px"), ".2f",
+                      "principal point off, at full size, by")]
+
+
+def survey_goals(err: dict[str, float]) -> list[str]:
+    """The surveyed nest seats against truth: each seat, the worst with its goal and verdict."""
+    each = ", ".join(f"{n} {e * 1000:.0f} µm" for n, e in err.items())
+    worst = max(err.values()) * 1000 if err else float("nan")
+    return [goal_text(worst, Goal("<=", 50, "µm"), ".0f", f"nest seats off by {each}; the worst")]
+
+
+def referencing_goals(err: dict[str, float]) -> list[str]:
+    """rob_H_cam against truth, each figure with its goal and verdict."""
+    return [goal_text(err["t_xy_mm"] * 1000, Goal("<", 60, "µm"), ".1f", "t_xy"),
+            goal_text(err["t_z_mm"] * 1000, Goal("<", 45, "µm"), ".1f", "t_z"),
+            goal_text(err["rot_deg"], Goal("<", 0.015, "°"), ".4f", "rotation")]
+
+
+def print_goals(lines: list[str]) -> None:
+    """'vs ground truth', one figure a line: a miss cannot hide in the middle of a long line."""
+    print("  vs ground truth:")
+    for line in lines:
+        print(f"    {line}")
+
+
 def run_intrinsics(c: Client, out: Path) -> int:
     """The guided intrinsics: the simulated operator holds the board as each prompt asks."""
     from fakes.board import run_intrinsics as play_operator
@@ -76,9 +105,7 @@ def run_intrinsics(c: Client, out: Path) -> int:
     K = model["K"]
     print(f"  {len(r['_prompts'])} prompts answered; verdict {r['verdict']}; f = {K[0][0]:.2f} ± {std.get('fx', 0):.2f} px,"
           f" centre ({K[0][2]:.2f}, {K[1][2]:.2f}) px at {model['size'][0]}×{model['size'][1]}")
-    err = score_camera_model(model, c.call("sim.truth"))
-    print(f"  vs ground truth: f off by {err['df_rel'] * 100:.3f} % (goal ≤ 0.1 %), centre off by "
-          f"{err['pp_full_px']:.2f} px at full size (goal ≤ 1.5 px)")
+    print_goals(intrinsics_goals(score_camera_model(model, c.call("sim.truth"))))
     return 0
 
 
@@ -94,8 +121,7 @@ def run_survey(c: Client, out: Path, endpoint: str) -> Path | None:
     if ritactl(endpoint, "plate", "survey", str(files["survey"]), "--plate", str(files["plate_design"]),
                "--out", str(plate)) not in (0, 1):
         return None
-    err = score_nests(json.loads(plate.read_text()), c.call("sim.truth"))
-    print("  vs ground truth: " + ", ".join(f"{n} {e * 1000:.0f} µm" for n, e in err.items()) + " (goal ≤ 50 µm)")
+    print_goals(survey_goals(score_nests(json.loads(plate.read_text()), c.call("sim.truth"))))
     return plate
 
 
@@ -110,9 +136,8 @@ def run_referencing(c: Client, out: Path, endpoint: str, plate: Path, robot_trk:
     if rc:
         return rc
     active = c.call("calib.results")["active"]
-    err = score_rob_H_cam(active["rob_H_cam"], c.call("sim.truth")["rob_H_cam"])
-    print(f"\n  vs ground truth: t_xy {err['t_xy_mm'] * 1000:.1f} µm (goal < 60), t_z {err['t_z_mm'] * 1000:.1f} µm "
-          f"(goal < 45), rotation {err['rot_deg']:.4f}° (goal < 0.015)")
+    print()
+    print_goals(referencing_goals(score_rob_H_cam(active["rob_H_cam"], c.call("sim.truth")["rob_H_cam"])))
     return 0
 
 

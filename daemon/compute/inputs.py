@@ -138,6 +138,7 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     """Over all stops: per compensation how many stops applied it and why the others skipped it."""
     offset, bias = calibration_inputs(calib)
     out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
+                           "skipped_stops": {},
                            "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias,
                            "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm"),
                            "heading_weight": _weight_value(calib)}
@@ -145,9 +146,11 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
         if name not in out["requested"]:
             continue
         out["applied"][name] = sum(name in r["applied"] for r in records)
-        reasons = sorted({r["skipped"][name] for r in records if name in r["skipped"]})
+        reasons = [r["skipped"][name] for r in records if name in r["skipped"]]
         if reasons:
-            out["skipped"][name] = reasons
+            out["skipped"][name] = sorted(set(reasons))
+            # how many stops gave each reason: a reader sees "reason ×7", not seven copies or one
+            out["skipped_stops"][name] = {r: reasons.count(r) for r in dict.fromkeys(reasons)}
     return out
 
 

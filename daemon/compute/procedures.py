@@ -19,7 +19,7 @@ from calibration.frames import apply_H
 from calibration.heading_weight import NOT_LEARNED, learn_from_stops, stop_marks
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
-from calibration.metrics import experiment_metrics
+from calibration.metrics import ExperimentMetrics, experiment_metrics
 from calibration.plate import NEST_NAMES, Plate
 from calibration.referencing import reference
 from calibration.mount import from_reversal as mount_from_reversal, message as mount_message
@@ -202,11 +202,22 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     weight = learn_from_stops(stops, headings).to_dict() if comp.heading_fit else None
     if weight is not None:
         messages.append(weight_message(weight))
+    summary = compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"])
+    _label_bias(metrics, summary)
     return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
-            "compensation": compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"]),
+            "compensation": summary,
             "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
             "heading_weight": weight, "verdict": "ok" if check["ok"] else "warn", "messages": messages}
+
+
+def _label_bias(metrics: ExperimentMetrics, summary: dict[str, Any]) -> None:
+    """The table's fitted b is what is left after a bias the stops applied: it says so, and shows that one."""
+    n, stops = summary["applied"].get("bias", 0), summary["stops"]
+    if n and n == stops and summary.get("robot_bias_mm") is not None:
+        metrics.applied_b = list(summary["robot_bias_mm"])
+    elif n:
+        metrics.partly_applied = f"{n} of {stops} stops only: the fitted b mixes both"
 
 
 def weight_message(weight: dict[str, Any]) -> str:

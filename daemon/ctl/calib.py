@@ -21,6 +21,7 @@ from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import Exit, for_verdict
 from daemon.bus.protocol import CommandError, ErrorCode
+from daemon.figures import counted, counted_from
 
 POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
 
@@ -167,8 +168,10 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     if comp:  # which compensations took effect, and why not
         done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"
         print(f"  compensations (stops applied): {done}")
+        # counted over the stops (a result from before the counts: each reason once)
         for n, why in (comp.get("skipped") or {}).items():
-            print(f"    {n} skipped: {'; '.join(why)}")
+            stops = (comp.get("skipped_stops") or {}).get(n)
+            print(f"    {n} skipped: {'; '.join(counted_from(stops) if stops else counted(why))}")
     print(f"  dataset: {d.get('dataset')}  {' '.join(d.get('files') or [])}")
     return code
 

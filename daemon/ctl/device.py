@@ -45,8 +45,28 @@ def _detect_text(r: dict[str, Any]) -> tuple[str, Exit]:
     return f"{r.get('target')} mark at u {u:.2f}, v {v:.2f} px ({where})", Exit.OK
 
 
+def motion_text(verb: str, r: dict[str, Any]) -> tuple[str, Exit]:
+    """``robot move``/``turn``: one line on how the motion ended and where the odometry puts the robot.
+
+    The exit code stays the call's (OK): a motion the base cut short says STOPPED in the line.
+    """
+    if r.get("started"):
+        return (f"robot {verb} started; not waiting for its end (`ritactl robot status` shows the robot)",
+                Exit.OK)
+    result = str(r.get("result"))
+    if r.get("recovered"):  # the base's DONE was lost: the end was read from STATUS, not how it ended
+        how = "ended (its DONE event was lost: whether it completed is not known)"
+    else:
+        how = {"OK": "done", "STOPPED": "STOPPED before its end"}.get(result, f"ended ({result})")
+    x, y, h = (r.get(k) for k in ("x_mm", "y_mm", "heading_deg"))
+    where = "" if None in (x, y, h) else f"; odometry x {x:.1f} mm, y {y:.1f} mm, heading {h:.2f}°"
+    return f"robot {verb} {how}{where}", Exit.OK
+
+
 #: results a generated subcommand shows in words (with --json: the result, same exit code)
-RESULT_TEXT: dict[str, Callable[[dict[str, Any]], tuple[str, Exit]]] = {"camera.detect": _detect_text}
+RESULT_TEXT: dict[str, Callable[[dict[str, Any]], tuple[str, Exit]]] = {
+    "camera.detect": _detect_text, "robot.move": lambda r: motion_text("move", r),
+    "robot.turn": lambda r: motion_text("turn", r)}
 
 
 def number_type(arg: Arg) -> Callable[[str], float]:
@@ -198,4 +218,4 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
     return Exit.OK
 
 
-__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "option_help", "table_args"]
+__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "motion_text", "option_help", "table_args"]

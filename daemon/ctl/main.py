@@ -74,8 +74,8 @@ def cmd_status(c: Client, a: argparse.Namespace) -> int:
     print(f"ritad {h['version']}  up {h['uptime_s']:.0f} s  alive={h['alive']}")
     for kind, s in h["devices"].items():
         reason = f" - {s['reason']}" if s["reason"] else ""
-        print(f"  {kind:8s} {s['state']:12s} reconnects={s['reconnects']} jobs={s['jobs_done']}"
-              f"/{s['jobs_failed']} failed{reason}")
+        print(f"  {kind:8s} {s['state']:12s} jobs {s['jobs_done']} done, {s['jobs_failed']} failed; "
+              f"reconnects {s['reconnects']}{reason}")
     latch = h.get("latch") or {}
     if latch.get("latched"):  # plainly: the robot will not move until someone releases it
         print(f"  STOP LATCHED by {latch.get('by')}: no motion until `ritactl robot release` "

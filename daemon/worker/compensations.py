@@ -109,5 +109,21 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     b, w = new["robot_bias_mm"], result.get("heading_weight")
     weight = "" if not w else (f" and heading_fit's weight {w['weight']:.2f}" if w["applied"] else
                                " and heading_fit's weight 0 (later jobs keep the chord)")
-    return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm{weight} stored in the active calibration {path} "
-            f"(later jobs apply it with compensation 'bias')")
+    made_of = _made_of(new["robot_bias"], result)
+    return (f"robot-frame bias b = ({b[0]:+.4f}, {b[1]:+.4f}) mm{made_of}{weight} "
+            f"stored in the active calibration {path} (later jobs apply it with compensation 'bias')")
+
+
+def _made_of(record: dict[str, Any], result: dict[str, Any]) -> str:
+    """Where the stored b comes from when it is not the table's fitted b, so that no reader takes one for the
+    other: the fit plus the bias the stops applied, or the b fitted jointly with heading_fit's weight."""
+    fit_b, held = record["fit_b_mm"], record.get("added_to_mm")
+    table_b = ((result.get("metrics") or {}).get("fit") or {}).get("b")
+    parts = []
+    if table_b is not None and any(abs(x - y) > 5e-5 for x, y in zip(fit_b, table_b)):
+        parts.append(f"fitted jointly with heading_fit's weight ({fit_b[0]:+.4f}, {fit_b[1]:+.4f}); "
+                     f"the table's b, fitted without it, is ({table_b[0]:+.4f}, {table_b[1]:+.4f})")
+    if held is not None:
+        parts.append(f"{'' if parts else 'the fitted '}({fit_b[0]:+.4f}, {fit_b[1]:+.4f}) plus the "
+                     f"({held[0]:+.4f}, {held[1]:+.4f}) the stops already applied")
+    return f" ({'; '.join(parts)})" if parts else ""

@@ -124,3 +124,17 @@ def test_metrics_bad_input_and_custom_groups():
     assert [c.name for c in m.clusters] == ["g0", "g1", "g2", "g3"]  # mixed headings: labels kept
     by_k = experiment_metrics(pts, hs, groups=[i // 2 for i in range(len(pts))])
     assert [c.name for c in by_k.clusters] == [c.name for c in experiment_metrics(pts, hs).clusters]
+
+
+def test_a_fit_after_an_applied_bias_is_labelled_what_is_left():
+    """The table's b is the fit of these marks: after the calibration's b was applied, only what is left."""
+    m = experiment_metrics([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]], [0.0, 90.0, 180.0, -90.0])
+    assert "*Robot-frame bias b, fitted to these marks (x, y) [mm]*" in m.to_markdown()
+    m.applied_b = [-0.002, 0.0063]
+    md = m.to_markdown()
+    assert "*Robot-frame bias b applied at every stop, the calibration's (x, y) [mm]*: -0.0020, 0.0063" in md
+    assert "*Robot-frame bias b left after the applied b, fitted to these marks (x, y) [mm]*" in md
+    assert "applied_b" not in str(m.to_dict()), "recompute compares metrics key by key: no new key"
+    m.applied_b, m.partly_applied = None, "3 of 8 stops only: the fitted b mixes both"
+    assert "*Robot-frame bias b applied at*: 3 of 8 stops only" in m.to_markdown()
+    assert "partly" not in str(m.to_dict()) and "3 of 8" not in str(m.to_dict())

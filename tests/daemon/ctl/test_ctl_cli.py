@@ -100,6 +100,11 @@ def test_status_exits_4_when_a_device_is_not_ready(capsys):
     assert ctl.cmd_status(client, args) == Exit.REFUSED
     out = capsys.readouterr()
     assert "connection refused" in out.out and "not ready: tracker FAULT" in out.err
+    # jobs in words: "jobs=1/0 failed" read as one job of none, or as one failed
+    health["devices"]["robot"].update(jobs_done=1, jobs_failed=2)
+    ctl.cmd_status(client, args)
+    robot = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("robot"))
+    assert "jobs 1 done, 2 failed; reconnects 0" in robot and "jobs=" not in robot, robot
     assert ctl.cmd_status(client, types.SimpleNamespace(json=True)) == Exit.REFUSED
 
 
@@ -157,3 +162,35 @@ def test_recompute_runs_opencv_without_its_worker_threads(tmp_path):
     res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing")], capture_output=True, text=True,
                          timeout=60, cwd=ROOT, env=env)
     assert res.stdout.split()[-2:] == [str(int(Exit.BAD_INPUT)), "1"], res
+
+
+def test_motion_verbs_print_one_line_and_json_keeps_the_raw_reply(capsys):
+    """`ritactl robot move/turn`: how the motion ended and where, in words; --json: the daemon's fields."""
+    from daemon.ctl.device import cmd_device
+
+    done = {"event": "DONE", "seq": 7, "host_time_ns": 1795802312082961761, "result": "OK", "x_mm": 100.04,
+            "y_mm": -0.2, "heading_deg": 0.013}
+    client = types.SimpleNamespace(call_raw=lambda cmd, args, timeout: (dict(done), []))
+    args = dict(arg_distance_mm=100.0, arg_confirm=True, json=False, timeout=None, command="robot.move")
+    assert cmd_device(client, types.SimpleNamespace(**args)) == Exit.OK
+    out = capsys.readouterr().out
+    assert out == "robot move done; odometry x 100.0 mm, y -0.2 mm, heading 0.01°\n", out
+    assert cmd_device(client, types.SimpleNamespace(**{**args, "json": True})) == Exit.OK
+    assert json.loads(capsys.readouterr().out) == done
+    turn = dict(args, command="robot.turn", arg_angle_deg=90.0)
+    done.update(result="STOPPED")
+    assert cmd_device(client, types.SimpleNamespace(**turn)) == Exit.OK
+    assert capsys.readouterr().out.startswith("robot turn STOPPED before its end; odometry x 100.0 mm")
+
+
+@pytest.mark.parametrize("reply, want", [
+    ({"started": True},
+     "robot move started; not waiting for its end (`ritactl robot status` shows the robot)"),
+    ({"event": "DONE", "recovered": True, "result": "UNKNOWN", "x_mm": 1.0, "y_mm": 2.0, "heading_deg": 3.0},
+     "robot move ended (its DONE event was lost: whether it completed is not known); odometry x 1.0 mm, "
+     "y 2.0 mm, heading 3.00°"),
+    ({"event": "DONE", "result": "ODD"}, "robot move ended (ODD)")])
+def test_motion_text_says_how_the_motion_ended(reply, want):
+    from daemon.ctl.device import motion_text
+
+    assert motion_text("move", reply) == (want, Exit.OK)

@@ -92,6 +92,8 @@ def test_none_all_and_skips_on_a_level_robot(exp):
     assert both["compensation"]["applied"] == {"tilt": 4, "heading_fit": 0}
     assert both["compensation"]["skipped"] == {"heading_fit": sorted(["no tracker stream was recorded along the "
                                                                       "approach", NOT_LEARNED.why])}
+    assert both["compensation"]["skipped_stops"] == {
+        "heading_fit": {NOT_LEARNED.why: 3, "no tracker stream was recorded along the approach": 1}}
     assert both["heading_weight"]["applied"] is False and ">= 8" in both["heading_weight"]["why"]
     assert np.abs(_errors(both)).max() < 1e-3  # level robot, offset removed, straight path: nothing changes
     full = recompute(exp)[0]  # the default: all
@@ -122,7 +124,10 @@ def test_ritactl_recompute_compensation_and_bad_name(exp, capsys):
     assert ctl.main(["recompute", str(exp), "--compensation", "tilt,heading_fit"]) == 0
     shown = capsys.readouterr().out
     assert "compensations (stops applied): tilt 4/4, heading_fit 0/4" in shown, shown
-    assert "heading_fit skipped: no tracker stream was recorded along the approach" in shown, shown
+    # each reason once, counted over the stops that gave it (three stops without the learned weight)
+    line = next(ln for ln in shown.splitlines() if "heading_fit skipped:" in ln)
+    assert "; no tracker stream was recorded along the approach" in line, line
+    assert f"{NOT_LEARNED.why} ×3" in line, line
     assert ctl.main(["recompute", str(exp), "--compensation", "tilt,wobble"]) == 5
     err = capsys.readouterr().err
     assert "wobble" in err and "Traceback" not in err, err
@@ -151,14 +156,26 @@ def test_stored_bias_round_trip(ref, tmp_path):
     second = recompute(tmp_path / "e2")[0]
     assert second["compensation"]["applied"]["bias"] == 4
     assert np.abs(_errors(second)).max() < 2e-3 and np.hypot(*second["metrics"]["fit"]["b"]) < 2e-3
+    # the table shows the b it applied (the stored one) and names its fit for what it is: the b left
+    b0 = active["robot_bias_mm"]
+    assert second["compensation"]["robot_bias_mm"] == pytest.approx(b0)
+    table = second["table_markdown"]
+    assert f"*Robot-frame bias b applied at every stop, the calibration's (x, y) [mm]*: {b0[0]:.4f}, " \
+           f"{b0[1]:.4f}" in table
+    assert "*Robot-frame bias b left after the applied b, fitted to these marks (x, y) [mm]*" in table
+    assert "applied at every stop" not in first["table_markdown"] and "b left" not in first["table_markdown"]
     # a bias belongs to the calibration it was measured with
     other = {**first, "calibration_job": "cal-0"}
     assert "NOT stored" in store_bias(data, other)
     # a second fit adds to what ITS experiment applied (the copy in its calibration), whatever is active now
     again = {**second, "job": "exp-2", "calibration_job": "cal-1"}
     again["compensation"] = {**again["compensation"], "robot_bias_mm": [0.2, 0.0]}
-    store_bias(data, again)
+    note = store_bias(data, again)
     b = json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"]
+    # the stored b is not the table's: the message says what it is made of
+    fit_b = second["heading_weight"]["b_mm"]
+    assert f"b = ({b[0]:+.4f}, {b[1]:+.4f}) mm (the fitted ({fit_b[0]:+.4f}, {fit_b[1]:+.4f}) plus the " \
+           f"(+0.2000, +0.0000) the stops already applied)" in note, note
     # with heading_fit (the default) the b stored is the one fitted jointly with the weight (here the chord's)
     assert b == pytest.approx(np.add(second["heading_weight"]["b_mm"], [0.2, 0.0]))
     assert second["heading_weight"]["b_mm"] == pytest.approx(second["metrics"]["fit"]["b"], abs=1e-6)

@@ -1,0 +1,100 @@
+"""Figures against goals, and repeated reasons, worded one way wherever they are printed.
+
+A goal printed without its verdict hides a miss from whoever reads quickly: every
+figure shown next to a goal goes through :func:`goal_text`, which ends in ``met`` or
+``MISSED`` (a value that is not a number cannot meet a goal: MISSED). A reason that
+holds for many stops or photographs is printed once with its count (:func:`counted`),
+so that the line stays readable and the count is not lost.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Iterable
+
+#: the comparison a goal states, and how it is printed
+_OPS = {"<": (lambda v, g: v < g), "<=": (lambda v, g: v <= g), ">": (lambda v, g: v > g),
+        ">=": (lambda v, g: v >= g)}
+_SHOWN = {"<": "<", "<=": "≤", ">": ">", ">=": "≥"}
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A figure's goal: ``value <op> limit`` (``op`` one of ``< <= > >=``), in ``unit``."""
+
+    op: str
+    limit: float
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        if self.op not in _OPS:
+            raise ValueError(f"Goal: op {self.op!r} is not one of {', '.join(_OPS)}")
+
+    def met(self, value: float | None) -> bool:
+        """Whether ``value`` meets the goal (NaN or None never does)."""
+        return value is not None and math.isfinite(value) and bool(_OPS[self.op](value, self.limit))
+
+    def text(self) -> str:
+        """``goal ≤ 0.25 mm``."""
+        return f"goal {_SHOWN[self.op]} {self.limit:g}{_unit(self.unit)}"
+
+
+def _unit(unit: str) -> str:
+    return "" if not unit else unit if unit in ("°", "%") else " " + unit
+
+
+def verdict(ok: bool) -> str:
+    """The one spelling of a verdict: ``met`` or ``MISSED``."""
+    return "met" if ok else "MISSED"
+
+
+def goal_text(value: float | None, goal: Goal, fmt: str = ".3f", label: str = "") -> str:
+    """``label value unit (goal …): met`` or ``…: MISSED``; the value in the goal's unit."""
+    shown = "nan" if value is None or not math.isfinite(value) else format(value, fmt)
+    head = f"{label} " if label else ""
+    return f"{head}{shown}{_unit(goal.unit)} ({goal.text()}): {verdict(goal.met(value))}"
+
+
+def goal_cell(value: float, goal: Goal) -> str:
+    """A table's goal column: ``≤ 0.25 met`` / ``≤ 0.25 **MISSED**`` (the unit is in the row's label)."""
+    ok = goal.met(value)
+    return f"{_SHOWN[goal.op]} {goal.limit:g} {verdict(ok) if ok else '**' + verdict(ok) + '**'}"
+
+
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
+
+
+def _span(numbers: list[str]) -> str:
+    """One number slot over several reasons: the value, or ``min–max`` as the reasons printed them."""
+    if len(set(numbers)) == 1:
+        return numbers[0]
+    values = [float(n) for n in numbers]
+    return f"{numbers[values.index(min(values))]}–{numbers[values.index(max(values))]}"
+
+
+def counted(reasons: Iterable[str]) -> list[str]:
+    """Reasons once each, in first-seen order, ``×n`` after one that came n > 1 times.
+
+    Reasons that differ only in their numbers (``… by 0.0239° …``, ``… by 0.0280° …``) are one
+    reason with each differing number shown as its range (``by 0.0239–0.0280°``).
+    """
+    groups: dict[tuple[str, int], list[list[str]]] = {}
+    for r in reasons:
+        numbers = _NUMBER.findall(r)
+        groups.setdefault((_NUMBER.sub("#", r), len(numbers)), []).append(numbers)
+    out = []
+    for (template, _), found in groups.items():
+        parts = template.split("#")
+        slots = [_span([n[i] for n in found]) for i in range(len(parts) - 1)]
+        text = parts[0] + "".join(s + p for s, p in zip(slots, parts[1:]))
+        out.append(text if len(found) == 1 else f"{text} ×{len(found)}")
+    return out
+
+
+def counted_from(counts: dict[str, int]) -> list[str]:
+    """:func:`counted` of reasons stored with their counts (``{reason: n}``)."""
+    return counted(r for r, n in counts.items() for _ in range(int(n)))
+
+
+__all__ = ["Goal", "counted", "counted_from", "goal_cell", "goal_text", "verdict"]
