@@ -24,7 +24,7 @@ from pathlib import Path
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
 from fakes.launch import start_ritad
-from daemon.figures import Goal, goal_text
+from daemon.bus.figures import Goal, goal_text
 from fakes.operator import lock_on_robot
 
 ROOT = Path(__file__).resolve().parents[1]

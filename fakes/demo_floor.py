@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.client import Client
-from daemon.figures import Goal, counted, counted_from, goal_cell, verdict
+from daemon.bus.figures import Goal, counted, counted_from, goal_cell, verdict
 from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark

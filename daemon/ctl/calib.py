@@ -21,7 +21,7 @@ from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import Exit, for_verdict
 from daemon.bus.protocol import CommandError, ErrorCode
-from daemon.figures import counted, counted_from
+from daemon.bus.figures import counted, counted_from
 
 POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
 

@@ -119,6 +119,9 @@ def emscon_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Da
     cfg = config.sim_config(tmp_path_factory.mktemp("fuzzdev"))
     cfg.daemon.start_worker = False
     cfg.devices.camera = "sim:?size=64x48&noise=0"
+    # no sample streams (as tests/drivers/test_fuzz_devices.py): a drawn "$STATE"/"$INCL" line would be a
+    # malformed sample (syntax) then, not a line of an unknown kind (unexpected)
+    cfg.devices.robot = "sim:?stream_hz=0"
     cfg.devices.tracker = f"emscon://127.0.0.1:{proxy.port}?timeout=0.2&meas_time_ms=10&connect_timeout=2"
     d = Daemon(cfg)
     d.start()

@@ -1,11 +1,11 @@
-"""daemon/figures.py: every figure printed with a goal says met or MISSED; repeated reasons are counted."""
+"""daemon/bus/figures.py: every figure printed with a goal says met or MISSED; repeated reasons are counted."""
 from __future__ import annotations
 
 import math
 
 import pytest
 
-from daemon.figures import Goal, counted, counted_from, goal_cell, goal_text, verdict
+from daemon.bus.figures import Goal, counted, counted_from, goal_cell, goal_text, verdict
 
 
 @pytest.mark.parametrize("value, goal, want", [
