@@ -118,6 +118,8 @@ class SerialRobot(RobotLine, Robot):
         self._splitter.clear()
         self._batcher.clear()
         self._streaming = False
+        if self._halt is not None:  # a new connection: an owed STOP goes out at once, before the HELLO
+            self._halt.resend_at = 0.0
         # _moving_seq survives a reconnect on purpose: if that motion ended meanwhile,
         # the first STATUS below publishes the DONE/FAULT that was lost with the port
         self._hello()
