@@ -107,7 +107,8 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=10)
     n = ap.parse_args().rounds
     rows = [run("no fault: robot.stop → halted", 3, no_fault, n),
-            run("link cut, STOP, restored 1 s later: restore → halted", 2, link_cut_then_restored, max(3, n // 2)),
+            run("link cut, STOP, restored 1 s later: restore → halted", 2, link_cut_then_restored,
+                max(3, n // 2)),
             run("link cut: cut → the base halted itself", 3, link_cut_watchdog, max(3, n // 2)),
             run("ritad SIGKILL mid-move: kill → the base halted itself", 3, killed(signal.SIGKILL), 3),
             run("ritad SIGTERM mid-move: SIGTERM → halted by ritad", 2, killed(signal.SIGTERM), 3)]

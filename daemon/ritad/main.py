@@ -132,11 +132,12 @@ class Daemon:
         for t in (self.telemetry, self.frames, self.server):
             t.start()
         self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())  # late joiners' snapshot holds it too
+        owes_halt = lambda: self.latch.gate.pending  # noqa: E731 - the robot reconnects at once while owed
         for kind in KINDS:
             self.runners[kind] = runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
                                   heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s,
-                                  urgent=(lambda: self.latch.gate.pending) if kind == "robot" else lambda: False)
+                                  urgent=owes_halt if kind == "robot" else lambda: False)
             runner.start()
 
     def _worker_cmd(self) -> list[str]:

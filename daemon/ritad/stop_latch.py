@@ -43,11 +43,14 @@ class StopLatch:
         self.since_ns: int | None = None
         self.refused = 0
         self._load()
-        #: the robot's motion gate (ritad hands it to the robot adapter); latched at start owes the base a halt
+        #: the robot's motion gate (ritad hands it to the robot adapter); latched at start, it owes the
+        #: base a halt
         self.gate = MotionGate(latched=self.latched)
-        self._pub_lock = threading.Lock()  # a snapshot and its publication in one step: the last one is newest
+        # a snapshot and its publication in one step: the last one published is the newest
+        self._pub_lock = threading.Lock()
         self.gate.on_halted(self._announce)
-        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="latch-file")  # in order, off the bus
+        # the file is written in order, off the command thread
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="latch-file")
 
     def _load(self) -> None:
         try:
