@@ -5,8 +5,8 @@ daemon. ``build_handlers`` wraps every handler with the command table's validato
 handler reads ``req.args`` already checked and defaulted (``bad_args`` names a bad one)
 and only checks what the table cannot: limits from the config.
 A handler answers at once or returns a Future completed in a device runner or the
-storage thread. Motions require ``confirm: true``; ``robot.stop`` is urgent and latches
-(daemon/ritad/stop_latch.py): no motion until ``robot.release``.
+storage thread. Motions require ``confirm: true``; ``robot.stop`` latches and
+requests the halt of the robot's motion gate (daemon/ritad/stop_latch.py): no motion until ``robot.release``.
 """
 from __future__ import annotations
 

@@ -137,7 +137,7 @@ class Daemon:
             self.runners[kind] = runner = DeviceRunner(kind, self._factory(kind), self.telemetry.publish,
                                   backoff_min=cfg.reconnect_min_s, backoff_max=cfg.reconnect_max_s,
                                   heartbeat_timeout=cfg.heartbeat_timeout_s, open_timeout=cfg.open_timeout_s,
-                                  urgent=owes_halt if kind == "robot" else lambda: False)
+                                  owes_halt=owes_halt if kind == "robot" else lambda: False)
             runner.start()
 
     def _worker_cmd(self) -> list[str]:
@@ -185,8 +185,8 @@ class Daemon:
         return {**self.telemetry.snapshot(), "devices": {k: r.snapshot() for k, r in self.runners.items()},
                 "latch": self.latch.snapshot()}
 
-    def job(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
-        return self.runners[kind].submit(fn, urgent=urgent, timeout=timeout)
+    def job(self, kind: str, fn: Callable[[Any], Any], *, timeout: float = 60.0) -> Future:
+        return self.runners[kind].submit(fn, timeout=timeout)
 
     def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
         """Store a capture (called in the storage thread, never in a device or bus thread)."""

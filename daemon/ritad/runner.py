@@ -13,13 +13,12 @@ switched-off device is a FAULT state, never a reason for systemd to restart rita
 """
 from __future__ import annotations
 
-import itertools
 import logging
 import queue
 import threading
 import time
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
@@ -43,18 +42,16 @@ def describe(exc: BaseException) -> str:
 
 PUMP_S = 0.02  # how long pump may block: bounds job latency while idle
 BEAT_S = 0.5  # longest wait between heartbeats while the runner waits in backoff
-#: the wait between connect attempts while the device owes a halt (``urgent``): a link that comes back
+#: the wait between connect attempts while the device owes a halt (``owes_halt``): a link that comes back
 #: must carry the STOP at once, not after a backoff grown while it was down
 URGENT_RETRY_S = 0.05
 
 
-@dataclass(order=True)
+@dataclass
 class _Job:
-    priority: int
-    seq: int
-    fn: Callable[[Device], Any] = field(compare=False)
-    future: Future = field(compare=False)
-    timeout: float = field(compare=False, default=60.0)
+    fn: Callable[[Device], Any]
+    future: Future
+    timeout: float = 60.0
 
 
 class DeviceRunner(threading.Thread):
@@ -62,14 +59,13 @@ class DeviceRunner(threading.Thread):
 
     def __init__(self, kind: str, factory: Callable[[], Device], publish: Callable[[str, Any], None],
                  backoff_min: float = 0.5, backoff_max: float = 30.0, heartbeat_timeout: float = 10.0,
-                 open_timeout: float = 120.0, urgent: Callable[[], bool] = lambda: False) -> None:
+                 open_timeout: float = 120.0, owes_halt: Callable[[], bool] = lambda: False) -> None:
         super().__init__(name=f"device-{kind}", daemon=True)
         self.kind = kind
         self._factory = factory
         self._publish = publish
-        self._urgent = urgent  # the device owes a halt (the robot's motion gate): reconnect without backoff
-        self._jobs: queue.PriorityQueue[_Job] = queue.PriorityQueue()
-        self._seq = itertools.count()
+        self._owes_halt = owes_halt  # the robot's motion gate owes the base a halt: reconnect without backoff
+        self._jobs: queue.Queue[_Job] = queue.Queue()
         self._stop_evt = threading.Event()
         self.backoff_min, self.backoff_max = backoff_min, backoff_max
         self.heartbeat_timeout, self.open_timeout = heartbeat_timeout, open_timeout
@@ -92,14 +88,15 @@ class DeviceRunner(threading.Thread):
 
     # ------------------------------------------------------------------ API (any thread)
 
-    def submit(self, fn: Callable[[Device], Any], *, urgent: bool = False, timeout: float = 60.0) -> Future:
-        """Queue ``fn(device)`` for the owner thread; urgent jobs (STOP) jump the queue."""
+    def submit(self, fn: Callable[[Device], Any], *, timeout: float = 60.0) -> Future:
+        """Queue ``fn(device)`` for the owner thread, in arrival order (a robot STOP is no job: the motion
+        gate's halt goes out ahead of any job, drivers/motion_gate.py)."""
         fut: Future = Future()
         if self.state not in (DeviceState.READY, DeviceState.BUSY):
             fut.set_exception(CommandError(
                 ErrorCode.NOT_READY, f"{self.kind} is {self.state.value}" + (f": {self.reason}" if self.reason else "")))
             return fut
-        self._jobs.put(_Job(0 if urgent else 1, next(self._seq), fn, fut, timeout))
+        self._jobs.put(_Job(fn, fut, timeout))
         device = self.device
         if device is not None:
             device.wake()  # the owner picks the job up now, not when its pump times out
@@ -161,7 +158,7 @@ class DeviceRunner(threading.Thread):
     def _connect(self) -> bool:
         if self._retrying:
             self.reconnects += 1
-        if not (self._retrying and self._urgent()):  # urgent retries every 50 ms: FAULT stays, unrepeated
+        if not (self._retrying and self._owes_halt()):  # retries every 50 ms: FAULT stays, unrepeated
             self._set_state(DeviceState.CONNECTING)
         self._busy_deadline = time.monotonic() + self.open_timeout  # open() blocks: it has its own limit
         try:
@@ -247,7 +244,7 @@ class DeviceRunner(threading.Thread):
         end = start + seconds
         while not self._stop_evt.is_set():
             self.heartbeat = now = time.monotonic()
-            if now >= end or now - start >= URGENT_RETRY_S and self._urgent():
+            if now >= end or now - start >= URGENT_RETRY_S and self._owes_halt():
                 return
             self._stop_evt.wait(min(BEAT_S, end - now, URGENT_RETRY_S))
 
@@ -260,7 +257,7 @@ class DeviceRunner(threading.Thread):
                     backoff = self.backoff_min
                     continue
                 self._fail_queued(self.reason)
-                self._backoff(URGENT_RETRY_S if self._urgent() else backoff)
+                self._backoff(URGENT_RETRY_S if self._owes_halt() else backoff)
                 backoff = min(backoff * 2, self.backoff_max)
                 continue
             try:

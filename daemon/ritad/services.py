@@ -19,10 +19,9 @@ from drivers.base import Frame
 
 
 class SubmitJob(Protocol):
-    """Run ``fn(device)`` in the device's owner thread (``urgent`` jumps its queue)."""
+    """Run ``fn(device)`` in the device's owner thread, in arrival order."""
 
-    def __call__(self, kind: str, fn: Callable[[Any], Any], *, urgent: bool = False,
-                 timeout: float = 60.0) -> Future: ...
+    def __call__(self, kind: str, fn: Callable[[Any], Any], *, timeout: float = 60.0) -> Future: ...
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""DeviceRunner: state machine, reconnect with backoff, urgent jobs, pump delivery."""
+"""DeviceRunner: state machine, reconnect with backoff, jobs in arrival order, pump delivery."""
 import threading
 import time
 
@@ -126,7 +126,7 @@ def test_device_error_keeps_connection(events):
         r.stop()
 
 
-def test_urgent_job_jumps_the_queue(events):
+def test_jobs_run_in_arrival_order(events):
     dev = FlakyDevice()
     r = make(dev, events)
     try:
@@ -135,11 +135,10 @@ def test_urgent_job_jumps_the_queue(events):
         first = r.submit(lambda d: gate.wait(2) and d.work("first"))
         time.sleep(0.05)
         normal = [r.submit(lambda d, i=i: d.work(f"n{i}")) for i in range(3)]
-        stop = r.submit(lambda d: d.work("STOP"), urgent=True)
         gate.set()
-        for f in [first, stop, *normal]:
+        for f in [first, *normal]:
             f.result(2)
-        assert dev.log == ["first", "STOP", "n0", "n1", "n2"]
+        assert dev.log == ["first", "n0", "n1", "n2"]
     finally:
         r.stop()
 

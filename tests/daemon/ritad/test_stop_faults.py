@@ -172,7 +172,7 @@ def test_a_halt_owed_during_a_long_backoff_cuts_it_short() -> None:
             pass
 
     runner = DeviceRunner("robot", Gone, lambda topic, data: None, backoff_min=60.0, backoff_max=60.0,
-                          urgent=owed.is_set)
+                          owes_halt=owed.is_set)
     runner.start()
     try:
         wait_for(lambda: len(attempts) == 1, 10, "the first attempt", 0.01)

@@ -147,7 +147,7 @@ def test_a_motion_queued_before_the_stop_is_refused_when_its_turn_comes(tmp_path
 
     queued = []
     latch = StopLatch(lambda t, d: None)
-    s = Services(job=lambda kind, fn, urgent=False, timeout=60.0: _done(None), motion=lambda fn, wait, t: queued.append(fn),
+    s = Services(job=lambda kind, fn, timeout=60.0: _done(None), motion=lambda fn, wait, t: queued.append(fn),
                  storage=None, data_dir=tmp_path, private_dirs=(), auth_dir=tmp_path, save_capture=None,
                  abs_H_trk=[], stream_rate_hz=100.0, robot=RobotSection(),
                  calib=CalibJobs(lambda t, d: None, latch=latch), device_info=None, hello=None,
