@@ -186,8 +186,8 @@ def _render_and_pose_rows(repeats: int) -> list[tuple[str, str, str]]:
                   f"{r['n']} corners, ambiguity {r['ratio']:.0f}, peak RSS {r['rss']:.0f} MB"),
                  ("  same with OpenCV's marker identification", f"{r['opencv']:.2f} s", ""),
                  ("  cam_H_ref vs truth 4024×3036", f"{r['rot']:.5f}°", f"footprint error {r['foot']:.2f} µm"),
-                 *[(f"live detection (camera.detect), search width {w or 'full'}", f"{t:.2f} s", f"{n} corners")
-                   for w, (t, n) in r["live"].items()],
+                 *[(f"live detection (camera.detect), search width {w or 'full'}", f"{t:.2f} s",
+                    f"{n} corners") for w, (t, n) in r["live"].items()],
                  ("make_scs", f"{r['scs'] * 1000:.1f} ms", ""),
                  ("locate_mark dot 4024×3036", f"{r['dot'] * 1000:.1f} ms", "")]
     return rows

@@ -166,7 +166,8 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     """
     codes, n, max_bits, finder = _marker_codes(board)
     f = max(1, int(np.ceil(img.shape[1] / _CANDIDATE_WIDTH)))
-    small = img if f == 1 else cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
+    size = (img.shape[1] // f, img.shape[0] // f)
+    small = img if f == 1 else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
     found, _, rejected = finder.detectMarkers(small)
     quads = np.array([np.reshape(q, (4, 2)) for q in (*found, *rejected)], np.float64)
     if not len(quads):
