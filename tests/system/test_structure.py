@@ -28,7 +28,6 @@ MAX_MODULE, MAX_FUNCTION, MAX_LINE, MIN_BLOCK = 500, 60, 110, 6
 #: files with lines over MAX_LINE characters (2026-11-28) and how many: the count may only go down,
 #: and a file without any leaves the list (the test says which number to lower or which entry to drop)
 LONG_LINES: dict[str, int] = {
-    "calibration/__init__.py": 1,
     "calibration/bend_fit.py": 5,
     "calibration/board.py": 2,
     "calibration/camera_model.py": 4,
@@ -90,10 +89,9 @@ LONG_LINES: dict[str, int] = {
     "daemon/ctl/record.py": 7,
     "daemon/ctl/replay.py": 10,
     "daemon/ctl/watch.py": 4,
-    "daemon/ritad/__init__.py": 1,
     "daemon/ritad/calib_jobs.py": 13,
     "daemon/ritad/check.py": 1,
-    "daemon/ritad/commands.py": 13,
+    "daemon/ritad/commands.py": 12,
     "daemon/ritad/config.py": 7,
     "daemon/ritad/detect.py": 5,
     "daemon/ritad/device_clock.py": 4,
