@@ -46,8 +46,8 @@ def _board(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: 
         raise ValueError(f"board {cols}x{rows} needs {n_markers} markers but {dict_name} has only "
                          f"{dictionary.bytesList.shape[0]}")
     # keep only the markers the board uses: marker identification in OpenCV 5 costs
-    # time in proportion to the dictionary size (1000 vs 600: ~1.7x), and ids the
-    # board cannot contain are rejected outright
+    # time in proportion to the dictionary size, and ids the board cannot contain are
+    # rejected outright
     board_dict = cv2.aruco.Dictionary(dictionary.bytesList[:n_markers].copy(), dictionary.markerSize,
                                       dictionary.maxCorrectionBits)
     return cv2.aruco.CharucoBoard((cols, rows), square_mm, marker_mm, board_dict)
@@ -251,7 +251,7 @@ def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | N
     """Detect ChArUco inner corners: ``(ids (N,), uv (N, 2))``, empty when none are found.
 
     ``model`` is only used to check that the image has the model's size. ``fast``
-    uses this module's marker identification (same markers, ~10x quicker); the
+    uses this module's marker identification (the same markers, much quicker); the
     chessboard corners are interpolated and refined as OpenCV's CharucoDetector does
     either way. When OpenCV's board check keeps fewer corners than half the markers
     found, OpenCV's own marker detection runs too and the larger corner set is kept.
