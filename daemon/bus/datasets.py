@@ -316,6 +316,18 @@ def _model_problems(model: Any, file: str, parts: tuple[Any, ...]) -> list[Probl
     return []
 
 
+def _compensation_problems(obs: dict[str, Any]) -> list[Problem]:
+    """The names of a comma list of compensations: JSON Schema checks the list's syntax, the names are
+    the enum of common.schema.json's ``compensation`` (the one list of them in the bus)."""
+    value = obs.get("compensation")
+    if not isinstance(value, str) or value.strip() in ("none", "all"):
+        return []
+    known = json.loads(schema_text("common"))["$defs"]["compensation"]["enum"]
+    unknown = [n.strip() for n in value.split(",") if n.strip() not in known]
+    why = f"unknown compensation(s) {unknown} (known: {', '.join(known)}, or all/none)"
+    return [Problem("state.json", "$.obs.compensation", why)] if unknown else []
+
+
 def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     problems += check_schema(state, "state", "state.json") + check_values(state, "state.json")
     obs = state.get("obs") if isinstance(state, dict) else None
@@ -326,6 +338,7 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     for key in ("camera_model", "initial_model"):
         problems += _model_problems(obs.get(key), "state.json", ("obs", key))
     problems += [Problem("state.json", _json_path(parts), msg) for parts, msg in stream_problems(obs)]
+    problems += _compensation_problems(obs)
     calib = obs.get("calibration")
     scs = calib.get("scs") if isinstance(calib, dict) else None
     if isinstance(scs, dict):
