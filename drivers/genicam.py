@@ -18,8 +18,8 @@ reads the PTP state. Each frame is stamped on the host as its buffer arrives and
 daemon's clock (daemon/ritad/device_clock.py), its payload over the link rate (``transfer_ns``)
 and the PTP state, read at most once a second. A missing device at ``open()`` and every transport
 failure raise :class:`DeviceLost`, so the daemon's reconnect loop retries (a device whose GenTL access
-status changes from the one it had at open counts as lost: :func:`drivers.genicam_device.access_lost`); an ambiguous selection
-or bad settings raise :class:`DeviceError`.
+status changes from the one it had at open counts as lost: :func:`drivers.genicam_device.access_lost`);
+an ambiguous selection or bad settings raise :class:`DeviceError`.
 
 harvesters allows one Harvester per producer per process and ``update()`` destroys live
 acquirers, so each adapter owns its Harvester and ``close()`` resets it. Everything runs on the
@@ -177,7 +177,8 @@ class GenICamCamera(Camera):
         w = self._writer()
         minimum = getattr(self._ia, "min_num_buffers", 1)  # harvesters: STREAM_INFO_BUF_ANNOUNCE_MIN
         wanted = desired(self.settings)  # the URL's num_buffers unless the settings give stream_buffers
-        wanted = wanted if wanted.stream_buffers is not None else replace(wanted, stream_buffers=self.num_buffers)
+        if wanted.stream_buffers is None:
+            wanted = replace(wanted, stream_buffers=self.num_buffers)
         self._software = apply_all(w, self._stream_writer(), wanted,
                                    self._set_buffers, int(minimum) if isinstance(minimum, int) else 1)
         exposure = w.read("ExposureTime")
@@ -231,8 +232,8 @@ class GenICamCamera(Camera):
                 break
         rx_ns, rx_mono = time.time_ns(), time.monotonic_ns()  # arrival, before any decoding delays it
         try:  # chunk nodes read the held buffer's memory: only valid before the requeue
-            held = read_held(buf, (lambda: read_chunks(self._writer())) if self._applied.get("ChunkModeActive")
-                             else None)
+            chunked = bool(self._applied.get("ChunkModeActive"))
+            held = read_held(buf, (lambda: read_chunks(self._writer())) if chunked else None)
             ptp = self._ptp.poll(self._writer)
         except DeviceError:
             raise
@@ -242,7 +243,8 @@ class GenICamCamera(Camera):
         self._last_frame = time.monotonic()
         return Frame(pixels=held.pixels, frame_id=held.frame_id, pixel_format=held.pixel_format,
                      camera_serial=str(self._facts.get("serial_number")),
-                     exposure_us=held.chunks.get("chunk_exposure_us", self._exposure), device_time_ns=held.device_ns,
+                     exposure_us=held.chunks.get("chunk_exposure_us", self._exposure),
+                     device_time_ns=held.device_ns,
                      host_time_ns=rx_ns, host_monotonic_ns=rx_mono, incomplete_count=self._incomplete.count,
                      extra=held.chunks, transfer_ns=int(held.size * 1e9 / self._link_rate), ptp=ptp)
 

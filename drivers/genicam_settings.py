@@ -1,6 +1,7 @@
 """Write :class:`~drivers.camera_settings.CameraSettings` to a GenICam node map in one fixed order.
 
-The order is the known state (:data:`KNOWN_STATE`: AcquisitionMode, ReverseX, ReverseY), PixelFormat, Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
+The order is the known state (:data:`KNOWN_STATE`: AcquisitionMode, ReverseX, ReverseY), PixelFormat,
+Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
 AcquisitionFrameRateEnable/AcquisitionFrameRate, TriggerSelector/TriggerMode/
 TriggerSource, PtpEnable with PtpSlaveOnly, then chunk data and the GigE transport (packet size,
 throughput limit, packet resend, stream buffers; :mod:`drivers.genicam_transport`,

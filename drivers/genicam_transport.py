@@ -128,7 +128,8 @@ def _packet_in_range(w: SettingsWriter, name: str, want: int) -> int:
     lo, hi, inc = int(node.min), int(node.max), max(1, int(node.inc))
     got = lo + (min(max(want, lo), hi) - lo) // inc * inc
     if got != want:
-        w.warn(f"packet_size={want} is outside the camera's {name} range {lo}..{hi} (step {inc}); using {got}")
+        w.warn(f"packet_size={want} is outside the camera's {name} range {lo}..{hi} (step {inc}); "
+               f"using {got}")
     return got
 
 
@@ -224,7 +225,8 @@ def link_speed(w: SettingsWriter) -> float:
         return float(GIGE_LINE_BYTES_S)
     if speed < MIN_LINK_BYTES_S:
         rate = float(speed) * BYTES_S_PER_MBPS
-        w.warn(f"DeviceLinkSpeed={speed:g} is too small for bytes/s (SFNC's unit); read as Mbps: {rate:.0f} bytes/s")
+        w.warn(f"DeviceLinkSpeed={speed:g} is too small for bytes/s (SFNC's unit); read as Mbps: "
+               f"{rate:.0f} bytes/s")
         return rate
     return float(speed)
 

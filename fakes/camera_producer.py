@@ -47,7 +47,8 @@ class ProducerSpec:
 
 
 class _Buffer:
-    def __init__(self, parent: "_Stream", frame_id: int, data: bytes, w: int, h: int, stamp: int | None) -> None:
+    def __init__(self, parent: "_Stream", frame_id: int, data: bytes, w: int, h: int,
+                 stamp: int | None) -> None:
         self.parent, self.frame_id, self.raw_buffer = parent, frame_id, data
         self.pixel_format, self.width, self.height = MONO8, w, h
         self.padding_x, self.image_offset, self.size_filled = 0, 0, len(data)
@@ -148,7 +149,7 @@ class _Info:
 
 
 class FakeHarvester:
-    """The parts of harvesters' Harvester the adapter uses; ``FakeHarvester.spec`` is the next one's device."""
+    """The parts of harvesters' Harvester the adapter uses; ``spec`` describes the next one's device."""
 
     spec = ProducerSpec()
     made: list[FakeAcquirer] = []

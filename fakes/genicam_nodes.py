@@ -187,7 +187,8 @@ def camera_node_map(*, without: tuple[str, ...] = (), packet_max: int = 9000,
     drives its PTP port and timestamps; ``left``, ``ptp_wins_election``, ``link_speed``: module docstring."""
     nm = FakeNodeMap()
     _imaging(nm)
-    nm.add(FakeNode("AcquisitionMode", ENUM, "Continuous", symbolics=("Continuous", "SingleFrame", "MultiFrame")))
+    nm.add(FakeNode("AcquisitionMode", ENUM, "Continuous",
+                    symbolics=("Continuous", "SingleFrame", "MultiFrame")))
     nm.add(FakeNode("ReverseX", BOOL, False))
     nm.add(FakeNode("ReverseY", BOOL, False))
     nm.add(FakeNode("DeviceLinkSpeed", INT, link_speed, access=RO))

@@ -151,8 +151,8 @@ class SimTracker(EmsconTracker):
     """
 
     OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
-                                       "delay_ms", "split", "garbage_after", "result_first", "fail", worlds.OPTION,
-                                       "ok", "max_data_rate", "foreign_frame"}
+                                       "delay_ms", "split", "garbage_after", "result_first", "fail",
+                                       worlds.OPTION, "ok", "max_data_rate", "foreign_frame"}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)

@@ -89,8 +89,9 @@ class EmsconTracker(Tracker):
         self.search_radius_mm: float | None = o("search_radius_mm", None, float)
         self.packet_rate: int = o("packet_rate", DEFAULT_PACKET_RATE, int)
         if not PACKET_RATE_RANGE[0] <= self.packet_rate <= PACKET_RATE_RANGE[1]:
+            lo, hi = PACKET_RATE_RANGE
             raise ValueError(f"device URL {url.raw!r}: option packet_rate={self.packet_rate} outside "
-                             f"{PACKET_RATE_RANGE[0]}-{PACKET_RATE_RANGE[1]} packets/s (ES_SP_TcpDataPacketRate)")
+                             f"{lo}-{hi} packets/s (ES_SP_TcpDataPacketRate)")
         env = [o(k, None, float) for k in ("temperature_c", "pressure_mbar", "humidity_rh")]
         if any(v is not None for v in env) and not all(v is not None for v in env):
             raise ValueError(f"device URL {url.raw!r}: give all of temperature_c, pressure_mbar, "
@@ -160,7 +161,8 @@ class EmsconTracker(Tracker):
         if self.reflector is not None:
             self._select_reflector(c, self.reflector)
         info = c.request(ES_Command.GetTrackerInfo).values
-        self._info = {"packet_rate": set_packet_rate(c, self.packet_rate, self.url.raw),"tracker_name": info["tracker_name"],
+        self._info = {"packet_rate": set_packet_rate(c, self.packet_rate, self.url.raw),
+                      "tracker_name": info["tracker_name"],
                       "tracker_type": enum_name(ES_LTSensorType, info["tracker_type"]),
                       "serial_number": info["serial_number"], "max_data_rate": info["max_data_rate"],
                       "firmware": f"{st['major_version']}.{st['minor_version']}.{st['build_number']}"}
@@ -267,8 +269,8 @@ class EmsconTracker(Tracker):
         """Continuous-time mode at ``_sep_ms`` and StartMeasurement; back to stationary if refused."""
         c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.ContinuousTime)
         try:
-            c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=self._sep_ms, number_of_points=0,
-                      use_region=0, region_type=0)
+            c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=self._sep_ms,
+                      number_of_points=0, use_region=0, region_type=0)
             c.request(ES_Command.StartMeasurement)
         except DeviceLost:
             raise

@@ -20,9 +20,10 @@ def parse_fields(spec: str) -> Fields:
 
 _UNITS = parse_fields("length_unit:i angle_unit:i temperature_unit:i pressure_unit:i humidity_unit:i")
 ENV_FIELDS = parse_fields("temperature:d pressure:d humidity:d")
-_SETTINGS = parse_fields("weather_monitor_status:i apply_transformation_params:i "
-                         "apply_station_orientation_params:i keep_last_position:i send_unsolicited_messages:i "
-                         "send_reflector_position_data:i try_measurement_mode:i has_nivel:i has_video_camera:i")
+_SETTINGS = parse_fields(
+    "weather_monitor_status:i apply_transformation_params:i apply_station_orientation_params:i "
+    "keep_last_position:i send_unsolicited_messages:i send_reflector_position_data:i try_measurement_mode:i "
+    "has_nivel:i has_video_camera:i")
 XYZ_FIELDS = parse_fields("val1:d val2:d val3:d")
 #: StationOrientationDataT and TransformationDataT (ES_C_API_Def.h): the identity is all zeros, scale 1
 _ORIENTATION = XYZ_FIELDS + parse_fields("rot1:d rot2:d rot3:d")
@@ -68,7 +69,8 @@ COMMANDS: dict[ES_Command, tuple[Fields, Fields]] = {
     ES_Command.FindReflector: (parse_fields("approx_distance:d"), ()),
     ES_Command.GetDirection: ((), parse_fields("hz_angle:d vt_angle:d")),
     ES_Command.SetLongSystemParameter: (parse_fields("system_param:i parameter:i"), ()),
-    ES_Command.GetLongSystemParameter: (parse_fields("system_param:i"), parse_fields("system_param:i parameter:i")),
+    ES_Command.GetLongSystemParameter: (parse_fields("system_param:i"),
+                                        parse_fields("system_param:i parameter:i")),
     ES_Command.GetTrackerInfo: ((), parse_fields(
         "tracker_type:i tracker_name:s serial_number:i compensation_id:i has_adm:i "
         "has_overview_camera:i has_nivel:i nivel_mount_offset:d max_distance:d min_distance:d "

@@ -14,7 +14,8 @@ import pytest
 
 from drivers.emscon.enums import ES_Command as Cmd
 from fakes.world import World
-from tests.drivers.test_emscon_integration import SIGMA, Sink, assert_within_5_sigma, lock_on, make, world  # noqa: F401
+from tests.drivers.test_emscon_integration import (  # noqa: F401 (make and world are fixtures)
+    SIGMA, Sink, assert_within_5_sigma, lock_on, make, world)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -30,7 +31,8 @@ def test_a_frame_another_client_left_is_cleared_on_connect(make, world: World) -
     t = make("foreign_frame=1")
     t.open()
     st = t.server.server.model.state
-    assert st.settings["apply_transformation_params"] == 0 and st.settings["apply_station_orientation_params"] == 0
+    assert st.settings["apply_transformation_params"] == 0
+    assert st.settings["apply_station_orientation_params"] == 0
     assert st.orientation == (0.0,) * 6 and st.transformation == (0.0,) * 6 + (1.0,)
     truth = lock_on(t, world, "green")
     assert_within_5_sigma(t.measure(), truth)  # the tracker's own frame, not the one left behind

@@ -1,4 +1,4 @@
-"""The GenICam adapter against a producer and camera with LUCID's documented variations (fakes/camera_producer.py).
+"""The GenICam adapter against a producer and camera with documented variations (fakes/camera_producer.py).
 
 Each test switches one behaviour on: a producer minimum of 8 buffers, another access-status convention,
 buffers without timestamps (the chunk has the time), a PTP port that wins the master election, an SDK
@@ -30,7 +30,8 @@ def make(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
 
     def _make(spec: ProducerSpec, settings: CameraSettings | None = None, query: str = "") -> GenICamCamera:
         monkeypatch.setattr(FakeHarvester, "spec", spec)
-        cam = GenICamCamera(DeviceURL.parse(f"genicam://{cti}?{query}"), settings=settings or CameraSettings())
+        url = DeviceURL.parse(f"genicam://{cti}?{query}")
+        cam = GenICamCamera(url, settings=settings or CameraSettings())
         made.append(cam)
         return cam
 
@@ -44,7 +45,8 @@ def test_a_producer_minimum_above_the_buffer_count_raises_it_with_a_warning(make
     with caplog.at_level(logging.WARNING):
         cam.open()
     assert FakeHarvester.made[-1].num_buffers == 8
-    assert "stream_buffers=4 is below the GenTL producer's minimum of 8 buffers; using 8" in cam.status()["warnings"]
+    want = "stream_buffers=4 is below the GenTL producer's minimum of 8 buffers; using 8"
+    assert want in cam.status()["warnings"]
 
 
 def test_an_open_device_reported_readwrite_is_not_lost_but_a_change_is(make) -> None:
@@ -82,7 +84,8 @@ def test_a_link_speed_in_mbps_gives_the_wire_time_of_a_gigabit_link(make) -> Non
 
 
 def test_a_camera_left_in_single_frame_mode_streams_after_open(make) -> None:
-    cam = make(ProducerSpec(camera={"left": {"AcquisitionMode": "SingleFrame"}}), CameraSettings(trigger="free"))
+    spec = ProducerSpec(camera={"left": {"AcquisitionMode": "SingleFrame"}})
+    cam = make(spec, CameraSettings(trigger="free"))
     frames: list = []
     cam.emit = lambda topic, payload: frames.append(payload)
     cam.open()
