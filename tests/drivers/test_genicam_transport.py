@@ -276,3 +276,12 @@ def test_a_mirror_the_camera_cannot_switch_off_is_an_error_naming_it() -> None:
     cam.nodes["ReverseY"].access = 3  # read-only: a mirror the camera holds
     with pytest.raises(DeviceError, match="camera's ReverseY is on and cannot be switched off"):
         Rig(cam).apply(CameraSettings())
+
+
+def test_a_clock_whose_port_would_be_master_listens_when_slave_only() -> None:
+    clock = CameraClock(np.random.default_rng(1), ptp_state="Master")  # the sim camera's ptp=Master
+    rig = Rig(cam=camera_node_map(clock=clock))
+    rig.cam.nodes["PtpEnable"].value = True
+    assert ptp_status(SettingsWriter(rig.cam, rig.warnings.append))["status"] == "Master"
+    rig.apply(CameraSettings(ptp=True))
+    assert ptp_status(SettingsWriter(rig.cam, rig.warnings.append))["status"] == "Listening"
