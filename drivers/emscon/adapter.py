@@ -104,6 +104,7 @@ class EmsconTracker(Tracker):
         self._client: EmsconClient | None = None
         self._streaming = False
         self._interrupted = False  # the beam broke during the stream: pump restarts it once locked
+        self._resume_refused = False  # a restart failed: wait for the next MeasStatus_Ready
         self._sep_ms = 0
         self._rate_hz: float | None = None
         self._last_aim: tuple[float, float, float] | None = None
@@ -261,7 +262,8 @@ class EmsconTracker(Tracker):
         c = self._conn()
         if self._streaming:
             self.stop_stream()
-        self._sep_ms = max(1, math.ceil(1000.0 / rate_hz - 1e-9))  # never faster than asked (nor the max)
+        # the nearest whole ms, but never faster than the tracker's maximum
+        self._sep_ms = max(1, round(1000.0 / rate_hz), math.ceil(1000.0 / top - 1e-9))
         self._begin_stream(c)
         self._streaming, self._interrupted, self._rate_hz = True, False, 1000.0 / self._sep_ms
 
@@ -290,7 +292,8 @@ class EmsconTracker(Tracker):
     def pump(self, timeout: float) -> None:
         c = self._conn()
         c.poll(timeout)
-        if self._streaming and self._interrupted and self._tracker_status == "Ready":
+        locked = self._tracker_status == "Ready" and not self._resume_refused
+        if self._streaming and self._interrupted and locked:
             self._resume_stream(c)
 
     def _resume_stream(self, c: EmsconClient) -> None:
@@ -301,6 +304,7 @@ class EmsconTracker(Tracker):
         except DeviceLost:
             raise
         except DeviceError as exc:  # lost again before it started: the next lock tries again
+            self._resume_refused = True
             self._event("stream_resume_failed", reason=str(exc))
             return
         self._interrupted = False
@@ -354,6 +358,7 @@ class EmsconTracker(Tracker):
         if p.kind == "status_change":
             if p.change in _MEAS_STATUS:
                 self._tracker_status = _MEAS_STATUS[p.change]
+                self._resume_refused = False  # a new lock state: a refused restart may be tried again
             if p.change == ES_SystemStatusChange.MeasStatus_NotReady:
                 self._interrupt("MeasStatus_NotReady")
             self._event("status_change", change=int(p.change or 0),

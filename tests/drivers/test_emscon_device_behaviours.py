@@ -124,3 +124,24 @@ def test_stop_after_a_beam_break_without_relock_leaves_stationary_mode(make, wor
     assert _pump_until(t, lambda: t.status()["stream_interrupted"])
     t.stop_stream()
     assert not t.status()["streaming"] and t.server.server.model.state.meas_mode == 0
+
+
+def test_a_refused_restart_waits_for_the_next_lock_instead_of_retrying_every_pump(make, world: World) -> None:
+    sink = Sink()
+    t = make("", sink)
+    t.open()
+    lock_on(t, world, "green")
+    t.start_stream(100.0)
+    t.server.break_beam()
+    assert _pump_until(t, lambda: t.status()["stream_interrupted"])
+    t.server.faults.fail[Cmd.StartMeasurement] = 10014  # SystemNotReadyForMeasurement
+    t.server.restore_beam("green")
+    assert _pump_until(t, lambda: any(e["event"] == "stream_resume_failed" for e in sink.topic("tracker.event")))
+    for _ in range(5):
+        t.pump(0.02)
+    failed = [e for e in sink.topic("tracker.event") if e["event"] == "stream_resume_failed"]
+    assert len(failed) == 1, "a refused restart is retried only on the next lock"
+    del t.server.faults.fail[Cmd.StartMeasurement]
+    t.server.break_beam()
+    t.server.restore_beam("green")
+    assert _pump_until(t, lambda: t.status()["counters"]["stream_restarts"] == 1)
