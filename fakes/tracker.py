@@ -22,7 +22,8 @@ How it differs from a real AT901:
   documented publicly); status numbers for other failures are plausible choices.
 * A new connection replaces the old one (a real server refuses it with
   MultiConnectionsNotAllowed). Continuous records carry seconds/microseconds since
-  server start in lTime1/lTime2.
+  server start in lTime1/lTime2 (as beckjac/emscon_ros src/main.cpp reads them; Leica's header
+  does not say: an assumption ``ritactl commission`` checks).
 * Fault knobs (``Faults``): drop after N packets, delay answers, split packets into
   single bytes, send garbage, force a status for a command, result before answer, answer a
   command with an OutOfRangeOK status (``ok``).
