@@ -35,26 +35,37 @@ def _finite(*values: Any) -> bool:
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
 
 
-def robot_pose(state: dict[str, Any], t_ns: int) -> dict[str, Any] | None:
+#: a PoseInFrame's JSON, formatted directly: at 1 kHz of tracker records ``json.dumps`` of the nested
+#: map was half the recorder's time; ``repr`` of a finite float is a valid JSON number
+_POSE = ('{{"timestamp":{{"sec":{},"nsec":{}}},"frame_id":"{}","pose":{{"position":{{"x":{!r},"y":{!r},'
+         '"z":{!r}}},"orientation":{{"x":{!r},"y":{!r},"z":{!r},"w":{!r}}}}}}}')
+
+
+def pose_in_frame(t_ns: int, frame_id: str, position: tuple[float, float, float],
+                  orientation: tuple[float, float, float, float]) -> bytes:
+    """A foxglove.PoseInFrame as JSON bytes (``frame_id``: one of ours, no characters to escape)."""
+    t = stamp(t_ns)
+    return _POSE.format(t["sec"], t["nsec"], frame_id, *(float(v) for v in position),
+                        *(float(v) for v in orientation)).encode()
+
+
+def robot_pose(state: dict[str, Any], t_ns: int) -> bytes | None:
     """``robot.state``'s odometry pose as a PoseInFrame in ``odom`` (a yaw about z), None without one."""
     x, y, h = state.get("x_mm"), state.get("y_mm"), state.get("heading_deg")
-    if not _finite(x, y, h):
+    if not _finite(x, y, h) or x is None or y is None or h is None:  # (None is not finite: for the types)
         return None
     half = math.radians(float(h)) / 2.0  # a rotation by the heading about the floor's normal
-    return {"timestamp": stamp(t_ns), "frame_id": ODOM_FRAME,
-            "pose": {"position": {"x": float(x) * MM, "y": float(y) * MM, "z": 0.0},
-                     "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}}}
+    return pose_in_frame(t_ns, ODOM_FRAME, (float(x) * MM, float(y) * MM, 0.0),
+                         (0.0, 0.0, math.sin(half), math.cos(half)))
 
 
-def tracker_poses(packet: dict[str, Any], times: list[int]) -> Iterator[tuple[int, dict[str, Any]]]:
+def tracker_poses(packet: dict[str, Any], times: list[int]) -> Iterator[tuple[int, bytes]]:
     """Each valid record (status 0) of a ``tracker.point`` packet as ``(t_ns, PoseInFrame)`` in the
     tracker's frame: a point, so the orientation is the identity. ``times``: each record's time."""
     status = packet.get("status") or [0] * len(times)
     for t, x, y, z, st in zip(times, packet["x"], packet["y"], packet["z"], status):
         if st == 0 and _finite(x, y, z):
-            yield t, {"timestamp": stamp(t), "frame_id": TRACKER_FRAME,
-                      "pose": {"position": {"x": x * MM, "y": y * MM, "z": z * MM},
-                               "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+            yield t, pose_in_frame(t, TRACKER_FRAME, (x * MM, y * MM, z * MM), (0.0, 0.0, 0.0, 1.0))
 
 
 def log_entry(record: dict[str, Any], t_ns: int) -> dict[str, Any]:
@@ -73,5 +84,6 @@ def log_record(entry: dict[str, Any]) -> dict[str, Any]:
             "message": entry.get("message", ""), "t": t}
 
 
-__all__ = ["LEVEL_NAMES", "LOG_LEVELS", "LOG_SCHEMA", "LOG_TOPIC", "ODOM_FRAME", "POSE_SCHEMA", "ROBOT_POSE_TOPIC",
-           "TRACKER_FRAME", "TRACKER_POSE_TOPIC", "log_entry", "log_record", "robot_pose", "stamp", "tracker_poses"]
+__all__ = ["LEVEL_NAMES", "LOG_LEVELS", "LOG_SCHEMA", "LOG_TOPIC", "ODOM_FRAME", "POSE_SCHEMA",
+           "ROBOT_POSE_TOPIC", "TRACKER_FRAME", "TRACKER_POSE_TOPIC", "log_entry", "log_record", "robot_pose",
+           "pose_in_frame", "stamp", "tracker_poses"]

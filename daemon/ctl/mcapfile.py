@@ -217,8 +217,8 @@ def sample_times(topic: str, data: Any) -> list[int] | None:
         value = data.get(key)
         if isinstance(value, list) and value and all(_int(v) is not None for v in value):
             return [int(v) for v in value]
-        if _int(value) is not None and isinstance(data.get("x"), list):  # one arrival for a packet
-            return [int(value)] * len(data["x"])
+        if (one := _int(value)) is not None and isinstance(data.get("x"), list):  # one arrival for a packet
+            return [one] * len(data["x"])
     return None
 
 
@@ -333,8 +333,9 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
     return view[off:off + n]
 
 
-__all__ = ["BATCHED", "COMMAND_SCHEMA", "COMPRESSED_IMAGE_ROS2MSG", "COMPRESSED_IMAGE_SCHEMA", "END_METADATA_NAME",
-           "FRAME_CHANNEL", "FRAME_HEADER_CHANNEL", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME",
-           "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame", "bus_topic",
-           "compressed_data", "compressed_image", "drop_typed_nulls", "infer_schema", "mcap_topic", "pixels_of", "raw_image",
-           "raw_image_encoding", "restore_nulls", "sample_time", "sample_times", "to_json"]
+__all__ = ["BATCHED", "COMMAND_SCHEMA", "COMPRESSED_IMAGE_ROS2MSG", "COMPRESSED_IMAGE_SCHEMA",
+           "END_METADATA_NAME", "FRAME_CHANNEL", "FRAME_HEADER_CHANNEL", "FRAME_HEADER_TOPIC",
+           "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD",
+           "UnsupportedFrame", "bus_topic", "compressed_data", "compressed_image", "drop_typed_nulls",
+           "infer_schema", "mcap_topic", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
+           "sample_time", "sample_times", "to_json"]

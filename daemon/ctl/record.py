@@ -18,8 +18,9 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any, Callable, Iterator
 
 import zmq
 
@@ -38,6 +39,9 @@ FRAME_HWM = 4
 FRAME_BATCH = 2
 #: the most the end waits on writing what was queued when the recording was stopped
 FINAL_DRAIN_S = 1.0
+#: the recording thread's nice value: beside ritad and its live viewers on the same CPUs, the recorder
+#: gives way, and drops (and counts) the frames it then has no time for (docs/benchmarks.md, "Recording")
+RECORD_NICE = 10
 COMPRESSIONS = ("auto", "zstd", "lz4", "none")
 
 
@@ -131,6 +135,38 @@ def _record_loop(subs: list[tuple[Subscriber, int]], rec: Recorder, a: argparse.
     return time.monotonic() - start
 
 
+def _give_way() -> None:
+    """Lower this thread's CPU priority to RECORD_NICE (Linux: a thread's own; never raised back,
+    which is why the recording has a thread of its own). Where that is refused it runs as it is."""
+    try:
+        me = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, me, max(RECORD_NICE, os.getpriority(os.PRIO_PROCESS, me)))
+    except (OSError, AttributeError):
+        pass
+
+
+def _at_low_priority(record: Callable[[], float]) -> float:
+    """``record()`` on a thread of its own that gives way to ritad and the live viewers; this thread
+    stays free for Ctrl-C, which sets the recording's stop (:func:`_stop_on_sigint`)."""
+    done: list[float] = []
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        _give_way()
+        try:
+            done.append(record())
+        except BaseException as exc:  # handed to the caller's thread, which finishes the file
+            failed.append(exc)
+
+    worker = threading.Thread(target=run, name="ritactl-record", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.2)
+    if failed:
+        raise failed[0]
+    return done[0]
+
+
 def _frames_hint(c: Client) -> str | None:
     try:
         return None if c.call("camera.status", timeout=5).get("streaming") else NO_FRAMES
@@ -187,7 +223,7 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
         with open(tmp, "wb") as f, _stop_on_sigint(stop):
             rec = Recorder(f, meta, compression, limits, a.frames_format)
             try:
-                seconds = _record_loop(subs, rec, a, out, stop)
+                seconds = _at_low_priority(partial(_record_loop, subs, rec, a, out, stop))
                 rec.finish(rec.ended or ("interrupted" if stop.is_set() else "duration"))
                 f.flush()
                 os.fsync(f.fileno())

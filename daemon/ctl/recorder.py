@@ -157,7 +157,7 @@ class Recorder:
 
     def _foxglove(self, topic: str, data: dict[str, Any], t: int, recv_ns: int) -> None:
         """The Foxglove messages a bus message adds: the robot's pose, each tracker record's pose."""
-        poses: list[tuple[int, dict[str, Any]]] = []
+        poses: list[tuple[int, bytes]] = []
         channel = fox.ROBOT_POSE_TOPIC
         if topic == "robot.state" and not self.odometry:
             pose = fox.robot_pose(data, t)
@@ -173,7 +173,7 @@ class Recorder:
         if poses:
             ch = self._fox_channel(channel, fox.POSE_SCHEMA)
             for s, pose in poses:
-                self._write(channel, ch, fmt.to_json(pose), s, recv_ns)
+                self._write(channel, ch, pose, s, recv_ns)
 
     def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
         hch = self._bus_channel(fmt.FRAME_HEADER_TOPIC, header)

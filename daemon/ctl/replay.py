@@ -215,7 +215,7 @@ def _image(schema_name: str, data: bytes) -> memoryview | None:
     except ImportError:
         return None
     image = cv2.imdecode(np.frombuffer(fmt.compressed_data(data), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    return None if image is None else memoryview(np.ascontiguousarray(image)).cast("B")
+    return None if image is None else memoryview(np.ascontiguousarray(image).tobytes())
 
 
 def _decoded(topic: str, encoding: str, schema_name: str, data: bytes, schema: dict[str, Any]) -> Any:
