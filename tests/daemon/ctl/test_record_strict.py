@@ -121,7 +121,8 @@ def test_a_20_s_sim_recording_with_frames_passes_the_independent_check(tmp_path:
     by_topic, meta = _check(out)
     for topic, msgs in by_topic.items():
         assert [m.sequence for m, _ in msgs] == list(range(1, len(msgs) + 1)), topic
-    timed = ("/camera/frame", "/camera/frame/header", "/robot/state", "/robot/odometry", "/tracker/point",
+    timed = ("/camera/frame", "/camera/frame/header", "/robot/state", "/robot/odometry", "/robot/incl",
+             "/robot/event", "/tracker/point",
              "/tracker/pose", "/robot/pose", "/log")
     for topic in timed:
         for m, data in by_topic.get(topic, []):
