@@ -18,11 +18,13 @@ library's reader (``make_reader``, CRCs on) and nothing of the project's reading
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
+import logging
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import jsonschema
 import pytest
@@ -33,6 +35,7 @@ from daemon.bus.protocol import CommandError
 from daemon.ctl import main as ctl
 from daemon.ctl.exitcodes import Exit
 from daemon.ctl.foxglove_schemas import schema, schema_bytes
+from daemon.ritad.logs import BusLogHandler
 from fakes.operator import lock_on_robot
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 from tools.harness.load import hang_s
@@ -42,9 +45,21 @@ SECONDS = 20
 TOLERANCE_NS = 1_000_000
 
 
+@contextlib.contextmanager
+def _journal_on_the_bus(d: Any) -> Iterator[None]:
+    """ritad's warnings on the bus's ``log`` topic, as its main() sets up (in-process: for this test only)."""
+    handler = BusLogHandler(d.telemetry.publish)
+    logging.getLogger().addHandler(handler)
+    try:
+        yield
+    finally:
+        logging.getLogger().removeHandler(handler)
+
+
 def _record(tmp_path: Path, out: Path) -> None:
     camera = SMALL_CAMERA + "&fps=10"
-    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30, camera=camera) as (d, c):
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30, camera=camera) as (d, c), \
+            _journal_on_the_bus(d):
         lock_on_robot(c)
         result: list[int] = []
         rec = threading.Thread(target=lambda: result.append(ctl.main(
@@ -55,7 +70,9 @@ def _record(tmp_path: Path, out: Path) -> None:
         while not (out.parent / f".{out.name}.partial").exists() and time.monotonic() < end:
             time.sleep(0.02)
         time.sleep(0.3)  # subscribed
-        c.call("tracker.stream.start", rate_hz=1000.0)  # accepted: key, code and message null
+        # accepted (key, code and message null), at the fake's max_data_rate 1000 Hz: ritad's journal
+        # warns that 2000 Hz was asked for, which the recording has as a foxglove.Log
+        c.call("tracker.stream.start", rate_hz=2000.0)
         c.call("camera.stream.start")
         with pytest.raises(CommandError):
             c.call("robot.move", distance_mm="far")  # refused: code and message filled
@@ -135,6 +152,8 @@ def test_a_20_s_sim_recording_with_frames_passes_the_independent_check(tmp_path:
     records = sum(sum(1 for s in d["status"] if s == 0) for _, d in by_topic["/tracker/point"])
     assert records >= 1000 * SECONDS // 4
     assert len(by_topic["/tracker/pose"]) == records  # one message a record
+    warnings = [d for _, d in by_topic["/log"] if "max_data_rate" in d["message"]]
+    assert warnings and warnings[0]["level"] == 3 and warnings[0]["name"].startswith("drivers.emscon")
     xs = {round(d["pose"]["position"]["x"], 4) for _, d in by_topic["/robot/pose"]}
     assert len(xs) >= 2  # the robot moved, and its pose says so
     commands = [d for _, d in by_topic["/daemon/command"]]
