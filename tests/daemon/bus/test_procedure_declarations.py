@@ -15,8 +15,8 @@ import pytest
 
 from daemon.bus import procedures
 from daemon.bus.procedure_params import Param
-from daemon.bus.procedures import (ALL, DEFAULTS, EXPERIMENT, PROCEDURES, REFERENCING, Hooks, ParamError, check_params,
-                                   markdown_table)
+from daemon.bus.procedures import (ALL, EXPERIMENT, MEASURE_MARK, PROCEDURES, REFERENCING, Hooks, ParamError,
+                                   check_params, markdown_table)
 from daemon.compute.files import EXTRA_FILES
 from daemon.compute.procedures import COMPUTE
 from daemon.ctl import main as ctl
@@ -79,7 +79,8 @@ def test_a_bool_parameter_can_be_set_and_cleared_whatever_its_default():
     """The reversal is on by default: ``--no-reversal`` clears it, ``--reversal`` (today's flag) keeps it, and
     neither leaves it to the worker's default (the table's)."""
     parser = ctl.build_parser()
-    assert DEFAULTS["reversal"] is True and DEFAULTS["store_bias"] is False
+    assert REFERENCING.resolve({}).reversal is True
+    assert EXPERIMENT.resolve({"mark_xy": [0, 0]}).store_bias is False
     for argv, value in ((["--no-reversal"], False), (["--reversal"], True), ([], None)):
         a = parser.parse_args(["calibrate", *argv])
         assert a.pp_reversal is value, argv
