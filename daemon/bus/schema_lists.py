@@ -39,19 +39,20 @@ def _line(key: str) -> re.Pattern[str]:
 
 
 def _dispatch(then: str) -> str:
-    """One ``if procedure is X then …`` line per procedure; ``then`` is formatted with the ``$defs`` suffix."""
+    """One ``if procedure is X then …`` line per procedure; ``then`` takes its ``$defs`` suffix."""
     return ",\n".join(f'    {{"if": {{"properties": {{"procedure": {{"const": {json.dumps(n)}}}}}, '
                       f'"required": ["procedure"]}}, "then": {then.format(ident(n))}}}' for n in PROCEDURES)
 
 
 def rules() -> dict[str, list[tuple[re.Pattern[str], str]]]:
-    """Per schema file: (the pattern of an owned fragment, its group 1 the generated text; that text)."""
+    """Per schema file: (the pattern of a generated fragment, its group 1 the text; that text)."""
     names = json.dumps(list(PROCEDURES))
+    obs = '{{"properties": {{"obs": {{"$ref": "#/$defs/obs_{}"}}}}}}'  # state.json: the obs of each procedure
     kind = re.compile(r'"pattern": "\^\(captures\|procedure:\(([^)"]*)\)\)\$"')
     return {
         "state.schema.json": [(_line("procedure"), names),
                               (_line("status"), json.dumps(list(STATUSES))),
-                              (_ALL_OF, _dispatch('{{"properties": {{"obs": {{"$ref": "#/$defs/obs_{}"}}}}}}'))],
+                              (_ALL_OF, _dispatch(obs))],
         "result.schema.json": [(_line("procedure"), names),
                                (_ALL_OF, _dispatch('{{"$ref": "#/$defs/result_{}"}}'))],
         "dataset.schema.json": [(kind, "|".join(PROCEDURES))],

@@ -29,11 +29,12 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_a_procedure_name_is_a_literal_in_the_declarations_only():
-    """Outside daemon/bus/procedures.py no product file (Python, JavaScript, HTML, JSON) writes a procedure's name
-    by hand: the schemas' lists are generated (daemon/bus/schema_lists.py), the rest of each schema names none."""
+    """Outside daemon/bus/procedures.py no product file (Python, JavaScript, HTML, JSON) writes a procedure's
+    name by hand: the schemas' lists are generated (daemon/bus/schema_lists.py), the rest of a schema names
+    none."""
     found = []
     for path in sorted((ROOT / "daemon").rglob("*")):
-        if path.suffix not in (".py", ".js", ".html", ".json") or path == ROOT / "daemon" / "bus" / "procedures.py":
+        if path.suffix not in (".py", ".js", ".html", ".json") or path == ROOT / "daemon/bus/procedures.py":
             continue
         text = schema_lists.blanked(path.name, path.read_text(encoding="utf-8"))
         for name in PROCEDURES:
@@ -43,11 +44,12 @@ def test_a_procedure_name_is_a_literal_in_the_declarations_only():
 
 
 def test_the_schemas_procedure_lists_are_the_generated_ones():
-    """Each schema's procedure lists, its state statuses and its per-procedure dispatch are what the declarations
-    give; every procedure's obs and result have their hand-written definition the dispatch points to."""
+    """Each schema's procedure lists, its state statuses and its per-procedure dispatch are what the
+    declarations give; every procedure's obs and result have their hand-written definition the dispatch points to."""
     for file in schema_lists.rules():
         text = (schema_lists.SCHEMAS / file).read_text(encoding="utf-8")
-        assert schema_lists.generated(file, text) == text, f"{file}: python -m daemon.bus.schema_lists --write"
+        regenerate = "python -m daemon.bus.schema_lists --write"
+        assert schema_lists.generated(file, text) == text, f"{file}: {regenerate}"
     defs = {f: json.loads((schema_lists.SCHEMAS / f).read_text(encoding="utf-8"))["$defs"]
             for f in ("state.schema.json", "result.schema.json")}
     for name in PROCEDURES:
@@ -63,8 +65,8 @@ def test_the_generated_lists_hold_a_new_procedure(monkeypatch):
         text = (schema_lists.SCHEMAS / file).read_text(encoding="utf-8")
         new = schema_lists.generated(file, text)
         assert "survey-floor" in new and schema_lists.blanked(file, new) == schema_lists.blanked(file, text)
-    state = json.loads(schema_lists.generated("state.schema.json",
-                                              (schema_lists.SCHEMAS / "state.schema.json").read_text("utf-8")))
+    text = (schema_lists.SCHEMAS / "state.schema.json").read_text("utf-8")
+    state = json.loads(schema_lists.generated("state.schema.json", text))
     assert "survey-floor" in state["properties"]["procedure"]["enum"]
     assert state["allOf"][-1]["then"]["properties"]["obs"]["$ref"] == "#/$defs/obs_survey_floor"
 
