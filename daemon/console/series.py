@@ -52,7 +52,7 @@ def _sample_ns(data: dict[str, Any], n: int) -> list[float]:
     return [float(one)] * n if isinstance(one, (int, float)) else [math.nan] * n
 
 
-def rows(topic: str, data: dict[str, Any]) -> Iterator[tuple[str, float, list[float]]]:
+def rows(topic: str, data: Any) -> Iterator[tuple[str, float, list[float]]]:
     """(series, sample time ns on the robot's clock, values) of one telemetry message."""
     if not isinstance(data, dict):
         return
@@ -71,10 +71,10 @@ def rows(topic: str, data: dict[str, Any]) -> Iterator[tuple[str, float, list[fl
         for i in range(n):
             yield "tracker", t[i], [math.sqrt(sum(c[i] ** 2 for c in xyz))]   # from the tracker's origin
     elif topic == Topic.ROBOT_STATE:
-        t = data.get("t_ns")   # a base without a clock has none: the message's own time stands in
-        pose = [data.get(k) for k in ("x_mm", "y_mm", "heading_deg")]
-        if all(isinstance(v, (int, float)) for v in pose):
-            yield "pose", float(t) if isinstance(t, (int, float)) else math.nan, [float(v) for v in pose]
+        when = data.get("t_ns")   # a base without a clock has none: the message's own time stands in
+        status = [v for k in ("x_mm", "y_mm", "heading_deg") if isinstance(v := data.get(k), (int, float))]
+        if len(status) == 3:
+            yield "pose", float(when) if isinstance(when, (int, float)) else math.nan, [float(v) for v in status]
 
 
 def finite(values: Sequence[float]) -> list[float | None]:

@@ -119,7 +119,8 @@ def test_camera_panel_shows_a_frame(page, robot):
 
 #: where the page's key elements are at the window's size, scrolled to the top: each inside the viewport
 IN_VIEW = """const r = (e) => e.getBoundingClientRect(), inside = (e) => { const b = r(e);
-        return b.top >= 0 && b.left >= 0 && b.bottom <= innerHeight && b.right <= innerWidth && b.width > 0; };
+        return b.top >= 0 && b.left >= 0 && b.bottom <= innerHeight && b.right <= innerWidth
+            && b.width > 0; };
     const byId = (id) => document.getElementById(id), cam = r(byId('cam')), panel = r(byId('camera-panel'));
     const ids = ['stop', 'latch', 'pose-head', 'robot-state', 'robot-pose', 'proc', 'proc-start'];
     return {...Object.fromEntries(ids.map((id) => [id, inside(byId(id))])),
@@ -129,7 +130,7 @@ IN_VIEW = """const r = (e) => e.getBoundingClientRect(), inside = (e) => { const
 
 
 def test_at_1366x768_stop_latch_robot_state_and_pose_the_live_view_and_the_procedures_need_no_scrolling(page):
-    """Issue 35: the Robot panel was below the fold; STOP, the latch, the robot's state and pose are in sight."""
+    """Issue 35: the Robot panel was below the fold. STOP, the latch, the robot's state and pose in sight."""
     wait_for("the pose shown", lambda: text(page, "pose-head") not in ("", "–"), 10)
     wait_for("the latch's state shown", lambda: "latch" in text(page, "latch").lower(), 10)
     page.set_window_size(1366, 768)
@@ -420,20 +421,24 @@ def test_stop_works_with_the_confirmation_dialog_open(page, robot, how):
 def series(page, name: str, since_ms: float = 0.0) -> list[dict]:
     """The points of one live series the page holds (live.js): [{t, v}], t on this computer's clock (ms),
     those sampled from ``since_ms`` on."""
-    return page.execute_script(f"return window.rita.series[{name!r}].filter((p) => p.t >= arguments[0])", since_ms)
+    script = f"return window.rita.series[{name!r}].filter((p) => p.t >= arguments[0])"
+    return page.execute_script(script, since_ms)
 
 
 #: pixels of a line colour (#1565c0, the first line of each live plot) in a live plot's canvas
 LINE_PIXELS = """const cv = document.querySelector('#' + arguments[0] + ' canvas'), ctx = cv.getContext('2d');
     const d = ctx.getImageData(0, 0, cv.width, cv.height).data;
-    let n = 0; for (let i = 0; i < d.length; i += 4) if (Math.abs(d[i] - 0x15) < 40 && Math.abs(d[i + 1] - 0x65) < 40
-        && Math.abs(d[i + 2] - 0xc0) < 40) n++;
+    let n = 0;
+    for (let i = 0; i < d.length; i += 4) {
+        const near = (k, c) => Math.abs(d[i + k] - c) < 40;
+        if (near(0, 0x15) && near(1, 0x65) && near(2, 0xc0)) n++;
+    }
     return n;"""
 
 
 def test_live_plots_follow_a_move_and_the_tracker_with_an_age_on_every_value(page, robot):
-    """Pose, wheel speeds and the tracker's distance plotted from what the console kept, each with its age; the
-    stream's last point, once the stream stops, says how old it is instead of standing there as current."""
+    """Pose, wheel speeds and the tracker's distance plotted from what the console kept, each with its
+    age; the stream's last point, once the stream stops, says how old it is instead of standing as current."""
     from fakes.operator import lock_on_robot
 
     c: Client = robot["client"]
@@ -460,7 +465,8 @@ def test_live_plots_follow_a_move_and_the_tracker_with_an_age_on_every_value(pag
     try:
         wait_for("tracker distances on the page", lambda: len(series(page, "tracker", t1)) >= 10, 10)
         wait_for("the stream's point shown with its age",
-                 lambda: "ago" in text(page, "tracker-point-age") and "stream" in text(page, "tracker-point"), 5)
+                 lambda: "ago" in text(page, "tracker-point-age") and "stream" in text(page, "tracker-point"),
+                 5)
     finally:
         c.call("tracker.stream.stop")
     xyz = c.call("tracker.measure")
@@ -488,7 +494,7 @@ def test_a_message_never_covers_the_page_and_the_drift_plots_time_ticks_differ(p
     page.set_window_size(1366, 768)
     try:
         for panel, bottom, bar_top in js(page, CLEAR_OF_BAR):
-            assert bottom <= bar_top + 0.5, f"{panel} ends at {bottom} px, under the message bar at {bar_top} px"
+            assert bottom <= bar_top + 0.5, f"{panel} ends at {bottom} px, under the bar at {bar_top} px"
         js(page, "window.scrollTo(0, document.documentElement.scrollHeight)")
         last = js(page, "return document.getElementById('history').getBoundingClientRect().bottom")
         assert last <= js(page, "return document.getElementById('toast-bar').getBoundingClientRect().top")
@@ -496,8 +502,8 @@ def test_a_message_never_covers_the_page_and_the_drift_plots_time_ticks_differ(p
         page.set_window_size(1400, 1100)
     spans = {"20 s": 20, "3 min": 180, "5 h": 5 * 3600, "3 days": 3 * 86400, "40 days": 40 * 86400}
     for what, span in spans.items():
-        labels = page.execute_script("const t = timeTicks(1.8e9, 1.8e9 + arguments[0]); return t.ticks.map(t.fmt);",
-                                     span)
+        script = "const t = timeTicks(1.8e9, 1.8e9 + arguments[0]); return t.ticks.map(t.fmt);"
+        labels = page.execute_script(script, span)
         assert len(labels) >= 2 and len(set(labels)) == len(labels), (what, labels)
     drift = wait_for("the drift plot drawn", lambda: js(page, "return window.rita.driftTicks"), 10)
     assert len(drift["x"]) >= 2 and len(set(drift["x"])) == len(drift["x"]), drift

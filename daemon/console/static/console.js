@@ -142,7 +142,8 @@ function showHealth(h) {   // built as elements: device names, states and reason
   renderRobotState();
 }
 function showRobot(r) {
-  S.robotBase = r;   // its state: robotSummary (robot.js), with the device's and the latch's; its pose: live.js
+  S.robotBase = r;   // its state: robotSummary (robot.js), with the device's and the latch's
+  // its pose: live.js showPose, from the newest pose point (odometry, or this status from a base without)
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
   stamp("robot-status-age", Date.now());   // live.js: the status as this page received it

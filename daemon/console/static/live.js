@@ -76,8 +76,9 @@ function drawLive() {
     const fig = $(d.id), cv = fig.querySelector("canvas"), ctx = cv.getContext("2d");
     const pts = S.series[d.series].filter((p) => p.t >= now - LIVE_WINDOW_S * 1000);
     const last = latest(d.series), spec = S.seriesSpec[d.series] || [];
-    fig.querySelector(".now").textContent = last ? d.lines.map((i) =>
-      `${d.lines.length > 1 ? (spec[i] || ["?"])[0] + " " : ""}${fmt(last.v[i], 1)} ${unitOf(d)}`).join(", ") : "–";
+    const named = (i) => (d.lines.length > 1 ? `${(spec[i] || ["?"])[0]} ` : "");   // which wheel
+    fig.querySelector(".now").textContent = last
+      ? `${d.lines.map((i) => `${named(i)}${fmt(last.v[i], 1)}`).join(", ")} ${unitOf(d)}` : "–";
     const age = fig.querySelector(".ago");
     if (last) age.dataset.at = String(last.t); else delete age.dataset.at;
     renderAge(age, now);

@@ -24,8 +24,9 @@ function timeTicks(lo, hi, n = 5) {
   return { ticks, fmt };
 }
 
-// o: {title, xlabel, ylabel, equal (same mm per pixel on both axes), xfmt (tick text), xtime (the x values are
-// UTC seconds: timeTicks), pad ([left, right, top, bottom] margins in px)}; returns data -> pixel
+// o: {title, xlabel, ylabel, equal (same mm per pixel on both axes), xfmt (tick text),
+//     xtime (the x values are UTC seconds: timeTicks), pad ([left, right, top, bottom] margins in px)};
+// returns data -> pixel
 function axes(ctx, w, h, xs, ys, o) {
   const [L, R, T, B] = o.pad || [62, 14, 26, 40], pw = w - L - R, ph = h - T - B;
   let x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
