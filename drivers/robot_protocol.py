@@ -49,6 +49,14 @@ FAULT_HOST_LOST = "HOST_LOST"
 MIN_STATE_HZ = 1.0
 MAX_STATE_HZ = 100.0
 
+#: the boot window (s): a base answers HELLO at most this long after its power-on or reset (its
+#: bootloader's wait and its own start-up); the host asks again until it is over
+BOOT_S = 3.0
+
+#: a version-1 STATUS reply's fields after its kind (seq, state, x, y, heading, roll, pitch, battery, fault);
+#: a version-2 or 3 one adds t_us
+STATUS_V1_FIELDS = 9
+
 #: NAK reasons
 NAK_REASONS = ("CHECKSUM", "SYNTAX", "UNKNOWN", "RANGE", "BUSY", "FAULT", "VERSION")
 
