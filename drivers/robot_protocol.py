@@ -53,6 +53,17 @@ MAX_STATE_HZ = 100.0
 #: bootloader's wait and its own start-up); the host asks again until it is over
 BOOT_S = 3.0
 
+#: timing the host relies on (docs/robot-protocol.md, "Timing"): a base starts its reply within
+#: REPLY_BUDGET_S of the command's last byte; a USB-serial adapter may hold received bytes up to its
+#: latency timer (FTDI's default: 16 ms, FTDI application note AN232B-04) before the host sees them
+REPLY_BUDGET_S = 0.020
+USB_LATENCY_S = 0.016
+#: STOP (and a watchdog halt, a FAULT) brakes at least this hard: at 300 mm/s the wheels stand within 90 mm
+STOP_DECEL_MM_S2 = 500.0
+STOP_DECEL_DEG_S2 = 180.0
+#: a base's receive buffer holds at least this many bytes: a command, an owed STOP and a keep-alive STATUS
+RX_BUFFER_BYTES = 3 * MAX_LINE
+
 #: a version-1 STATUS reply's fields after its kind (seq, state, x, y, heading, roll, pitch, battery, fault);
 #: a version-2 or 3 one adds t_us
 STATUS_V1_FIELDS = 9

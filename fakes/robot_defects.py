@@ -5,6 +5,7 @@ the check that names it; the tests (tests/drivers/test_robot_conformance.py) ser
 :class:`DefectiveBase` on a pty and run the kit against it. Each defect breaks one rule of
 docs/robot-protocol.md and nothing else.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ DEFECTS = {
     "no_watchdog": "offers WATCHDOG but never halts a motion for a silent host (Host watchdog)",
     "slow_replies": "replies and events leave SLOW_S late (Timing)",
     "stop_no_ack": "STOP halts but is never acknowledged (Commands)",
-    "retry_moves_again": "a resent MOVE (same seq and arguments) is taken as new: NAK BUSY (Sequence numbers)",
+    "retry_moves_again": "a resent MOVE (same seq and arguments) is taken as new: NAK BUSY (Sequences)",
     "v1_with_clock": "a version-1 session's STATUS carries t_us (Versions)",
     "no_version_nak": "a HELLO for a protocol it does not speak is answered as its own (Versions)",
 }

@@ -17,7 +17,7 @@ import socket
 import threading
 from typing import Any
 
-from serial.rfc2217 import PortManager
+from serial.rfc2217 import PortManager  # type: ignore[import-untyped]
 
 from drivers import robot_protocol as rp
 from fakes.robot_base import FakeBase
