@@ -38,11 +38,15 @@ MAX_STREAM_POINTS = 200
 MIN_TILT_SAMPLES = 5
 #: a subscriber needs a moment to be connected before the first message it should see
 SUB_SETTLE_S = 0.02
-#: the clock map's bins: about one packet each (packets come at >= 8 Hz); the tracker stamps in µs
+#: the fewest stream packets per second a tracker sends: ES_SP_TcpDataPacketRate is 3-10 (Leica's
+#: ES_C_API_Def.h); the driver asks for 10, a server without the parameter keeps its own
+MIN_PACKET_RATE_HZ = 3.0
+#: the clock map's bins: at most one packet each at any packet rate; the tracker stamps in µs
 CLOCK_BIN_S = 0.01
 DEVICE_RESOLUTION_NS = 1000
-#: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
-LAST_PACKET_WAIT_S = 2.0
+#: how long to wait after the move for the stream packet that covers its end: several packet periods at
+#: the slowest rate, so a packet held up on a busy host still counts
+LAST_PACKET_WAIT_S = max(2.0, 6.0 / MIN_PACKET_RATE_HZ)
 #: how far past the inclinometer's first or last sample a record may take that sample's tilt (ns):
 #: a record at most one output period (0.1 s at 10 Hz) away from the samples
 INCL_REACH_NS = 150_000_000
