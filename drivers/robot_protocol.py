@@ -44,6 +44,8 @@ DEFAULT_HOST_TIMEOUT_MS = 300
 MIN_HOST_TIMEOUT_MS, MAX_HOST_TIMEOUT_MS = 50, 5000
 #: the FAULT reason of a motion the host watchdog halted
 FAULT_HOST_LOST = "HOST_LOST"
+#: every FAULT reason a base may report (docs/robot-protocol.md, "Fault reasons")
+FAULT_REASONS = ("STALL", FAULT_HOST_LOST, "ESTOP", "DRIVER", "BATTERY")
 #: STATE stream rates (Hz) a base accepts besides 0 (off): 100 Hz of ~80-byte STATE lines is
 #: 8 kB/s, under 70 % of a 115200-baud line, with room left for INCL, replies and events
 MIN_STATE_HZ = 1.0
