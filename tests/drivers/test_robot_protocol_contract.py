@@ -1,5 +1,5 @@
-"""docs/robot-protocol.md is the contract: its figures are the codec's, and the simulated base does what it says
-about sessions, a MOVE resent while moving, HELLO during motion, restarts and fault reasons."""
+"""docs/robot-protocol.md is the contract: its figures are the codec's, and the simulated base does what it
+says about sessions, a MOVE resent while moving, HELLO during motion, restarts and fault reasons."""
 
 from __future__ import annotations
 
