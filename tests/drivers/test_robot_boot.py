@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import os
+import termios
 from collections.abc import Iterator
 from typing import Any
 
@@ -121,3 +122,25 @@ def test_permission_denied_names_the_device_the_user_the_groups_and_the_unit_set
         with pytest.raises(DeviceLost, match="PrivateUsers=yes"):
             robot.open()
     assert "permission denied" not in open_error("/dev/x", serial.SerialException(errno.ENOENT, "no such"))
+
+
+def test_with_dtr_1_a_close_leaves_dtr_up_hupcl_cleared() -> None:
+    server = PtyServer(_base())
+
+    def termios_of() -> int:
+        return termios.tcgetattr(server._slave)[2] & termios.HUPCL
+
+    try:
+        attrs = termios.tcgetattr(server._slave)
+        attrs[2] |= termios.HUPCL  # the kernel's default for a tty
+        termios.tcsetattr(server._slave, termios.TCSANOW, attrs)
+        robot = SerialRobot(DeviceURL.parse(f"serial://{server.path}?state_hz=0&timeout=0.3"))
+        robot.open()
+        assert termios_of()  # dtr=0 (the default): DTR is low anyway, HUPCL left as found
+        robot.close()
+        robot = SerialRobot(DeviceURL.parse(f"serial://{server.path}?state_hz=0&timeout=0.3&dtr=1"))
+        robot.open()
+        assert not termios_of()  # dtr=1: the next open finds DTR up, no edge
+        robot.close()
+    finally:
+        server.shutdown()
