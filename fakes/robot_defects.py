@@ -31,8 +31,9 @@ DEFECTS = {
 }
 #: how late a ``slow_replies`` base answers (s): three times the reply budget
 SLOW_S = 0.15
-#: a ``t_us_32bit`` base's counter wraps this long after it is made (s), so that a short run sees it
-WRAP_IN_S = 1.0
+#: a ``t_us_32bit`` base's counter wraps this long after its clock is first read in a session (s): a
+#: base up for 71.6 minutes less that when the host connects, so that a short run sees the wrap
+WRAP_IN_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -55,12 +56,8 @@ class DefectiveBase(FakeBase):
         self.defects = frozenset(defects)
         if unknown := sorted(self.defects - set(DEFECTS)):
             raise ValueError(f"unknown base defect(s) {', '.join(unknown)} (known: {', '.join(DEFECTS)})")
-        if "t_us_32bit" in self.defects:
-            kwargs.setdefault("clock_offset_s", 2**32 / 1e6 - WRAP_IN_S)
         super().__init__(world, **kwargs)
-        if "t_us_32bit" in self.defects:
-            c = self.base_clock
-            self.base_clock = self.streams.clock = WrappingClock(c.origin, c.offset_s, c.drift_ppm)
+        self._wraps_from: float | None = None  # when a t_us_32bit base's clock was first read
         if "no_watchdog" in self.defects:
             self.watchdog = _DeafWatchdog()
         self._late: list[tuple[float, bytes]] = []
@@ -101,6 +98,10 @@ class DefectiveBase(FakeBase):
         return super()._motion_precheck(seq, msg)
 
     def _status(self, seq: int, msg: rp.Message) -> None:
+        if "t_us_32bit" in self.defects and self.session >= 2 and self._wraps_from is None:
+            self._wraps_from = now = self.clock()
+            drift = self.base_clock.drift_ppm
+            self.base_clock = self.streams.clock = WrappingClock(now, 2**32 / 1e6 - WRAP_IN_S, drift)
         if "v1_with_clock" not in self.defects or self.session != 1:
             return super()._status(seq, msg)
         self.session = 2

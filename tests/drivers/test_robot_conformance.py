@@ -120,8 +120,9 @@ def test_the_command_line(
     serve: Callable[..., PtyServer], capsys: pytest.CaptureFixture[str], tmp_path: Any
 ) -> None:
     server = serve()
-    assert rc.main([f"serial://{server.path}", "--polls", "10", "--json"]) == rc.EXIT_PASS
+    code = rc.main([f"serial://{server.path}", "--polls", "10", "--json"])
     out = json.loads(capsys.readouterr().out)
+    assert code == rc.EXIT_PASS, [c for c in out["checks"] if c["verdict"] == "fail"]
     assert out["exit"] == 0 and {c["name"]: c["verdict"] for c in out["checks"]}["stop_braking"] == "skip"
     assert rc.main([f"serial://{server.path}?bogus=1"]) == rc.EXIT_USAGE
     assert "unknown option 'bogus'" in capsys.readouterr().err
