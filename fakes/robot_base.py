@@ -315,7 +315,7 @@ class FakeBase:
             self._stream_out += self.streams.due(self.clock(), self)
 
     def set_dtr(self, on: bool) -> None:
-        """The host set DTR (over RFC 2217: fakes/robot_rfc2217.py); an assertion resets a base with auto-reset."""
+        """The host set DTR (over RFC 2217); an assertion resets a base with auto-reset (robot_boot.py)."""
         self.reset(when=self.boot.set_dtr(on))
 
     def reset(self, when: bool = True) -> None:

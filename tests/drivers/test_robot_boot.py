@@ -67,10 +67,11 @@ def test_with_dtr_1_the_base_resets_and_the_boot_window_rides_through_it(rfc2217
 
 
 def test_a_base_powered_on_with_its_host_is_waited_for() -> None:
-    server = PtyServer(_base(boot_s=1.0))
+    server = PtyServer(_base(boot_s=1.5, at_power_on=False))
     try:
         robot = SerialRobot(DeviceURL.parse(f"serial://{server.path}?state_hz=0&timeout=0.2&retries=1"))
-        robot.open()  # silent for 1 s: HELLO asked again within the 3 s boot window
+        server.base.reset()  # powered on now, with its host
+        robot.open()  # silent for 1.5 s: HELLO asked again within the 3 s boot window
         assert robot.info()["counters"]["boot_waits"] >= 1 and server.base.counters["lost_booting"] >= 2
         assert robot.status().state == "IDLE"
         robot.close()
