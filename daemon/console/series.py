@@ -74,7 +74,8 @@ def rows(topic: str, data: Any) -> Iterator[tuple[str, float, list[float]]]:
         when = data.get("t_ns")   # a base without a clock has none: the message's own time stands in
         status = [v for k in ("x_mm", "y_mm", "heading_deg") if isinstance(v := data.get(k), (int, float))]
         if len(status) == 3:
-            yield "pose", float(when) if isinstance(when, (int, float)) else math.nan, [float(v) for v in status]
+            t_ns = float(when) if isinstance(when, (int, float)) else math.nan
+            yield "pose", t_ns, [float(v) for v in status]
 
 
 def finite(values: Sequence[float]) -> list[float | None]:
