@@ -228,7 +228,8 @@ class Effects:
         at = None
         if shape in ("kink", "kink-end"):
             if lateral_mm not in self._kinks:
-                raise ValueError(f"a {shape} move ending {lateral_mm!r} mm to the side was not drawn by bend()")
+                raise ValueError(f"a {shape} move ending {lateral_mm!r} mm to the side was not drawn by "
+                                 "bend()")
             at = self._kinks[lateral_mm]
         return path_shapes.profile(shape, f, lateral_mm, dist_mm, at)
 

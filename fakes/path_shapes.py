@@ -69,7 +69,7 @@ def kink_turn(kappa_d: float, at: float) -> float:
 
 
 def lateral(shape: str, f: Any, kappa_d: float, at: float | None = None) -> np.ndarray:
-    """y(f)/d: the sideways offset from the start heading's line per unit move length (exact integrals of θ)."""
+    """y(f)/d: the sideways offset from the start heading's line per unit move length (θ's exact integral)."""
     f = np.asarray(f, dtype=float)
     a = PART
     if shape == "arc":

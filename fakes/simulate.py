@@ -212,7 +212,8 @@ class Simulation:
         pose0 = w.settle(w.pose_with_target_in_view(heading_deg))
         a = math.radians(heading_deg)
         lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
-        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"), cfg.path_shape)  # (0, 0): no errors
+        # (0, 0) without the error model
+        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"), cfg.path_shape)
         lateral += bend
         pose1 = w.settle(RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
                                    pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a),

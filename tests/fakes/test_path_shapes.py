@@ -1,4 +1,4 @@
-"""The simulated path shapes (fakes/path_shapes.py): geometry consistent, no shape larger than the sourced arc."""
+"""The simulated path shapes (fakes/path_shapes.py): consistent geometry, none larger than the sourced arc."""
 from __future__ import annotations
 
 import math
