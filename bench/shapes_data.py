@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from calibration.frames import apply_H, inv_H
+from daemon.bus.procedure_params import SPEED
 from fakes.accuracy import Calibration
 from fakes.simulate import MarkObs, ValidationSet
 
@@ -58,8 +59,10 @@ def stop_record(o: MarkObs, i: int, abs_H_trk: np.ndarray, move_mm: float) -> di
     rec: dict[str, Any] = {"k": int(o.direction), "P_prev": point(o.abs_P_prev, abs_H_trk),
                            "P_at": point(o.abs_P_at, abs_H_trk), "move_mm": float(move_mm),
                            "image": f"stop-{i}"}
-    if o.stream is not None:
-        rec["stream"] = {"abs_xyz": np.asarray(o.stream).tolist()}
+    if o.stream is not None:  # evenly spaced along the move, driven at the procedures' default speed
+        n, seconds = len(o.stream), abs(move_mm) / SPEED.default
+        rec["stream"] = {"n": n, "abs_xyz": np.asarray(o.stream).tolist(), "rate_hz": (n - 1) / seconds,
+                         "host_time_ns": [int(round(1e9 * seconds * i / (n - 1))) for i in range(n)]}
         if o.stream_tilt_deg is not None:
             rec["stream"]["tilt_deg"] = np.asarray(o.stream_tilt_deg).tolist()
     for key, rp in (("imu_prev", (o.prev_roll_deg, o.prev_pitch_deg)), ("imu_at", (o.roll_deg, o.pitch_deg))):

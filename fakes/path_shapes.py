@@ -16,7 +16,7 @@ turn". No shape bends more than the source allows in either reading, and none is
 * ``early``, ``late``: the arc's curvature concentrated in the first or last :data:`PART` of the
   move, straight elsewhere. ``early`` at the arc's end offset turns 1/(2 − a) = 0.59 of the arc's
   turn; ``late`` at the arc's turn ends a = 0.3 of its offset to the side, and its final heading is
-  κd·(1 − a/2) off the chord: 3.4× the arc's κd/2.
+  κd·(1 − a/2) off the chord: 1.7× the arc's κd/2.
 * ``kink``: straight, one heading step θ₀ at a random point f₀ ~ U(0, 1), straight again; ``kink-end``:
   f₀ ~ U(1 − :data:`PART_END`, 1), a kink in the last 10 % of the move. θ₀ = κd·min(1, 1/(2(1 − f₀))):
   the arc's end offset where that turns less than the arc, else the arc's turn. The final heading

@@ -44,6 +44,13 @@ def test_no_shape_exceeds_the_arc_in_end_offset_or_turn(shape):
         assert abs(side) == pytest.approx(0.5) or abs(turn) == pytest.approx(1.0)  # one of them is the arc's
 
 
+def test_final_heading_off_the_chord_per_shape():
+    # per unit κd (σ 500 µrad): the arc's 1/2 is the 250 µrad of calibration.md §4.4
+    off = {s: (lambda e: e[1] - e[0])(path_shapes.end(s, 1.0, 0.95)) for s in path_shapes.SHAPES}
+    assert off == pytest.approx({"arc": 0.5, "s": -0.5, "early": 0.3 / 2 / 1.7, "late": 0.85, "kink": 0.95,
+                                 "kink-end": 0.95})
+
+
 def test_kink_end_falls_in_the_last_tenth_and_turns_as_the_arc():
     fs = [path_shapes.kink_at("kink-end", np.random.default_rng(s)) for s in range(100)]
     assert min(fs) >= 0.9 and max(fs) <= 1.0
