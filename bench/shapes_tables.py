@@ -140,7 +140,7 @@ def reasons(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         if r["verdict"] != "ok":
             for m in r["messages"]:
-                if not m.startswith("heading_fit: the stream's fitted bend"):
+                if not m.startswith("heading_fit: "):  # the weight's own report, not a reason
                     c[m.split("(")[0].split(":")[0][:90]] += 1
     return "\n".join(f"- {n} × {m}" for m, n in c.most_common(8)) or "- none"
 
