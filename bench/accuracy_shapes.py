@@ -16,6 +16,7 @@ the weight applied and the one the scored experiment learns for itself.
 
     PYTHONPATH=$PWD .venv/bin/python bench/accuracy_shapes.py --seeds 4 --out shapes.jsonl
     PYTHONPATH=$PWD .venv/bin/python bench/accuracy_shapes.py --table shapes.jsonl [--before old.jsonl]
+    PYTHONPATH=$PWD .venv/bin/python bench/accuracy_shapes.py --envelope --seeds 4 --out envelope.jsonl
 
 Not in ``make test`` (minutes); tests/bench/test_accuracy_shapes.py runs one small case.
 """
@@ -36,7 +37,7 @@ from daemon.bus.procedure_params import COMPENSATION
 from daemon.compute.procedures import compute_experiment
 from daemon.worker.compensations import biased_calibration
 from fakes import profiles
-from fakes.accuracy import referencing
+from fakes.accuracy import Case, referencing
 from fakes.path_shapes import SHAPES
 from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
@@ -77,12 +78,14 @@ def _score(res: dict[str, Any], mark_abs: np.ndarray) -> dict[str, Any]:
             "own_weight": w.get("weight_fit"), "own_sigma": w.get("sigma"), "own_applied": w.get("applied")}
 
 
-def run_seed(seed: int, cases: tuple[tuple[str, str], ...] = CASES, repetitions: int = 5
-             ) -> list[dict[str, Any]]:
+def run_seed(seed: int, cases: tuple[tuple[str, str], ...] = CASES, repetitions: int = 5,
+             envelope: Case | None = None) -> list[dict[str, Any]]:
     """Every case of one seed (rows as written to the JSON lines file); ``repetitions`` per direction
-    (5: the documented flow; fewer only for a quick smoke test)."""
+    (5: the documented flow; fewer only for a quick smoke test); ``envelope``: a world of the accuracy
+    envelope (bench/accuracy_envelope.py: its profile and tweak) instead of ``paper+imu``."""
     t0 = time.perf_counter()
-    world = World(profiles.apply(PROFILE, WorldParams(seed=seed)))
+    p = profiles.apply(envelope.profile if envelope else PROFILE, WorldParams(seed=seed))
+    world = World(p.with_(errors=p.errors.tweaked(envelope.tweak)) if envelope else p)
     cfg = SimConfig(seed=seed, pnp_sigma_px=0.05, report_tilt=world.params.base_has_inclinometer,
                     repetitions=repetitions)
     calib = calibration_record(referencing(Simulation(world, cfg), True))
@@ -96,13 +99,29 @@ def run_seed(seed: int, cases: tuple[tuple[str, str], ...] = CASES, repetitions:
             lr = learned[(learn_shape, name)]
             res = compute_experiment(experiment_obs(val, lr["stored"], comp, world.abs_H_trk, MOVE_MM), load)
             applied = lr["stored"].get("heading_weight") or {}
-            rows.append({"seed": seed, "learned_on": learn_shape, "shape": shape, "comp": name,
+            rows.append({"seed": seed, "world": envelope.label if envelope else "", "learned_on": learn_shape,
+                         "shape": shape, "comp": name,
                          "store_refused": lr["refused"], "learn_verdict": lr["verdict"],
                          "weight": applied.get("weight"), "weight_fit": applied.get("weight_fit"),
                          "weight_sigma": applied.get("sigma"), **_score(res, val.mark_abs)})
     for r in rows:
         r["seconds_per_seed"] = round(time.perf_counter() - t0, 1)
     return rows
+
+
+def envelope_worlds() -> tuple[Case, ...]:
+    """The envelope's worlds that are not a shape here already (its baseline is the arc, its S the ``s``) and
+    not a compensation (its chord case)."""
+    from bench.accuracy_envelope import CASES as ENVELOPE
+
+    return tuple(c for c in ENVELOPE[1:] if c.comp.heading_fit and all(t[:2] != ("robot", "path_shape")
+                                                                     for t in c.tweak))
+
+
+def _job(job: tuple[int, int]) -> list[dict[str, Any]]:
+    """One seed's cases (``job[1]`` < 0), or the arc in envelope world ``job[1]``."""
+    seed, env = job
+    return run_seed(seed) if env < 0 else run_seed(seed, (("arc", "arc"),), envelope=envelope_worlds()[env])
 
 
 def _read(path: str) -> list[dict[str, Any]]:
@@ -117,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="processes (2 only on an otherwise idle machine)")
     ap.add_argument("--out", help="append every case's row to this JSON lines file")
     ap.add_argument("--table", help="print the tables of this JSON lines file (no run)")
+    ap.add_argument("--envelope", action="store_true",
+                    help="the arc in each envelope world instead of the shapes")
     ap.add_argument("--before", help="with --table: the run before a change, for the joint fit's figures")
     a = ap.parse_args(argv)
     from bench.shapes_tables import tables
@@ -125,10 +146,11 @@ def main(argv: list[str] | None = None) -> int:
         before = None if not a.before else _read(a.before)
         print(tables(_read(a.table), before))
         return 0
-    seeds = list(range(a.start, a.start + a.seeds))
+    envs = range(len(envelope_worlds())) if a.envelope else [-1]
+    jobs = [(seed, e) for seed in range(a.start, a.start + a.seeds) for e in envs]
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max(1, a.jobs)) as pool:
-        for seed_rows in pool.map(run_seed, seeds):
+        for seed_rows in pool.map(_job, jobs):
             first = seed_rows[0]
             print(f"seed {first['seed']}: {first['seconds_per_seed']} s", file=sys.stderr, flush=True)
             rows += seed_rows

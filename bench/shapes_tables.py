@@ -27,8 +27,14 @@ def _mp(v: list[float]) -> str:
     return f"{np.median(v):.3f} / {np.percentile(v, 95):.3f}" if v else "–"
 
 
-def _key(r: dict[str, Any]) -> tuple[int, str, str]:
-    return r["seed"], r["learned_on"], r["shape"]
+def _key(r: dict[str, Any]) -> tuple[int, str, str, str]:
+    return r["seed"], r.get("world", ""), r["learned_on"], r["shape"]
+
+
+def _label(world: str, learned: str, shape: str) -> str:
+    """A case's name: the shape (learned on another: both), after the envelope world's name if any."""
+    label = shape if learned == shape else f"{learned} → {shape}"
+    return f"{world}: {label}" if world else label
 
 
 def _uncovered(rows: list[dict[str, Any]]) -> tuple[int, int, int]:
@@ -43,16 +49,17 @@ def coverage_table(rows: list[dict[str, Any]]) -> str:
     out = ["| learned on → scored on | comp. | cases | p95 \\|e\\|/σ median / max | > 1.73 | of them warn "
            "| > 1.73 with ok (goal 0) | enclosing | abs. RMS | pairwise | warn |",
            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    pairs = sorted({(r["learned_on"], r["shape"]) for r in rows}, key=lambda p: (p[0] != p[1], p))
-    for learned, shape in pairs:
+    pairs = sorted({(r.get("world", ""), r["learned_on"], r["shape"]) for r in rows},
+                   key=lambda p: (p[0], p[1] != p[2], p))
+    for world, learned, shape in pairs:
         for comp in ("default", "chord"):
-            rs = [r for r in rows if (r["learned_on"], r["shape"], r["comp"]) == (learned, shape, comp)]
+            rs = [r for r in rows if _key(r)[1:] + (r["comp"],) == (world, learned, shape, comp)]
             if not rs:
                 continue
             ratio = [r["p95_ratio"] for r in rs]
             n_bad, warned, missed = _uncovered(rs)
-            label = shape if learned == shape else f"{learned} → {shape}"
-            out.append(f"| {label} | {comp} | {len(rs)} | {np.median(ratio):.2f} / {max(ratio):.2f} | "
+            out.append(f"| {_label(world, learned, shape)} | {comp} | {len(rs)} | "
+                       f"{np.median(ratio):.2f} / {max(ratio):.2f} | "
                        f"{n_bad} | "
                        f"{warned} | {missed}{' **missed**' if missed else ''} | "
                        f"{_mp([r['enclosing_mm'] for r in rs])} | {_mp([r['abs_rms_mm'] for r in rs])} | "
@@ -122,14 +129,16 @@ def cv_table(rows: list[dict[str, Any]], before: list[dict[str, Any]] | None) ->
 def weight_table(rows: list[dict[str, Any]]) -> str:
     """The applied weight against the scored experiment's own (same shape): z with both σs."""
     out = ["| shape | cases | rms z | \\|z\\| > 2 | \\|z\\| > 3 |", "|---|---:|---:|---:|---:|"]
-    for shape in sorted({r["shape"] for r in rows}):
+    for world, shape in sorted({(r.get("world", ""), r["shape"]) for r in rows}):
         zs = [(r["own_weight"] - r["weight_fit"]) / math.hypot(r["weight_sigma"], r["own_sigma"])
               for r in rows if r["comp"] == "default" and r["shape"] == r["learned_on"] == shape
+              and r.get("world", "") == world
               and None not in (r["own_weight"], r["weight_fit"], r["weight_sigma"], r["own_sigma"])
               and math.isfinite(math.hypot(r["weight_sigma"], r["own_sigma"]))]
         if zs:
             z = np.array(zs)
-            out.append(f"| {shape} | {len(z)} | {np.sqrt(np.mean(z ** 2)):.2f} | {int(np.sum(abs(z) > 2))} | "
+            out.append(f"| {_label(world, shape, shape)} | {len(z)} | {np.sqrt(np.mean(z ** 2)):.2f} | "
+                       f"{int(np.sum(abs(z) > 2))} | "
                        f"{int(np.sum(abs(z) > 3))} |")
     return "\n".join(out)
 
