@@ -23,6 +23,7 @@ Not in ``make test`` (minutes); tests/bench/test_accuracy_shapes.py runs one sma
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import sys
 import time
@@ -125,7 +126,8 @@ def _job(job: tuple[int, int]) -> list[dict[str, Any]]:
 
 
 def _read(path: str) -> list[dict[str, Any]]:
-    with open(path) as f:
+    """The rows of a JSON lines file (gzipped when its name ends in .gz, as the committed before-run)."""
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
         return [json.loads(line) for line in f if line.strip()]
 
 
