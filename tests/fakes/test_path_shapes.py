@@ -69,3 +69,21 @@ def test_default_shapes_draw_as_before_and_an_experiment_can_change_its_shape():
     assert np.abs(arc_obs.stream - kink_obs.stream).max() > 1e-3  # mm: another path
     with pytest.raises(ValueError, match="'zigzag'"):
         SimConfig(path_shape="zigzag")
+
+
+def test_the_fake_bases_path_follows_a_kink():
+    """fakes/robot_motion.py's poses along a MOVE (the base passes only the end offset) find the kink's point."""
+    from dataclasses import replace
+
+    from fakes.robot_motion import Motion, pose_on_path
+    from fakes.world import RobotPose
+
+    w = robot_world("kink")
+    lat, turn = w.effects.bend(D, np.random.default_rng(2))
+    at = w.effects._kinks[lat]
+    start = RobotPose(0.0, 0.0, 0.0)
+    end = replace(start, x_mm=D, y_mm=lat, heading_deg=turn)
+    m = Motion(1, start, end, (0.0, 0.0, 0.0), (D, 0.0, 0.0), 0.0, 1.0, D, None, lat)
+    before, after = pose_on_path(w, m, at / 2), pose_on_path(w, m, (1 + at) / 2)
+    assert before.y_mm == pytest.approx(0.0, abs=1e-12)  # straight on the start heading before the kink
+    assert after.heading_deg == pytest.approx(turn) and before.heading_deg == pytest.approx(0.0, abs=1e-12)
