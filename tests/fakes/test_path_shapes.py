@@ -72,7 +72,7 @@ def test_default_shapes_draw_as_before_and_an_experiment_can_change_its_shape():
 
 
 def test_the_fake_bases_path_follows_a_kink():
-    """fakes/robot_motion.py's poses along a MOVE (the base passes only the end offset) find the kink's point."""
+    """fakes/robot_motion.py's poses along a MOVE (which the base knows by its end offset) find the kink."""
     from dataclasses import replace
 
     from fakes.robot_motion import Motion, pose_on_path
