@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
-from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
+from daemon.ctl.exitcodes import CtlError, Exit, for_verdict
+from daemon.ctl.extras import LAPTOP, require
 from daemon.ctl.io import fail
 
 if TYPE_CHECKING:  # imported where used: ritactl runs without numpy and OpenCV
@@ -86,11 +87,11 @@ def _single_threaded_opencv() -> None:
 def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
     _single_threaded_opencv()
-    try:
-        from daemon.compute.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
-    except ImportError as exc:
-        e = missing_extra("ritactl recompute", "laptop", "numpy and OpenCV", exc)
+    try:  # every package of the extra, the plot's too, before anything is written
+        require("ritactl recompute", LAPTOP)
+    except CtlError as e:
         return fail(e.exit, e.code, e.args[0], a.json)
+    from daemon.compute.recompute import CalibrationError, ComputationFailed
     try:
         result, diff = _run(a)
         if a.out:
