@@ -130,7 +130,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("folder", nargs="+", help="dataset folder(s): a procedure folder or a captures folder")
     p.set_defaults(fn=cmd_validate, offline=True)
     p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
-    p.add_argument("dataset")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="a procedure's dataset folder (its state.json), e.g. one `ritactl fetch` copied")
     p.add_argument("--out", metavar="DIR", help="write result.json, result.yaml (+ experiment report, plot) here")
     p.add_argument("--camera-model", metavar="FILE", help="camera_model.json to use instead of the stored one")
     p.add_argument("--plate", metavar="FILE", help="plate.json to use instead of the stored one")

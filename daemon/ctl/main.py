@@ -134,10 +134,19 @@ def _global_options(p: argparse.ArgumentParser, top: bool) -> None:
     p.add_argument("--json", action="store_true", help="JSON on stdout, errors too (docs/operations.md)", **keep)
 
 
+def _offline_only(p: argparse.ArgumentParser) -> bool:
+    """A verb that never talks to the daemon (validate, recompute, plate survey, keys init, completion)."""
+    return p.get_default("offline") is True and "--bus" not in p._option_string_actions
+
+
 def _add_globals_everywhere(p: argparse.ArgumentParser) -> None:
-    """Every verb accepts the global options after it too (``ritactl jobs --json``)."""
+    """Every verb accepts the global options after it too (``ritactl jobs --json``); an offline verb
+    only --json: it has no daemon to reach, so --endpoint and --timeout would mean nothing."""
     for child in {id(c): c for c in subparsers_of(p).values()}.values():
-        if not any(o in child._option_string_actions for o in GLOBAL_OPTIONS):
+        if _offline_only(child) and "--json" not in child._option_string_actions:
+            child.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                               help="JSON on stdout, errors too (docs/operations.md)")
+        elif not any(o in child._option_string_actions for o in GLOBAL_OPTIONS):
             _global_options(child, top=False)
         _add_globals_everywhere(child)
 
