@@ -10,14 +10,16 @@ Examples::
     ritactl robot move MM --yes [--speed MM_S] | turn DEG --yes | stop | release | status
     ritactl camera capture --out frame.png | stream start | stream stop | status
     ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
-    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
+    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB [--detach]
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
     ritactl record --out FILE.mcap [--duration S] [--frames every N|off] [--max-size N] [--min-free N]
     ritactl replay FILE.mcap [--speed X|max] [--endpoint ipc:///PATH]  # republish it, for watch
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
-    ritactl completion bash           # shell completion script
+    ritactl fetch [PATH ...] [--to DIR] [--quiet]  # datasets, results and reports from the robot
+    ritactl keys init | allow FILE | role | revoke | list   # CURVE keys (each with its --help)
+    ritactl completion bash|zsh|fish  # shell completion script
 
 The daemon is found at --endpoint, else $RITA_ENDPOINT, else ritactl.toml's endpoint, else
 ipc:///run/ritad/cmd; keys: --key/--keys/--config (docs/operations.md, Keys).
