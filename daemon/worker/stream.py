@@ -30,8 +30,7 @@ from daemon.bus.timeline import TimeSeries
 from daemon.worker.job import JobContext
 from daemon.worker.motion import confirm_done
 
-#: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
-DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
+#: the most points a stop record keeps (evenly thinned)
 MAX_STREAM_POINTS = 200
 #: tilt samples during the move below which none are stored: a few single readings, interpolated,
 #: are worse than the two standstill means (compute then interpolates those along the move)
@@ -195,7 +194,7 @@ def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, 
 
 
 def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
-                rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None
+                rate_hz: float | None, start_tilt: dict[str, Any] | None = None
                 ) -> tuple[dict[str, Any] | None, str]:
     """Drive ``distance_mm`` straight while recording the stream: (the stop record's ``stream``, "").
 
