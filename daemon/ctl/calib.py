@@ -242,7 +242,8 @@ def cmd_cancel(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_resume(c: Client, a: argparse.Namespace) -> int:
-    r = c.call("calib.resume", job=a.job_id)  # the daemon knows the procedure, also for a job of an earlier run
+    # the daemon knows the procedure, also for a job of an earlier run
+    r = c.call("calib.resume", job=a.job_id)
     if getattr(a, "detach", False):  # as a procedure verb's --detach: posted, exit 0, follow it later
         print_result(r, True) if a.json else print(f"job {a.job_id} resumed (`ritactl follow {a.job_id}`)")
         return Exit.OK

@@ -159,7 +159,10 @@ def _list(c: Client, path: str, timeout: float, given: bool) -> dict[str, Any]:
 
 def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: float = 30.0,
           tty: bool = False, say: Callable[[str], None] = print, quiet: bool = False) -> dict[str, Any]:
-    """Copy every file under ``paths`` (DEFAULT_PATHS when empty) into ``dest``; ``quiet``: no line per file."""
+    """Copy every file under ``paths`` (DEFAULT_PATHS when empty) into ``dest``.
+
+    ``quiet``: no line per file.
+    """
     listing: dict[str, int] = {}
     for path in paths or DEFAULT_PATHS:
         r = _list(c, path, timeout, given=bool(paths))
@@ -193,7 +196,8 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
 def cmd_fetch(c: Client, a: argparse.Namespace) -> int:
     dest = Path(a.to)
     try:
-        r = fetch(c, a.paths, dest, timeout=a.timeout or 30.0, tty=sys.stderr.isatty() and not (a.json or a.quiet),
+        r = fetch(c, a.paths, dest, timeout=a.timeout or 30.0,
+                  tty=sys.stderr.isatty() and not (a.json or a.quiet),
                   say=(lambda _: None) if a.json else print, quiet=a.quiet)
     except KeyboardInterrupt:
         print("\ninterrupted: run the same `ritactl fetch` again to resume", file=sys.stderr)
@@ -217,11 +221,13 @@ def add_parser(sub: Any) -> None:
                                    "again after an interruption. Files already here with the same sha256 "
                                    "are skipped.")
     p.add_argument("paths", nargs="*", metavar="PATH",
-                   help="file or folder relative to the robot's data dir, e.g. procedures/JOB or sim (default: "
-                        f"{', '.join(DEFAULT_PATHS)}: datasets, results and reports, not the daemon's own files)")
+                   help="file or folder relative to the robot's data dir, e.g. procedures/JOB or sim "
+                        f"(default: {', '.join(DEFAULT_PATHS)}: datasets, results and reports, not the "
+                        f"daemon's own files)")
     p.add_argument("--to", default="rita-data", metavar="DIR",
                    help="local folder to copy into, keeping the robot's layout (default: ./rita-data)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no line per file: only the summary and failures")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no line per file: only the summary and failures")
     p.set_defaults(fn=cmd_fetch)
 
 

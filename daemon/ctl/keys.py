@@ -114,7 +114,8 @@ def _init_dir(a: argparse.Namespace) -> Path:
     """
     from daemon.ctl.config import load_ctl_config
 
-    given = a.dir or getattr(a, "keys", None)  # --keys: ritactl's own option, absent when keys is parsed alone
+    # --keys: ritactl's own option, absent when the keys parser is used alone
+    given = a.dir or getattr(a, "keys", None)
     if given:
         return Path(given).expanduser()
     if os.environ.get(ENV_KEYS):
@@ -255,11 +256,11 @@ def add_parser(sub: Any) -> None:
     ksub = grp.add_subparsers(title="keys verbs", metavar="ACTION")
     allow_list = f"allow-list folder (default {DEFAULT_AUTH_DIR}; ignored with --bus)"
     p = _add_action(ksub, "init", "make a CURVE key pair on this computer (offline)",
-                    "Make NAME.key (public, share it) and NAME.key_secret (mode 600) in the keys folder: --dir, "
-                    "else ritactl's --keys, else $RITA_KEYS, else ritactl.toml's keys_dir, else "
+                    "Make NAME.key (public, share it) and NAME.key_secret (mode 600) in the keys folder: "
+                    "--dir, else ritactl's --keys, else $RITA_KEYS, else ritactl.toml's keys_dir, else "
                     f"{default_keys_dir()}.")
-    p.add_argument("--dir", metavar="DIR", help="keys folder (default: --keys, $RITA_KEYS, ritactl.toml's keys_dir, "
-                                                f"else {default_keys_dir()})")
+    p.add_argument("--dir", metavar="DIR", help="keys folder (default: --keys, $RITA_KEYS, ritactl.toml's "
+                                                f"keys_dir, else {default_keys_dir()})")
     p.add_argument("--name", metavar="NAME", help=f"key name (default {DEFAULT_KEY})")
     p.add_argument("--server", action="store_true", help="the robot's server key pair (server.key)")
     p.add_argument("--force", action="store_true", help="replace an existing key pair")
@@ -267,8 +268,10 @@ def add_parser(sub: Any) -> None:
                     "Add a client's public key (NAME.key) to the robot's allow-list; it may connect from its "
                     "next request, no restart.")
     p.add_argument("file", metavar="FILE", help="the client's public key file (NAME.key, never the secret)")
-    p.add_argument("--name", metavar="NAME", help="the client's name in the allow-list (default: FILE's stem)")
-    p.add_argument("--role", choices=ROLES, help=f"what the key may do (default {DEFAULT_ROLE}: watch, not move)")
+    p.add_argument("--name", metavar="NAME",
+                   help="the client's name in the allow-list (default: FILE's stem)")
+    p.add_argument("--role", choices=ROLES,
+                   help=f"what the key may do (default {DEFAULT_ROLE}: watch, not move)")
     p.add_argument("--dir", metavar="DIR", help=allow_list)
     _bus_option(p)
     p = _add_action(ksub, "role", "change an allowed key's role (from its next request)",
@@ -278,11 +281,13 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--dir", metavar="DIR", help=allow_list)
     _bus_option(p)
     p = _add_action(ksub, "revoke", "remove a key from the allow-list (refused from its next request)",
-                    "Remove a key from the allow-list: refused from its next request or connection, no restart.")
+                    "Remove a key from the allow-list: refused from its next request or connection, "
+                    "no restart.")
     p.add_argument("--name", metavar="NAME", required=True, help="the client's name in the allow-list")
     p.add_argument("--dir", metavar="DIR", help=allow_list)
     _bus_option(p)
-    p = _add_action(ksub, "list", "the allowed keys: NAME ROLE PUBLIC-KEY", "List the allow-list's keys and roles.")
+    p = _add_action(ksub, "list", "the allowed keys: NAME ROLE PUBLIC-KEY",
+                    "List the allow-list's keys and roles.")
     p.add_argument("--dir", metavar="DIR", help=allow_list)
     _bus_option(p)
 

@@ -104,7 +104,8 @@ def cmd_upload(c: Any, a: argparse.Namespace) -> int:
 
 
 def add_parsers(sub: Any) -> None:
-    grp = sub.add_parser("plate", help="plate definitions: survey (offline, on this computer), upload (to the robot)")
+    grp = sub.add_parser("plate",
+                         help="plate definitions: survey (offline, on this computer), upload (to the robot)")
     grp.set_defaults(fn=None, parser_=grp)
     gsub = grp.add_subparsers(title="plate verbs", metavar="VERB")
     p = gsub.add_parser("survey", help="nest seats from photographs of the whole plate (offline, on this computer)",

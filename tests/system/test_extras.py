@@ -86,7 +86,7 @@ def _install(venv: Path, wheel: Path, extra: str, cwd: Path) -> None:
 
 @pytest.fixture(scope="session")
 def venvs(tmp_path_factory) -> dict[str, Path]:
-    """{extra: venv} with this checkout installed; built once per pyproject.toml, refreshed once per session."""
+    """{extra: venv} with this checkout installed: built once per pyproject.toml, refreshed per session."""
     tmp = tmp_path_factory.mktemp("wheel")
     wheel = _wheel(tmp)
     root = _cache_root()
@@ -98,8 +98,8 @@ def venvs(tmp_path_factory) -> dict[str, Path]:
             venv = root / extra
             if not (venv / ".ready").exists():  # first run with this pyproject.toml, or a build cut short
                 _install(venv, wheel, extra, tmp)
-            res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps", "--force-reinstall",
-                       wheel, cwd=tmp)
+            res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps",
+                       "--force-reinstall", wheel, cwd=tmp)
             assert res.returncode == 0, res.stderr[-3000:]
             res = _run(venv / "bin" / "python", "-m", "pip", "check", cwd=tmp)
             assert res.returncode == 0, f"{extra}: {res.stdout}{res.stderr}"
@@ -163,12 +163,13 @@ def test_validate_works_in_every_install(venvs, datasets, tmp_path, extra):
 
 
 @pytest.mark.parametrize("extra", ["base", "console"])
-def test_offline_computing_without_the_laptop_extra_exits_5_before_writing(venvs, datasets, sim, tmp_path, extra):
+def test_offline_computing_without_the_laptop_extra_exits_5_before_writing(venvs, datasets, sim, tmp_path,
+                                                                            extra):
     out = tmp_path / "out"
     _missing(ritactl(venvs[extra], "recompute", datasets["experiment"], "--out", out, cwd=tmp_path), "laptop")
     design = sim[1] / "sim" / "plate.json"
-    _missing(ritactl(venvs[extra], "plate", "survey", sim[1] / "sim" / "survey", "--plate", design, "--out", out,
-                     cwd=tmp_path), "laptop")
+    _missing(ritactl(venvs[extra], "plate", "survey", sim[1] / "sim" / "survey", "--plate", design,
+                     "--out", out, cwd=tmp_path), "laptop")
     assert not out.exists()
 
 
@@ -188,7 +189,8 @@ def test_laptop_recomputes_each_procedure(venvs, datasets, tmp_path, procedure):
 
 def test_laptop_fetches_and_surveys_the_plate(venvs, sim, tmp_path):
     endpoint, _ = sim
-    res = ritactl(venvs["laptop"], "--endpoint", endpoint, "fetch", "sim", "--to", tmp_path / "got", cwd=tmp_path)
+    res = ritactl(venvs["laptop"], "--endpoint", endpoint, "fetch", "sim", "--to", tmp_path / "got",
+                  cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     got = tmp_path / "got" / "sim"
     res = ritactl(venvs["laptop"], "plate", "survey", got / "survey", "--plate", got / "plate.json",

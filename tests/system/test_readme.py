@@ -44,10 +44,11 @@ README_SCRATCH = "/tmp/rita-walk"
 
 
 def localise(line: str, runtime: Path, scratch: Path | None = None) -> str:
-    """This interpreter's bin folder for the checkout's .venv/bin, temp dirs for /tmp/rita and the scratch folder."""
+    """This interpreter's bin folder for the checkout's .venv/bin; temp dirs for /tmp/rita and the scratch."""
     bin_dir = Path(sys.executable).parent
     line = line.replace("$PWD/.venv/bin", str(bin_dir)).replace(".venv/bin/", f"{bin_dir}/")
-    return line.replace(README_SCRATCH, str(scratch or runtime / "walk")).replace(README_RUNTIME, str(runtime))
+    line = line.replace(README_SCRATCH, str(scratch or runtime / "walk"))  # before /tmp/rita, its prefix
+    return line.replace(README_RUNTIME, str(runtime))
 
 
 def carries_over(line: str) -> bool:
@@ -58,14 +59,16 @@ def carries_over(line: str) -> bool:
 def test_readme_block_parses() -> None:
     lines = using_it_block((ROOT / "README.md").read_text())
     assert lines[0].startswith(".venv/bin/ritad --sim") and any("calibrate" in ln for ln in lines)
-    assert all(ln.startswith((".venv/bin/", "export ", "mkdir ", "ritactl ", "python ")) for ln in lines), lines
-    assert any(carries_over(ln) and README_SCRATCH in ln for ln in lines[:3])  # the walk starts in a scratch folder
+    starts = (".venv/bin/", "export ", "mkdir ", "ritactl ", "python ")
+    assert all(ln.startswith(starts) for ln in lines), lines
+    # the walk starts in a scratch folder
+    assert any(carries_over(ln) and README_SCRATCH in ln for ln in lines[:3])
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_readme_using_it_runs_verbatim(tmp_path: Path) -> None:
-    """In a stand-in for the checkout (the README's $PWD) that stays empty: everything lands in the scratch folder."""
+    """From a stand-in for the checkout (the README's $PWD), which stays empty: all lands in the scratch."""
     runtime, work, checkout = tmp_path / "rt", tmp_path / "work", tmp_path / "checkout"
     runtime.mkdir()
     checkout.mkdir()
@@ -83,11 +86,12 @@ def test_readme_using_it_runs_verbatim(tmp_path: Path) -> None:
             if carries_over(line):
                 exports.append(line)
             script = "\n".join([*exports, *([] if carries_over(line) else [line])])
-            r = subprocess.run(["bash", "-c", script], cwd=checkout, capture_output=True, text=True, timeout=600,
-                               env=env)
+            r = subprocess.run(["bash", "-c", script], cwd=checkout, capture_output=True, text=True,
+                               timeout=600, env=env)
             assert r.returncode == 0, f"{line}\n exited {r.returncode}\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
             assert "Traceback" not in r.stderr, r.stderr
-        assert (work / "sim" / "plate.json").exists() and (work / "s.mcap").exists() and (work / "plate.json").exists()
+        for written in ("sim/plate.json", "s.mcap", "plate.json"):
+            assert (work / written).exists(), written
         assert list((work / "rita-data" / "procedures").glob("*-experiment-*/clusters.png"))
         assert not list(checkout.iterdir()), list(checkout.iterdir())  # the checkout is left as it was
     finally:

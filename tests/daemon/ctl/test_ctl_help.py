@@ -22,7 +22,10 @@ OFFLINE = {"validate": ["f"], "recompute": ["d"], "plate survey": ["f", "--plate
            "completion": ["bash"]}
 
 
-def _paths(p: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+Path = tuple[str, ...]
+
+
+def _paths(p: argparse.ArgumentParser, path: Path = ()) -> list[tuple[Path, argparse.ArgumentParser]]:
     out = [(path, p)]
     for name, child in subparsers_of(p).items():
         out += _paths(child, (*path, name))
@@ -95,7 +98,8 @@ def _need(shell: str) -> None:
 
 
 #: compadd and _files stubbed to print what they are given: the zsh function runs without a terminal
-ZSH_STUBS = "compdef() {}; compadd() { [[ $1 == -- ]] && shift; print -l -- \"$@\"; }; _files() { print FILES; }\n"
+ZSH_STUBS = ("compdef() {}; compadd() { [[ $1 == -- ]] && shift; print -l -- \"$@\"; }; "
+             "_files() { print FILES; }\n")
 
 
 def complete(shell: str, *words: str, cur: str = "", cwd: str | None = None) -> set[str]:
@@ -105,8 +109,8 @@ def complete(shell: str, *words: str, cur: str = "", cwd: str | None = None) -> 
         argv = ["bash", "-c", f"{bash_script(build_parser())}\nCOMP_WORDS=(ritactl {typed} '{cur}'); "
                               f"COMP_CWORD={n + 1}; _ritactl; printf '%s\\n' \"${{COMPREPLY[@]}}\""]
     elif shell == "zsh":
-        argv = ["zsh", "-f", "-c", f"{ZSH_STUBS}{zsh_script(build_parser())}\nwords=(ritactl {typed} '{cur}'); "
-                                   f"CURRENT={n + 2}; _ritactl"]
+        argv = ["zsh", "-f", "-c", f"{ZSH_STUBS}{zsh_script(build_parser())}\n"
+                                   f"words=(ritactl {typed} '{cur}'); CURRENT={n + 2}; _ritactl"]
     else:
         argv = ["fish", "--no-config", "-c", f"{fish_script(build_parser())}\ncomplete -C "
                                              f"{' '.join(('ritactl', *words, cur))!r}"]
@@ -121,7 +125,8 @@ def test_completion_completes_subcommands_options_and_values(shell, tmp_path):
     assert complete(shell, "tracker") == {"measure", "aim", "find", "stream", "status"}
     assert complete(shell, "keys") == {"init", "allow", "role", "revoke", "list"}
     assert complete(shell, "completion") == {"bash", "zsh", "fish"}  # a positional's choices
-    assert complete(shell, "keys", "allow", "bob.key", "--role") == {"viewer", "operator", "admin"}  # option values
+    # an option's values
+    assert complete(shell, "keys", "allow", "bob.key", "--role") == {"viewer", "operator", "admin"}
     assert {"--yes", "--speed", "--no-wait", "--json"} <= complete(shell, "robot", "move", cur="--")
     assert "--endpoint" not in complete(shell, "validate", cur="--")  # an offline verb
     (tmp_path / "afile.json").write_text("{}")

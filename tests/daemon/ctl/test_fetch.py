@@ -152,7 +152,8 @@ def test_fetch_copies_datasets_results_and_reports_then_skips(served, capsys) ->
     import json
 
     r = json.loads(capsys.readouterr().out)
-    assert r["fetched"] == [] and len(r["skipped"]) == 3 + 2 and r["errors"] == {}  # datasets/run1, calibration/
+    # datasets/run1's three, calibration/'s two (active.json, the sim's tracker station)
+    assert r["fetched"] == [] and len(r["skipped"]) == 3 + 2 and r["errors"] == {}
     assert ctl.main(["--endpoint", ep, "fetch", "report.md", "empty.txt", "--to", str(dest)]) == 0
     for rel in ("report.md", "empty.txt"):  # a PATH names what it wants
         assert (dest / rel).read_bytes() == (data / rel).read_bytes(), rel
