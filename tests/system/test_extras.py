@@ -11,8 +11,8 @@ with the key), so the code tested is the code here. Nothing of the test venv is 
 Each offline verb then runs with the venv's own ``ritactl`` against a ``ritad`` on the simulated
 world (in this process, ipc in a temp dir): ``validate``; ``recompute`` of one dataset per
 procedure the independent writer makes (tests/dataset_writer.py: referencing, experiment,
-measure-mark); ``plate survey`` of photographs fetched from the sim; ``console`` start; ``record``
-and ``replay``. Where the extra does not cover a verb it exits 5 naming the extra, and writes nothing.
+measure-mark, intrinsics); ``plate survey`` of photographs fetched from the sim; ``console`` start;
+``record`` and ``replay``. Where the extra does not cover a verb it exits 5 naming the extra, and writes nothing.
 """
 from __future__ import annotations
 
@@ -32,7 +32,9 @@ from typing import Iterator
 import numpy as np
 import pytest
 
-from tests.dataset_writer import write_experiment, write_referencing
+from daemon.ctl import extras as ctl_extras
+
+from tests.dataset_writer import K, write_experiment, write_intrinsics, write_referencing
 from tests.ritad_up import ritad_in_process
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -134,7 +136,8 @@ def datasets(tmp_path_factory) -> dict[str, Path]:
     for png in mm.glob("*.png"):
         if png.name != stop["image"]:
             png.unlink()
-    return {"referencing": tmp / "referencing", "experiment": tmp / "experiment", "measure-mark": mm}
+    write_intrinsics(tmp / "intrinsics")
+    return {name: tmp / name for name in ("referencing", "experiment", "measure-mark", "intrinsics")}
 
 
 def ritactl(venv: Path, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
@@ -144,6 +147,16 @@ def ritactl(venv: Path, *argv: object, cwd: Path, timeout: float = 300) -> subpr
 def _missing(res: subprocess.CompletedProcess[str], extra: str) -> None:
     assert res.returncode == 5, res.stdout[-2000:] + res.stderr[-2000:]
     assert f"pip install 'rita[{extra}]'" in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+
+def test_the_packages_ritactl_checks_are_the_extras_in_pyproject():
+    """daemon/ctl/extras.py (what a verb imports before it starts) names what pyproject.toml installs."""
+    import tomllib
+
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    for extra in ctl_extras.EXTRAS.values():
+        listed = {re.split(r"[<>=!~;\[ ]", r, maxsplit=1)[0].lower() for r in extras[extra.name]}
+        assert set(extra.modules.values()) == listed, (extra.name, listed)
 
 
 def test_the_venvs_hold_this_checkout_and_only_their_extras(venvs, tmp_path):
@@ -173,7 +186,7 @@ def test_offline_computing_without_the_laptop_extra_exits_5_before_writing(venvs
     assert not out.exists()
 
 
-@pytest.mark.parametrize("procedure", ["referencing", "experiment", "measure-mark"])
+@pytest.mark.parametrize("procedure", ["referencing", "experiment", "measure-mark", "intrinsics"])
 def test_laptop_recomputes_each_procedure(venvs, datasets, tmp_path, procedure):
     """Failed before issue 35 for the experiment: matplotlib missing, exit 2, a partial report left."""
     out = tmp_path / "out"
@@ -185,6 +198,8 @@ def test_laptop_recomputes_each_procedure(venvs, datasets, tmp_path, procedure):
         assert (out / name).stat().st_size > 0, name
     if procedure == "experiment":
         assert (out / "clusters.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    if procedure == "intrinsics":  # the writer's own pinhole camera, found again
+        assert np.allclose(result["camera_model"]["K"], K, atol=0.5), result["camera_model"]["K"]
 
 
 def test_laptop_fetches_and_surveys_the_plate(venvs, sim, tmp_path):
