@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -41,23 +42,63 @@ ROOT = Path(__file__).resolve().parents[2]
 EXTRAS = ("base", "laptop", "console")
 #: what a wheel is built from: the packages pyproject.toml names, and the files it reads
 SOURCES = ("pyproject.toml", "README.md", "daemon", "drivers", "calibration", "fakes")
+#: what a cached venv holds (2: the requirements only, rita uninstalled); a new layout is a new key
+CACHE_LAYOUT = b"2"
 pytestmark = pytest.mark.slow  # builds venvs on the first run (pip installs), then reuses them
 
 
-def _env() -> dict[str, str]:
-    """The environment of a clean venv's programs: nothing of the test venv or this checkout."""
+def _env(site: Path | None = None) -> dict[str, str]:
+    """The environment of a clean venv's programs: nothing of the test venv or this checkout (``site``:
+    this session's install of the checkout, on the path)."""
     drop = ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME", "PIP_REQUIRE_VIRTUALENV", "PYTHONSTARTUP")
-    return {**{k: v for k, v in os.environ.items() if k not in drop}, "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
+    env = {**{k: v for k, v in os.environ.items() if k not in drop}, "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
+    return {**env, "PYTHONPATH": str(site)} if site else env
 
 
-def _run(*argv: object, cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+def _run(*argv: object, cwd: Path, timeout: float = 600, site: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(a) for a in argv], capture_output=True, text=True, timeout=timeout, cwd=cwd,
-                          env=_env())
+                          env=_env(site))
+
+
+@dataclass(frozen=True)
+class Install:
+    """One extra: the cached venv with its requirements, and this session's install of the checkout.
+
+    The checkout goes into a folder of this session (``pip install --no-deps --target``), not into the
+    shared venv: two suites on one machine (two checkouts, one pyproject.toml) never run each other's code.
+    """
+
+    venv: Path
+    site: Path
+
+    def run(self, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+        """``ritactl ARGV`` as this install has it (the console script pip wrote for the venv's Python)."""
+        return _run(self.site / "bin" / "ritactl", *argv, cwd=cwd, timeout=timeout, site=self.site)
 
 
 def _cache_root() -> Path:
-    key = hashlib.sha256((ROOT / "pyproject.toml").read_bytes() + sys.version.encode()).hexdigest()[:16]
+    made = (ROOT / "pyproject.toml").read_bytes() + sys.version.encode() + CACHE_LAYOUT
+    key = hashlib.sha256(made).hexdigest()[:16]
     return Path(os.environ.get("RITA_VENV_CACHE") or Path.home() / ".cache" / "rita-venvs") / key
+
+
+#: a cache of venvs for another pyproject.toml that no run used for this long is removed
+STALE_S = 14 * 24 * 3600
+
+
+def _prune(root: Path) -> None:
+    """Remove the cached venvs of other keys unused for STALE_S (each is ~0.5 GB), never one in use."""
+    for lock_file in root.parent.glob("*.lock"):
+        venvs = lock_file.with_suffix("")
+        if venvs == root or time.time() - lock_file.stat().st_mtime < STALE_S:
+            continue
+        with open(lock_file, "a") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a suite using it holds the lock
+            except BlockingIOError:
+                continue
+            shutil.rmtree(venvs, ignore_errors=True)
+            lock_file.unlink()
 
 
 def _wheel(tmp: Path) -> Path:
@@ -76,19 +117,24 @@ def _wheel(tmp: Path) -> Path:
 
 
 def _install(venv: Path, wheel: Path, extra: str, cwd: Path) -> None:
-    """A fresh venv with ``rita[extra]`` and its requirements (a real pip install)."""
+    """A fresh venv with ``rita[extra]``'s requirements: a real pip install, checked, then rita itself
+    removed (each session installs its own checkout beside the venv)."""
     shutil.rmtree(venv, ignore_errors=True)
     res = _run(sys.executable, "-m", "venv", venv, cwd=cwd)
     assert res.returncode == 0, res.stderr
     spec = f"rita{'' if extra == 'base' else f'[{extra}]'} @ {wheel.as_uri()}"
     res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", spec, cwd=cwd, timeout=1200)
     assert res.returncode == 0, f"pip install {spec} failed:\n{res.stdout[-3000:]}{res.stderr[-3000:]}"
+    res = _run(venv / "bin" / "python", "-m", "pip", "check", cwd=cwd)  # without --no-deps: nothing broken
+    assert res.returncode == 0, f"{extra}: {res.stdout}{res.stderr}"
+    res = _run(venv / "bin" / "python", "-m", "pip", "uninstall", "-q", "-y", "rita", cwd=cwd)
+    assert res.returncode == 0, res.stderr
     (venv / ".ready").write_text(spec + "\n")
 
 
 @pytest.fixture(scope="session")
-def venvs(tmp_path_factory) -> dict[str, Path]:
-    """{extra: venv} with this checkout installed: built once per pyproject.toml, refreshed per session."""
+def venvs(tmp_path_factory) -> dict[str, Install]:
+    """{extra: its install}: the venvs built once per pyproject.toml, this checkout installed per session."""
     tmp = tmp_path_factory.mktemp("wheel")
     wheel = _wheel(tmp)
     root = _cache_root()
@@ -96,16 +142,17 @@ def venvs(tmp_path_factory) -> dict[str, Path]:
     out = {}
     with open(root.with_suffix(".lock"), "w") as lock:  # another pytest run on this machine waits here
         fcntl.flock(lock, fcntl.LOCK_EX)
+        _prune(root)  # the lock file's time is this key's last use: "w" just set it
         for extra in EXTRAS:
             venv = root / extra
             if not (venv / ".ready").exists():  # first run with this pyproject.toml, or a build cut short
                 _install(venv, wheel, extra, tmp)
-            res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps",
-                       "--force-reinstall", wheel, cwd=tmp)
-            assert res.returncode == 0, res.stderr[-3000:]
-            res = _run(venv / "bin" / "python", "-m", "pip", "check", cwd=tmp)
-            assert res.returncode == 0, f"{extra}: {res.stdout}{res.stderr}"
-            out[extra] = venv
+    for extra in EXTRAS:  # the requirements did not change with the key: only this checkout's code
+        venv, site = root / extra, tmp / extra
+        res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps", "--target", site, wheel,
+                   cwd=tmp)
+        assert res.returncode == 0, res.stderr[-3000:]
+        out[extra] = Install(venv, site)
     return out
 
 
@@ -140,8 +187,8 @@ def datasets(tmp_path_factory) -> dict[str, Path]:
     return {name: tmp / name for name in ("referencing", "experiment", "measure-mark", "intrinsics")}
 
 
-def ritactl(venv: Path, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return _run(venv / "bin" / "ritactl", *argv, cwd=cwd, timeout=timeout)
+def ritactl(inst: Install, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return inst.run(*argv, cwd=cwd, timeout=timeout)
 
 
 def _missing(res: subprocess.CompletedProcess[str], extra: str) -> None:
@@ -163,9 +210,10 @@ def test_the_venvs_hold_this_checkout_and_only_their_extras(venvs, tmp_path):
     probe = "import daemon, importlib.util as u; print(daemon.__file__); print(*(m for m in " \
             "('numpy', 'cv2', 'matplotlib', 'aiohttp', 'harvesters', 'serial') if u.find_spec(m)))"
     has = {"base": "", "laptop": "numpy cv2 matplotlib", "console": "aiohttp"}
-    for extra, venv in venvs.items():
-        where, found = _run(venv / "bin" / "python", "-c", probe, cwd=tmp_path).stdout.splitlines()
-        assert where.startswith(str(venv)), where  # the installed copy, not this checkout
+    for extra, inst in venvs.items():
+        res = _run(inst.venv / "bin" / "python", "-c", probe, cwd=tmp_path, site=inst.site)
+        where, found = res.stdout.splitlines()
+        assert where.startswith(str(inst.site)), where  # the installed copy, not this checkout
         assert found.split() == has[extra].split(), (extra, found)
 
 
@@ -219,10 +267,10 @@ def test_console_needs_its_extra_and_starts_with_it(venvs, sim, tmp_path):
     for extra in ("base", "laptop"):
         _missing(ritactl(venvs[extra], "--endpoint", endpoint, "console", "--port", "0", "--duration", "1",
                          cwd=tmp_path), "console")
-    argv = [venvs["console"] / "bin" / "ritactl", "--endpoint", endpoint, "console", "--port", "0",
-            "--duration", "30"]
+    inst = venvs["console"]
+    argv = [inst.site / "bin" / "ritactl", "--endpoint", endpoint, "console", "--port", "0", "--duration", "30"]
     with subprocess.Popen([str(a) for a in argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                          cwd=tmp_path, env=_env()) as p:
+                          cwd=tmp_path, env=_env(inst.site)) as p:
         try:
             url = _console_url(p)
             with urllib.request.urlopen(url, timeout=30) as page:  # noqa: S310 - 127.0.0.1, the printed URL
@@ -250,10 +298,10 @@ def _console_url(p: subprocess.Popen[str]) -> str:
 @pytest.mark.parametrize("extra", EXTRAS)
 def test_record_and_replay_work_in_every_install(venvs, sim, tmp_path, extra):
     endpoint, _ = sim
-    venv, mcap = venvs[extra], tmp_path / "s.mcap"
-    res = ritactl(venv, "--endpoint", endpoint, "record", "--out", mcap, "--duration", "2", cwd=tmp_path)
+    inst, mcap = venvs[extra], tmp_path / "s.mcap"
+    res = ritactl(inst, "--endpoint", endpoint, "record", "--out", mcap, "--duration", "2", cwd=tmp_path)
     assert res.returncode == 0 and mcap.stat().st_size > 0, res.stdout[-2000:] + res.stderr[-2000:]
-    res = ritactl(venv, "replay", mcap, "--speed", "max", "--no-wait", "--linger", "0",
+    res = ritactl(inst, "replay", mcap, "--speed", "max", "--no-wait", "--linger", "0",
                   "--endpoint", f"ipc://{tmp_path}/replay", cwd=tmp_path)
     assert res.returncode == 0 and re.search(r"replayed [1-9]\d* messages", res.stderr), res.stderr[-2000:]
 
