@@ -49,7 +49,8 @@ def _apply(H: np.ndarray, p: Any) -> np.ndarray:
 
 def render(cam_H_ref: np.ndarray, ppmm: float = 40.0, supersample: int = 4, psf_px: float = 1.0,
            b: dict[str, Any] = BOARD) -> np.ndarray:
-    """8-bit image of the board ``b`` seen by the pinhole camera K (no distortion), lens blur ``psf_px`` (σ)."""
+    """8-bit image of the board ``b`` seen by the pinhole camera K (no distortion), lens blur ``psf_px``
+    (σ)."""
     board = cv2.aruco.CharucoBoard((b["cols"], b["rows"]), b["square"], b["marker"],
                                    cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, b["dict"])))
     w_px, h_px = round(b["cols"] * b["square"] * ppmm), round(b["rows"] * b["square"] * ppmm)
@@ -222,8 +223,9 @@ INTRINSICS_BOARD = {"schema": 1, "board_id": "RITA-INTRINSICS-1", "board_cols": 
 #: centre appears (fraction of the image from its centre, x and y): tilted views fix the focal length
 #: (a board seen square-on leaves it coupled to the distance), views in the corners the distortion there
 VIEW_TILTS = ((0, 0, 0, 0.0, 0.0), (25, 0, 0, 0.0, 0.0), (-25, 0, 0, 0.0, 0.0), (0, 25, 0, 0.0, 0.0),
-              (0, -25, 0, 0.0, 0.0), (20, 20, 10, 0.0, 0.0), (-20, 20, -10, 0.0, 0.0), (15, -20, 30, 0.0, 0.0),
-              (0, 0, 0, -0.3, -0.3), (0, 0, 0, 0.3, -0.3), (0, 0, 0, -0.3, 0.3), (0, 0, 0, 0.3, 0.3))
+              (0, -25, 0, 0.0, 0.0), (20, 20, 10, 0.0, 0.0), (-20, 20, -10, 0.0, 0.0),
+              (15, -20, 30, 0.0, 0.0), (0, 0, 0, -0.3, -0.3), (0, 0, 0, 0.3, -0.3), (0, 0, 0, -0.3, 0.3),
+              (0, 0, 0, 0.3, 0.3))
 
 
 def write_intrinsics(root: Path, distance_mm: float = 60.0) -> None:
@@ -231,12 +233,12 @@ def write_intrinsics(root: Path, distance_mm: float = 60.0) -> None:
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     bd = INTRINSICS_BOARD
-    b = {"cols": bd["board_cols"], "rows": bd["board_rows"], "square": bd["square_mm"], "marker": bd["marker_mm"],
-         "dict": bd["aruco_dict"]}
+    b = {"cols": bd["board_cols"], "rows": bd["board_rows"], "square": bd["square_mm"],
+         "marker": bd["marker_mm"], "dict": bd["aruco_dict"]}
     centre = np.array([b["cols"] * b["square"] / 2, b["rows"] * b["square"] / 2, 0.0])
     views, entries = [], []
     for i, (tx, ty, rz, fx, fy) in enumerate(VIEW_TILTS):
-        R = _rot("z", rz) @ _rot("y", ty) @ _rot("x", tx)  # camera axes in the board frame; z toward the board
+        R = _rot("z", rz) @ _rot("y", ty) @ _rot("x", tx)  # camera axes in the board frame; z toward it
         # the camera moved sideways so that the centre projects at (fx, fy) of the image's width and height
         side = -distance_mm * (fx * SIZE[0] * R[:, 0] + fy * SIZE[1] * R[:, 1]) / K[0, 0]
         ref_H_cam = _H(R, centre - distance_mm * R[:, 2] + side)
@@ -245,7 +247,8 @@ def write_intrinsics(root: Path, distance_mm: float = 60.0) -> None:
         cv2.imwrite(str(root / f"{name}.png"), img)
         header = {"shape": list(img.shape), "dtype": "|u1"}
         (root / f"{name}.json").write_text(json.dumps({"camera": header, "image_file": f"{name}.png"}))
-        views.append({"image": f"{name}.png", "header": header, "key": f"view-{tx:+d}-{ty:+d}-{rz:+d}-{fx:+}-{fy:+}"})
+        key = f"view-{tx:+d}-{ty:+d}-{rz:+d}-{fx:+}-{fy:+}"
+        views.append({"image": f"{name}.png", "header": header, "key": key})
         entries.append({"name": name, "json": f"{name}.json", "image": f"{name}.png"})
     state = {"schema": 1, "procedure": "intrinsics", "obs": {"board": bd, "views": views, "skipped": []}}
     (root / "state.json").write_text(json.dumps(state, indent=1))

@@ -12,7 +12,8 @@ Each offline verb then runs with the venv's own ``ritactl`` against a ``ritad`` 
 world (in this process, ipc in a temp dir): ``validate``; ``recompute`` of one dataset per
 procedure the independent writer makes (tests/dataset_writer.py: referencing, experiment,
 measure-mark, intrinsics); ``plate survey`` of photographs fetched from the sim; ``console`` start;
-``record`` and ``replay``. Where the extra does not cover a verb it exits 5 naming the extra, and writes nothing.
+``record`` and ``replay``. Where the extra does not cover a verb it exits 5 naming the extra, and writes
+nothing.
 """
 from __future__ import annotations
 
@@ -55,7 +56,8 @@ def _env(site: Path | None = None) -> dict[str, str]:
     return {**env, "PYTHONPATH": str(site)} if site else env
 
 
-def _run(*argv: object, cwd: Path, timeout: float = 600, site: Path | None = None) -> subprocess.CompletedProcess[str]:
+def _run(*argv: object, cwd: Path, timeout: float = 600,
+         site: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(a) for a in argv], capture_output=True, text=True, timeout=timeout, cwd=cwd,
                           env=_env(site))
 
@@ -149,8 +151,8 @@ def venvs(tmp_path_factory) -> dict[str, Install]:
                 _install(venv, wheel, extra, tmp)
     for extra in EXTRAS:  # the requirements did not change with the key: only this checkout's code
         venv, site = root / extra, tmp / extra
-        res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps", "--target", site, wheel,
-                   cwd=tmp)
+        res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps", "--target", site,
+                   wheel, cwd=tmp)
         assert res.returncode == 0, res.stderr[-3000:]
         out[extra] = Install(venv, site)
     return out
@@ -187,7 +189,8 @@ def datasets(tmp_path_factory) -> dict[str, Path]:
     return {name: tmp / name for name in ("referencing", "experiment", "measure-mark", "intrinsics")}
 
 
-def ritactl(inst: Install, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+def ritactl(inst: Install, *argv: object, cwd: Path,
+            timeout: float = 300) -> subprocess.CompletedProcess[str]:
     return inst.run(*argv, cwd=cwd, timeout=timeout)
 
 
@@ -268,7 +271,8 @@ def test_console_needs_its_extra_and_starts_with_it(venvs, sim, tmp_path):
         _missing(ritactl(venvs[extra], "--endpoint", endpoint, "console", "--port", "0", "--duration", "1",
                          cwd=tmp_path), "console")
     inst = venvs["console"]
-    argv = [inst.site / "bin" / "ritactl", "--endpoint", endpoint, "console", "--port", "0", "--duration", "30"]
+    argv = [inst.site / "bin" / "ritactl", "--endpoint", endpoint, "console", "--port", "0",
+            "--duration", "30"]
     with subprocess.Popen([str(a) for a in argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                           cwd=tmp_path, env=_env(inst.site)) as p:
         try:

@@ -206,10 +206,10 @@ def test_motion_text_says_how_the_motion_ended(reply, want):
     ("robot.release", {"released": True, "was_latched": True},
      "released the STOP latch: motions are allowed (a stopped job continues with `ritactl resume JOB`)"),
     ("robot.release", {"released": True, "was_latched": False},
-     "nothing to release (no STOP latched): motions are allowed (a stopped job continues with `ritactl resume "
-     "JOB`)")])
+     "nothing to release (no STOP latched): motions are allowed (a stopped job continues with "
+     "`ritactl resume JOB`)")])
 def test_stop_and_release_print_one_line_and_json_keeps_the_reply(command, reply, want, capsys):
-    """`ritactl robot stop/release` (issue 35, motion verbs): one line in words; --json: the daemon's fields."""
+    """`ritactl robot stop/release` (issue 35, motion verbs): one line in words; --json: the reply."""
     from daemon.ctl.device import cmd_device
 
     client = types.SimpleNamespace(call_raw=lambda cmd, args, timeout: (dict(reply), []))
