@@ -112,11 +112,10 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
         print(f"  {line}")
     report = out / "report"
     report.mkdir(exist_ok=True)
-    for f in ("report.md", "report.csv", "clusters.png"):
-        src = Path(result["dataset"]) / f
-        if src.exists():
-            (report / f).write_bytes(src.read_bytes())
-    print(f"\n  report files (with the compensations): {report}/report.md, report.csv, clusters.png")
+    files = [f for f in result.get("files") or [] if (Path(result["dataset"]) / f).exists()]
+    for f in files:
+        (report / f).write_bytes((Path(result["dataset"]) / f).read_bytes())
+    print(f"\n  report files (with the compensations) in {report}: {', '.join(files)}")
     return 0
 
 
