@@ -14,9 +14,8 @@ from typing import Any
 from daemon.bus.figures import counted, counted_from, experiment_goal_lines
 
 #: how the plot and the tables name directions (calibration/metrics.py DIRECTION_NAMES, the paper's table)
-ANGLE_CONVENTION = ("heading ψ = the direction of the robot's x axis (forward) in the tracker frame ACS, "
-                    "from ACS +x towards ACS +y; directions named as in the paper: up 0°, upleft 45°, "
-                    "left 90°, downleft 135°, down 180°, downright −135°, right −90°, "
+ANGLE_CONVENTION = ("heading ψ: the robot's forward (x) axis in ACS, from ACS +x towards +y; the paper's names: "
+                    "up 0°, upleft 45°, left 90°, downleft 135°, down 180°, downright −135°, right −90°, "
                     "upright −45°")
 NOT_RECORDED = "not recorded"
 
@@ -97,7 +96,8 @@ def bias_lines(result: dict[str, Any]) -> list[str]:
         asked = (result.get("params") or {}).get("store_bias")
         store = "this job asked to store it: result.json's messages say whether it was" if asked else \
             "this job did not ask to store it"
-        out.append(f"fitted jointly with heading_fit's weight: {_xy(joint)} (what store_bias stores; {store})")
+        out.append(f"fitted jointly with heading_fit's weight: {_xy(joint)} (what store_bias stores; "
+                   f"{store})")
     return out or [NOT_RECORDED]
 
 

@@ -202,8 +202,10 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     errors = [np.hypot(*(np.array(m["abs_xyz"][:2]) - mark[:2])) for m in result["marks"]]
     assert len(errors) == 4 and max(errors) < 1e-3, errors
-    assert result["files"] == ["report.md", "report.csv", "clusters.png"]
-    assert (tmp_path / "out" / "report.md").read_text() == result["table_markdown"]
+    assert result["files"] == ["report.md", "report.csv", "report_metrics.csv", "report_stops.csv", "clusters.png"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert result["table_markdown"] in report and f"- **job**: {result['job']}" in report
+    assert (tmp_path / "out" / "report.csv").read_text() == result["table_csv"]
     assert (tmp_path / "out" / "clusters.png").read_bytes().startswith(b"\x89PNG")
     assert check_file(result, "result", "result.json") == []
 

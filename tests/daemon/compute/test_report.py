@@ -129,5 +129,32 @@ def test_the_plot_header_and_angle_labels(written):
     from daemon.compute.report import _direction_label, _header_text
 
     text = _header_text(written["missed"][1])
-    assert "MISSED" in text and "job:" in text and "angles:" in text and "ACS +x towards ACS +y" in text
+    assert "MISSED" in text and "job:" in text and "angles:" in text and "ACS +x towards +y" in text
     assert _direction_label("up", -0.04, 5) == "up: ψ = 0.0°, 5 stops"  # never "-0°"
+
+
+def test_ritactl_marks_the_experiments_goals(written, capsys):
+    from daemon.ctl.calib import show_result
+
+    for name, verdict in (("met", "met"), ("missed", "MISSED")):
+        result = written[name][1]
+        show_result({k: result[k] for k in ("procedure", "verdict", "messages", "dataset", "table_markdown",
+                                            "files", "compensation", "metrics")})
+        goals = [ln for ln in capsys.readouterr().out.splitlines() if "(goal " in ln]
+        assert len(goals) == 2 and goals[0].strip().startswith("enclosing diameter"), goals
+        assert goals[0].endswith(f": {verdict}") and all(ln.endswith((": met", ": MISSED")) for ln in goals)
+
+
+def test_no_goal_is_printed_without_its_verdict_anywhere():
+    """Every goal the product and the demo print goes through daemon/bus/figures.py (goal_text, goal_cell,
+    experiment_goal_lines), which ends it in met or MISSED: no other source spells a goal out itself."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    spelled = re.compile(r"""["'][^"'\n]*\(?goal\s*(<=|>=|<|>|≤|≥)\s*[\d{]""")
+    sources = [p for d in ("daemon", "fakes", "calibration") for p in (root / d).rglob("*.py")]
+    sources += list((root / "daemon" / "console").rglob("*.js"))
+    found = [f"{p.relative_to(root)}:{i}" for p in sources if p.name != "figures.py"
+             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if spelled.search(line)]
+    assert found == [], f"a goal spelled out without figures.py's verdict: {found}"
