@@ -48,18 +48,21 @@ REPORT_FILES = ["report.md", "report.csv", "report_metrics.csv", "report_stops.c
 def _experiment_report(root: Path, result: dict[str, Any]) -> None:
     from daemon.compute.report import plot_clusters
     from daemon.compute.report_header import header_markdown
+    from daemon.compute.report_shifts import compensation_shifts
     from daemon.compute.report_tables import metrics_csv, stops_csv
 
     files = ("\n## Files\n\n- `report.csv`: the table above, one row per direction and All\n"
              "- `report_metrics.csv`: one row per figure, with its goal met or MISSED\n"
-             "- `report_stops.csv`: one row per stop: heading, mark, σ and its parts, each compensation\n"
+             "- `report_stops.csv`: one row per stop: heading, mark, σ and its parts, each compensation and "
+             "how far it moved the mark\n"
              "- `clusters.png`: the stops relative to their mean, with this header\n")
     # every file made before the first is written: a failing plot (no matplotlib) leaves no partial report
     table = "\n## The paper's table\n\n" + result["table_markdown"]
-    texts = {"report.md": header_markdown(result) + table + files,
+    shifts, no_shifts = compensation_shifts(result, result.get("dataset") or root)
+    texts = {"report.md": header_markdown(result, no_shifts) + table + files,
              "report.csv": result["table_csv"], "report_metrics.csv": metrics_csv(result),
-             "report_stops.csv": stops_csv(result)}
-    png = plot_clusters(result)
+             "report_stops.csv": stops_csv(result, shifts)}
+    png = plot_clusters(result, no_shifts)
     for name, text in texts.items():
         atomic_write_text(root / name, text)
     atomic_write_bytes(root / "clusters.png", png)

@@ -14,9 +14,9 @@ from typing import Any
 from daemon.bus.figures import counted, counted_from, experiment_goal_lines
 
 #: how the plot and the tables name directions (calibration/metrics.py DIRECTION_NAMES, the paper's table)
-ANGLE_CONVENTION = ("heading ψ: the robot's forward (x) axis in ACS, from ACS +x towards +y; the paper's names: "
-                    "up 0°, upleft 45°, left 90°, downleft 135°, down 180°, downright −135°, right −90°, "
-                    "upright −45°")
+ANGLE_CONVENTION = ("heading ψ: the robot's forward (x) axis in ACS, from ACS +x towards +y; the paper's "
+                    "names: up 0°, upleft 45°, left 90°, downleft 135°, down 180°, downright −135°, "
+                    "right −90°, upright −45°")
 NOT_RECORDED = "not recorded"
 
 
@@ -112,15 +112,17 @@ def verdict_lines(result: dict[str, Any]) -> list[str]:
     return out
 
 
-def header(result: dict[str, Any]) -> list[tuple[str, list[str]]]:
-    """(field, its lines) in the order report.md and the plot show them."""
+def header(result: dict[str, Any], no_shifts: str = "") -> list[tuple[str, list[str]]]:
+    """(field, its lines) in the order report.md and the plot show them; ``no_shifts``: why report_stops.csv
+    holds no compensation shifts (daemon/compute/report_shifts.py), "" when it does."""
     recomputed = result.get("recomputed_with")
+    shifts = [f"per-stop shifts NOT in report_stops.csv: {no_shifts}"] if no_shifts else []
     return [("job", [str(result.get("job") or NOT_RECORDED)]),
             ("date", [f"{result.get('created') or NOT_RECORDED} (UTC, result written)"]),
             ("dataset", [f"{dataset_id(result)} ({result.get('dataset') or NOT_RECORDED})"]),
             ("mark", [mark_text(result)]),
             ("calibration", [str(result.get("calibration_job") or NOT_RECORDED)]),
-            ("compensations", compensation_lines(result.get("compensation"))),
+            ("compensations", compensation_lines(result.get("compensation")) + shifts),
             ("robot-frame bias", bias_lines(result)),
             ("verdict", verdict_lines(result)),
             ("goals", experiment_goal_lines(result.get("metrics")) or [NOT_RECORDED]),
@@ -133,13 +135,13 @@ def _bold_missed(line: str) -> str:
     return line[:-len("MISSED")] + "**MISSED**" if line.endswith(": MISSED") else line
 
 
-def header_markdown(result: dict[str, Any]) -> str:
+def header_markdown(result: dict[str, Any], no_shifts: str = "") -> str:
     """The header block of report.md: a title, then one bullet per field (several lines: sub-bullets)."""
     n = len(result.get("marks") or [])
     k = len((result.get("metrics") or {}).get("clusters") or [])
     lines = [f"# Repeatability experiment {result.get('job') or ''}".rstrip(), "",
              f"The mark measured from {k} directions, {n} stops (the paper's 8-direction experiment).", ""]
-    for name, values in header(result):
+    for name, values in header(result, no_shifts):
         if len(values) == 1:
             lines.append(f"- **{name}**: {_bold_missed(values[0])}")
         else:

@@ -24,7 +24,8 @@ SIGMA_PARTS = ("tracker", "pixel", "calibration", "tilt", "heading", "mount")
 STOPS_COLUMNS = (["stop", "k", "direction", "heading_deg", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "std_mm",
                   "tracker_sigma_mm", "tracker_sigma_source", "tracker_distance_mm", "heading_sigma_rad",
                   "heading_sigma_source"] + [f"std_{p}_mm" for p in SIGMA_PARTS]
-                 + [c for n in NAMES for c in (n, f"{n}_skipped_because")])
+                 + [c for n in NAMES for c in (n, f"{n}_skipped_because")]
+                 + [f"shift_{n}_{a}_mm" for n in NAMES for a in "xy"])
 
 
 def _cell(v: Any) -> Any:
@@ -109,8 +110,10 @@ def _comp_cells(rec: dict[str, Any] | None) -> list[Any]:
     return out
 
 
-def stops_csv(result: dict[str, Any]) -> str:
-    """``report_stops.csv``: one row per stop, in the order the stops were taken."""
+def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | None = None) -> str:
+    """``report_stops.csv``: one row per stop, in the order the stops were taken; ``shifts`` per stop
+    (daemon/compute/report_shifts.py: how far each applied compensation moved the mark), empty cells
+    without."""
     names = _direction_names(result)
     out: list[list[Any]] = [STOPS_COLUMNS]
     for i, m in enumerate(result.get("marks") or []):
@@ -121,7 +124,8 @@ def stops_csv(result: dict[str, Any]) -> str:
                     m.get("std_mm"), s.get("tracker_mm"), s.get("tracker_source"),
                     s.get("tracker_distance_mm"),
                     s.get("heading_rad"), s.get("heading_source"), *[parts.get(p) for p in SIGMA_PARTS],
-                    *_comp_cells(m.get("compensation"))])
+                    *_comp_cells(m.get("compensation")),
+                    *[v for n in NAMES for v in ((shifts or [{}] * (i + 1))[i].get(n) or [None, None])]])
     return _csv(out)
 
 

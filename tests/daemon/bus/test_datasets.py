@@ -210,6 +210,32 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
     assert check_file(result, "result", "result.json") == []
 
 
+def test_the_report_gives_each_compensations_move_per_stop(written, calibration, tmp_path):
+    """report_stops.csv: the bias moved each mark by −R(ψ)·b (it removes the calibration's b, turned into
+    ACS), what report_shifts.py gets from the stored pixel positions; tilt, not recorded here, moved nothing."""
+    import csv
+
+    b = np.array([0.012, -0.020])
+    write_experiment(tmp_path / "exp", {**calibration, "robot_bias_mm": b.tolist()}, written[1],
+                     np.array([1500.0, 200.0, 3.0]), headings=(0.0, 90.0, 180.0), reps=1)
+    assert ctl.main(["recompute", str(tmp_path / "exp"), "--out", str(tmp_path / "out")]) in (0, 1)
+    assert "NOT in report_stops.csv" not in (tmp_path / "out" / "report.md").read_text()
+    rows = list(csv.DictReader((tmp_path / "out" / "report_stops.csv").open(encoding="utf-8")))
+    assert len(rows) == 3
+    for r in rows:
+        psi = np.radians(float(r["heading_deg"]))
+        expect = -np.array([[np.cos(psi), -np.sin(psi)], [np.sin(psi), np.cos(psi)]]) @ b
+        got = [float(r["shift_bias_x_mm"]), float(r["shift_bias_y_mm"])]
+        assert r["bias"] == "applied" and np.allclose(got, expect, atol=2e-5), (got, expect)
+        assert r["tilt"] == "skipped" and r["shift_tilt_x_mm"] == ""
+    shutil.rmtree(tmp_path / "out")  # a recompute with another calibration: no shifts, and the report says why
+    (tmp_path / "cal.json").write_text(json.dumps(calibration))
+    assert ctl.main(["recompute", str(tmp_path / "exp"), "--calibration", str(tmp_path / "cal.json"), "--out",
+                     str(tmp_path / "out")]) in (0, 1)
+    assert "NOT in report_stops.csv: recomputed with another calibration" in \
+        (tmp_path / "out" / "report.md").read_text()
+
+
 def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):
     from daemon.compute.recompute import recompute
 
