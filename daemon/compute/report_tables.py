@@ -110,6 +110,11 @@ def _comp_cells(rec: dict[str, Any] | None) -> list[Any]:
     return out
 
 
+def _shift_cells(shift: dict[str, list[float]]) -> list[float | None]:
+    """Per compensation its move of the mark (x, y), empty cells for one the stop did not apply."""
+    return [v for n in NAMES for v in (shift.get(n) or (None, None))]
+
+
 def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | None = None) -> str:
     """``report_stops.csv``: one row per stop, in the order the stops were taken; ``shifts`` per stop
     (daemon/compute/report_shifts.py: how far each applied compensation moved the mark), empty cells
@@ -125,7 +130,7 @@ def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | Non
                     s.get("tracker_distance_mm"),
                     s.get("heading_rad"), s.get("heading_source"), *[parts.get(p) for p in SIGMA_PARTS],
                     *_comp_cells(m.get("compensation")),
-                    *[v for n in NAMES for v in ((shifts or [{}] * (i + 1))[i].get(n) or [None, None])]])
+                    *_shift_cells(shifts[i] if shifts else {})])
     return _csv(out)
 
 
