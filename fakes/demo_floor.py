@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.client import Client
-from daemon.bus.figures import Goal, counted, counted_from, goal_cell, verdict
+from daemon.bus.figures import Goal, goal_cell, verdict, worse_lines
 from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
@@ -29,12 +29,6 @@ GOALS = {k.removesuffix("_mm"): Goal("<=", v, "mm") for k, v in GOALS_MM.items()
 ROWS = (("enclosing diameter [mm]", "enclosing"),
         ("mean pairwise distance of cluster means [mm]", "pairwise"),
         ("absolute error RMS vs truth [mm]", "abs_rms"), ("grand mean vs truth [mm]", "grand_mean"))
-
-#: why the enclosing diameter can grow when the other figures shrink (docs/accuracy.md, "Through ritad and
-#: the worker"): tilt, bias and mount move a direction's marks together; the bends scatter them within one
-WITHIN = ("tilt, bias and mount move each direction's marks together (they close the gaps between "
-          "directions); the enclosing diameter also holds the scatter within a direction from the bent "
-          "drives, which only heading_fit corrects")
 
 
 def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict[str, Any]) -> list[str]:
@@ -49,25 +43,8 @@ def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict
         goal = f"{goal_cell(with_[k], GOALS[k])} (without: {verdict(GOALS[k].met(without[k]))})" \
             if k in GOALS else ""
         out.append(f"| {label} | {paper} | {without[k]:.3f} | {with_[k]:.3f} | {goal} |")
-    bends_left = comp.get("applied", {}).get("heading_fit", 0) < comp.get("stops", 0)
     for label, k in ROWS:
-        if round(with_[k], 3) > round(without[k], 3):  # worse as printed: the table shows it
-            why = [WITHIN] if k == "enclosing" and bends_left else []
-            why += not_applied(comp) or ["every requested compensation was applied at every stop: this run "
-                                         "does not show why"]
-            out.append(f"WORSE with the compensations: {label.split(' [')[0]} {without[k]:.3f} → "
-                       f"{with_[k]:.3f} mm (+{with_[k] - without[k]:.3f} mm), because:")
-            out += [f"  - {w}" for w in why]
-    return out
-
-
-def not_applied(comp: dict[str, Any]) -> list[str]:
-    """Each requested compensation some stops skipped: at how many stops it applied, why not (counted)."""
-    stops, out = comp.get("stops", 0), []
-    for name, why in (comp.get("skipped") or {}).items():
-        counts = (comp.get("skipped_stops") or {}).get(name)
-        reasons = counted_from(counts) if counts else counted(why)
-        out.append(f"{name} applied at {comp['applied'].get(name, 0)} of {stops} stops: {'; '.join(reasons)}")
+        out += worse_lines(label.split(" [")[0], without[k], with_[k], comp, enclosing=k == "enclosing")
     return out
 
 

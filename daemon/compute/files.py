@@ -48,7 +48,7 @@ REPORT_FILES = ["report.md", "report.csv", "report_metrics.csv", "report_stops.c
 def _experiment_report(root: Path, result: dict[str, Any]) -> None:
     from daemon.compute.report import plot_clusters
     from daemon.compute.report_header import header_markdown
-    from daemon.compute.report_shifts import compensation_shifts
+    from daemon.compute.report_shifts import compensation_effects, left_out_metrics, plain_metrics
     from daemon.compute.report_tables import metrics_csv, stops_csv
 
     files = ("\n## Files\n\n- `report.csv`: the table above, one row per direction and All\n"
@@ -58,11 +58,14 @@ def _experiment_report(root: Path, result: dict[str, Any]) -> None:
              "- `clusters.png`: the stops relative to their mean, with this header\n")
     # every file made before the first is written: a failing plot (no matplotlib) leaves no partial report
     table = "\n## The paper's table\n\n" + result["table_markdown"]
-    shifts, no_shifts = compensation_shifts(result, result.get("dataset") or root)
-    texts = {"report.md": header_markdown(result, no_shifts) + table + files,
-             "report.csv": result["table_csv"], "report_metrics.csv": metrics_csv(result),
-             "report_stops.csv": stops_csv(result, shifts)}
-    png = plot_clusters(result, no_shifts)
+    effects = compensation_effects(result, result.get("dataset") or root)
+    plain = plain_metrics(result, effects)
+    compared = {"why": effects.why, "plain": plain,
+                "left_out": left_out_metrics(result, effects) if plain else {}}
+    texts = {"report.md": header_markdown(result, compared) + table + files,
+             "report.csv": result["table_csv"], "report_metrics.csv": metrics_csv(result, plain),
+             "report_stops.csv": stops_csv(result, effects.shifts)}
+    png = plot_clusters(result, compared)
     for name, text in texts.items():
         atomic_write_text(root / name, text)
     atomic_write_bytes(root / "clusters.png", png)

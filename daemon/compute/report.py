@@ -14,12 +14,12 @@ from daemon.bus.figures import EXPERIMENT_GOALS
 WRAP, MAX_ROWS = 84, 3
 
 
-def _header_text(result: dict[str, Any], no_shifts: str = "") -> str:
+def _header_text(result: dict[str, Any], compared: dict[str, Any] | None = None) -> str:
     """The header fields as wrapped text lines; a value cut short ends in ``… (report.md)``."""
     from daemon.compute.report_header import header
 
     lines = []
-    for name, values in header(result, no_shifts):
+    for name, values in header(result, compared):
         lines.append(f"{name}:")
         for v in values:
             rows = textwrap.wrap(v, WRAP - 2, subsequent_indent="  ")
@@ -79,7 +79,7 @@ def _references(ax: Any, rel: np.ndarray, fit_xy: np.ndarray | None, enclosing_m
     return max(r, g) * 1.15
 
 
-def plot_clusters(result: dict[str, Any], no_shifts: str = "") -> bytes:
+def plot_clusters(result: dict[str, Any], compared: dict[str, Any] | None = None) -> bytes:
     """PNG bytes: positions relative to the mean of all stops (µm), one colour per direction, the direction
     means, the enclosing and goal circles, and the report's header (job, date, mark, calibration,
     compensations, verdict, goals, angle convention) beside them."""
@@ -110,7 +110,7 @@ def plot_clusters(result: dict[str, Any], no_shifts: str = "") -> bytes:
                  f"the mean of all stops\nACS ({centre[0]:.4f}, {centre[1]:.4f}) mm", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(1.03, 0.0), borderaxespad=0.0)
-    fig.text(0.575, 0.97, _header_text(result, no_shifts), va="top", ha="left", fontsize=7,
+    fig.text(0.575, 0.97, _header_text(result, compared), va="top", ha="left", fontsize=7,
              family="monospace")
     buf = io.BytesIO()
     fig.savefig(buf, format="png")

@@ -11,7 +11,8 @@ from __future__ import annotations
 from pathlib import PurePath
 from typing import Any
 
-from daemon.bus.figures import counted, counted_from, experiment_goal_lines
+from daemon.bus.figures import (EXPERIMENT_GOALS, counted, counted_from, experiment_goal_lines, goal_text,
+                                worse_lines)
 
 #: how the plot and the tables name directions (calibration/metrics.py DIRECTION_NAMES, the paper's table)
 ANGLE_CONVENTION = ("heading ψ: the robot's forward (x) axis in ACS, from ACS +x towards +y; the paper's "
@@ -112,10 +113,32 @@ def verdict_lines(result: dict[str, Any]) -> list[str]:
     return out
 
 
-def header(result: dict[str, Any], no_shifts: str = "") -> list[tuple[str, list[str]]]:
-    """(field, its lines) in the order report.md and the plot show them; ``no_shifts``: why report_stops.csv
-    holds no compensation shifts (daemon/compute/report_shifts.py), "" when it does."""
+def without_lines(result: dict[str, Any], compared: dict[str, Any]) -> list[str]:
+    """The goals' figures without any compensation, each met or MISSED, and a ``WORSE`` line for each the
+    compensations made worse, naming the one that did (left out alone) and the possible reasons; why they
+    are not given, when not. ``compared``: see :func:`header`."""
+    comp, plain, why = result.get("compensation") or {}, compared.get("plain"), compared.get("why") or ""
+    if plain is None:
+        return [f"not computed: {why}" if why else "the same: no compensation was applied"]
+    out = []
+    for label, key, goal in EXPERIMENT_GOALS:
+        out.append(goal_text(plain.get(key), goal, label=f"{label} without compensation"))
+        with_ = (result.get("metrics") or {}).get(key)
+        if isinstance(with_, (int, float)) and isinstance(plain.get(key), (int, float)):
+            left = {n: float(m[key]) for n, m in (compared.get("left_out") or {}).items()}
+            out += worse_lines(label, float(plain[key]), float(with_), comp, key.startswith("enclosing"),
+                               left)
+    return out
+
+
+def header(result: dict[str, Any], compared: dict[str, Any] | None = None) -> list[tuple[str, list[str]]]:
+    """(field, its lines) in the order report.md and the plot show them (a line indented by ``  - ``: under
+    the one before). ``compared`` (daemon/compute/files.py from report_shifts.py): ``why`` the per-stop
+    shifts are not given ("" when they are), the metrics without compensation (``plain``) and with each
+    applied compensation left out alone (``left_out``: name → metrics)."""
+    compared = compared or {}
     recomputed = result.get("recomputed_with")
+    no_shifts = compared.get("why") or ""
     shifts = [f"per-stop shifts NOT in report_stops.csv: {no_shifts}"] if no_shifts else []
     return [("job", [str(result.get("job") or NOT_RECORDED)]),
             ("date", [f"{result.get('created') or NOT_RECORDED} (UTC, result written)"]),
@@ -126,6 +149,7 @@ def header(result: dict[str, Any], no_shifts: str = "") -> list[tuple[str, list[
             ("robot-frame bias", bias_lines(result)),
             ("verdict", verdict_lines(result)),
             ("goals", experiment_goal_lines(result.get("metrics")) or [NOT_RECORDED]),
+            ("without compensation", without_lines(result, compared)),
             ("software", [f"calibration {result.get('software') or NOT_RECORDED}"]
              + ([f"recomputed offline with other {', '.join(recomputed)}"] if recomputed else [])),
             ("angles", [ANGLE_CONVENTION])]
@@ -135,18 +159,25 @@ def _bold_missed(line: str) -> str:
     return line[:-len("MISSED")] + "**MISSED**" if line.endswith(": MISSED") else line
 
 
-def header_markdown(result: dict[str, Any], no_shifts: str = "") -> str:
+def _bullet(line: str) -> str:
+    """A header line as a Markdown bullet under its field: a line indented ``  - `` nests one deeper."""
+    body = line.lstrip(" ")
+    depth = (len(line) - len(body)) // 2 if body.startswith("- ") else 0
+    return "  " * (depth + 1) + "- " + _bold_missed(body[2:] if depth else line)
+
+
+def header_markdown(result: dict[str, Any], compared: dict[str, Any] | None = None) -> str:
     """The header block of report.md: a title, then one bullet per field (several lines: sub-bullets)."""
     n = len(result.get("marks") or [])
     k = len((result.get("metrics") or {}).get("clusters") or [])
     lines = [f"# Repeatability experiment {result.get('job') or ''}".rstrip(), "",
              f"The mark measured from {k} directions, {n} stops (the paper's 8-direction experiment).", ""]
-    for name, values in header(result, no_shifts):
+    for name, values in header(result, compared):
         if len(values) == 1:
             lines.append(f"- **{name}**: {_bold_missed(values[0])}")
         else:
             lines.append(f"- **{name}**:")
-            lines += [f"  - {_bold_missed(v)}" for v in values]
+            lines += [_bullet(v) for v in values]
     return "\n".join(lines) + "\n"
 
 

@@ -67,8 +67,9 @@ def _bias_rows(result: dict[str, Any]) -> list[list[Any]]:
     return rows
 
 
-def metrics_csv(result: dict[str, Any]) -> str:
-    """``report_metrics.csv``: each figure of the experiment a row; the goals' rows say met or MISSED."""
+def metrics_csv(result: dict[str, Any], plain: dict[str, Any] | None = None) -> str:
+    """``report_metrics.csv``: each figure of the experiment a row; the goals' rows say met or MISSED;
+    ``plain``: the metrics without compensation (their goal figures as ``…_without_compensation``)."""
     m = result.get("metrics") or {}
     goals = {key: goal for _, key, goal in EXPERIMENT_GOALS}
     allc, fit = m.get("all") or {}, m.get("fit") or {}
@@ -76,6 +77,8 @@ def metrics_csv(result: dict[str, Any]) -> str:
                              ["directions", len(m.get("clusters") or []), "count"]]
     for key in ("enclosing_diameter_mm", "pairwise_mean_mm", "centroid_mean_mm"):
         rows.append([key.removesuffix("_mm"), m.get(key), "mm"])
+    for key in (goals if plain else ()):  # the goals' figures without compensation, each judged too
+        rows.append([f"{key.removesuffix('_mm')}_without_compensation", (plain or {}).get(key), "mm"])
     mean = allc.get("mean") or [None, None]
     rows += [["all_mean_x", mean[0], "mm"], ["all_mean_y", mean[1], "mm"],
              ["all_max_from_mean", allc.get("max_from_mean_mm"), "mm"],
@@ -85,7 +88,7 @@ def metrics_csv(result: dict[str, Any]) -> str:
         rows += _bias_rows(result) + [["fit_residual_rms", fit["rms_mm"], "mm"]]
     out = [METRICS_COLUMNS]
     for name, value, unit in rows:
-        goal = goals.get(f"{name}_mm")
+        goal = goals.get(f"{name.removesuffix('_without_compensation')}_mm")
         out.append([name, value, unit,
                     *(["", "", ""] if goal is None else [goal.op, goal.limit, verdict(goal.met(value))])])
     return _csv(out)

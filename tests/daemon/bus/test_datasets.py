@@ -228,6 +228,18 @@ def test_the_report_gives_each_compensations_move_per_stop(written, calibration,
         got = [float(r["shift_bias_x_mm"]), float(r["shift_bias_y_mm"])]
         assert r["bias"] == "applied" and np.allclose(got, expect, atol=2e-5), (got, expect)
         assert r["tilt"] == "skipped" and r["shift_tilt_x_mm"] == ""
+    # without compensation: the figures ritactl recompute --compensation none gives; the bias (wrong for this
+    # data, which has none) made them worse, and the report names it (left out alone, the figure recovers)
+    from daemon.compute.recompute import recompute
+
+    plain = recompute(tmp_path / "exp", compensation="none")[0]["metrics"]
+    figures = {r["metric"]: r for r in csv.DictReader((tmp_path / "out" / "report_metrics.csv").open())}
+    assert float(figures["pairwise_mean_without_compensation"]["value"]) == pytest.approx(
+        plain["pairwise_mean_mm"], abs=1e-9)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert f"mean pairwise distance of cluster means without compensation {plain['pairwise_mean_mm']:.3f} mm" in md
+    worse = [ln for ln in md.splitlines() if "WORSE with the compensations: mean pairwise distance" in ln]
+    assert len(worse) == 1 and worse[0].endswith("; bias made it worse"), worse
     shutil.rmtree(tmp_path / "out")  # a recompute with another calibration: no shifts, and the report says why
     (tmp_path / "cal.json").write_text(json.dumps(calibration))
     assert ctl.main(["recompute", str(tmp_path / "exp"), "--calibration", str(tmp_path / "cal.json"), "--out",
