@@ -65,7 +65,7 @@ def test_worse_with_every_compensation_applied_says_the_run_does_not_show_why():
     comp = {"requested": ["tilt"], "stops": 8, "applied": {"tilt": 8}, "skipped": {}}
     same = {"enclosing": 0.2, "pairwise": 0.05, "abs_rms": 0.05, "grand_mean": 0.01}
     lines = summary_lines(same, {**same, "abs_rms": 0.06}, comp)
-    assert lines[-3].startswith("WORSE with the compensations: absolute error RMS vs truth 0.050 → 0.060 mm")
+    assert lines[-3].startswith("WORSE with the compensations: absolute error RMS vs truth 0.050 → 0.060")
     assert "this run does not show why" in lines[-1]
     # a difference the table does not show (below its 0.001 mm) is not called worse
     assert not any("WORSE" in ln for ln in summary_lines(same, {**same, "abs_rms": 0.0502}, comp))

@@ -237,7 +237,8 @@ def test_the_report_gives_each_compensations_move_per_stop(written, calibration,
     assert float(figures["pairwise_mean_without_compensation"]["value"]) == pytest.approx(
         plain["pairwise_mean_mm"], abs=1e-9)
     md = (tmp_path / "out" / "report.md").read_text()
-    assert f"mean pairwise distance of cluster means without compensation {plain['pairwise_mean_mm']:.3f} mm" in md
+    shown = f"{plain['pairwise_mean_mm']:.3f}"
+    assert f"mean pairwise distance of cluster means without compensation {shown} mm" in md
     worse = [ln for ln in md.splitlines() if "WORSE with the compensations: mean pairwise distance" in ln]
     assert len(worse) == 1 and worse[0].endswith("; bias made it worse"), worse
     shutil.rmtree(tmp_path / "out")  # a recompute with another calibration: no shifts, and the report says why
