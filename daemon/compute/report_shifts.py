@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +56,7 @@ def _mark_xy(calib: dict[str, Any], scs: Scs, stop: dict[str, Any], uv: Any, com
     weight, _ = heading_weight(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
                    bias_b_mm=bias, anchor_sigma_mm=anchor_mm, imu_yaw_deg=imu_yaw(calib), mount=mount,
-                   abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight)
+                   abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight, calibration=calib)
     abs_H_rob = robot_pose_at(a.abs_P_prev, a.abs_P_at, None, a.roll_deg, a.pitch_deg)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))  # as _mark_in_acs states it
     return mark_to_abs(uv, scs, a.rob_H_scn, abs_H_rob)[0][:2], list(a.applied), heading
@@ -76,6 +76,11 @@ def _inputs(result: dict[str, Any], dataset: Path) -> tuple[dict[str, Any], Comp
     sigma_t = recorded(EXPERIMENT, obs).sigma_t_mm
     anchor = DEFAULT_SIGMA_T_MM if sigma_t is None else float(sigma_t)  # as _mark_in_acs anchors heading_fit
     return obs, Compensation.parse(",".join(requested) or "none"), anchor
+
+
+def _without(comp: Compensation, name: str) -> Compensation:
+    """``comp`` with the compensation ``name`` left out (built in or registered)."""
+    return Compensation.parse([n for n in comp.names() if n != name])
 
 
 def compensation_effects(result: dict[str, Any], dataset: Path | str) -> Effects:
@@ -98,7 +103,7 @@ def compensation_effects(result: dict[str, Any], dataset: Path | str) -> Effects
             if not off <= SAME_MM:
                 return Effects([], why=f"stop {i}: the stored mark is not what the dataset gives "
                                        f"({off * 1000:.3f} µm apart)")
-            shifts.append({n: (full - _mark_xy(calib, scs, stop, mark["uv"], replace(comp, **{n: False}),
+            shifts.append({n: (full - _mark_xy(calib, scs, stop, mark["uv"], _without(comp, n),
                                                anchor)[0]).tolist() for n in applied})
             xy, _, heading = _mark_xy(calib, scs, stop, mark["uv"], Compensation(), anchor)
             plain.append([*xy, heading])

@@ -15,17 +15,23 @@ import io
 from typing import Any, Iterable
 
 import numpy as np
-from calibration.compensation import NAMES
+from calibration.compensation import names_known
 from daemon.bus.figures import EXPERIMENT_GOALS, verdict
 
 METRICS_COLUMNS = ["metric", "value", "unit", "goal_op", "goal_limit", "goal_verdict"]
 #: σ's parts per stop (docs/datasets.md, "Units and conventions": ``sigma.parts_mm``)
 SIGMA_PARTS = ("tracker", "pixel", "calibration", "tilt", "heading", "mount")
-STOPS_COLUMNS = (["stop", "k", "direction", "heading_deg", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "std_mm",
-                  "tracker_sigma_mm", "tracker_sigma_source", "tracker_distance_mm", "heading_sigma_rad",
-                  "heading_sigma_source"] + [f"std_{p}_mm" for p in SIGMA_PARTS]
-                 + [c for n in NAMES for c in (n, f"{n}_skipped_because")]
-                 + [f"shift_{n}_{a}_mm" for n in NAMES for a in "xy"])
+STOPS_FIXED = (["stop", "k", "direction", "heading_deg", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "std_mm",
+                "tracker_sigma_mm", "tracker_sigma_source", "tracker_distance_mm", "heading_sigma_rad",
+                "heading_sigma_source"] + [f"std_{p}_mm" for p in SIGMA_PARTS])
+
+
+def stops_columns() -> list[str]:
+    """report_stops.csv's header: the fixed columns, then per compensation known here (built in, then
+    registered: calibration/compensation.py ``names_known``) its state, skip reason and shift."""
+    names = names_known()
+    return (STOPS_FIXED + [c for n in names for c in (n, f"{n}_skipped_because")]
+            + [f"shift_{n}_{a}_mm" for n in names for a in "xy"])
 
 
 def _cell(v: Any) -> Any:
@@ -106,7 +112,7 @@ def _comp_cells(rec: dict[str, Any] | None) -> list[Any]:
     """Per compensation: ``applied``, ``skipped`` (and why) or ``not requested``."""
     rec = rec or {}
     out: list[Any] = []
-    for n in NAMES:
+    for n in names_known():
         state = "applied" if n in rec.get("applied", []) else "skipped" if n in rec.get("requested", []) \
             else "not requested"
         out += [state, (rec.get("skipped") or {}).get(n, "") if state == "skipped" else ""]
@@ -115,7 +121,7 @@ def _comp_cells(rec: dict[str, Any] | None) -> list[Any]:
 
 def _shift_cells(shift: dict[str, list[float]]) -> list[float | None]:
     """Per compensation its move of the mark (x, y), empty cells for one the stop did not apply."""
-    return [v for n in NAMES for v in (shift.get(n) or (None, None))]
+    return [v for n in names_known() for v in (shift.get(n) or (None, None))]
 
 
 def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | None = None) -> str:
@@ -123,7 +129,7 @@ def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | Non
     (daemon/compute/report_shifts.py: how far each applied compensation moved the mark), empty cells
     without."""
     names = _direction_names(result)
-    out: list[list[Any]] = [STOPS_COLUMNS]
+    out: list[list[Any]] = [stops_columns()]
     for i, m in enumerate(result.get("marks") or []):
         s = m.get("sigma") or {}
         parts = s.get("parts_mm") or {}
@@ -137,4 +143,4 @@ def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | Non
     return _csv(out)
 
 
-__all__ = ["METRICS_COLUMNS", "SIGMA_PARTS", "STOPS_COLUMNS", "metrics_csv", "stops_csv"]
+__all__ = ["METRICS_COLUMNS", "SIGMA_PARTS", "STOPS_FIXED", "metrics_csv", "stops_columns", "stops_csv"]

@@ -13,7 +13,7 @@ import pytest
 from calibration.metrics import experiment_metrics
 from daemon.bus.datasets import check_file
 from daemon.compute.files import REPORT_FILES, write_result_files
-from daemon.compute.report_tables import METRICS_COLUMNS, STOPS_COLUMNS
+from daemon.compute.report_tables import METRICS_COLUMNS, stops_columns
 
 HEADING = "the bend was fitted at 6 stops (the weight needs >= 8): the chord is used"
 
@@ -105,8 +105,8 @@ def test_the_csvs_are_tidy_tables_with_documented_columns(written):
     assert list(metrics[0]) == METRICS_COLUMNS
     assert all(float(r["value"]) == float(r["value"]) for r in metrics)  # one number a cell, never a pair
     stops = _table((root / "report_stops.csv").read_text())
-    assert list(stops[0]) == STOPS_COLUMNS and len(stops) == 24
-    numeric = [c for c in STOPS_COLUMNS if c.endswith(("_mm", "_deg", "_px", "_rad")) or c in ("stop", "k")]
+    assert list(stops[0]) == stops_columns() and len(stops) == 24
+    numeric = [c for c in stops_columns() if c.endswith(("_mm", "_deg", "_px", "_rad")) or c in ("stop", "k")]
     assert all(float(r[c]) == float(r[c]) for r in stops for c in numeric if r[c] != ""), "numbers parse"
     assert float(stops[5]["x_mm"]) == result["marks"][5]["abs_xyz"][0]  # in full, as stored
     s0 = stops[0]
