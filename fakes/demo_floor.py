@@ -15,8 +15,11 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from daemon.bus.client import Client
 from daemon.bus.figures import Goal, goal_cell, verdict, worse_lines
+from daemon.compute.report_shifts import compensation_effects, left_out_metrics
 from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
@@ -31,9 +34,11 @@ ROWS = (("enclosing diameter [mm]", "enclosing"),
         ("absolute error RMS vs truth [mm]", "abs_rms"), ("grand mean vs truth [mm]", "grand_mean"))
 
 
-def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict[str, Any]) -> list[str]:
+def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict[str, Any],
+                  left_out: dict[str, dict[str, float]] | None = None) -> list[str]:
     """The paper's figures without and with the compensations, each goal met or MISSED for both columns, and
-    a line for every figure the compensations made worse, with its reason."""
+    a line for every figure the compensations made worse, naming the compensation that did (``left_out``:
+    per compensation the figures with it left out alone) or the possible reasons."""
     applied = "+".join(k for k, n in (comp.get("applied") or {}).items() if n) or "none"
     out = [f"| paper profile + inclinometer, 8 × 5 | the paper | without compensation | with {applied} "
            "| goal |",
@@ -44,7 +49,20 @@ def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict
             if k in GOALS else ""
         out.append(f"| {label} | {paper} | {without[k]:.3f} | {with_[k]:.3f} | {goal} |")
     for label, k in ROWS:
-        out += worse_lines(label.split(" [")[0], without[k], with_[k], comp, enclosing=k == "enclosing")
+        left = {name: figures[k] for name, figures in (left_out or {}).items()}
+        out += worse_lines(label.split(" [")[0], without[k], with_[k], comp, k == "enclosing", left)
+    return out
+
+
+def left_out_scores(result: dict[str, Any], truth_mark: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per compensation the stops applied: the scored figures with it left out alone (each mark minus its
+    shift, daemon/compute/report_shifts.py, as the report names the one that made a figure worse)."""
+    effects = compensation_effects(result, result["dataset"])
+    out = {}
+    for name, metrics in left_out_metrics(result, effects).items():
+        marks = [{"abs_xyz": (np.asarray(m["abs_xyz"][:2]) - s.get(name, (0.0, 0.0))).tolist()}
+                 for m, s in zip(result["marks"], effects.shifts)]
+        out[name] = score_experiment({"marks": marks, "metrics": metrics}, truth_mark)
     return out
 
 
@@ -85,7 +103,8 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
     print("  " + plain["table_markdown"].replace("\n", "\n  "))
     print()
     scored = (score_experiment(plain, truth_marks[0]), score_experiment(result, truth_marks[0]))
-    for line in summary_lines(*scored, result.get("compensation") or {}):
+    left_out = left_out_scores(result, truth_marks[0])
+    for line in summary_lines(*scored, result.get("compensation") or {}, left_out):
         print(f"  {line}")
     report = out / "report"
     report.mkdir(exist_ok=True)

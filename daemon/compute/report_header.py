@@ -105,7 +105,8 @@ def bias_lines(result: dict[str, Any]) -> list[str]:
 def verdict_lines(result: dict[str, Any]) -> list[str]:
     """The verdict, then each reason (the result's messages) and each check that did not pass."""
     out = [str(result.get("verdict") or NOT_RECORDED)]
-    out += [f"reason: {m}" for m in result.get("messages") or []]
+    word = "note" if result.get("verdict") == "ok" else "reason"  # an ok result's messages explain nothing
+    out += [f"{word}: {m}" for m in result.get("messages") or []]
     for name, check in (result.get("checks") or {}).items():
         if isinstance(check, dict) and check.get("ok") is False and check.get("message") not in result.get(
                 "messages", []):
