@@ -53,9 +53,10 @@ def _clusters(ax: Any, rel: np.ndarray, ks: np.ndarray, headings: np.ndarray, na
         ax.scatter([m[0]], [m[1]], marker="x", s=80, color=cmap(i % 10))
 
 
-def _references(ax: Any, rel: np.ndarray, fit_xy: np.ndarray | None, enclosing_mm: float | None) -> float:
+def _references(ax: Any, rel: np.ndarray, fit_xy: np.ndarray | None, enclosing_mm: float | None
+                ) -> tuple[np.ndarray, float]:
     """The mean crosses' legend entry, the origin (the mean of all stops), the fitted mark M, the enclosing
-    circle and the goal circle around its centre; the half-width the axes need (µm)."""
+    circle and the goal circle around its centre; that centre and the half-width the axes need (µm)."""
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
@@ -76,7 +77,25 @@ def _references(ax: Any, rel: np.ndarray, fit_xy: np.ndarray | None, enclosing_m
     ax.add_patch(plt.Circle((float(c[0]), float(c[1])), g, fill=False, ls=":", lw=1.5,
                             color="tab:green" if met == "met" else "tab:red",
                             label=f"goal: enclosing d {goal.text()[5:]} ({met}), same centre"))
-    return max(r, g) * 1.15
+    return np.asarray(c, dtype=float), max(r, g) * 1.15
+
+
+#: the header panel's margins (inches): above the header, between it and the legend, below the legend
+TOP_IN, GAP_IN, BOTTOM_IN = 0.25, 0.15, 0.3
+
+
+def _stack(fig: Any, text: Any, legend: Any) -> None:
+    """The header text at the top right and the legend under it, never overlapping: the figure grows taller
+    when both do not fit (their sizes are in points, the axes' in fractions of the figure)."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    text_in = text.get_window_extent(renderer).height / fig.dpi
+    legend_in = legend.get_window_extent(renderer).height / fig.dpi
+    width, height = fig.get_size_inches()
+    height = max(height, TOP_IN + text_in + GAP_IN + legend_in + BOTTOM_IN)
+    fig.set_size_inches(width, height)
+    text.set_y(1.0 - TOP_IN / height)
+    legend.set_bbox_to_anchor((0.575, 1.0 - (TOP_IN + text_in + GAP_IN) / height), transform=fig.transFigure)
 
 
 def plot_clusters(result: dict[str, Any], compared: dict[str, Any] | None = None) -> bytes:
@@ -100,18 +119,18 @@ def plot_clusters(result: dict[str, Any], compared: dict[str, Any] | None = None
     fig = plt.figure(figsize=(14, 8), dpi=100)
     ax = fig.add_axes((0.06, 0.07, 0.48, 0.83))
     _clusters(ax, rel, ks, headings, [c["name"] for c in metrics.get("clusters") or []])
-    lim = max(_references(ax, rel, fit_xy, metrics.get("enclosing_diameter_mm")), 10.0)
+    c, lim = _references(ax, rel, fit_xy, metrics.get("enclosing_diameter_mm"))
+    lim = max(lim, 10.0)  # both circles in view; the origin is inside the enclosing one (a mean of its points)
     ax.set_aspect("equal")
-    ax.set_xlim(-lim, lim)
-    ax.set_ylim(-lim, lim)
+    ax.set_xlim(c[0] - lim, c[0] + lim)
+    ax.set_ylim(c[1] - lim, c[1] + lim)
     ax.set_xlabel(f"ACS x − {centre[0]:.4f} mm  [µm]")
     ax.set_ylabel(f"ACS y − {centre[1]:.4f} mm  [µm]")
     ax.set_title(f"Mark measured from {len(set(ks.tolist()))} directions, {len(marks)} stops, relative to "
                  f"the mean of all stops\nACS ({centre[0]:.4f}, {centre[1]:.4f}) mm", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(1.03, 0.0), borderaxespad=0.0)
-    fig.text(0.575, 0.97, _header_text(result, compared), va="top", ha="left", fontsize=7,
-             family="monospace")
+    _stack(fig, fig.text(0.575, 0.97, _header_text(result, compared), va="top", ha="left", fontsize=7,
+                         family="monospace"), ax.legend(fontsize=7, loc="upper left", borderaxespad=0.0))
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
