@@ -120,7 +120,7 @@ def plot_clusters(result: dict[str, Any], compared: dict[str, Any] | None = None
     ax = fig.add_axes((0.06, 0.07, 0.48, 0.83))
     _clusters(ax, rel, ks, headings, [c["name"] for c in metrics.get("clusters") or []])
     c, lim = _references(ax, rel, fit_xy, metrics.get("enclosing_diameter_mm"))
-    lim = max(lim, 10.0)  # both circles in view; the origin is inside the enclosing one (a mean of its points)
+    lim = max(lim, 10.0)  # both circles in view; the origin is in the enclosing one (the mean of its points)
     ax.set_aspect("equal")
     ax.set_xlim(c[0] - lim, c[0] + lim)
     ax.set_ylim(c[1] - lim, c[1] + lim)
