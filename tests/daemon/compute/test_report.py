@@ -158,3 +158,17 @@ def test_no_goal_is_printed_without_its_verdict_anywhere():
     found = [f"{p.relative_to(root)}:{i}" for p in sources if p.name != "figures.py"
              for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if spelled.search(line)]
     assert found == [], f"a goal spelled out without figures.py's verdict: {found}"
+
+
+def test_a_long_header_makes_the_plot_taller_rather_than_cover_the_legend(written):
+    import struct
+
+    from daemon.compute.report import plot_clusters
+
+    def height(png: bytes) -> int:
+        return struct.unpack(">II", png[16:24])[1]  # the IHDR's width, height
+
+    result = written["met"][1]
+    short = height(plot_clusters(result))
+    long = height(plot_clusters({**result, "messages": [f"reason {i}: " + "x " * 100 for i in range(12)]}))
+    assert short == 800 and long > short + 200, (short, long)
