@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol
 
-from daemon.bus.command_table import Command, markdown_table, register
+from daemon.bus.command_table import Command, CommandTable, markdown_table
 from daemon.ritad.registry import load_target, schemes
 from daemon.ritad.server import Handler, Request
 
@@ -62,8 +62,10 @@ class Plugin(Protocol):
     def start(self, section: Mapping[str, Any], data_dir: Path, urls: Mapping[str, str]) -> Session | None: ...
 
 
-def installed() -> dict[str, Plugin]:
-    """Every installed plugin, imported and its commands registered in the command table."""
+def installed(table: CommandTable | None = None) -> dict[str, Plugin]:
+    """Every installed plugin, imported and its commands registered in ``table`` (a daemon's own; without
+    one, in a table of their own: checked, as a daemon would refuse them)."""
+    table = table if table is not None else CommandTable()
     out: dict[str, Plugin] = {}
     for name, target in sorted(schemes(KIND).items()):
         try:
@@ -74,7 +76,7 @@ def installed() -> dict[str, Plugin]:
             raise PluginError(f"entry point plugin.{name} = {target} names a plugin called "
                                f"{getattr(plugin, 'name', None)!r}")
         try:
-            register(name, tuple(plugin.commands))
+            table.register(name, tuple(plugin.commands))
         except ValueError as exc:
             raise PluginError(str(exc)) from None
         out[name] = plugin

@@ -22,7 +22,7 @@ from daemon.ctl import reclimits
 from daemon.ctl.exitcodes import CtlError, Exit
 from daemon.ctl.reclimits import PROBE_BYTES, RESERVE, Limits, parse_size
 from daemon.ctl.record import Recorder
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from tests.ritad_up import ritad_in_process
 
 #: the simulated camera at its top rate: tiny prerendered frames, asked for far faster than written

@@ -33,7 +33,7 @@ from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
 from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from fakes.operator import lock_on_robot
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.ritad.stop_latch import LATCH_FILE
 from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
 from tests.ritad_up import ritad_in_process
