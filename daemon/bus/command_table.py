@@ -373,8 +373,9 @@ def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Arg", "BadValue", "Command", "CommandTable", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES",
-           "TABLE", "check_arg", "check_args", "help_entry", "markdown_table", "moves", "validate"]
+__all__ = ["Arg", "BadValue", "Command", "CommandTable", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES",
+           "REQUIRED", "ROLES", "TABLE", "check_arg", "check_args", "help_entry", "markdown_table", "moves",
+           "validate"]
 
 if __name__ == "__main__":
     import sys

@@ -107,7 +107,8 @@ class CalibJobs:
     def __init__(self, publish: Callable[[str, Any], None], data_dir: Path | None = None,
                  latch: StopLatch | None = None, timeouts: Timeouts | None = None) -> None:
         self._publish = publish
-        self._timeouts = timeouts if timeouts is not None else Timeouts("calib-timeouts")  # ritad passes its own
+        # ritad passes its own; alone (tests, tools) the mailbox has one of its own
+        self._timeouts = timeouts if timeouts is not None else Timeouts("calib-timeouts")
         self.latch = latch if latch is not None else StopLatch(publish)
         self._data_dir = Path(data_dir) if data_dir is not None else None  # finds jobs of an earlier daemon run
         self._queue = _Mailbox(self._timeouts)

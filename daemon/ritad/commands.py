@@ -49,7 +49,8 @@ def _daemon(s: Services, reports: Reports) -> dict[str, Handler]:
             "help": lambda req: {"commands": {c.name: help_entry(c) for c in s.table.values()}},
             "hello": lambda req: reports.hello(), "status": lambda req: reports.health(),
             "health": lambda req: reports.health(),
-            "state": lambda req: reports.state(), "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
+            "state": lambda req: reports.state(),
+            "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
             "calib.results": lambda req: read_results(s.data_dir)}
 
 
@@ -149,7 +150,11 @@ def _robot(rob: RobotRig, calib: CalibJobs) -> dict[str, Handler]:
         return {"released": True, "was_latched": latch.release(_who(req))}
 
     return {"robot.move": move, "robot.turn": turn, "robot.stop": stop, "robot.release": release,
-            "robot.status": lambda req: rob.status(lambda r: {**r.status().to_dict(), "streams": r.streams()})}
+            "robot.status": lambda req: rob.status(_robot_status)}
+
+
+def _robot_status(robot: Robot) -> dict[str, Any]:
+    return {**robot.status().to_dict(), "streams": robot.streams()}
 
 
 def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_s: float,

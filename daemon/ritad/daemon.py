@@ -34,8 +34,8 @@ from daemon.ritad.commands import build_handlers
 from daemon.ritad.instance import remove_socket_files
 from daemon.ritad.notify import Notifier
 from daemon.ritad.publisher import FramePublisher, TelemetryPublisher
-from daemon.ritad.rigs import CameraRig, Rigs, RobotRig, TrackerRig
-from daemon.ritad.server import CommandServer
+from daemon.ritad.rigs import CameraRig, Rig, Rigs, RobotRig, TrackerRig
+from daemon.ritad.server import CommandServer, Handler
 from daemon.ritad.services import Reports, Services
 from daemon.ritad.stop_latch import LATCH_FILE, StopLatch
 from daemon.ritad.timelines import Timelines
@@ -67,7 +67,7 @@ class Daemon:
         with contextlib.ExitStack() as undo:  # a failed build closes what it opened, in reverse
             undo.callback(self.ctx.term)
             undo.callback(self.storage.shutdown)
-            self.running = plugins.start(self.plugins, cfg.plugins, data, cfg.device_urls())
+            self.running = plugins.start(self.plugins, cfg.plugins, data, self._urls())
             undo.callback(self.running.close)
             self.abs_H_trk, source = station.abs_H_trk(cfg.tracker.abs_H_trk, data)
             log.info("tracker station abs_H_trk from %s", source)
@@ -92,7 +92,8 @@ class Daemon:
     def _bind(self, undo: contextlib.ExitStack) -> None:
         """The publishers, what handlers use, the devices' rigs and the command server."""
         cfg, s = self.config.daemon, self.security
-        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm, security=s)
+        self.telemetry = TelemetryPublisher(self.ctx, cfg.telemetry_endpoints, hwm=cfg.telemetry_hwm,
+                                            security=s)
         undo.callback(self.telemetry.stop)
         self.frames = FramePublisher(self.ctx, cfg.frame_endpoints, hwm=cfg.frame_hwm, security=s)
         undo.callback(self.frames.stop)
@@ -100,24 +101,43 @@ class Daemon:
         self.latch = StopLatch(self.telemetry.publish, data / LATCH_FILE)  # persists across restarts
         undo.callback(self.latch.close)
         # data_dir lets calib.resume find jobs a previous ritad ran
-        self.calib = CalibJobs(self.telemetry.publish, data_dir=data, latch=self.latch, timeouts=self.timeouts)
+        self.calib = CalibJobs(self.telemetry.publish, data_dir=data, latch=self.latch,
+                               timeouts=self.timeouts)
         self.timelines = Timelines()
-        self.rigs = self._rigs(self.running.urls(self.config.device_urls()))
+        self.rigs = self._rigs(self.running.urls(self._urls()))
         services = self._services()
         handlers = build_handlers(services, self.rigs, Reports(self.hello, self.health, self.state),
-                                  self.timelines, self.running.handlers(services, self.plugins))
-        self.server = CommandServer(self.ctx, cfg.command_endpoints, handlers, cfg.max_message_bytes, security=s,
-                                    plain_role=self.config.security.ipc_role, table=self.table,
-                                    on_command=functools.partial(self.telemetry.publish, Topic.DAEMON_COMMAND))
+                                  self.timelines, self._plugin_handlers(services))
+        audit = functools.partial(self.telemetry.publish, Topic.DAEMON_COMMAND)
+        self.server = CommandServer(self.ctx, cfg.command_endpoints, handlers, cfg.max_message_bytes,
+                                    security=s, plain_role=self.config.security.ipc_role, table=self.table,
+                                    on_command=audit)
         undo.callback(self.server.stop)
         self.worker = WorkerSupervisor(self._worker_cmd, data / "worker.log", enabled=cfg.start_worker)
 
+    def _urls(self) -> dict[str, str]:
+        """Every device's URL: the product's three, and those of the device kinds plugins declare."""
+        sections = self.config.plugins
+        more = {name: sections.get(name, {}).get("url") for name in plugins.device_kinds(self.plugins)}
+        return {**self.config.device_urls(), **{name: url for name, url in more.items() if url}}
+
     def _rigs(self, urls: dict[str, str]) -> Rigs:
         cfg, publish, timelines = self.config, self.telemetry.publish, self.timelines
+        more = {kind: Rig(kind, url, publish, timelines, cfg.daemon) for kind, url in urls.items()
+                if kind not in KINDS}
         return Rigs(camera=CameraRig(urls["camera"], publish, self.frames, timelines, cfg.daemon, cfg.camera),
-                    tracker=TrackerRig(urls["tracker"], publish, timelines, cfg.daemon, cfg.tracker, self.abs_H_trk),
+                    tracker=TrackerRig(urls["tracker"], publish, timelines, cfg.daemon, cfg.tracker,
+                                       self.abs_H_trk),
                     robot=RobotRig(urls["robot"], publish, timelines, cfg.daemon, cfg.robot, self.latch,
-                                   self.timeouts))
+                                   self.timeouts), more=more)
+
+    def _plugin_handlers(self, services: Services) -> dict[str, Handler]:
+        """The plugins' commands: a session's handlers, a device kind's given its rig, else not_found."""
+        out = self.running.handlers(services, self.plugins)
+        for name, kind in plugins.device_kinds(self.plugins).items():
+            if name in self.rigs.more:
+                out.update(kind.device_handlers(self.rigs.more[name], services))
+        return out
 
     def _services(self) -> Services:
         """The narrow view every handler group shares of this daemon."""
@@ -132,7 +152,8 @@ class Daemon:
         """Start every owner thread: the bus first, then the devices."""
         for t in (self.telemetry, self.frames, self.server):
             t.start()
-        self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())  # late joiners' snapshot holds it too
+        # late joiners' snapshot holds it too
+        self.telemetry.publish(Topic.ROBOT_LATCH, self.latch.snapshot())
         for rig in self.rigs:
             rig.runner.start()
 
@@ -184,7 +205,7 @@ class Daemon:
         return {"name": "ritad", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
                 "sim": self.simulated, "command_endpoints": self.server.endpoints,
                 "telemetry_endpoints": self.telemetry.endpoints, "frame_endpoints": self.frames.endpoints,
-                "devices": {k: getattr(self.config.devices, k) for k in KINDS},
+                "devices": self._urls(),  # as configured (a plugin may have rewritten what the rigs open)
                 "curve_server_key": None if self.security is None else self.security.public.decode(),
                 **self.running.hello()}
 
@@ -204,7 +225,8 @@ class Daemon:
 
     def alive(self) -> bool:
         now = time.monotonic()
-        threads_ok = all(now - t.heartbeat < 5.0 and t.is_alive() for t in (self.server, self.telemetry, self.frames))
+        threads_ok = all(now - t.heartbeat < 5.0 and t.is_alive()
+                         for t in (self.server, self.telemetry, self.frames))
         return threads_ok and all(rig.runner.alive() for rig in self.rigs)
 
     # ------------------------------------------------------------------ supervisor

@@ -26,7 +26,8 @@ class MotionWaiters:
 
     def __init__(self, submit: SubmitRobot, timeouts: Timeouts | None = None) -> None:
         self._submit = submit
-        self._timeouts = timeouts if timeouts is not None else Timeouts("motion-timeouts")  # ritad passes its own
+        # ritad passes its own; alone (tests, tools) the waiters have one of their own
+        self._timeouts = timeouts if timeouts is not None else Timeouts("motion-timeouts")
         self._lock = threading.Lock()
         self._waiters: list[Future] = []
 

@@ -10,7 +10,8 @@ is one (``plugin.sim``); ritad names none. What a plugin provides:
   naming the key; ritad adds the file) and returned with defaults filled in;
 - ``start(section, data_dir, urls)``: a :class:`Session` when the configured device URLs
   want it, else None. A session may rewrite device URLs (before any device opens), hands
-  ritad the handlers of its commands, adds keys to ``hello`` and is closed at stop.
+  ritad the handlers of its commands, adds keys to ``hello`` and is closed at stop;
+- or, for a device kind of its own, ``device_handlers(rig, services)`` (:class:`DeviceKind`).
 
 A plugin writes what ritad should read as files in the data dir, as an installer would
 (e.g. calibration/tracker_station.json): it never changes ritad's config.
@@ -60,6 +61,21 @@ class Plugin(Protocol):
 
     def check_config(self, table: Mapping[str, Any], where: str) -> dict[str, Any]: ...
     def start(self, section: Mapping[str, Any], data_dir: Path, urls: Mapping[str, str]) -> Session | None: ...
+
+
+class DeviceKind(Plugin, Protocol):
+    """A plugin that is a device kind of its own (a thermometer beside the product's three): ritad runs
+    its device in a rig (daemon/ritad/rigs.py: runner, device clock, sink) and hands that rig to the
+    handlers of the kind's commands. The device's URL is ``url`` in the kind's config section, its
+    adapters are ``rita.adapters`` entry points named ``NAME.SCHEME``; without a URL the kind is
+    absent and its commands answer not_found."""
+
+    def device_handlers(self, rig: Any, services: PluginServices) -> dict[str, Handler]: ...
+
+
+def device_kinds(plugins: Mapping[str, Plugin]) -> dict[str, DeviceKind]:
+    """The plugins that are device kinds."""
+    return {name: p for name, p in plugins.items() if callable(getattr(p, "device_handlers", None))}
 
 
 def installed(table: CommandTable | None = None) -> dict[str, Plugin]:

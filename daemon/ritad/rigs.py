@@ -9,7 +9,7 @@ clock and the shared timelines, then publishes; nothing else routes a device's t
 from __future__ import annotations
 
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
 
 from daemon.bus.names import Topic
@@ -136,9 +136,11 @@ class Rigs:
     camera: CameraRig
     tracker: TrackerRig
     robot: RobotRig
+    #: the device kinds plugins declare (plugins.DeviceKind)
+    more: dict[str, Rig] = field(default_factory=dict)
 
     def __iter__(self) -> Iterator[Rig]:
-        return iter((self.camera, self.tracker, self.robot))
+        return iter((self.camera, self.tracker, self.robot, *self.more.values()))
 
     def info(self, kind: str) -> dict[str, Any]:
         """What the device of ``kind`` said about itself when it opened (plugins read the camera's size)."""

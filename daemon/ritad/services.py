@@ -19,7 +19,7 @@ from daemon.ritad.stop_latch import StopLatch
 
 @dataclass(frozen=True)
 class Reports:
-    """The daemon's answers about itself: ``hello``, ``health`` (``status``) and the late joiners' ``state``."""
+    """The daemon's answers about itself: ``hello``, ``health`` (``status``), late joiners' ``state``."""
 
     hello: Callable[[], dict[str, Any]]
     health: Callable[[], dict[str, Any]]

@@ -30,7 +30,8 @@ def registered_commands(tmp_path, table: CommandTable) -> set[str]:
                  save_capture=unused, calib=calib, latch=calib.latch, device_info=unused, table=table)
     found = plugins.installed(table)
     reports = Reports(unused, unused, unused)
-    return set(build_handlers(s, unstarted_rigs(cfg), reports, Timelines(), plugins.Running().handlers(s, found)))
+    plugin_handlers = plugins.Running().handlers(s, found)
+    return set(build_handlers(s, unstarted_rigs(cfg), reports, Timelines(), plugin_handlers))
 
 
 def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
