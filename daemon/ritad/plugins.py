@@ -22,7 +22,7 @@ import logging
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
 from daemon.bus.command_table import Command, CommandTable, markdown_table
 from daemon.ritad.registry import load_target, schemes
@@ -63,6 +63,7 @@ class Plugin(Protocol):
     def start(self, section: Mapping[str, Any], data_dir: Path, urls: Mapping[str, str]) -> Session | None: ...
 
 
+@runtime_checkable
 class DeviceKind(Plugin, Protocol):
     """A plugin that is a device kind of its own (a thermometer beside the product's three): ritad runs
     its device in a rig (daemon/ritad/rigs.py: runner, device clock, sink) and hands that rig to the
@@ -75,7 +76,7 @@ class DeviceKind(Plugin, Protocol):
 
 def device_kinds(plugins: Mapping[str, Plugin]) -> dict[str, DeviceKind]:
     """The plugins that are device kinds."""
-    return {name: p for name, p in plugins.items() if callable(getattr(p, "device_handlers", None))}
+    return {name: p for name, p in plugins.items() if isinstance(p, DeviceKind)}
 
 
 def installed(table: CommandTable | None = None) -> dict[str, Plugin]:

@@ -53,6 +53,17 @@ def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Se
     return socks, bound
 
 
+def stop_owner(owner: threading.Thread, stop_evt: threading.Event, close: Callable[[], None],
+               timeout: float) -> None:
+    """End a socket's owner thread and wait for it; one never started (its daemon's build failed
+    later) closes its sockets here, as no thread will."""
+    stop_evt.set()
+    if owner.ident is None:
+        close()
+    else:
+        owner.join(timeout)
+
+
 def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
     """Bind to every endpoint; return the endpoints actually bound (tcp port 0 resolved)."""
     bound = []
@@ -98,11 +109,7 @@ class _Publisher(threading.Thread):
             sock.close(linger=0)
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        if self.ident is None:  # never started: its sockets are still the caller's to close
-            self._close()
-            return
-        self.join(timeout)
+        stop_owner(self, self._stop_evt, self._close, timeout)
 
 
 class TelemetryPublisher(_Publisher):

@@ -38,7 +38,7 @@ from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_r
                              parse_request)
 from daemon.bus.repeatlog import RepeatGate, times
 from daemon.bus.roles import refusal
-from daemon.ritad.publisher import open_sockets
+from daemon.ritad.publisher import open_sockets, stop_owner
 
 if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
     from daemon.bus.auth import Security
@@ -334,11 +334,7 @@ class CommandServer(threading.Thread):
         self._close()
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        if self.ident is None:  # never started: its sockets are still the caller's to close
-            self._close()
-            return
-        self.join(timeout)
+        stop_owner(self, self._stop_evt, self._close, timeout)
 
     def _close(self) -> None:
         for sock in self.socks:
