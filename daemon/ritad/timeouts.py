@@ -54,11 +54,6 @@ class Timeouts:
             self._cond.notify()
         return entry
 
-    def pending(self) -> int:
-        """Timeouts not yet due (cancelled ones included until their deadline passes)."""
-        with self._cond:
-            return len(self._heap)
-
     def stop(self, timeout: float = 2.0) -> None:
         """Drop what is not due and end the thread (ritad's stop)."""
         with self._cond:
