@@ -18,12 +18,7 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.compensation import apply_bias
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.storage import atomic_write_json, calibration_dir
-
-#: inclinometer readings averaged at a standstill (1 s at the base's 10 Hz)
-DEFAULT_IMU_READINGS: int = PARAM_DEFAULTS["imu_readings"]  # the procedures' parameter table
-
 
 def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict[str, Any] | None:
     """Mean roll/pitch of ``n`` robot.status readings at a standstill, or None when the base reports no tilt.
