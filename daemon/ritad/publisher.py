@@ -43,13 +43,18 @@ def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Se
         if not group:
             continue
         sock = ctx.socket(kind)
-        sock.setsockopt(zmq.LINGER, 0)
-        if setup is not None:
-            setup(sock)
-        if curve is not None:
-            curve.apply(sock)
-        bound += bind_all(sock, group)
         socks.append(sock)
+        try:
+            sock.setsockopt(zmq.LINGER, 0)
+            if setup is not None:
+                setup(sock)
+            if curve is not None:
+                curve.apply(sock)
+            bound += bind_all(sock, group)
+        except BaseException:  # e.g. a port in use: close what this opened, or the context never ends
+            for opened in socks:
+                opened.close(linger=0)
+            raise
     return socks, bound
 
 
