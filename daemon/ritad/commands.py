@@ -48,7 +48,6 @@ def _daemon(s: Services, reports: Reports) -> dict[str, Handler]:
     return {"ping": lambda req: {"pong": True, "t_ns": time.time_ns()},
             "help": lambda req: {"commands": {c.name: help_entry(c) for c in s.table.values()}},
             "hello": lambda req: reports.hello(), "status": lambda req: reports.health(),
-            "health": lambda req: reports.health(),
             "state": lambda req: reports.state(),
             "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
             "calib.results": lambda req: read_results(s.data_dir)}

@@ -94,7 +94,7 @@ def test_fixed_facts_of_the_table():
 
     table = CommandTable()
     plugins.installed(table)  # a daemon's table: the simulator's commands too
-    for cmd in ("status", "health", "state", "ping", "hello", "help", "calib.results", "calib.jobs",
+    for cmd in ("status", "state", "ping", "hello", "help", "calib.results", "calib.jobs",
                 "files.list", "files.read", "robot.status", "camera.status", "robot.stop"):
         assert roles.may("viewer", cmd), cmd  # stopping is never forbidden
     for cmd in ("robot.move", "robot.turn", "robot.release", "calib.start", "calib.resume", "capture",
