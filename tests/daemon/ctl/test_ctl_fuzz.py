@@ -23,7 +23,8 @@ import pytest
 
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
-from daemon.bus.command_table import COMMANDS
+from daemon.bus.command_table import CommandTable
+from daemon.ritad import plugins
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
 from tests.daemon.ctl.test_ctl_table import walk
@@ -41,6 +42,8 @@ OWN_ERROR_TEXT = {"keys", "validate"}
 # the ended jobs follow may see: no case may post them again (calibrate --job, call calib.start)
 ENDED = ("fz-done", "fz-failed")
 # bus commands `call` may send: no motion, no long poll that would hold the reply
+COMMANDS = CommandTable()
+plugins.installed(COMMANDS)  # the table the daemon serves: the simulator's commands too
 CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox"})
 NUMBERS = ["0", "-1", "1", "200", "-200", "3.5", "1e3", "1e400", "-1e400", "nan", "inf", "-inf", "abc", "",
            "0x10", "1_000", "5e-324", "10001", "360", "-360.5", "1,5", " 7 "]
