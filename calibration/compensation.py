@@ -182,6 +182,10 @@ class Applied:
     #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
     sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
     heading_source: str = "chord"
+    #: what that σ rests on: "a_priori" (the chord's assumed path deviation), "stop_fit" (the chord kept, σ from
+    #: the stop's own fitted slope), "fit" (the fit's own σ), "weight" (the learned weight's σ and the stop's end
+    #: lack of fit)
+    heading_sigma_basis: str = "a_priori"
     #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
     cov_mount_xy_mm2: np.ndarray | None = None
     #: heading_fit asked for: the chord's equivalent previous point and, per bend model whose fit succeeded
@@ -271,22 +275,36 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     out.fits = {m: (prev_at(f.slope_rad), f.slope_rad, f.sigma_rad) for m, f in fits.items() if f.shape != "other"}
     fit = fits[weight.model if weight is not None else "lowest"]
     if weight is not None:
-        if not weight.applied or fit.shape == "other":
-            out.skipped["heading_fit"] = weight.why if not weight.applied else fit.why
-            return
         slope, sigma, why = weighted_slope(weight, fit.slope_rad)
+        why = weight.why if not weight.applied else (fit.why if fit.shape == "other" else why)
         if why:
-            out.skipped["heading_fit"] = why
+            _chord_kept(out, fit, why, anchor_sigma_mm, length)
             return
-        out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), sigma
+        # the population's σ, and what this stop's fitted path misses at its end (a kink there)
+        out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), float(np.hypot(sigma, fit.end_lack_of_fit_rad))
+        out.heading_sigma_basis = "weight"
     elif not fit.significant:
-        out.skipped["heading_fit"] = fit.why
+        _chord_kept(out, fit, fit.why, anchor_sigma_mm, length)
         return
     else:
         out.abs_P_prev = P_at - sign * length * fit.direction
-        out.sigma_heading_rad = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
+        sigma = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
+        out.sigma_heading_rad, out.heading_sigma_basis = float(np.hypot(sigma, fit.end_lack_of_fit_rad)), "fit"
     out.applied.append("heading_fit")
     out.heading_source = "heading_fit"
+
+
+def _chord_kept(out: Applied, fit: Any, why: str, anchor_sigma_mm: float, length: float) -> None:
+    """The chord at a stop whose bend was fitted: its heading σ from the stop's own data where they show a larger
+    bend than the a-priori path deviation. The chord is off the end tangent by the true end slope, known as the
+    fitted one ± its σ: the expected squared error is slope² + σ² (the anchors' part less, as measure_mark
+    carries it). Never below the a-priori σ: a turn near the stop whose trace across the stream is below its
+    noise (250 µrad over the last 20 mm: 5 µm) is invisible to the fit but not to the chord."""
+    out.skipped["heading_fit"] = why
+    scale = fit_heading_sigma(float(np.hypot(np.hypot(fit.slope_rad, fit.sigma_rad), fit.end_lack_of_fit_rad)),
+                              anchor_sigma_mm, length)
+    if math.isfinite(scale) and scale > out.sigma_heading_rad:  # the data raise the a-priori σ, never lower it
+        out.sigma_heading_rad, out.heading_sigma_basis = scale, "stop_fit"
 
 
 def _lean_change_um(stop: Stop, height: float) -> tuple[float, float] | None:
@@ -312,7 +330,7 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
     (else the stop unchanged and the reason in ``skipped``), and the covariance the offset leaves."""
     if mount is None:
         if comp.mount:
-            skipped["mount"] = "the calibration holds no reflector mount offset (reference with --reversal)"
+            skipped["mount"] = "the calibration holds no reflector mount offset"
         return stop, None
     if abs_t_trk is None:
         if comp.mount:
