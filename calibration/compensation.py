@@ -17,8 +17,7 @@ applied. None of them changes the paper's equations; they change their inputs:
   slope when the stop's own bend is significant).
 
 Each result also says how well its heading is known beyond the two tracker points
-(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`): the chord's
-250 µrad from the path deviation, or the fit's own σ when the fit was applied.
+(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`; ``heading_sigma_basis`` says from what).
 * **mount** — the reflector mount's eccentricity, measured by the referencing's reversal
   (calibration/mount.py): fixed relative to the line of sight to the tracker, so the same in
   ACS at every heading; subtracted from the stop's tracker points when the data showed it.
@@ -39,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, fit_heading, fit_heading_sigma
+from calibration.bend_fit import (MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, chord_sigma, fit_heading,
+                                  fit_heading_sigma)
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.heading_weight import MODELS, HeadingWeight, weighted_slope
@@ -182,9 +182,8 @@ class Applied:
     #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
     sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
     heading_source: str = "chord"
-    #: what that σ rests on: "a_priori" (the chord's assumed path deviation), "stop_fit" (the chord kept, σ from
-    #: the stop's own fitted slope), "fit" (the fit's own σ), "weight" (the learned weight's σ and the stop's end
-    #: lack of fit)
+    #: what it rests on: "a_priori" (the chord's 250 µrad path deviation), "stop_fit" (the chord, from the stop's
+    #: own fit), "fit" (the fit's σ), "weight" (the weight's σ); the last three with the fit's end lack of fit
     heading_sigma_basis: str = "a_priori"
     #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
     cov_mount_xy_mm2: np.ndarray | None = None
@@ -295,16 +294,11 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
 
 
 def _chord_kept(out: Applied, fit: Any, why: str, anchor_sigma_mm: float, length: float) -> None:
-    """The chord at a stop whose bend was fitted: its heading σ from the stop's own data where they show a larger
-    bend than the a-priori path deviation. The chord is off the end tangent by the true end slope, known as the
-    fitted one ± its σ: the expected squared error is slope² + σ² (the anchors' part less, as measure_mark
-    carries it). Never below the a-priori σ: a turn near the stop whose trace across the stream is below its
-    noise (250 µrad over the last 20 mm: 5 µm) is invisible to the fit but not to the chord."""
+    """The chord kept at a fitted stop: its heading σ raised to its fit's own (bend_fit.chord_sigma), never lowered."""
     out.skipped["heading_fit"] = why
-    scale = fit_heading_sigma(float(np.hypot(np.hypot(fit.slope_rad, fit.sigma_rad), fit.end_lack_of_fit_rad)),
-                              anchor_sigma_mm, length)
-    if math.isfinite(scale) and scale > out.sigma_heading_rad:  # the data raise the a-priori σ, never lower it
-        out.sigma_heading_rad, out.heading_sigma_basis = scale, "stop_fit"
+    own = chord_sigma(fit, anchor_sigma_mm, length)
+    if own > out.sigma_heading_rad:
+        out.sigma_heading_rad, out.heading_sigma_basis = own, "stop_fit"
 
 
 def _lean_change_um(stop: Stop, height: float) -> tuple[float, float] | None:

@@ -25,6 +25,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from calibration.metrics import bias_design
+
 #: the test's significance level: a σ that holds is called inconsistent in 1 % of experiments
 ALPHA = 0.01
 #: the standard normal's (1 − ALPHA) quantile, for the χ² quantile (:func:`chi2_quantile`)
@@ -64,17 +66,6 @@ def scatter_sigma(std_mm: float, parts_mm: dict[str, float]) -> float:
     return math.sqrt(max(std_mm ** 2 - common, 0.0))
 
 
-def _design(headings_deg: np.ndarray) -> np.ndarray:
-    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (b rotated by ψ_i)."""
-    psi = np.radians(headings_deg)
-    c, s = np.cos(psi), np.sin(psi)
-    A = np.zeros((2 * len(psi), 4))
-    A[0::2, 0], A[1::2, 1] = 1.0, 1.0
-    A[0::2, 2], A[0::2, 3] = c, -s
-    A[1::2, 2], A[1::2, 3] = s, c
-    return A
-
-
 def check_sigma(xy: Any, headings_deg: Any, sigma_mm: Sequence[float], what: str = "the marks' stated σ"
                 ) -> SigmaCheck | None:
     """The Birge ratio of the marks ``xy`` (N, 2) about M + R(ψ)·b fitted by weighted least squares with
@@ -86,7 +77,7 @@ def check_sigma(xy: Any, headings_deg: Any, sigma_mm: Sequence[float], what: str
     dof = 2 * len(P) - 4
     if len(P) != len(psi) or len(P) != len(s) or dof < 3 or not np.all(s > 0) or not np.all(np.isfinite(P)):
         return None
-    A = _design(psi)
+    A = bias_design(psi)
     w = np.repeat(np.sqrt(2.0) / s, 2)  # 1 / (σ_i/√2) per coordinate
     if np.linalg.cond(A * w[:, None]) > 1e6:
         return None

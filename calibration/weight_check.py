@@ -29,7 +29,7 @@ SLOPE_Z = 3.0
 
 
 def _median(values: list[float]) -> float | None:
-    v = sorted(x for x in values if x is not None and math.isfinite(x))
+    v = sorted(x for x in values if math.isfinite(x))
     return None if not v else (v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]))
 
 

@@ -21,20 +21,15 @@ from typing import Any, Callable
 
 import numpy as np
 
+from calibration.metrics import bias_design
+
 #: the fewest directions a leave-one-direction-out comparison is made with (each fold keeps ≥ 4 to fix M, b, w)
 MIN_FOLDS = 5
 
 
 def design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k), −Δ (the weight's)."""
-    psi = np.radians(headings_deg)
-    c, s = np.cos(psi), np.sin(psi)
-    A = np.zeros((2 * len(psi), 5))
-    A[0::2, 0], A[1::2, 1] = 1.0, 1.0
-    A[0::2, 2], A[0::2, 3] = c, -s
-    A[1::2, 2], A[1::2, 3] = s, c
-    A[:, 4] = -delta.reshape(-1)
-    return A
+    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k: calibration/metrics.py), −Δ (the weight's)."""
+    return np.column_stack([bias_design(headings_deg), -delta.reshape(-1)])
 
 
 def with_weight(A: np.ndarray, y: np.ndarray, w: float) -> np.ndarray | None:
