@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS  # noqa: E402
+from daemon.bus.procedures import MEASURE_MARK  # noqa: E402
 from daemon.compute.recompute import recompute  # noqa: E402
 from daemon.compute.survey import survey_plate  # noqa: E402
 from fakes.board import run_intrinsics  # noqa: E402
@@ -70,7 +70,7 @@ def _inputs(c: Client, tmp: Path, seed: int) -> dict[str, Any]:
 
 
 #: the comparisons: label → compensation of the recompute
-WAYS = {"none": "none", "chord": "tilt,bias,mount", "default": PARAM_DEFAULTS["compensation"]}
+WAYS = {"none": "none", "chord": "tilt,bias,mount", "default": MEASURE_MARK.param("compensation").default}
 
 
 def one_seed(seed: int, tmp: Path, learn_reps: int = 5) -> dict[str, Any]:

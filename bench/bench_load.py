@@ -33,7 +33,7 @@ from daemon.bus.client import Client  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 
 CONFIG = ritad_toml(tcp=True, insecure_tcp=True,  # loopback only: the benchmark measures the plain bus
-                    devices={"tracker": "sim:?packet_rate_hz=100&sigma_mm=0.01",
+                    devices={"tracker": "sim:?packet_rate=10&sigma_mm=0.01",
                              "camera": "sim:?size=full&prerender=2&fps=10"})
 
 

@@ -6,7 +6,8 @@ through ritad to a subscriber in another process; 0 results lost at 1 kHz over 6
 Method: ritad runs with a simulated world whose tracker fake lives in the daemon
 process (it is a real emScon TCP peer on 127.0.0.1). For throughput the fake floods
 MultiMeasResult packets of ``--batch`` records back to back (URL option
-``flood_batch``); at 1 kHz it streams in real time at ``packet_rate_hz``. The
+``flood_batch``); at 1 kHz it streams in real time at ``--packet-rate`` packets/s (the driver's
+``packet_rate``: ES_SP_TcpDataPacketRate, 3-10, which the fake honours). The
 subscriber process checks the record ``seq`` (adapter count) and the device times
 (1 ms apart, set by the fake) for gaps, so a record lost anywhere between the fake
 and the subscriber shows up.
@@ -146,7 +147,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, nargs="+", default=[100, 1000],
                     help="records per packet in the flood runs (one run each)")
     ap.add_argument("--loss-seconds", type=float, default=60.0, help="1 kHz run length")
-    ap.add_argument("--packet-rate-hz", type=float, default=100.0, help="fake's packets/s at 1 kHz")
+    ap.add_argument("--packet-rate", type=int, default=10, help="packets/s at 1 kHz (3-10, as the AT901)")
     ap.add_argument("--sub", metavar="ENDPOINT", help="(internal) run as subscriber")
     ap.add_argument("--topic", action="append", default=[])
     ap.add_argument("--hwm", type=int, default=0)
@@ -158,7 +159,7 @@ def main() -> None:
     if any(b <= 0 for b in a.batch) or not (a.seconds > 0 and a.loss_seconds > 0):
         ap.error(f"--batch {a.batch}, --seconds {a.seconds}, --loss-seconds {a.loss_seconds} must all be > 0")
     floods = {b: run(f"sim:?flood_batch={b}&sigma_mm=0.01", a.seconds) for b in a.batch}
-    rt = run(f"sim:?packet_rate_hz={a.packet_rate_hz:g}&sigma_mm=0.01", a.loss_seconds)
+    rt = run(f"sim:?packet_rate={a.packet_rate}&sigma_mm=0.01", a.loss_seconds)
     # records the adapter decoded before the subscriber's first one, in gaps, or after its last one
     lost = ((rt["rec_seq_first"] or 0) + rt["rec_seq_missing"] + rt["dev_missing"]
             + max(0, rt["adapter_points"] - rt["records"]))
@@ -170,7 +171,7 @@ def main() -> None:
               f"{flood['record_span_s']:.1f} s | {flood['records_per_s']:,.0f} "
               f"({flood['records']:,} records; lost {flood['rec_seq_missing'] + flood['dev_missing']:,}, "
               f"publisher dropped {flood['telemetry_dropped']} msgs) | ≥ 20,000 | {'yes' if ok else 'NO'} |")
-    print(f"| results lost at 1 kHz over {rt['record_span_s']:.0f} s ({a.packet_rate_hz:g} packets/s) | "
+    print(f"| results lost at 1 kHz over {rt['record_span_s']:.0f} s ({a.packet_rate} packets/s) | "
           f"{lost} of {rt['adapter_points']:,} decoded (subscriber got {rt['records']:,}; seq gaps "
           f"{rt['rec_seq_missing']}, device-time gaps {rt['dev_missing']}) | 0 | {'yes' if lost == 0 else 'NO'} |")
     print(f"| latency decode → subscriber at 1 kHz | p50 {rt['latency_p50_ms']:.2f} ms, "

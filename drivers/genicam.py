@@ -4,7 +4,8 @@ URL: ``genicam:///opt/ArenaSDK_Linux_x64/lib64/GenTL_LUCID.cti?serial=223600123`
 the GenTL producer (.cti); the device is chosen by ``serial=``, by ``name=`` (the user-defined
 name, DeviceUserID) or, as a last resort, by ``index=`` into the producer's device list; with none
 of them the producer must offer exactly one device. Other options: ``num_buffers`` (GenTL buffers,
-default 4; the settings' ``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame
+default 4, raised to the producer's minimum with a warning: harvesters refuses fewer; the settings'
+``stream_buffers`` overrides it) and ``timeout`` (seconds without a frame
 while streaming before the camera is declared lost, default 3; at least three frame periods).
 
 Settings are applied at every ``open()`` by :mod:`drivers.genicam_settings`. Frames are decoded
@@ -16,8 +17,9 @@ triggers it takes the next free-run frame instead and says so in ``status()["war
 reads the PTP state. Each frame is stamped on the host as its buffer arrives and carries, for the
 daemon's clock (daemon/ritad/device_clock.py), its payload over the link rate (``transfer_ns``)
 and the PTP state, read at most once a second. A missing device at ``open()`` and every transport
-failure raise :class:`DeviceLost`, so the daemon's reconnect loop retries; an ambiguous selection
-or bad settings raise :class:`DeviceError`.
+failure raise :class:`DeviceLost`, so the daemon's reconnect loop retries (a device whose GenTL access
+status changes from the one it had at open counts as lost: :func:`drivers.genicam_device.access_lost`);
+an ambiguous selection or bad settings raise :class:`DeviceError`.
 
 harvesters allows one Harvester per producer per process and ``update()`` destroys live
 acquirers, so each adapter owns its Harvester and ``close()`` resets it. Everything runs on the
@@ -28,23 +30,21 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-from genicam import gentl
 from harvesters.core import Harvester, ImageAcquirer
 
 from drivers.base import Camera, DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Emit, Frame, no_emit
 from drivers.camera_settings import CameraSettings, desired
-from drivers.genicam_device import create_acquirer, decode_buffer, payload_bytes, select_device
+from drivers.genicam_device import access_lost, create_acquirer, read_held, select_device
 from drivers.genicam_settings import SettingsWriter, find_node, set_trigger_mode
 from drivers.genicam_transport import (GIGE_LINE_BYTES_S, IncompleteCounter, PtpWatch, apply_all, link_rate,
                                        link_stats, ptp_status, read_chunks)
 
 log = logging.getLogger(__name__)
 
-_OPEN_STATUSES = (5, 6)  # DEVICE_ACCESS_STATUS_OPEN_READWRITE / _OPEN_READONLY
 _STATUS_POLL_S = 1.0
 
 
@@ -103,8 +103,7 @@ class GenICamCamera(Camera):
             i = select_device(infos, self.serial, self.name, self.index)
             self._facts = {k: infos[i].get(k) for k in
                            ("serial_number", "model", "vendor", "user_defined_name", "id_", "tl_type")}
-            self._ia = create_acquirer(self._h, i)
-            self._ia.num_buffers = self.num_buffers
+            self._ia = create_acquirer(self._h, i)  # its buffer count is set in _apply, above the minimum
             self._ia.add_callback(ImageAcquirer.Events.INCOMPLETE_BUFFER, self._incomplete)
             self._access = self._ia.device.module.access_status
             self._ptp = PtpWatch()  # a new connection: read the PTP state at the first frame
@@ -177,7 +176,10 @@ class GenICamCamera(Camera):
         self._applied = {}
         w = self._writer()
         minimum = getattr(self._ia, "min_num_buffers", 1)  # harvesters: STREAM_INFO_BUF_ANNOUNCE_MIN
-        self._software = apply_all(w, self._stream_writer(), desired(self.settings),
+        wanted = desired(self.settings)  # the URL's num_buffers unless the settings give stream_buffers
+        if wanted.stream_buffers is None:
+            wanted = replace(wanted, stream_buffers=self.num_buffers)
+        self._software = apply_all(w, self._stream_writer(), wanted,
                                    self._set_buffers, int(minimum) if isinstance(minimum, int) else 1)
         exposure = w.read("ExposureTime")
         self._exposure = None if exposure is None else float(exposure)
@@ -229,18 +231,9 @@ class GenICamCamera(Camera):
             if buf is not None:
                 break
         rx_ns, rx_mono = time.time_ns(), time.monotonic_ns()  # arrival, before any decoding delays it
-        try:
-            try:  # pixels are decoded into a copy before the buffer goes back to the producer
-                pixels, fmt = decode_buffer(buf)
-                frame_id, size = int(buf.frame_id), payload_bytes(buf)
-                # chunk nodes read the held buffer's memory: only valid before the requeue
-                chunks = read_chunks(self._writer()) if self._applied.get("ChunkModeActive") else {}
-                try:
-                    device_ns: int | None = int(buf.timestamp_ns)
-                except (gentl.GenericException, AttributeError):
-                    device_ns = None  # viky and some producers have no timestamps
-            finally:
-                buf.parent.queue_buffer(buf)
+        try:  # chunk nodes read the held buffer's memory: only valid before the requeue
+            chunked = bool(self._applied.get("ChunkModeActive"))
+            held = read_held(buf, (lambda: read_chunks(self._writer())) if chunked else None)
             ptp = self._ptp.poll(self._writer)
         except DeviceError:
             raise
@@ -248,11 +241,12 @@ class GenICamCamera(Camera):
             raise self._lost("buffer read", exc) from exc
         self.counters["frames"] += 1
         self._last_frame = time.monotonic()
-        return Frame(pixels=pixels, frame_id=frame_id, pixel_format=fmt,
+        return Frame(pixels=held.pixels, frame_id=held.frame_id, pixel_format=held.pixel_format,
                      camera_serial=str(self._facts.get("serial_number")),
-                     exposure_us=chunks.get("chunk_exposure_us", self._exposure), device_time_ns=device_ns,
+                     exposure_us=held.chunks.get("chunk_exposure_us", self._exposure),
+                     device_time_ns=held.device_ns,
                      host_time_ns=rx_ns, host_monotonic_ns=rx_mono, incomplete_count=self._incomplete.count,
-                     extra=chunks, transfer_ns=int(size * 1e9 / self._link_rate), ptp=ptp)
+                     extra=held.chunks, transfer_ns=int(held.size * 1e9 / self._link_rate), ptp=ptp)
 
     def _check_access(self, force: bool = False) -> None:
         """Poll the device's access status (about once a second); a change means loss."""
@@ -264,7 +258,7 @@ class GenICamCamera(Camera):
             status = self._ia.device.module.access_status
         except Exception as exc:
             raise self._lost("status poll", exc) from exc
-        if status != self._access or status not in _OPEN_STATUSES:
+        if access_lost(self._access, status):
             raise DeviceLost(f"camera {self._facts.get('serial_number')!r} access status changed "
                              f"from {self._access} to {status}")
 

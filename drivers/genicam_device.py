@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import signal
 import threading
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Callable
 
 import numpy as np
+from genicam import gentl
 from harvesters.core import Harvester, ImageAcquirer
 
 from drivers import pixel_formats
@@ -97,3 +99,47 @@ def create_acquirer(h: Harvester, i: int) -> ImageAcquirer:
     finally:
         if on_main and previous is not None:
             signal.signal(signal.SIGINT, previous)
+
+
+@dataclass
+class HeldBuffer:
+    """What is read from a fetched buffer before it goes back to the producer."""
+
+    pixels: np.ndarray
+    pixel_format: str
+    frame_id: int
+    size: int
+    chunks: dict[str, Any]
+    device_ns: int | None
+
+
+def read_held(buf: Any, chunks: Callable[[], dict[str, Any]] | None) -> HeldBuffer:
+    """Pixels (a copy), ids, chunk values (read while the buffer is held) and the device time, then requeue.
+
+    The device time is the buffer's ``timestamp_ns``; a producer without one (harvesters raises, or
+    it reads 0) leaves the ``Timestamp`` chunk as the time (the same device clock, PTP time when locked).
+    """
+    try:
+        pixels, fmt = decode_buffer(buf)
+        frame_id, size = int(buf.frame_id), payload_bytes(buf)
+        values = chunks() if chunks is not None else {}
+        try:
+            device_ns: int | None = int(buf.timestamp_ns) or None
+        except (gentl.GenericException, AttributeError):
+            device_ns = None  # viky and some producers have no buffer timestamps
+        if device_ns is None and values.get("chunk_timestamp_ns"):
+            device_ns = int(values["chunk_timestamp_ns"])
+    finally:
+        buf.parent.queue_buffer(buf)
+    return HeldBuffer(pixels, fmt, frame_id, size, values, device_ns)
+
+
+def access_lost(at_open: int, now: int) -> bool:
+    """Whether a device's GenTL access status says it is gone: a change from the value it had at open.
+
+    The values differ by producer and GenTL version: BUSY (4), OPEN_READWRITE (5) and OPEN_READONLY (6)
+    exist since GenTL 1.5 (GenTL.h v1.6 as published in AravisProject/aravis src/gentl/GenTL_v1_6.h,
+    DEVICE_ACCESS_STATUS_LIST); an older producer may report READWRITE (1) or UNKNOWN (0) for an open
+    device, and custom values start at 1000. So only a change is news, not a particular value.
+    """
+    return int(now) != int(at_open)

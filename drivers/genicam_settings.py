@@ -1,8 +1,9 @@
-"""Write :class:`~drivers.base.CameraSettings` to a GenICam node map in one fixed order.
+"""Write :class:`~drivers.camera_settings.CameraSettings` to a GenICam node map in one fixed order.
 
-The order is PixelFormat, Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
+The order is the known state (:data:`KNOWN_STATE`: AcquisitionMode, ReverseX, ReverseY), PixelFormat,
+Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
 AcquisitionFrameRateEnable/AcquisitionFrameRate, TriggerSelector/TriggerMode/
-TriggerSource, PtpEnable, then chunk data and the GigE transport (packet size,
+TriggerSource, PtpEnable with PtpSlaveOnly, then chunk data and the GigE transport (packet size,
 throughput limit, packet resend, stream buffers; :mod:`drivers.genicam_transport`,
 whose :func:`~drivers.genicam_transport.apply_all` runs the whole sequence). Pixel format comes first because it changes the ranges
 of the geometry features; geometry comes before exposure and frame rate because
@@ -41,6 +42,12 @@ _NA = 1
 _RO = 3
 _RW = 4
 _INT, _BOOL, _CMD, _FLOAT, _ENUM = 2, 3, 4, 5, 9
+#: features another program may have left changed, set at every open whatever the settings say (SFNC
+#: names): free run until stopped (SingleFrame or MultiFrame would stall a stream), and the image as the
+#: sensor sees it (a mirrored image starts on another colour: BayerRG becomes BayerGR, which this
+#: driver's decoder does not read)
+KNOWN_STATE: tuple[tuple[str, Any], ...] = (("AcquisitionMode", "Continuous"), ("ReverseX", False),
+                                            ("ReverseY", False))
 
 
 def find_node(nm: Any, name: str) -> Any | None:
@@ -182,11 +189,31 @@ def set_trigger_mode(w: SettingsWriter, software: bool) -> bool:
     return ok and software
 
 
+def apply_known_state(w: SettingsWriter) -> None:
+    """:data:`KNOWN_STATE` where the camera has it; a mirror it cannot switch off is an error naming it."""
+    for name, value in KNOWN_STATE:
+        if w.has(name) and not _same(w.read(name), value):  # already so: nothing to write (nor to refuse)
+            w.write(name, value)
+    for axis in ("ReverseX", "ReverseY"):
+        if w.read(axis):
+            raise DeviceError(f"camera's {axis} is on and cannot be switched off: a mirrored image's Bayer "
+                              f"pattern is not the one its PixelFormat names", code="bad_setting")
+
+
+def _ptp(w: SettingsWriter, on: bool) -> None:
+    """PtpEnable, and PtpSlaveOnly with it, as LUCID's guidance and LUCID-based public code do (ROS 2 nodes
+    derived from lucidvisionlabs/arena_camera_ros2 write both): without it the camera takes part in the
+    IEEE 1588 master election and becomes master when no better clock runs."""
+    if w.write("PtpEnable", on) and on:  # a camera without PTP has nothing to keep from mastering
+        w.write("PtpSlaveOnly", True)
+
+
 def apply_settings(w: SettingsWriter, s: CameraSettings) -> bool:
     """Apply ``s`` in the documented order; returns whether software triggering works."""
     if s.trigger not in ("software", "free"):
         raise DeviceError(f"camera trigger setting {s.trigger!r} is not 'software' or 'free'",
                           code="bad_setting")
+    apply_known_state(w)
     if s.pixel_format is not None:
         if s.pixel_format not in pixel_formats.FORMATS:  # the camera might offer it; we cannot decode it
             raise DeviceError(f"PixelFormat {s.pixel_format!r} cannot be decoded (supported: "
@@ -213,5 +240,5 @@ def apply_settings(w: SettingsWriter, s: CameraSettings) -> bool:
         w.write("AcquisitionFrameRate", s.frame_rate_hz, clamp=True)
     software = set_trigger_mode(w, s.trigger == "software")
     if s.ptp is not None:
-        w.write("PtpEnable", bool(s.ptp))
+        _ptp(w, bool(s.ptp))
     return software

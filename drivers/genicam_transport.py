@@ -19,8 +19,9 @@ then :func:`apply_chunks` and :func:`apply_transport`, in this order:
 The chunks come first because they change the payload size the buffers are sized for. Packet
 size, throughput and resend are features of two node maps: the camera's and the GenTL data
 stream's (host side, only where the producer exposes them). A feature either lacks is a
-warning naming it, never an error; an explicit packet size outside the camera's range is a
-:class:`~drivers.base.DeviceError` naming the value and the range.
+warning naming it, never an error; an explicit packet size outside the camera's range or off its
+step is clamped into it (rounded down to the step) with a warning naming both values, so a camera
+whose limits differ from the configuration still streams.
 """
 from __future__ import annotations
 
@@ -51,6 +52,10 @@ LINK_STATS = {
 }
 
 SetBuffers = Callable[[int], int]
+#: DeviceLinkSpeed is bytes/s in SFNC (GigE: 125 000 000); below this no Ethernet link's bytes/s can lie,
+#: so a smaller reading is in Mbps, as some SDKs give it (10 .. 100 000 Mbps: 10BASE-T .. 100GbE)
+MIN_LINK_BYTES_S = 100_000
+BYTES_S_PER_MBPS = 125_000
 
 
 class IncompleteCounter(Callback):
@@ -112,7 +117,20 @@ def _packet_size(w: SettingsWriter, stream: SettingsWriter, want: int | str) -> 
         raise DeviceError(f"packet_size={want} is below {MIN_PACKET_BYTES} bytes", code="bad_setting")
     if stream.has("StreamAutoNegotiatePacketSize"):
         stream.write("StreamAutoNegotiatePacketSize", False)  # else the producer overrides our value
-    w.write(name, want)
+    w.write(name, _packet_in_range(w, name, want))
+
+
+def _packet_in_range(w: SettingsWriter, name: str, want: int) -> int:
+    """``want`` clamped into the camera's range and rounded down to its step, with a warning naming both."""
+    node = find_node(w.nm, name)
+    if node is None:
+        return want
+    lo, hi, inc = int(node.min), int(node.max), max(1, int(node.inc))
+    got = lo + (min(max(want, lo), hi) - lo) // inc * inc
+    if got != want:
+        w.warn(f"packet_size={want} is outside the camera's {name} range {lo}..{hi} (step {inc}); "
+               f"using {got}")
+    return got
 
 
 def _throughput(w: SettingsWriter, limit: int) -> None:
@@ -199,12 +217,24 @@ class PtpWatch:
         return self.state
 
 
-def link_rate(w: SettingsWriter) -> float:
-    """Bytes/s the camera sends at: its link speed (SFNC DeviceLinkSpeed, bytes/s; else GigE's line
-    rate), capped by its throughput limit when that is on. A frame's payload over it is the least
-    time the frame spends on the wire."""
+def link_speed(w: SettingsWriter) -> float:
+    """The camera's link speed in bytes/s: SFNC DeviceLinkSpeed, read as Mbps (with a warning) when it is
+    too small to be bytes/s; GigE's line rate without the node."""
     speed = w.read("DeviceLinkSpeed")
-    rate = float(speed) if isinstance(speed, (int, float)) and speed > 0 else float(GIGE_LINE_BYTES_S)
+    if not (isinstance(speed, (int, float)) and speed > 0):
+        return float(GIGE_LINE_BYTES_S)
+    if speed < MIN_LINK_BYTES_S:
+        rate = float(speed) * BYTES_S_PER_MBPS
+        w.warn(f"DeviceLinkSpeed={speed:g} is too small for bytes/s (SFNC's unit); read as Mbps: "
+               f"{rate:.0f} bytes/s")
+        return rate
+    return float(speed)
+
+
+def link_rate(w: SettingsWriter) -> float:
+    """Bytes/s the camera sends at: its link speed (:func:`link_speed`), capped by its throughput limit
+    when that is on. A frame's payload over it is the least time the frame spends on the wire."""
+    rate = link_speed(w)
     limit = w.read("DeviceLinkThroughputLimit")
     if w.read("DeviceLinkThroughputLimitMode") == "On" and isinstance(limit, (int, float)) and limit > 0:
         rate = min(rate, float(limit))

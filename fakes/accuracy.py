@@ -32,7 +32,7 @@ from calibration.mount import MountOffset, from_reversal as mount_from_reversal
 from calibration.referencing import reference, rob_H_cam_error
 from calibration.reversal import combine
 from calibration.scs import make_scs
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
+from daemon.bus.procedures import REFERENCING
 from fakes import profiles
 from fakes.simulate import MarkObs, SimConfig, Simulation
 from fakes.world import World, WorldParams
@@ -68,7 +68,7 @@ class Case:
     mark_window_mm: float = 3.0  # the mark's spread about the footprint centre
     tweak: tuple[tuple[str, str, Any], ...] = ()  # (group, field, value): sensitivity cases
     name: str = ""  # a short label for a tweaked case
-    reversal: bool = PARAM_DEFAULTS["reversal"]  # the referencing procedure's default
+    reversal: bool = REFERENCING.resolve({}).reversal  # the referencing procedure's default
 
     @property
     def label(self) -> str:

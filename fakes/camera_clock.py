@@ -16,7 +16,8 @@ The model, all of it:
   in 0..``latency_ms`` (seeded: one-sided, as real delays are).
 
 URL options of the sim camera (fakes/camera.py): ``clock_offset_s``, ``clock_drift_ppm``,
-``ptp`` (none, Slave, Listening or Uncalibrated: the state PtpEnable leads to; default none),
+``ptp`` (none, Slave, Listening, Uncalibrated or Master: the state PtpEnable leads to; default none;
+Master: the port won the election, no better clock on the network, and the camera's own clock runs on),
 ``ptp_offset_ns`` (default 300) and ``latency_ms`` (default 0).
 """
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 from daemon.bus.clockmap import TAI_MINUS_UTC_S
 from drivers.base import DeviceURL
 
-PTP_STATES = ("Slave", "Listening", "Uncalibrated")
+PTP_STATES = ("Slave", "Listening", "Uncalibrated", "Master")
 SERVO_PERIOD_S = 17.0
 OPTIONS = frozenset({"clock_offset_s", "clock_drift_ppm", "ptp", "ptp_offset_ns", "latency_ms"})
 

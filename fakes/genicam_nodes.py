@@ -12,6 +12,17 @@ a GenApi LogicalErrorException; the writer treats both as "absent").
 :func:`stream_node_map` the GenTL data stream of a producer that offers resend, packet-size
 negotiation and link counters. Either can be built without some nodes (``without=``) to test
 the "missing feature" path.
+
+Documented behaviours a test can switch on (each cited where it is modelled):
+
+* ``left``: features another program left changed (``AcquisitionMode``, ``ReverseX``/``ReverseY``):
+  the camera keeps its features until power-down or a user set load (SFNC: AcquisitionMode
+  SingleFrame / MultiFrame stop after one / AcquisitionFrameCount frames; ReverseX/Y mirror the image).
+* ``ptp_wins_election``: no better clock on the network, so an enabled PTP port becomes master
+  (IEEE 1588's best-master election) unless ``PtpSlaveOnly`` is set, which keeps it a slave-only
+  clock (in ``Listening`` until a master appears).
+* ``link_speed``: ``DeviceLinkSpeed`` as the SDK reports it (SFNC: bytes/s, 125 000 000 on GigE;
+  some SDKs give Mbps: ``link_speed=1000``).
 """
 from __future__ import annotations
 
@@ -121,16 +132,27 @@ def _imaging(nm: FakeNodeMap) -> None:
     add(FakeNode("TriggerSoftware", CMD, access=RW))
 
 
-def _ptp(nm: FakeNodeMap, clock: CameraClock | None) -> None:
-    """PTP nodes: a port that locks at once with a -42 ns offset, or ``clock``'s (its state and servo)."""
+def _ptp(nm: FakeNodeMap, clock: CameraClock | None, wins: bool) -> None:
+    """PTP nodes: a port that locks at once with a -42 ns offset (or, when it ``wins`` the election, becomes
+    master), or ``clock``'s (its state and servo); PtpSlaveOnly keeps a winning port from mastering."""
+    slave_only = nm.add(FakeNode("PtpSlaveOnly", BOOL, False))
     if clock is None:
         enabled = nm.add(FakeNode("PtpEnable", BOOL, False))
-        status: Callable[[], Any] = lambda: "Slave" if enabled.value else "Disabled"  # noqa: E731
-        offset: Callable[[], Any] = lambda: -42  # noqa: E731
+
+        def status() -> str:
+            if not enabled.value:
+                return "Disabled"
+            return ("Listening" if slave_only.value else "Master") if wins else "Slave"
+
+        offset: Callable[[], Any] = lambda: -42 if status() == "Slave" else None  # noqa: E731
     else:
         enabled = nm.add(FakeNode("PtpEnable", BOOL, getter=lambda: clock.ptp_enabled,
                                   setter=lambda v: setattr(clock, "ptp_enabled", bool(v))))
-        status = lambda: clock.ptp_status()["status"]  # noqa: E731
+
+        def status() -> str:
+            state = clock.ptp_status()["status"]
+            return "Listening" if state == "Master" and slave_only.value else state
+
         offset = lambda: clock.ptp_status()["offset_from_master_ns"]  # noqa: E731
     nm.add(FakeNode("PtpStatus", ENUM, access=RO, getter=status,
                     symbolics=("Disabled", "Listening", "Uncalibrated", "Slave", "Master")))
@@ -159,12 +181,20 @@ def _chunks(nm: FakeNodeMap, clock: CameraClock | None) -> dict[str, Any]:
 
 
 def camera_node_map(*, without: tuple[str, ...] = (), packet_max: int = 9000,
-                    clock: CameraClock | None = None) -> FakeNodeMap:
+                    clock: CameraClock | None = None, left: dict[str, Any] | None = None,
+                    ptp_wins_election: bool = False, link_speed: int = 125_000_000) -> FakeNodeMap:
     """A PHX122S-like camera node map; ``without`` drops the named nodes; ``clock`` (fakes/camera_clock.py)
-    drives its PTP port and timestamps."""
+    drives its PTP port and timestamps; ``left``, ``ptp_wins_election``, ``link_speed``: module docstring."""
     nm = FakeNodeMap()
     _imaging(nm)
-    _ptp(nm, clock)
+    nm.add(FakeNode("AcquisitionMode", ENUM, "Continuous",
+                    symbolics=("Continuous", "SingleFrame", "MultiFrame")))
+    nm.add(FakeNode("ReverseX", BOOL, False))
+    nm.add(FakeNode("ReverseY", BOOL, False))
+    nm.add(FakeNode("DeviceLinkSpeed", INT, link_speed, access=RO))
+    for name, value in (left or {}).items():
+        nm.nodes[name].initial = value
+    _ptp(nm, clock, ptp_wins_election)
     _chunks(nm, clock)
     nm.add(FakeNode("GevSCPSPacketSize", INT, 1500, 576, packet_max, 4))
     nm.add(FakeNode("DeviceLinkThroughputLimitMode", ENUM, "Off", symbolics=("Off", "On")))

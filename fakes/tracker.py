@@ -22,9 +22,15 @@ How it differs from a real AT901:
   documented publicly); status numbers for other failures are plausible choices.
 * A new connection replaces the old one (a real server refuses it with
   MultiConnectionsNotAllowed). Continuous records carry seconds/microseconds since
-  server start in lTime1/lTime2.
+  server start in lTime1/lTime2 (as beckjac/emscon_ros src/main.cpp reads them; Leica's header
+  does not say: an assumption ``ritactl commission`` checks).
 * Fault knobs (``Faults``): drop after N packets, delay answers, split packets into
-  single bytes, send garbage, force a status for a command, result before answer.
+  single bytes, send garbage, force a status for a command, result before answer, answer a
+  command with an OutOfRangeOK status (``ok``).
+* Documented device behaviours, each switchable per test (``fakes/tracker_frames.py``): another
+  client's station orientation and transformation left applied (``foreign_frame``), the stream's
+  packet rate as ES_SP_TcpDataPacketRate sets it (3-10/s; ``packet_rate_hz`` until then),
+  ``max_data_rate``, and a beam break mid-stream (``break_beam`` / ``restore_beam``).
 
 Run alone: ``python -m fakes.tracker --host 127.0.0.1 --port 0`` prints ``port N``.
 """
@@ -91,6 +97,12 @@ class FakeTrackerThread:
     def send_error(self, command: int, status: int) -> None:
         self.call(self.server.async_error(command, status))
 
+    def break_beam(self) -> None:
+        self.call(self.server.break_beam())
+
+    def restore_beam(self, name: str) -> None:
+        self.call(self.server.restore_beam(name))
+
     def close(self) -> None:
         """Stop the server and the loop thread (for test teardown)."""
         if self.loop.is_closed():
@@ -134,11 +146,14 @@ class SimTracker(EmsconTracker):
     URL options (besides EmsconTracker's): ``sigma_mm``, ``time_scale``,
     ``packet_rate_hz``, ``flood_batch`` (stream packets of N records back to back, as fast
     as TCP allows, for throughput benchmarks), ``drop_after``, ``delay_ms``, ``split``,
-    ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``search_radius_mm``.
+    ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``ok`` (``Cmd=Status,...``, an
+    OutOfRangeOK answer that still takes effect), ``max_data_rate``, ``foreign_frame`` (0/1),
+    ``search_radius_mm``.
     """
 
     OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
-                                       "delay_ms", "split", "garbage_after", "result_first", "fail", worlds.OPTION}
+                                       "delay_ms", "split", "garbage_after", "result_first", "fail",
+                                       worlds.OPTION, "ok", "max_data_rate", "foreign_frame"}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
@@ -146,13 +161,16 @@ class SimTracker(EmsconTracker):
         o = url.option
         self.sim_options = {"sigma_mm": o("sigma_mm", None, float), "time_scale": o("time_scale", 0.05, float),
                             "packet_rate_hz": o("packet_rate_hz", 8.0, float),
-                            "flood_batch": o("flood_batch", 0, int)}
+                            "flood_batch": o("flood_batch", 0, int),
+                            "max_data_rate": o("max_data_rate", 1000, int),
+                            "foreign_frame": o("foreign_frame", False, flag)}
         if self.sim_options["flood_batch"] < 0:
             raise ValueError(f"tracker URL {url.raw!r}: flood_batch={self.sim_options['flood_batch']} "
                              "must be >= 0")
         self.sim_faults = Faults(drop_after=o("drop_after", 0, int), delay_ms=o("delay_ms", 0.0, float),
                                  split=o("split", False, flag), garbage_after=o("garbage_after", 0, int),
-                                 result_first=o("result_first", False, flag), fail=o("fail", {}, _fail_map))
+                                 result_first=o("result_first", False, flag), fail=o("fail", {}, _fail_map),
+                                 ok=o("ok", {}, _fail_map))
         self.server: FakeTrackerThread | None = None
 
     def endpoint(self) -> tuple[str, int]:

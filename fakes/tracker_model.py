@@ -45,6 +45,8 @@ class TrackerState:
     search_radius_mm: float = 50.0
     search_timeout_ms: int = 2000
     reflector_id: int = 0
+    orientation: tuple[float, ...] = (0.0,) * 6  # station orientation: val1-3, rot1-3
+    transformation: tuple[float, ...] = (0.0,) * 6 + (1.0,)  # val1-3, rot1-3, scale
     settings: dict[str, int] = field(default_factory=lambda: {
         "weather_monitor_status": 2, "apply_transformation_params": 0,
         "apply_station_orientation_params": 0, "keep_last_position": 1, "send_unsolicited_messages": 1,

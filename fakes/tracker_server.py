@@ -21,6 +21,7 @@ from drivers.emscon.enums import ES_ResultStatus as RS
 from drivers.emscon.enums import ES_SystemStatusChange as SSC
 from drivers.emscon.enums import ES_TrackerProcessorStatus as TPS
 from drivers.emscon.enums import ES_TrackerStatus
+from fakes.tracker_frames import FrameCommands
 from fakes.tracker_model import REFLECTORS, TrackerModel
 from fakes.tracker_session import Faults, Session, bare_answer, Dropped
 
@@ -28,12 +29,17 @@ MAX_RECORDS = 20000  # per MultiMeasResult packet (well under the 1 MiB framer l
 COMPUTE_STEP_S = 0.005  # a stream's records are computed this often between packets
 
 
-class FakeTrackerServer:
-    """The fake emScon server; owns the tracker model, listens on ``host:port``."""
+class FakeTrackerServer(FrameCommands):
+    """The fake emScon server; owns the tracker model, listens on ``host:port``.
+
+    ``packet_rate_hz``: stream packets per second until a client sets ES_SP_TcpDataPacketRate;
+    ``max_data_rate``: GetTrackerInfo's iMaxDataRate (a faster time separation is refused);
+    ``foreign_frame``: start with another client's station orientation and transformation applied.
+    """
 
     def __init__(self, world: Any, *, sigma_mm: float | None = None, time_scale: float = 0.05,
                  packet_rate_hz: float = 8.0, flood_batch: int = 0, faults: Faults | None = None,
-                 host: str = "127.0.0.1") -> None:
+                 host: str = "127.0.0.1", max_data_rate: int = 1000, foreign_frame: bool = False) -> None:
         if not time_scale >= 0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
         if not 0 < packet_rate_hz <= 100:
@@ -41,6 +47,9 @@ class FakeTrackerServer:
         self.model = TrackerModel(world, sigma_mm)
         self.time_scale = time_scale
         self.packet_rate_hz = packet_rate_hz
+        self.max_data_rate = int(max_data_rate)
+        if foreign_frame:
+            self.preset_foreign_frame()
         self.flood_batch = int(flood_batch)  # >0: stream full packets as fast as TCP allows (benchmarks)
         self.faults = faults or Faults()
         self.host = host
@@ -107,8 +116,10 @@ class FakeTrackerServer:
                          bare_answer(cmd, RS.NotImplemented))
             return
         status, values, after = await handler(s, req.values)
-        if status != 0 or not after or not self.faults.result_first:
-            await s.send(encode_answer(cmd, status, **values) if status == 0 else encode_answer(cmd, status))
+        status = self.faults.ok.get(cmd, status) if status == 0 else status  # accepted, out of range
+        ok = status == 0 or cmd in self.faults.ok
+        if not ok or not after or not self.faults.result_first:
+            await s.send(encode_answer(cmd, status, **values) if ok else encode_answer(cmd, status))
             for data in after:
                 await s.send(data)
         else:
@@ -136,7 +147,7 @@ class FakeTrackerServer:
         return 0, {"tracker_type": ES_LTSensorType.AT901_LR, "tracker_name": "AT901-LR (simulated)",
                    "serial_number": 901001, "compensation_id": 1, "has_adm": 1, "has_overview_camera": 1,
                    "has_nivel": 0, "max_distance": 80000.0 * self.model.state.length_unit(),
-                   "min_distance": 0.0, "max_data_rate": 1000, "number_of_faces": 2,
+                   "min_distance": 0.0, "max_data_rate": self.max_data_rate, "number_of_faces": 2,
                    "hz_angle_range": 480.0, "vt_angle_range": 290.0, "fw_major": 3, "fw_minor": 6}, []
 
     async def _c_SetUnits(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
@@ -181,7 +192,7 @@ class FakeTrackerServer:
         return 0, {}, []
 
     async def _c_SetContinuousTimeModeParams(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
-        if not 1 <= v["time_separation_ms"] <= 3_600_000:
+        if not 1000.0 / self.max_data_rate <= v["time_separation_ms"] <= 3_600_000:
             return RS.Parameter1OutOfRangeNOK, {}, []
         if v["use_region"]:
             return RS.NotImplemented, {}, []
@@ -316,6 +327,7 @@ class FakeTrackerServer:
         p = self.model.measure_point()
         if p is None:
             return RS.NoStationaryResult, {}, []
+        p = self.in_client_frame(p)
         k, sig = st.length_unit(), self.model.sigma_mm * st.length_unit()
         t, pr, h = st.environment
         res = encode_result("single", 0, meas_mode=st.meas_mode, val1=p[0] * k, val2=p[1] * k,
@@ -325,7 +337,12 @@ class FakeTrackerServer:
         return 0, {}, [res]
 
     def _records(self, n: int, t_next: float, dt: float) -> np.ndarray | None:
-        return self.model.measure_records(n, t_next - self.t0, dt, self.t0)
+        rec = self.model.measure_records(n, t_next - self.t0, dt, self.t0)
+        if rec is not None:  # in the frame the client left applied (the identity unless one was set)
+            k = self.model.state.length_unit()
+            xyz = self.in_client_frame(np.column_stack([rec["val1"], rec["val2"], rec["val3"]]) / k) * k
+            rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        return rec
 
     async def _packet(self, t_next: float, dt: float, left: int) -> np.ndarray | None:
         """One packet's records, due by the time it is sent. They are computed a few ms at a time as they

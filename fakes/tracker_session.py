@@ -25,6 +25,9 @@ class Faults:
     garbage_after: int = 0  # after this many packets sent, write garbage instead (0 = never)
     result_first: bool = False  # stationary result before the StartMeasurement answer
     fail: dict[int, int] = field(default_factory=dict)  # command -> status to answer with
+    #: command -> an OutOfRangeOK status answered in place of AllOK, the command taking effect (the
+    #: header's ES_RS_Parameter<k>OutOfRangeOK: out of range, yet accepted)
+    ok: dict[int, int] = field(default_factory=dict)
 
 
 class Dropped(Exception):

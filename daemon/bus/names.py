@@ -1,4 +1,4 @@
-"""The bus's fixed vocabularies, defined once: roles, device kinds and telemetry topics.
+"""The bus's fixed vocabularies, defined once: roles, device kinds, telemetry topics and job states.
 
 ``StrEnum`` members compare equal to their text, so they go on the wire (msgpack, JSON) as the
 strings docs/protocol.md lists; code names them by member so a typo is an AttributeError at
@@ -55,4 +55,17 @@ class Topic(StrEnum):
     LOG = "log"
 
 
-__all__ = ["KINDS", "ROLES", "Kind", "Role", "Topic"]
+class JobState(StrEnum):
+    """A calibration job's state (``calib.jobs``, ``calib.result``; state.json's ``status`` uses those a
+    worker writes: running, done, failed, cancelled, stopped)."""
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    WAITING = "waiting"      # a prompt awaits the operator's answer
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+    STOPPED = "stopped"      # the robot's STOP ended its run; resumable after robot.release
+
+
+__all__ = ["KINDS", "ROLES", "JobState", "Kind", "Role", "Topic"]

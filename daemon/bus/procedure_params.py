@@ -28,6 +28,22 @@ class Param(Arg):
     installed: str = ""      # file: the robot's installed file the worker uses when none is given
     content: str = "object"  # file: "object", or "xyz_map" ({name: [x, y, z]})
     aliases: tuple[str, ...] = ()  # ritactl options besides --name-with-dashes (the names older scripts use)
+    default_of: str = ""     # no value given: the resolved value of this earlier parameter ...
+    default_by: tuple[tuple[Any, Any], ...] = ()  # ... looked up here (value → default), when given
+
+    def value_of(self, resolved: dict[str, Any]) -> Any:
+        """The default :meth:`Procedure.resolve` applies, given the earlier parameters' ``resolved`` values
+        (None: the run decides, as ``default_text`` says: an installed file, the robot's heading, ...)."""
+        if self.default_of:
+            of = resolved[self.default_of]
+            return dict(self.default_by).get(of) if self.default_by else of
+        return None if self.required else self.default
+
+    def python_type(self) -> Any:
+        """The resolved value's type (a vec is a tuple; None where the run decides)."""
+        kind = {"vec": tuple[float, ...], "file": dict[str, Any], "float": float, "int": int, "bool": bool,
+                "str": str}[self.type]
+        return kind if self.default is not None or self.default_of else kind | None
 
     def checked(self, value: Any, noun: str = "parameter", paths: bool = True) -> Any:
         """As :meth:`Arg.checked`, plus ``vec`` and ``file``: a file is its parsed JSON object, or (``paths``)
@@ -76,7 +92,8 @@ KIND = Param("kind", "str", "mark shape", default="dot", choices=("dot", "cross"
 MARK_XY = Param("mark_xy", "vec", "approximate mark position, ACS x and y", unit="mm", default=REQUIRED, length=2,
                 aliases=("--mark",))
 MARK_SIZE = Param("mark_size_mm", _FLOAT, "mark size: dot radius or cross half-size", unit="mm", lo=0,
-                  lo_open=True, default_text="0.4 for a dot, 0.6 for a cross")
+                  lo_open=True, default_text="0.4 for a dot, 0.6 for a cross", default_of=KIND.name,
+                  default_by=(("dot", 0.4), ("cross", 0.6)))
 IMU_READINGS = Param("imu_readings", "int", "inclinometer readings averaged at each standstill (the tilt compensation)",
                      default=10, lo=1, hi=1000)
 IMU_INTERVAL = Param("imu_interval_s", _FLOAT, "time between those readings: the inclinometer's output period "
@@ -85,7 +102,7 @@ COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comm
                      "mount (docs/accuracy.md)", default="tilt,heading_fit,bias,mount")
 APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT, "speed of the recorded final move of each approach (more "
                        "stream points and inclinometer samples along it)", unit="mm/s", lo=0, lo_open=True,
-                       default_text="speed_mm_s")
+                       default_text="speed_mm_s", default_of=SPEED.name)
 STREAM_RATE = Param("stream_rate_hz", _FLOAT, "tracker stream rate on the final approach (heading_fit)", unit="Hz",
                     lo=0, hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz); 0: none")
 CALIBRATION = Param("calibration", "file", "calibration result to measure with", installed="calibration/active.json",

@@ -1,8 +1,9 @@
 """The guided procedures, each declared once: name, ritactl verb, help, parameters, whether it drives.
 
 Everything else is derived from these declarations: ``calib.start``'s choices and the daemon's
-check of a new job's ``params`` (``check_params``: ritad is the authority, the clients' checks
-only answer earlier), the worker's defaults (``DEFAULTS``), ritactl's procedure verbs and their
+check of a new job's ``params`` and their defaults (``Procedure.resolve``: ritad is the authority and
+stores the resolved parameters with the job, the worker and the computation read them; the clients'
+checks, ``check_params``, only answer earlier), ritactl's procedure verbs and their
 options (daemon/ctl/procverbs.py; each parameter's ``--name`` plus its ``aliases``), the
 console's per-procedure form (``schema``), which jobs a STOP stops (``MOVING_PROCEDURES``), which
 stored inputs an offline recompute may replace (``inputs``), and the procedure table in
@@ -16,8 +17,9 @@ Stdlib only, like the command table.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
-from typing import Any, Callable, Generic, Iterator, TypeVar
+from dataclasses import dataclass, field, make_dataclass
+from functools import cached_property
+from typing import Any, Callable, ClassVar, Generic, Iterator, TypeVar, cast
 
 from daemon.bus.args import BadValue
 from daemon.bus.procedure_params import (APPROACH_SPEED, CALIBRATION, COMPENSATION, DISTANCE, IMU_INTERVAL,
@@ -27,6 +29,24 @@ from daemon.bus.protocol import CommandError
 
 #: what the result shows (ritactl, the console's panel and plot)
 VIEWS = ("pose", "camera_model", "mark", "clusters")
+
+
+class Resolved:
+    """A job's parameters with every default applied (:meth:`Procedure.resolve`): a frozen dataclass per
+    procedure, read by attribute. A value the run decides is None, as the parameter's ``default_text``
+    says (the robot's installed file, its current heading, the tracker's configured rate, the computation's
+    σ).
+    """
+
+    procedure: ClassVar[str] = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form stored with the job (``calib.jobs``, state.json's ``params``): every parameter."""
+        values = {n: getattr(self, n) for n in self.__dataclass_fields__}
+        return {n: list(v) if isinstance(v, tuple) else v for n, v in values.items()}
+
+    def __getattr__(self, name: str) -> Any:  # reached only for a name that is no field
+        raise AttributeError(f"{self.procedure}: no parameter {name!r}")
 
 
 @dataclass(frozen=True)
@@ -41,8 +61,63 @@ class Procedure:
     view: str                    # one of VIEWS
     inputs: dict[str, str] = field(default_factory=dict)  # replaceable definition → its key in the stored obs
 
+    def __post_init__(self) -> None:
+        names = [p.name for p in self.params]
+        for i, p in enumerate(self.params):  # resolve() applies defaults in order
+            assert not p.default_of or p.default_of in names[:i], f"{self.name}.{p.name} before {p.default_of}"
+
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
+
+    def check(self, params: Any, *, required: bool = True, paths: bool = True) -> dict[str, Any]:
+        """The given parameters checked; null or absent means the default (:meth:`resolve` applies it).
+
+        ``bad_args`` names every bad parameter: wrong type, out of range, unknown, or (``required``)
+        missing. ``paths``: a file parameter may be a data-dir path (the console's form); on the bus
+        it is the file's JSON object, which is what the worker uses.
+        """
+        if not isinstance(params, dict):
+            raise ParamError(f"{self.name}: the parameters must be a JSON object, got {params!r:.80}")
+        known = {p.name: p for p in self.params}
+        out: dict[str, Any] = {}
+        bad: list[tuple[str, str]] = [(str(n), f"unknown parameter {n!r}") for n in params if n not in known]
+        for name, p in known.items():
+            v = params.get(name)
+            try:
+                if v is None or (p.type == "file" and v == ""):
+                    if p.required and required:
+                        raise BadValue(f"parameter {name!r} is required ({p.help})")
+                    continue
+                out[name] = p.checked(v, paths=paths)
+            except BadValue as exc:
+                bad.append((name, str(exc)))
+        if bad:
+            text = "; ".join(why for _, why in bad)
+            if len(bad) > len([n for n, _ in bad if n in known]):
+                text += f" (known: {', '.join(known)})"
+            first = next((n for n, _ in bad if n in known), "")
+            raise ParamError(f"{self.name}: {text}", first, tuple(n for n, _ in bad))
+        return out
+
+    @cached_property
+    def resolved_type(self) -> type[Resolved]:
+        """The frozen dataclass of this procedure's resolved parameters, one field per parameter in order."""
+        name = "".join(w.title() for w in self.name.split("-")) + "Params"
+        cls = make_dataclass(name, [(p.name, p.python_type()) for p in self.params], bases=(Resolved,),
+                             frozen=True, namespace={"procedure": self.name})
+        return cast(type[Resolved], cls)
+
+    def resolve(self, params: Any, *, required: bool = True) -> Resolved:
+        """The parameters checked as ``calib.start`` checks them, with every default applied: the one place a
+        default is resolved. ritad stores the result with the job (``to_dict``), the worker and the
+        computation read its attributes. Resolving a resolved record gives it back, so a record of any age
+        resolves."""
+        given = self.check(params, required=required, paths=False)
+        values: dict[str, Any] = {}
+        for p in self.params:  # in order: a default that follows an earlier parameter finds it resolved
+            v = given.get(p.name)
+            values[p.name] = p.value_of(values) if v is None else tuple(v) if p.type == "vec" else v
+        return self.resolved_type(**values)
 
 
 #: the inputs of the compensations at mark stops (docs/accuracy.md, "Compensations")
@@ -145,50 +220,9 @@ class Hooks(Generic[T]):
         return self
 
 
-def defaults() -> dict[str, Any]:
-    """Every parameter's default by name (a name means one thing in every procedure)."""
-    out: dict[str, Any] = {}
-    for params in PARAMS.values():
-        for p in params:
-            if p.default is not None and not p.required:
-                assert out.get(p.name, p.default) == p.default, f"{p.name}: two defaults"
-                out[p.name] = p.default
-    return out
-
-
-DEFAULTS = defaults()
-
-
 def check_params(procedure: str, params: Any, *, required: bool = True, paths: bool = True) -> dict[str, Any]:
-    """The parameters checked; null or absent means the worker's default.
-
-    ``bad_args`` names every bad parameter: wrong type, out of range, unknown, or (``required``)
-    missing. ``paths``: a file parameter may be a data-dir path (the console's form); on the bus
-    it is the file's JSON object, which is what the worker uses.
-    """
-    proc = get(procedure)
-    if not isinstance(params, dict):
-        raise ParamError(f"{procedure}: the parameters must be a JSON object, got {params!r:.80}")
-    known = {p.name: p for p in proc.params}
-    out: dict[str, Any] = {}
-    bad: list[tuple[str, str]] = [(str(n), f"unknown parameter {n!r}") for n in params if n not in known]
-    for name, p in known.items():
-        v = params.get(name)
-        try:
-            if v is None or (p.type == "file" and v == ""):
-                if p.required and required:
-                    raise BadValue(f"parameter {name!r} is required ({p.help})")
-                continue
-            out[name] = p.checked(v, paths=paths)
-        except BadValue as exc:
-            bad.append((name, str(exc)))
-    if bad:
-        text = "; ".join(why for _, why in bad)
-        if len(bad) > len([n for n, _ in bad if n in known]):
-            text += f" (known: {', '.join(known)})"
-        first = next((n for n, _ in bad if n in known), "")
-        raise ParamError(f"{procedure}: {text}", first, tuple(n for n, _ in bad))
-    return out
+    """:meth:`Procedure.check` of the procedure named ``procedure`` (``bad_args`` for an unknown one)."""
+    return get(procedure).check(params, required=required, paths=paths)
 
 
 def _file_object(procedure: str, p: Param, path: str, read: Callable[[str], bytes]) -> Any:
@@ -259,9 +293,9 @@ def markdown_table() -> str:
     return "\n".join(_rows()) + "\n"
 
 
-__all__ = ["ALL", "BY_NAME", "DEFAULTS", "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
-           "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "check_params", "cli_flags", "describe",
-           "get", "load_files", "markdown_table", "schema"]
+__all__ = ["ALL", "BY_NAME", "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
+           "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "Resolved", "check_params",
+           "cli_flags", "describe", "get", "load_files", "markdown_table", "schema"]
 
 if __name__ == "__main__":
     import sys

@@ -1,6 +1,6 @@
 """What moves between a dataset's stop records and the compensation math (calibration/compensation.py).
 
-* :func:`parse_compensation` — a job's ``compensation`` parameter (default: the procedure table's);
+* :func:`parse_compensation` — a job's ``compensation`` parameter (resolved: daemon/bus/procedures.py);
 * :func:`stop_of` — a dataset stop record → :class:`calibration.compensation.Stop`;
 * :func:`plate_imu_offset` — the inclinometer's offset and yaw from the on-plate runs (referencing);
 * :func:`compensation_summary` — which compensations were requested, applied, skipped;
@@ -21,16 +21,13 @@ from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight
 from calibration.imu_mount import imu_mount
 from calibration.mount import MountOffset
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
-
-#: the compensations a job applies when its parameters do not say
-DEFAULT_COMPENSATION: str = PARAM_DEFAULTS["compensation"]
 
 
-def parse_compensation(value: Any) -> Compensation:
-    """``Compensation.parse`` with the error naming the parameter (a ValueError: ritactl recompute exits 5)."""
+def parse_compensation(value: str) -> Compensation:
+    """``Compensation.parse`` of a job's resolved ``compensation`` with the error naming the parameter (a
+    ValueError: ritactl recompute exits 5)."""
     try:
-        return Compensation.parse(DEFAULT_COMPENSATION if value is None else value)
+        return Compensation.parse(value)
     except (ValueError, TypeError, AttributeError) as exc:
         raise ValueError(f"compensation={value!r}: {exc}") from None
 
@@ -154,7 +151,7 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
     return out
 
 
-__all__ = ["DEFAULT_COMPENSATION", "calibration_inputs", "compensation_summary", "heading_weight", "imu_yaw",
+__all__ = ["calibration_inputs", "compensation_summary", "heading_weight", "imu_yaw",
            "parse_compensation",
            "plate_imu_offset", "reflector_mount", "stop_of", "stop_record", "tracker_distance_mm",
            "tracker_position"]

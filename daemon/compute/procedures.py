@@ -27,7 +27,8 @@ from calibration.mount import from_reversal as mount_from_reversal, message as m
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
-from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
+from daemon.bus.procedures import (EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks, Procedure,
+                                   Resolved, get)
 from daemon.compute.experiment_checks import sigma_check, weight_checks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
                                    parse_compensation, plate_imu_offset, reflector_mount, stop_of, stop_record,
@@ -42,8 +43,9 @@ def _abs(point: dict[str, Any]) -> np.ndarray:
 
 
 def _sigma_t(obs: dict[str, Any]) -> float:
-    """The dataset's tracker 1σ per coordinate (mm), or the documented default."""
-    s = obs.get("sigma_t_mm")
+    """The dataset's tracker 1σ per coordinate (mm); none given, the computation's own (the documented
+    10 µm)."""
+    s = recorded(REFERENCING, obs).sigma_t_mm
     return DEFAULT_SIGMA_T_MM if s is None else float(s)
 
 
@@ -138,16 +140,25 @@ def no_mount_why(calib: dict[str, Any]) -> str:
     return f"{head}: " + (said[0].split(": ", 1)[1] if said else "its referencing's reversal did not estimate it")
 
 
-#: default mark sizes (dot radius / cross half-size, mm) when the procedure did not record one
-MARK_SIZE_MM = {"dot": 0.4, "cross": 0.6}
-
-
 #: the marks' pixel 1σ (the locator's, calibration.measure.measure_mark's default)
 MARK_SIGMA_PX = 0.05
 
 
+def recorded(proc: Procedure, obs: dict[str, Any]) -> Resolved:
+    """The settings the worker recorded with the observations (mark kind and size, compensations, tracker σ),
+    resolved by the declaration: one an older worker did not record gets the declared default."""
+    names = {p.name for p in proc.params if p.type != "file"}
+    return proc.resolve({k: v for k, v in obs.items() if k in names}, required=False)
+
+
+def shown_params(procedure: str, params: dict[str, Any]) -> dict[str, Any]:
+    """A result's ``params``: the job's, without the definitions a recompute may replace (the obs hold
+    them)."""
+    return {k: v for k, v in params.items() if k not in get(procedure).inputs}
+
+
 def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, kind: str,
-                 size_mm: float | None, sigma_t_mm: float | None, comp: Compensation,
+                 size_mm: float, sigma_t_mm: float | None, comp: Compensation,
                  learn: list[Any] | None = None) -> dict[str, Any]:
     """One stop's mark in ACS with ``comp`` applied (calibration/compensation.py does the math).
 
@@ -177,7 +188,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = a.abs_P_at
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
-                      mark_size_mm=size_mm or MARK_SIZE_MM.get(kind), roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
+                      mark_size_mm=size_mm, roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
                       cov_rob_H_scn=None if cov is None else np.array(cov), cov_mount_xy_mm2=a.cov_mount_xy_mm2)
     if learn is not None:
@@ -195,9 +206,10 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """One floor mark in ACS from one stop (image + approach positions); its σ scaled as the calibration's last
     experiment found its own σ to need (calibration/coverage.py, stored by ``store_bias`` as ``sigma_check``)."""
-    comp = parse_compensation(obs.get("compensation"))
-    r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), obs.get("kind", "dot"),
-                     obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp)
+    s = recorded(MEASURE_MARK, obs)
+    comp = parse_compensation(s.compensation)
+    r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), s.kind, s.mark_size_mm, s.sigma_t_mm,
+                     comp)
     record = obs["calibration"].get("sigma_check")
     scale, bad = stored_scale(record)
     r["sigma"].update(stated_mm=r["std_mm"], scale=scale, scale_source=(record or {}).get("job") if not bad else None)
@@ -214,11 +226,11 @@ def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks, the metrics table, and what the
     experiment's own scatter says about its stated σ and heading_fit's weight (daemon/compute/experiment_checks.py)."""
-    kind, load = obs.get("kind", "dot"), _eight_bit(load)
-    comp = parse_compensation(obs.get("compensation"))
+    s, load = recorded(EXPERIMENT, obs), _eight_bit(load)
+    comp = parse_compensation(s.compensation)
     stops: list[Any] = []
-    marks = [_mark_in_acs(obs["calibration"], s, load, kind, obs.get("mark_size_mm"), obs.get("sigma_t_mm"), comp,
-                          stops) for s in obs["stops"]]
+    marks = [_mark_in_acs(obs["calibration"], stop, load, s.kind, s.mark_size_mm, s.sigma_t_mm, comp, stops)
+             for stop in obs["stops"]]
     xy = np.array([m["abs_xyz"][:2] for m in marks])
     headings = np.array([m["heading_deg"] for m in marks])
     groups = np.array([s["k"] for s in obs["stops"]])

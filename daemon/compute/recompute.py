@@ -17,7 +17,7 @@ from daemon.bus.procedures import ALL, EXPERIMENT, REFERENCING, get
 from daemon.bus.storage import atomic_write_json
 from daemon.compute.bias_store import biased_calibration
 from daemon.compute.inputs import parse_compensation
-from daemon.compute.procedures import COMPUTE
+from daemon.compute.procedures import COMPUTE, shown_params
 from daemon.compute.images import PrefetchedLoader, first_image
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
@@ -148,8 +148,7 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
             what = f"the stored data lacks {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
             raise ComputationFailed(f"the {proc} computation failed on the stored data: {what}") from exc
     result["job"] = state.get("job") or root.name
-    result["params"] = {k: v for k, v in (state.get("params") or {}).items()
-                        if k not in ("plate", "camera_model", "calibration")}
+    result["params"] = shown_params(proc, state.get("params") or {})
     given = [k for k, v in (*overrides.items(), ("compensation", compensation)) if v is not None]
     if given:
         result["recomputed_with"] = sorted(given)

@@ -15,6 +15,7 @@ from typing import Any
 
 from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS
+from daemon.bus.names import JobState
 from daemon.bus.procedures import MOVING_PROCEDURES
 from daemon.ctl.device import add_table_args, table_args
 from daemon.ctl.procverbs import add_procedure_parsers
@@ -41,12 +42,12 @@ def final_of(j: dict[str, Any]) -> dict[str, Any] | None:
     """
     state = j.get("state")
     if isinstance(j.get("result"), dict) and j["result"]:  # also a failure's, with failed/cancelled set
-        return {"job": j["job"], **j["result"], **({"cancelled": True} if state == "cancelled" else {})}
+        return {"job": j["job"], **j["result"], **({"cancelled": True} if state == JobState.CANCELLED else {})}
     err = j.get("error")
-    if err or state in ("failed", "cancelled", "stopped"):
+    if err or state in (JobState.FAILED, JobState.CANCELLED, JobState.STOPPED):
         msg = err.get("message") if isinstance(err, dict) else (err or f"job {state}")
-        return {"job": j["job"], "failed": True, "cancelled": state == "cancelled", "stopped": state == "stopped",
-                "message": str(msg)}
+        return {"job": j["job"], "failed": True, "cancelled": state == JobState.CANCELLED,
+                "stopped": state == JobState.STOPPED, "message": str(msg)}
     return None
 
 
@@ -218,8 +219,9 @@ def cmd_jobs(c: Client, a: argparse.Namespace) -> int:
         return Exit.OK
     for j in r["jobs"]:
         end = final_of(j)
-        state = j["state"] if end is None else ("cancelled" if end.get("cancelled") else "stopped"
-                                                if end.get("stopped") else "failed" if end.get("failed") else "done")
+        state = j["state"] if end is None else (
+            JobState.CANCELLED if end.get("cancelled") else JobState.STOPPED if end.get("stopped")
+            else JobState.FAILED if end.get("failed") else JobState.DONE)
         p = {} if end else (j.get("progress") or {})
         print(f"{j['job']:50s} {j['procedure']!s:13s} {state:9s} {p.get('percent', '')} {p.get('step', '')}")
     if (r.get("latch") or {}).get("latched"):

@@ -23,17 +23,17 @@ from pathlib import Path
 from typing import Any, Callable
 
 from daemon.bus.command_table import MOVING_PROCEDURES, PROCEDURES
-from daemon.bus.procedures import check_params
+from daemon.bus.procedures import check_params, get
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch
-from daemon.bus.names import Topic
+from daemon.bus.names import JobState, Topic
 
 #: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
-FINAL_STATES = ("done", "failed", "cancelled")
-RESUMABLE = ("failed", "cancelled", "stopped")
+FINAL_STATES = (JobState.DONE, JobState.FAILED, JobState.CANCELLED)
+RESUMABLE = (JobState.FAILED, JobState.CANCELLED, JobState.STOPPED)
 #: a robot STOP stops the jobs of moving procedures in these states
-ACTIVE_STATES = ("queued", "running", "waiting")
+ACTIVE_STATES = (JobState.QUEUED, JobState.RUNNING, JobState.WAITING)
 #: a stopped job whose worker has not reported the end of its run yet is resumed anyway after this long
 #: without a sign of the worker (it died; the next worker finds the job stopped)
 WORKER_GONE_S = 60.0
@@ -129,14 +129,15 @@ class CalibJobs:
                                                     f"`ritactl jobs` lists them)")
         return self.jobs[job_id]
 
-    def _new_job(self, job_id: str, proc: str, params: dict[str, Any], by: str, state: str) -> dict[str, Any]:
+    def _new_job(self, job_id: str, proc: str, params: dict[str, Any], by: str,
+                 state: JobState) -> dict[str, Any]:
         job = {"job": job_id, "procedure": proc, "params": params, "state": state, "by": by,
                "posted_ns": time.time_ns(), "progress": None, "result": None, "prompt": None, "error": None}
         self.jobs[job_id] = job
         return job
 
     def _enqueue(self, job: dict[str, Any], step: str) -> dict[str, Any]:
-        job.update(state="queued", progress=None, result=None, prompt=None, error=None)
+        job.update(state=JobState.QUEUED, progress=None, result=None, prompt=None, error=None)
         self._inboxes.pop(job["job"], None)  # a stale answer or cancel must not hit the new run
         self._queue.put({k: job[k] for k in ("job", "procedure", "params")})
         self._publish(Topic.CALIB_PROGRESS, {"job": job["job"], "step": step, "percent": 0.0,
@@ -156,15 +157,17 @@ class CalibJobs:
             job_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{proc}-{uuid.uuid4().hex[:6]}"
         else:
             job_id = self._job_id(req)
-        # the daemon is the authority on parameters: bad ones never reach a job (a resume keeps the job's own)
-        params = check_params(proc, params, required=job_id not in self.jobs, paths=False)
+        # the daemon is the authority on parameters: bad ones never reach a job (a resume keeps the job's own,
+        # a new job's are stored resolved: every default applied)
         if job_id in self.jobs:  # posting an existing id resumes it (as calib.resume does)
+            check_params(proc, params, required=False, paths=False)
             job = self._resumable(req.cmd, self.jobs[job_id])
             if job["procedure"] != proc:
                 raise CommandError(ErrorCode.BAD_ARGS, f"calib.start: job {job_id!r} is a {job['procedure']} job, "
                                                        f"not {proc}")
             return self._enqueue(job, "queued (resumed)")
-        return self._enqueue(self._new_job(job_id, proc, params, req.peer, "queued"), "queued")
+        params = get(proc).resolve(params).to_dict()
+        return self._enqueue(self._new_job(job_id, proc, params, req.peer, JobState.QUEUED), "queued")
 
     def resume(self, req: Request) -> Any:
         """Queue a failed or cancelled job again; the worker continues from its checkpoint."""
@@ -176,10 +179,11 @@ class CalibJobs:
         state = job["state"]
         self._not_latched(cmd, job["procedure"])
         age = self.worker_age()
-        if state == "stopped" and not job.get("run_ended", True) and age is not None and age < WORKER_GONE_S:
+        ended = job.get("run_ended", True)
+        if state == JobState.STOPPED and not ended and age is not None and age < WORKER_GONE_S:
             raise CommandError(ErrorCode.BUSY, f"{cmd}: the worker has not yet ended the stopped run of job "
                                                f"{job['job']!r}; try again in a few seconds")
-        if state == "done":
+        if state == JobState.DONE:
             raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is done; there is nothing to resume "
                                                    f"(start a new job to measure again)")
         if state not in RESUMABLE:
@@ -198,13 +202,14 @@ class CalibJobs:
             raise CommandError(ErrorCode.NOT_FOUND, f"{cmd}: no calibration job {job_id!r} "
                                                     f"(recent: {', '.join(list(self.jobs)[-5:]) or 'none'})")
         status = st.get("status")
-        state = status if status in (*FINAL_STATES, "stopped") else "failed"  # "running" on disk: its worker died
+        # "running" on disk: its worker died
+        state = JobState(status) if status in (*FINAL_STATES, JobState.STOPPED) else JobState.FAILED
         return self._new_job(job_id, st["procedure"], {}, "dataset on disk", state)
 
     def answer(self, req: Request) -> Any:
         job = self._need_job(req)
         prompt = job.get("prompt")
-        if job["state"] != "waiting" or not isinstance(prompt, dict):
+        if job["state"] != JobState.WAITING or not isinstance(prompt, dict):
             raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: job {job['job']!r} is {job['state']} and is not "
                                                    f"asking anything now")
         answer = req.args.get("answer")
@@ -213,12 +218,12 @@ class CalibJobs:
             raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: answer {answer!r} is not one of the choices "
                                                    f"{choices} (question: {prompt.get('question')})")
         self._inboxes[job["job"]].put({"answer": answer.strip()})
-        job.update(prompt=None, state="running")
+        job.update(prompt=None, state=JobState.RUNNING)
         return {"delivered": True}
 
     def cancel(self, req: Request) -> Any:
         job = self._need_job(req)
-        if job["state"] in (*FINAL_STATES, "stopped"):
+        if job["state"] in (*FINAL_STATES, JobState.STOPPED):
             raise CommandError(ErrorCode.BAD_ARGS, f"calib.cancel: job {job['job']!r} is already {job['state']}; "
                                                    f"there is nothing to cancel")
         self._inboxes[job["job"]].put({"cancel": True})
@@ -240,9 +245,9 @@ class CalibJobs:
                 self._inboxes[job_id].put({"stop": True})
             msg = (f"stopped by {by} (robot STOP); `ritactl robot release`, then `ritactl resume {job_id}` "
                    f"continues it from its last completed step")
-            payload = {"job": job_id, "procedure": job["procedure"], "state": "stopped", "stopped": True,
-                       "failed": True, "message": msg}
-            job.update(state="stopped", prompt=None, run_ended=never_ran, result=payload, error=msg)
+            payload = {"job": job_id, "procedure": job["procedure"], "state": JobState.STOPPED,
+                       "stopped": True, "failed": True, "message": msg}
+            job.update(state=JobState.STOPPED, prompt=None, run_ended=never_ran, result=payload, error=msg)
             log.warning("job %s stopped by %s", job_id, by)
             self._publish(Topic.CALIB_RESULT, payload)
             out.append(job_id)
@@ -272,24 +277,26 @@ class CalibJobs:
         job = self.jobs.get(job_id)
         if job is None:  # a job resumed by a restarted worker after a daemon restart: adopt it
             proc = req.args.get("procedure")
-            job = self._new_job(job_id, proc if proc in PROCEDURES else "?", {}, "worker (resumed)", "running")
-        if job["state"] == "stopped" and kind in ("result", "error"):  # the worker ended the stopped run
+            job = self._new_job(job_id, proc if proc in PROCEDURES else "?", {}, "worker (resumed)",
+                                JobState.RUNNING)
+        # the worker ended the stopped run
+        if job["state"] == JobState.STOPPED and kind in ("result", "error"):
             job["run_ended"] = True
             return {"ok": True, "ignored": f"job {job_id} is stopped"}
-        if job["state"] in (*FINAL_STATES, "stopped"):
+        if job["state"] in (*FINAL_STATES, JobState.STOPPED):
             log.info("job %s is %s: ignoring a late %s report", job_id, job["state"], kind)
             return {"ok": True, "ignored": f"job {job_id} is already {job['state']}"}
         if kind == "progress":
-            job.update(progress=data, state="running")
+            job.update(progress=data, state=JobState.RUNNING)
             self._publish(Topic.CALIB_PROGRESS, {"job": job_id, **data})
         elif kind == "prompt":
-            job.update(prompt=data, state="waiting")
+            job.update(prompt=data, state=JobState.WAITING)
             self._publish(Topic.CALIB_PROMPT, {"job": job_id, **data})
         else:
             # a run the latched stop ended is "stopped" (resumable after release), also for a job adopted above
             stopped = kind == "error" and bool(data.get("stopped"))
-            state = ("done" if kind == "result" else "cancelled" if data.get("cancelled") else
-                     "stopped" if stopped else "failed")
+            state = (JobState.DONE if kind == "result" else JobState.CANCELLED if data.get("cancelled") else
+                     JobState.STOPPED if stopped else JobState.FAILED)
             payload = {"job": job_id, **data, "state": state, **({"failed": True} if kind == "error" else {})}
             job.update(state=state, result=payload, prompt=None, run_ended=True if stopped else job.get("run_ended"),
                        error=str(data.get("message", "failed")) if kind == "error" else None)

@@ -17,12 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError
-from daemon.compute.procedures import COMPUTE
+from daemon.compute.procedures import COMPUTE, shown_params
 from daemon.worker.finish import finish
 from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped
 from daemon.worker.procedures import RUN
 from daemon.worker.store import save_result
 from daemon.bus.client import Client, ClientTimeout
+from daemon.bus.names import JobState
 from daemon.bus.protocol import CommandError
 
 log = logging.getLogger("daemon.worker")
@@ -76,7 +77,7 @@ def _dedupe(messages: list[str] | None) -> list[str]:
 def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, Any] | None:
     """Run (or resume) one job to its end; report progress, prompts and the result on the bus."""
     ctx = JobContext(client, job, data_dir)
-    ctx.state["status"] = "running"
+    ctx.state["status"] = JobState.RUNNING
     ctx.checkpoint()
     previous = ctx.state.pop("failure", None) or {}
     if ctx.resumed:
@@ -88,21 +89,21 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         RUN[ctx.procedure](ctx)
         result = _compute(ctx, previous)
         result.update(job=ctx.job_id, messages=_dedupe(result.get("messages")),
-                      params={k: v for k, v in ctx.params.items() if k not in ("plate", "camera_model", "calibration")})
+                      params=shown_params(ctx.procedure, ctx.params.to_dict()))
         result = finish(ctx, save_result(ctx.root, data_dir, result))  # activate, install, store the bias
     except Cancelled as exc:
-        ctx.finish("cancelled")
+        ctx.finish(JobState.CANCELLED)
         ctx.report("error", {"message": str(exc), "cancelled": True})
         return None
     except Stopped as exc:  # no further bus call: the daemon already shows the job stopped
         log.warning("job %s stopped at %s: %s", ctx.job_id, ctx.step, exc)
-        ctx.finish("stopped")
+        ctx.finish(JobState.STOPPED)
         ctx.report("error", {"message": str(exc), "stopped": True, "step": ctx.step})
         return None
     except Exception as exc:  # noqa: BLE001 - any failure ends this job, never the worker
         # a device refused, a gate failed or input was bad: keep the observations, say how to resume
         ctx.state.setdefault("failure", {"step": ctx.step, "message": operator_message(exc)})
-        ctx.finish("failed")
+        ctx.finish(JobState.FAILED)
         hint = (f"The data so far is kept; `ritactl resume {ctx.job_id}` re-runs the failed step."
                 if getattr(exc, "resumable", True) else f"The data is kept in {ctx.root}.")
         msg = f"{ctx.step}: {operator_message(exc)}. {hint}"
@@ -112,7 +113,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         ctx.report("error", {"message": msg, "step": ctx.step})
         return None
     ctx.state.pop("failure", None)
-    ctx.finish("done")
+    ctx.finish(JobState.DONE)
     summary = {k: result.get(k) for k in ("procedure", "verdict", "messages", "rob_H_cam", "dataset", "mark",
                                           "table_markdown", "files", "uncertainty", "compensation")}
     ctx.report("result", summary)  # the last report: a job with a result is final
@@ -122,7 +123,8 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
 def _stopped_in_daemon(client: Client) -> set[str]:
     """Jobs the daemon holds as stopped: a restarted worker must not resume them on its own."""
     try:
-        return {j["job"] for j in client.call("calib.jobs", timeout=10)["jobs"] if j.get("state") == "stopped"}
+        jobs = client.call("calib.jobs", timeout=10)["jobs"]
+        return {j["job"] for j in jobs if j.get("state") == JobState.STOPPED}
     except (ClientTimeout, CommandError, KeyError, TypeError):
         return set()
 
@@ -135,7 +137,7 @@ def unfinished(data_dir: Path) -> list[dict[str, Any]]:
             st = json.loads(state_path.read_text())
         except (OSError, json.JSONDecodeError):
             continue
-        if st.get("status") == "running":
+        if st.get("status") == JobState.RUNNING:
             out.append({"job": st["job"], "procedure": st["procedure"], "params": st.get("params", {})})
     return out
 
@@ -166,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     for job in unfinished(data_dir):
         if job["job"] in stopped:  # stopped while its worker was gone: it waits for calib.resume
             ctx = JobContext(client, job, data_dir)
-            ctx.finish("stopped")
+            ctx.finish(JobState.STOPPED)
             ctx.report("error", {"message": "stopped while no worker ran it", "stopped": True})
             continue
         log.info("resuming job %s (%s)", job["job"], job["procedure"])

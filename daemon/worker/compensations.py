@@ -18,12 +18,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.storage import atomic_write_json, calibration_dir
 from daemon.compute.bias_store import biased_calibration
-
-#: inclinometer readings averaged at a standstill (1 s at the base's 10 Hz)
-DEFAULT_IMU_READINGS: int = PARAM_DEFAULTS["imu_readings"]  # the procedures' parameter table
 
 
 def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict[str, Any] | None:

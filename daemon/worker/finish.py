@@ -33,7 +33,7 @@ def _install_model(ctx: JobContext, result: dict[str, Any]) -> dict[str, Any]:
 
 @FINISH.on(EXPERIMENT)
 def _store_bias(ctx: JobContext, result: dict[str, Any]) -> dict[str, Any]:
-    if not ctx.params.get("store_bias"):
+    if not ctx.params.store_bias:
         return result
     try:
         note = store_bias(ctx.data_dir, result)

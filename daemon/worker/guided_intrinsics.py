@@ -32,13 +32,8 @@ SETUP = ("put the robot on its calibration stand (camera free, nothing within 10
 def _board(ctx: JobContext) -> Board:
     """The board definition: the job's ``board`` parameter, else the robot's installed board.json."""
     if "board" not in ctx.obs:
-        d = ctx.params.get("board")
-        if d is None:
-            path = ctx.data_dir / "calibration" / "board.json"
-            if not path.exists():
-                raise ValueError(f"{path} does not exist: pass the board you hold with --board FILE "
-                                 f"(docs/operations.md, Intrinsic calibration) or install it there")
-            d = json.loads(path.read_text())
+        d = ctx.definition("board", "pass the board you hold with --board FILE (docs/operations.md, "
+                                    "Intrinsic calibration)")
         Board.from_dict(d, source="board file")  # refuse a bad file before the operator starts
         ctx.obs["board"] = d
         ctx.checkpoint()

@@ -17,6 +17,8 @@ import numpy as np
 
 from calibration import __version__
 from daemon.bus.client import Client
+from daemon.bus.names import JobState
+from daemon.bus.procedures import Resolved, cli_flags, get
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import Dataset, atomic_write_json
 from daemon.compute.images import grey_loader
@@ -55,10 +57,11 @@ class JobContext:
             self.resumed = True
         else:
             self.state = {"schema": 1, "job": self.job_id, "procedure": self.procedure,
-                          "params": job.get("params", {}), "status": "running", "done": [], "obs": {},
+                          "params": job.get("params", {}), "status": JobState.RUNNING, "done": [], "obs": {},
                           "started_ns": time.time_ns(), "software": __version__}
             self.resumed = False
         self.step = "start"  # the step in progress, named in a failure message
+        self._params: Resolved | None = None
         self.dataset = Dataset(self.root, kind=f"procedure:{self.procedure}",
                                meta={"job": self.job_id, "params": self.state["params"], "software": __version__})
         self.checkpoint()
@@ -66,8 +69,26 @@ class JobContext:
     # ------------------------------------------------------------------ state
 
     @property
-    def params(self) -> dict[str, Any]:
-        return self.state["params"]
+    def params(self) -> Resolved:
+        """The job's parameters, every default applied: ritad stored them resolved; a record an older version
+        wrote (only the given ones) resolves the same way. Resolved on first use, inside the job's run, so a
+        record that no longer checks fails its job, not the worker."""
+        if self._params is None:
+            self._params = get(self.procedure).resolve(self.state["params"])
+        return self._params
+
+    def definition(self, name: str, hint: str = "") -> dict[str, Any]:
+        """A file parameter's JSON object: the job's, else the robot's installed file its declaration
+        names."""
+        given = getattr(self.params, name)
+        if given is not None:
+            return dict(given)
+        p = get(self.procedure).param(name)
+        path = self.data_dir / p.installed
+        if not path.exists():
+            hint = hint or f"pass it with ritactl {get(self.procedure).verb} {cli_flags(p)[0]} FILE"
+            raise ValueError(f"{path} does not exist: {hint} or install it there")
+        return dict(json.loads(path.read_text()))
 
     @property
     def obs(self) -> dict[str, Any]:
@@ -83,7 +104,7 @@ class JobContext:
     def checkpoint(self) -> None:
         atomic_write_json(self.state_path, self.state)
 
-    def finish(self, status: str) -> None:
+    def finish(self, status: JobState) -> None:
         self.state["status"] = status
         self.state["finished_ns"] = time.time_ns()
         self.checkpoint()

@@ -14,11 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
-from daemon.worker.compensations import DEFAULT_IMU_READINGS, read_tilt
+from daemon.worker.compensations import read_tilt
 from daemon.worker.job import JobContext
 from daemon.worker.motion import confirm_done
-from daemon.worker.stream import DEFAULT_STREAM_RATE_HZ, record_move
+from daemon.worker.stream import record_move
 
 MIN_HEADING_MOVE_MM = 20.0
 
@@ -30,11 +29,12 @@ def wrap_deg(a: float) -> float:
 
 
 class Navigator:
-    """Drives the robot through the bus; its heading estimate lives in the job state."""
+    """Drives the robot through the bus; its heading estimate lives in the job state, its speeds and the
+    compensations' recording settings are the job's parameters."""
 
-    def __init__(self, ctx: JobContext, speed_mm_s: float = 100.0, turn_speed_deg_s: float = 30.0) -> None:
+    def __init__(self, ctx: JobContext, turn_speed_deg_s: float = 30.0) -> None:
         self.ctx = ctx
-        self.speed = speed_mm_s
+        self.speed = ctx.params.speed_mm_s
         self.turn_speed = turn_speed_deg_s
         self.nav = ctx.state.setdefault("nav", {"heading_deg": None})
         if ctx.resumed:  # a run stopped (or killed) mid-turn leaves the robot off the checkpointed heading
@@ -42,12 +42,6 @@ class Navigator:
         self.last_points: tuple[dict[str, Any], dict[str, Any]] | None = None
         #: compensation inputs of the last recorded approach: imu_prev, stream (see :meth:`straight`)
         self.last_record: dict[str, Any] = {}
-        self.imu_readings = int(ctx.params.get("imu_readings", DEFAULT_IMU_READINGS))
-        self.imu_interval_s = float(ctx.params.get("imu_interval_s", PARAM_DEFAULTS["imu_interval_s"]))
-        # the recorded final move may run slower: more stream points and inclinometer samples along it
-        self.approach_speed = float(ctx.params.get("approach_speed_mm_s") or speed_mm_s)
-        rate = ctx.params.get("stream_rate_hz", DEFAULT_STREAM_RATE_HZ)
-        self.stream_rate_hz = None if rate is None else float(rate)
 
     # ------------------------------------------------------------------ primitives
 
@@ -92,22 +86,11 @@ class Navigator:
     def straight(self, distance_mm: float, record: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Move and update the heading from the measured displacement; returns (before, after).
 
-        ``record``: the inclinometer at the start (``imu_readings`` averaged) and the
-        tracker's stream along the move go to ``last_record`` (the compensations' inputs).
+        ``record``: the compensations' inputs go to ``last_record`` (:meth:`_recorded_move`).
         """
         a, pa = self.where()
-        if record:  # robot_prev: the odometry at P_prev, so the dataset shows the move the base executed
-            self.last_record = {"imu_prev": read_tilt(self.ctx.call, self.imu_readings, self.imu_interval_s),
-                                "robot_prev": self.ctx.call("robot.status")}
-        if (record and pa.get("abs_H_trk") is not None and (self.stream_rate_hz is None or self.stream_rate_hz > 0)
-                and abs(distance_mm) <= 1900):
-            stream, why = record_move(self.ctx, distance_mm, self.approach_speed, pa["abs_H_trk"], self.stream_rate_hz,
-                                      self.last_record["imu_prev"])
-            if stream is None:  # heading_fit then reports "no tracker stream was recorded"; the log says why
-                log.warning("approach without the tracker's stream: %s", why)
-                self.move(distance_mm)
-            else:
-                self.last_record["stream"] = stream
+        if record:
+            self._recorded_move(distance_mm, pa)
         else:
             self.move(distance_mm)
         b, pb = self.where()
@@ -116,6 +99,27 @@ class Navigator:
             d = (b - a) * math.copysign(1.0, distance_mm)
             self.nav["heading_deg"] = math.degrees(math.atan2(d[1], d[0]))
         return a, b
+
+    def _recorded_move(self, distance_mm: float, pa: dict[str, Any]) -> None:
+        """The move with the compensations' inputs in ``last_record``, as a mark procedure's parameters set
+        them: the inclinometer at the start (``imu_readings`` averaged), the odometry there and the tracker's
+        stream along the move."""
+        p = self.ctx.params
+        # robot_prev: the odometry at P_prev, so the dataset shows the move the base executed
+        self.last_record = {"imu_prev": read_tilt(self.ctx.call, p.imu_readings, p.imu_interval_s),
+                            "robot_prev": self.ctx.call("robot.status")}
+        rate: float | None = p.stream_rate_hz  # None: the tracker's configured rate; 0: no stream
+        if pa.get("abs_H_trk") is None or rate == 0 or abs(distance_mm) > 1900:
+            self.move(distance_mm)
+            return
+        # the recorded final move may run slower: more stream points and inclinometer samples along it
+        stream, why = record_move(self.ctx, distance_mm, p.approach_speed_mm_s, pa["abs_H_trk"], rate,
+                                  self.last_record["imu_prev"])
+        if stream is None:  # heading_fit then reports "no tracker stream was recorded"; the log says why
+            log.warning("approach without the tracker's stream: %s", why)
+            self.move(distance_mm)
+        else:
+            self.last_record["stream"] = stream
 
     def turn_to(self, heading_deg: float) -> None:
         self.turn(wrap_deg(heading_deg - self.heading))
@@ -134,9 +138,11 @@ class Navigator:
             P = self.straight(dist)[1]
         return P
 
-    def approach(self, xy: np.ndarray, heading_deg: float, d_mm: float) -> tuple[np.ndarray, np.ndarray]:
-        """Stop at ``xy`` facing ``heading_deg`` after a straight run of ``d_mm``: (P_prev, P_at)."""
+    def approach(self, xy: np.ndarray, heading_deg: float, d_mm: float,
+                 record: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Stop at ``xy`` facing ``heading_deg`` after a straight run of ``d_mm``: (P_prev, P_at); ``record``:
+        that run's compensation inputs too (:meth:`straight`)."""
         u = np.array([math.cos(math.radians(heading_deg)), math.sin(math.radians(heading_deg))])
         self.goto(np.asarray(xy, float) - d_mm * u)
         self.turn_to(heading_deg)
-        return self.straight(d_mm, record=True)
+        return self.straight(d_mm, record=record)

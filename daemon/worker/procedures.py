@@ -7,9 +7,8 @@ same code ``ritactl recompute`` runs.
 """
 from __future__ import annotations
 
-import json
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -21,12 +20,9 @@ from daemon.worker.guided_intrinsics import guided_intrinsics
 from daemon.worker.job import JobContext, StepFailed
 from daemon.worker.motion import HEADING_TOL_DEG, ODOMETRY_TOL_MM, odometry_delta
 from daemon.worker.nav import Navigator
-from daemon.bus.procedures import DEFAULTS as PARAM_DEFAULTS
 from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
 from daemon.bus.protocol import CommandError
 
-#: default parameters (mm, degrees): declared with the procedures' parameters in the bus library
-DEFAULTS = PARAM_DEFAULTS
 #: a referencing drive cut short is driven back when the odometry since P0 shows the robot on its line
 #: (a straight move does not turn it or put it sideways) and the tracker agrees on the distance from P0
 #: within the drive's errors (scale, slip, lateral: a few mm over the plate): otherwise the odometry
@@ -37,18 +33,15 @@ BACK_AGREE_MM, BACK_AGREE_REL = 5.0, 0.05
 BACK_STILL_MM = 0.5
 
 
-def param(ctx: JobContext, key: str) -> Any:
-    return ctx.params.get(key, DEFAULTS.get(key))
-
-
 def _record_sigma_t(ctx: JobContext) -> None:
     """The job's tracker σ in the observations, only when given: without it the computation states its own
     (daemon/compute/procedures.py: 10 µm for the referencing, the MPE at the tracker's distance for marks)."""
-    if param(ctx, "sigma_t_mm") is not None:
-        ctx.obs.setdefault("sigma_t_mm", param(ctx, "sigma_t_mm"))
+    if ctx.params.sigma_t_mm is not None:
+        ctx.obs.setdefault("sigma_t_mm", ctx.params.sigma_t_mm)
 
 
-def _measure_reflector(ctx: JobContext, name: str, approx_trk: list[float] | None, pct: float) -> dict[str, Any]:
+def _measure_reflector(ctx: JobContext, name: str, approx_trk: Sequence[float] | None,
+                       pct: float) -> dict[str, Any]:
     """Aim + find + measure; when the tracker cannot find it, ask the operator to help."""
     ctx.progress(f"measure {name}", pct, f"tracker: find the reflector at {name}")
     if approx_trk is not None:
@@ -81,17 +74,17 @@ def _on_plate_run(ctx: JobContext, nav: Navigator, tag: str, base_pct: float) ->
         file, header, _ = ctx.capture_image(f"{tag}-p0" + (f"-{taken + 1}" if taken else ""))  # a retake
         P0 = ctx.call("tracker.measure", timeout=60)
         robot = ctx.call("robot.status")
-        imu = read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s"))  # None: no tilt
+        imu = read_tilt(ctx.call, ctx.params.imu_readings, ctx.params.imu_interval_s)  # None: no tilt
         runs[:] = [r for r in runs if r["tag"] != tag]
         runs.append({"tag": tag, "image": file, "header": header, "P0": P0, "robot0": robot,
                      **({"imu0": imu} if imu else {})})
         ctx.mark_done(f"{tag}.image")
     run = next(r for r in runs if r["tag"] == tag)
     if not ctx.done(f"{tag}.drive"):
-        ctx.progress(f"{tag}: drive {param(ctx, 'distance_mm'):.0f} mm", base_pct + 10, "robot moving")
-        nav.move(param(ctx, "distance_mm"))  # returns once all of it is driven, else raises
+        ctx.progress(f"{tag}: drive {ctx.params.distance_mm:.0f} mm", base_pct + 10, "robot moving")
+        nav.move(ctx.params.distance_mm)  # returns once all of it is driven, else raises
         run["robot1"] = ctx.call("robot.status")  # the odometry at P1: the dataset shows the executed drive
-        run["move_mm"] = float(param(ctx, "distance_mm"))
+        run["move_mm"] = float(ctx.params.distance_mm)
         ctx.mark_done(f"{tag}.drive")
     if not ctx.done(f"{tag}.P1"):
         run["P1"] = ctx.call("tracker.measure", timeout=60)
@@ -139,22 +132,22 @@ def referencing(ctx: JobContext) -> None:
     """Nests, robot on the plate (image + P0), drive, P1; optional 180° reversal run."""
     from daemon.compute.procedures import compute_referencing
 
-    nav = Navigator(ctx, param(ctx, "speed_mm_s"))
+    nav = Navigator(ctx)
     for key in ("plate", "camera_model"):
         if key not in ctx.obs:
-            ctx.obs[key] = ctx.params.get(key) or _installed(ctx, f"{key}.json")
+            ctx.obs[key] = ctx.definition(key)
     _record_sigma_t(ctx)
     nests = ctx.obs.setdefault("nests", {})
-    approx = ctx.params.get("nests_approx_trk", {})
+    approx = ctx.params.nests_approx_trk or {}
     for i, name in enumerate(NEST_NAMES):
         if name not in nests:
             nests[name] = _measure_reflector(ctx, name, approx.get(name), 5 + 10 * i)
             ctx.checkpoint()
     if not ctx.done("lock_robot"):
-        _measure_reflector(ctx, "robot", ctx.params.get("robot_approx_trk"), 35)
+        _measure_reflector(ctx, "robot", ctx.params.robot_approx_trk, 35)
         ctx.mark_done("lock_robot")
     _on_plate_run(ctx, nav, "run0", 40)
-    if param(ctx, "reversal"):
+    if ctx.params.reversal:
         if not ctx.done("reverse"):
             ctx.progress("reversal: turn the robot 180° on the plate", 60, "robot moving")
             first = compute_referencing({**ctx.obs, "runs": ctx.obs["runs"][:1]}, ctx.load_image)
@@ -166,7 +159,8 @@ def referencing(ctx: JobContext) -> None:
             # the reflector spot that puts the same footprint on the target at the reversed
             # heading: the horizontal reflector→footprint offset turns by 180°
             target = 2 * foot[:2] - P0[:2]
-            nav.approach(target, heading, param(ctx, "distance_mm"))
+            # a referencing stores no approach and declares no recording: nothing to record along it
+            nav.approach(target, heading, ctx.params.distance_mm, record=False)
             ctx.mark_done("reverse")
         _on_plate_run(ctx, nav, "run1", 70)
     ctx.progress("compute rob_H_cam", 90, "")
@@ -181,59 +175,45 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
                                       [0, 0, 1.0]])
     foot = footprint_abs(calib, abs_H_rob_now)[:2]  # footprint relative to the reflector at this heading
     target = np.asarray(mark_xy, float) - foot - offset
-    nav.approach(target, heading, param(ctx, "distance_mm"))
+    nav.approach(target, heading, ctx.params.distance_mm)
     if nav.last_points is None:  # approach() ends with a recorded straight move, which sets them
         raise RuntimeError("measure_stop: the approach left no tracker points")
     P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
     # the compensations' inputs: the inclinometer at both stops and the stream between them, when the base/tracker give them
-    rec = {"imu_at": read_tilt(ctx.call, param(ctx, "imu_readings"), param(ctx, "imu_interval_s")), **nav.last_record}
+    imu_at = read_tilt(ctx.call, ctx.params.imu_readings, ctx.params.imu_interval_s)
+    rec = {"imu_at": imu_at, **nav.last_record}
     return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
-            "offset_mm": offset.tolist(), "move_mm": float(param(ctx, "distance_mm")),
+            "offset_mm": offset.tolist(), "move_mm": float(ctx.params.distance_mm),
             **{k: v for k, v in rec.items() if v}}
-
-
-def _installed(ctx: JobContext, name: str) -> dict[str, Any]:
-    """A definition file installed on the robot (data_dir/calibration/NAME)."""
-    path = ctx.data_dir / "calibration" / name
-    if not path.exists():
-        raise ValueError(f"{path} does not exist: pass it with the command (e.g. ritactl calibrate --plate FILE) "
-                         f"or install it there")
-    return json.loads(path.read_text())
 
 
 def _calibration(ctx: JobContext) -> dict[str, Any]:
     if "calibration" not in ctx.obs:
-        calib = ctx.params.get("calibration") or _installed(ctx, "active.json")
-        ctx.obs["calibration"] = calib
+        ctx.obs["calibration"] = ctx.definition("calibration")
         ctx.checkpoint()
     return ctx.obs["calibration"]
 
 
-def _mark_xy(ctx: JobContext) -> np.ndarray:
-    mark = ctx.params.get("mark_xy")
-    if mark is None or len(mark) != 2:
-        raise ValueError(f"params.mark_xy must be the approximate ACS x, y of the mark (mm), got {mark!r}")
-    return np.asarray(mark, float)
-
-
 def _mark_setup(ctx: JobContext) -> tuple[dict[str, Any], Navigator]:
     """The active calibration, a navigator, and the mark's parameters recorded in the observations."""
-    ctx.obs.setdefault("kind", param(ctx, "kind"))
+    ctx.obs.setdefault("kind", ctx.params.kind)
     _record_sigma_t(ctx)
-    parse_compensation(ctx.params.get("compensation"))  # a bad name fails before the robot moves
-    ctx.obs.setdefault("compensation", param(ctx, "compensation"))
-    ctx.obs.setdefault("mark_size_mm", ctx.params.get("mark_size_mm"))
-    return _calibration(ctx), Navigator(ctx, param(ctx, "speed_mm_s"))
+    parse_compensation(ctx.params.compensation)  # a bad name fails before the robot moves
+    ctx.obs.setdefault("compensation", ctx.params.compensation)
+    ctx.obs.setdefault("mark_size_mm", ctx.params.mark_size_mm)
+    return _calibration(ctx), Navigator(ctx)
 
 
 def measure_mark(ctx: JobContext) -> None:
     calib, nav = _mark_setup(ctx)
     if not ctx.done("stop"):
         ctx.progress("approach the mark", 20, "robot moving")
-        heading = float(ctx.params.get("heading_deg", nav.heading))
-        ctx.obs["stop"] = measure_stop(ctx, nav, "stop", _mark_xy(ctx), heading, np.zeros(2), calib)
+        # none given: the heading it stands at
+        heading = nav.heading if ctx.params.heading_deg is None else ctx.params.heading_deg
+        ctx.obs["stop"] = measure_stop(ctx, nav, "stop", np.asarray(ctx.params.mark_xy, float), heading,
+                                       np.zeros(2), calib)
         ctx.mark_done("stop")
     ctx.progress("compute the mark position", 90, "")
 
@@ -241,13 +221,13 @@ def measure_mark(ctx: JobContext) -> None:
 def experiment(ctx: JobContext) -> None:
     """The paper's validation: N repetitions from each of K equidistant headings."""
     calib, nav = _mark_setup(ctx)
-    k_dirs, reps = int(param(ctx, "directions")), int(param(ctx, "repetitions"))
-    rng = np.random.default_rng(int(param(ctx, "seed")))
-    plan = [(k, r, rng.uniform(-1, 1, 2) * param(ctx, "offset_mm"), rng.normal(0, 0.5))
+    k_dirs, reps = ctx.params.directions, ctx.params.repetitions
+    rng = np.random.default_rng(ctx.params.seed)
+    plan = [(k, r, rng.uniform(-1, 1, 2) * ctx.params.offset_mm, rng.normal(0, 0.5))
             for r in range(reps) for k in range(k_dirs)]
-    psi0 = float(ctx.params.get("psi0_deg", 0.0))
+    psi0 = ctx.params.psi0_deg
     stops = ctx.obs.setdefault("stops", [])
-    mark = _mark_xy(ctx)
+    mark = np.asarray(ctx.params.mark_xy, float)
     for j, (k, r, offset, jitter) in enumerate(plan):
         name = f"stop-{j:03d}-k{k}-r{r}"
         if ctx.done(name):

@@ -30,19 +30,22 @@ from daemon.bus.timeline import TimeSeries
 from daemon.worker.job import JobContext
 from daemon.worker.motion import confirm_done
 
-#: default stream rate (Hz) and the most points a stop record keeps (evenly thinned)
-DEFAULT_STREAM_RATE_HZ: float | None = None  # None: the tracker's configured rate ([tracker] stream_rate_hz)
+#: the most points a stop record keeps (evenly thinned)
 MAX_STREAM_POINTS = 200
 #: tilt samples during the move below which none are stored: a few single readings, interpolated,
 #: are worse than the two standstill means (compute then interpolates those along the move)
 MIN_TILT_SAMPLES = 5
 #: a subscriber needs a moment to be connected before the first message it should see
 SUB_SETTLE_S = 0.02
-#: the clock map's bins: about one packet each (packets come at >= 8 Hz); the tracker stamps in µs
+#: the fewest stream packets per second a tracker sends: ES_SP_TcpDataPacketRate is 3-10 (Leica's
+#: ES_C_API_Def.h); the driver asks for 10, a server without the parameter keeps its own
+MIN_PACKET_RATE_HZ = 3.0
+#: the clock map's bins: at most one packet each at any packet rate; the tracker stamps in µs
 CLOCK_BIN_S = 0.01
 DEVICE_RESOLUTION_NS = 1000
-#: how long to wait after the move for the stream packet that covers its end (packets come at >= 8 Hz)
-LAST_PACKET_WAIT_S = 2.0
+#: how long to wait after the move for the stream packet that covers its end: several packet periods at
+#: the slowest rate, so a packet held up on a busy host still counts
+LAST_PACKET_WAIT_S = max(2.0, 6.0 / MIN_PACKET_RATE_HZ)
 #: how far past the inclinometer's first or last sample a record may take that sample's tilt (ns):
 #: a record at most one output period (0.1 s at 10 Hz) away from the samples
 INCL_REACH_NS = 150_000_000
@@ -191,7 +194,7 @@ def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, 
 
 
 def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
-                rate_hz: float | None = DEFAULT_STREAM_RATE_HZ, start_tilt: dict[str, Any] | None = None
+                rate_hz: float | None, start_tilt: dict[str, Any] | None = None
                 ) -> tuple[dict[str, Any] | None, str]:
     """Drive ``distance_mm`` straight while recording the stream: (the stop record's ``stream``, "").
 

@@ -6,14 +6,20 @@ Options: ``timeout`` (s, every command and motion), ``init_timeout`` (s, Initial
 ``connect_timeout`` (s), ``meas_time_ms`` (stationary measurement time), ``use_adm``
 (0/1), ``temperature_c``/``pressure_mbar``/``humidity_rh`` (sent with
 SetEnvironmentParams when all three are given), ``reflector`` (name or id, selected
-with SetReflector), ``search_radius_mm`` (SetSearchParams).
+with SetReflector), ``search_radius_mm`` (SetSearchParams), ``packet_rate`` (stream packets per
+second, ES_SP_TcpDataPacketRate, 3-10; default 10).
 
 ``open()`` runs the whole init sequence, so a reconnect re-applies units (mm, deg,
-°C, mbar), RHR coordinates, stationary mode and its parameters. Stream batches and
-events are delivered by ``pump`` as ``tracker.point`` / ``tracker.event`` messages.
+°C, mbar), RHR coordinates, stationary mode and its parameters, and clears what another client
+may have left: station orientation and transformation are set to the identity and not applied
+(public clients set both to the identity: beckjac/emscon_ros src/main.cpp, scale 1).
+Stream batches and events are delivered by ``pump`` as ``tracker.point`` / ``tracker.event``
+messages; a stream the beam broke (ErrorResponse or MeasStatus_NotReady) is restarted by ``pump``
+once the tracker reports the reflector locked again, at the same rate.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from typing import Any
@@ -26,9 +32,11 @@ from drivers.emscon.enums import (
     ES_MeasMode,
     ES_PressureUnit, ES_ResultStatus, ES_SystemStatusChange, ES_TemperatureUnit,
     ES_TrackerProcessorStatus, ES_TrackerStatus, enum_name)
+from drivers.emscon.known_state import DEFAULT_PACKET_RATE, PACKET_RATE_RANGE, clear_frames, set_packet_rate
 
+log = logging.getLogger(__name__)
 DEFAULT_PORT = 700
-MAX_RATE_HZ = 1000.0
+MAX_RATE_HZ = 1000.0  # until GetTrackerInfo's max_data_rate is known
 MIN_RATE_HZ = 0.001  # one point per 1000 s: the time separation (ms) must fit an int32
 MAX_AIM_MM = 1e6  # 1 km, far beyond any tracker's range: larger is a typo, not a target
 #: keyed by int: a packet's change is the plain int it carried (an IntEnum hashes as its value)
@@ -66,7 +74,7 @@ class EmsconTracker(Tracker):
     """A Leica laser tracker reached through the emScon TPI."""
 
     OPTIONS = frozenset({"timeout", "init_timeout", "connect_timeout", "meas_time_ms", "use_adm", "reflector",
-                         "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh"})
+                         "search_radius_mm", "temperature_c", "pressure_mbar", "humidity_rh", "packet_rate"})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
                  settings: DeviceSettings = None) -> None:
@@ -79,6 +87,11 @@ class EmsconTracker(Tracker):
         self.use_adm: bool = o("use_adm", False, flag)
         self.reflector: str | None = o("reflector", None, str)
         self.search_radius_mm: float | None = o("search_radius_mm", None, float)
+        self.packet_rate: int = o("packet_rate", DEFAULT_PACKET_RATE, int)
+        if not PACKET_RATE_RANGE[0] <= self.packet_rate <= PACKET_RATE_RANGE[1]:
+            lo, hi = PACKET_RATE_RANGE
+            raise ValueError(f"device URL {url.raw!r}: option packet_rate={self.packet_rate} outside "
+                             f"{lo}-{hi} packets/s (ES_SP_TcpDataPacketRate)")
         env = [o(k, None, float) for k in ("temperature_c", "pressure_mbar", "humidity_rh")]
         if any(v is not None for v in env) and not all(v is not None for v in env):
             raise ValueError(f"device URL {url.raw!r}: give all of temperature_c, pressure_mbar, "
@@ -90,12 +103,16 @@ class EmsconTracker(Tracker):
                 raise ValueError(f"device URL {url.raw!r}: option {name}={value!r} must be > 0")
         self._client: EmsconClient | None = None
         self._streaming = False
+        self._interrupted = False  # the beam broke during the stream: pump restarts it once locked
+        self._resume_refused = False  # a restart failed: wait for the next MeasStatus_Ready
+        self._sep_ms = 0
         self._rate_hz: float | None = None
         self._last_aim: tuple[float, float, float] | None = None
         self._tracker_status = "Unknown"
         self._info: dict[str, Any] = {}
         self._seq = 0
-        self.counters = {"points": 0, "packets": 0, "protocol_errors": 0, "events": 0, "opens": 0}
+        self.counters = {"points": 0, "packets": 0, "protocol_errors": 0, "events": 0, "opens": 0,
+                         "stream_restarts": 0}
         self._client_base = {"protocol_errors": 0}
 
     # ------------------------------------------------------------------ connection
@@ -135,10 +152,7 @@ class EmsconTracker(Tracker):
         c.request(ES_Command.SetStationaryModeParams, meas_time_ms=self.meas_time_ms,
                   use_adm=int(self.use_adm))
         c.request(ES_Command.SetCoordinateSystemType, coord_sys_type=ES_CoordinateSystemType.RHR)
-        settings = dict(c.request(ES_Command.GetSystemSettings).values)
-        if not settings.get("send_unsolicited_messages"):
-            settings["send_unsolicited_messages"] = 1
-            c.request(ES_Command.SetSystemSettings, **{k: int(v) for k, v in settings.items()})
+        clear_frames(c)
         if self.environment is not None:
             t, p, h = self.environment
             c.request(ES_Command.SetEnvironmentParams, temperature=t, pressure=p, humidity=h)
@@ -148,13 +162,14 @@ class EmsconTracker(Tracker):
         if self.reflector is not None:
             self._select_reflector(c, self.reflector)
         info = c.request(ES_Command.GetTrackerInfo).values
-        self._info = {"tracker_name": info["tracker_name"],
+        self._info = {"packet_rate": set_packet_rate(c, self.packet_rate, self.url.raw),
+                      "tracker_name": info["tracker_name"],
                       "tracker_type": enum_name(ES_LTSensorType, info["tracker_type"]),
                       "serial_number": info["serial_number"], "max_data_rate": info["max_data_rate"],
                       "firmware": f"{st['major_version']}.{st['minor_version']}.{st['build_number']}"}
         ts = c.request(ES_Command.GetTrackerStatus)
         self._tracker_status = enum_name(ES_TrackerStatus, ts["tracker_status"])
-        self._streaming = False
+        self._streaming = self._interrupted = False
 
     def _try_stop(self, c: EmsconClient) -> None:
         try:
@@ -237,16 +252,27 @@ class EmsconTracker(Tracker):
             raise
 
     def start_stream(self, rate_hz: float) -> None:
-        if not (MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
-            raise ValueError(f"start_stream: rate_hz={rate_hz!r} outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}]")
+        if not (math.isfinite(rate_hz) and rate_hz >= MIN_RATE_HZ):
+            raise ValueError(f"start_stream: rate_hz={rate_hz!r} must be >= {MIN_RATE_HZ:g}")
+        top = float(self._info.get("max_data_rate") or MAX_RATE_HZ)
+        if rate_hz > top:
+            log.warning("tracker %s: requested stream rate %g Hz above the tracker's max_data_rate %g Hz: "
+                        "streaming at %g Hz", self.url.raw, rate_hz, top, top)
+            rate_hz = top
         c = self._conn()
         if self._streaming:
             self.stop_stream()
-        sep = max(1, round(1000.0 / rate_hz))
+        # the nearest whole ms, but never faster than the tracker's maximum
+        self._sep_ms = max(1, round(1000.0 / rate_hz), math.ceil(1000.0 / top - 1e-9))
+        self._begin_stream(c)
+        self._streaming, self._interrupted, self._rate_hz = True, False, 1000.0 / self._sep_ms
+
+    def _begin_stream(self, c: EmsconClient) -> None:
+        """Continuous-time mode at ``_sep_ms`` and StartMeasurement; back to stationary if refused."""
         c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.ContinuousTime)
         try:
-            c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=sep, number_of_points=0,
-                      use_region=0, region_type=0)
+            c.request(ES_Command.SetContinuousTimeModeParams, time_separation_ms=self._sep_ms,
+                      number_of_points=0, use_region=0, region_type=0)
             c.request(ES_Command.StartMeasurement)
         except DeviceLost:
             raise
@@ -254,24 +280,49 @@ class EmsconTracker(Tracker):
             # e.g. no reflector locked: go back to stationary so measure() still works
             c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.Stationary)
             raise _actionable(exc) from exc
-        self._streaming, self._rate_hz = True, 1000.0 / sep
 
     def stop_stream(self) -> None:
         if not self._streaming:
             return
         c = self._conn()
-        self._streaming = False
-        c.request(ES_Command.StopMeasurement)
+        self._streaming = self._interrupted = False
+        self._try_stop(c)  # after a beam break there may be nothing left to stop
         c.request(ES_Command.SetMeasurementMode, meas_mode=ES_MeasMode.Stationary)
 
     def pump(self, timeout: float) -> None:
-        self._conn().poll(timeout)
+        c = self._conn()
+        c.poll(timeout)
+        locked = self._tracker_status == "Ready" and not self._resume_refused
+        if self._streaming and self._interrupted and locked:
+            self._resume_stream(c)
+
+    def _resume_stream(self, c: EmsconClient) -> None:
+        """The beam broke during the stream and the reflector is locked again: start it anew."""
+        self._try_stop(c)
+        try:
+            self._begin_stream(c)
+        except DeviceLost:
+            raise
+        except DeviceError as exc:  # lost again before it started: the next lock tries again
+            self._resume_refused = True
+            self._event("stream_resume_failed", reason=str(exc))
+            return
+        self._interrupted = False
+        self.counters["stream_restarts"] += 1
+        self._event("stream_resumed", rate_hz=self._rate_hz)
+
+    def _interrupt(self, why: str) -> None:
+        """A beam break while streaming: the server stops sending; ``pump`` restarts once locked."""
+        if self._streaming and not self._interrupted:
+            self._interrupted = True
+            self._event("stream_interrupted", reason=why)
 
     def status(self) -> dict[str, Any]:
         c = self._client
         proto = self._client_base["protocol_errors"] + (c.counters["protocol_errors"] if c else 0)
         return {"connected": bool(c and c.connected), "tracker_status": self._tracker_status,
-                "streaming": self._streaming, "rate_hz": self._rate_hz if self._streaming else None,
+                "streaming": self._streaming, "stream_interrupted": self._interrupted,
+                "rate_hz": self._rate_hz if self._streaming else None,
                 "last_aim": list(self._last_aim) if self._last_aim else None,
                 "counters": {**self.counters, "protocol_errors": proto}}
 
@@ -298,6 +349,7 @@ class EmsconTracker(Tracker):
         r = p.records
         if r is None or len(r) == 0:
             return
+        self._interrupted = False  # records again: the server resumed the stream by itself
         self._publish(r["val1"].tolist(), r["val2"].tolist(), r["val3"].tolist(), r["status"].tolist(),
                       [r["time1"].tolist(), r["time2"].tolist()], now, mono, mode="continuous",
                       temperature_c=p["temperature"], pressure_mbar=p["pressure"], humidity_rh=p["humidity"])
@@ -306,9 +358,14 @@ class EmsconTracker(Tracker):
         if p.kind == "status_change":
             if p.change in _MEAS_STATUS:
                 self._tracker_status = _MEAS_STATUS[p.change]
+                self._resume_refused = False  # a new lock state: a refused restart may be tried again
+            if p.change == ES_SystemStatusChange.MeasStatus_NotReady:
+                self._interrupt("MeasStatus_NotReady")
             self._event("status_change", change=int(p.change or 0),
                         change_name=enum_name(ES_SystemStatusChange, p.change or 0))
         elif p.kind == "error":
+            if p.command == ES_Command.StartMeasurement:
+                self._interrupt(enum_name(ES_ResultStatus, p.status))
             self._event("error", command=int(p.command or 0),
                         command_name=enum_name(ES_Command, p.command or 0),
                         status=int(p.status), status_name=enum_name(ES_ResultStatus, p.status))

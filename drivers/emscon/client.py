@@ -8,7 +8,9 @@ continuous MultiMeasResult batches), so every wait reads the socket and dispatch
 whatever comes: answers/results to the waiting command, stream batches to
 ``on_stream``, everything else to ``on_event``.
 
-Errors: a non-zero ES_ResultStatus raises :class:`EmsconStatusError`; EOF, a socket
+Errors: a non-zero ES_ResultStatus raises :class:`EmsconStatusError`, except the
+``Parameter<k>OutOfRangeOK`` statuses (:data:`OK_STATUSES`), which the header names as accepted
+(each paired with a refused ``…OutOfRangeNOK``): those count as success with a WARNING; EOF, a socket
 error or a :class:`ProtocolError` closes the socket and raises ``DeviceLost``. An
 expired wait raises ``DeviceTimeout`` and also closes the socket: the late answer
 cannot be told apart from the next command's, so the next call raises ``DeviceLost``
@@ -16,6 +18,7 @@ and the owner reconnects (``open()`` re-applies every setting).
 """
 from __future__ import annotations
 
+import logging
 import socket
 import time
 from typing import Any, Callable
@@ -25,7 +28,19 @@ from drivers.emscon.codec import Packet, ProtocolError, encode_request
 from drivers.emscon.enums import ES_Command, ES_ResultStatus, enum_name
 from drivers.emscon.framer import TO_CLIENT, Framer
 
+log = logging.getLogger(__name__)
 PacketSink = Callable[[Packet], None]
+#: statuses meaning "a parameter was out of range but the command was accepted": ES_RS_Parameter1..6
+#: OutOfRangeOK (11, 13, ..., 21) in Leica's ES_C_API_Def.h (beckjac/emscon_ros,
+#: include/emscon_ros/ES_C_API_Def.h, enum ES_ResultStatus); the NOK twins stay failures
+OK_STATUSES = frozenset({ES_ResultStatus.Parameter1OutOfRangeOK, ES_ResultStatus.Parameter2OutOfRangeOK,
+                         ES_ResultStatus.Parameter3OutOfRangeOK, ES_ResultStatus.Parameter4OutOfRangeOK,
+                         ES_ResultStatus.Parameter5OutOfRangeOK, ES_ResultStatus.Parameter6OutOfRangeOK})
+
+
+def accepted(status: int) -> bool:
+    """Whether a command's status means it took effect: AllOK or an OutOfRangeOK."""
+    return status == 0 or status in OK_STATUSES
 RECV_SIZE = 1 << 18
 HEAD_BYTES = 7  # enough to recognise "HTTP/1." or "SSH-2.0"
 
@@ -219,6 +234,11 @@ class EmsconClient:
             while True:
                 done = self._check(command, want)
                 if done is not None:
+                    for p in done:
+                        if p.status:  # accepted, yet a parameter was out of range: say so once
+                            log.warning("tracker accepted %s with %s (%d): a parameter was out of range",
+                                        enum_name(ES_Command, command), enum_name(ES_ResultStatus, p.status),
+                                        int(p.status))
                     return done
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -239,7 +259,7 @@ class EmsconClient:
         if not self._answers:
             return None
         first = self._answers[0]
-        if first.status != 0:
+        if not accepted(first.status):
             raise EmsconStatusError(command, first.status)
         if want == "answer":
             return [first]
@@ -247,12 +267,12 @@ class EmsconClient:
             if not self._results:
                 return None
             res = self._results[0]
-            if res.status != 0:
+            if not accepted(res.status):
                 raise EmsconStatusError(command, res.status, "returned a failed result for")
             return [first, res]
         total = int(first.values.get("total_reflectors", 0))
         for a in self._answers[1:]:
-            if a.status != 0:
+            if not accepted(a.status):
                 raise EmsconStatusError(command, a.status)
         if len(self._answers) >= max(total, 1):
             return self._answers[:max(total, 0)] if total > 0 else []

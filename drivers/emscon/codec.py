@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.emscon.commands import COMMANDS, ENV_FIELDS, XYZ_FIELDS, Fields, parse_fields
 from drivers.emscon.enums import (
     ES_ADMStatus, ES_Command, ES_CoordinateSystemType, ES_DataType, ES_LaserProcessorStatus,
     ES_LTSensorType, ES_MeasMode, ES_ResultStatus, ES_SystemStatusChange, ES_TargetType,
@@ -30,9 +31,6 @@ MIN_PACKET = 8
 MAX_PACKET = 1 << 20
 STRING_UNITS = 32  # unsigned short[32]
 
-Fields = tuple[tuple[str, str], ...]  # (name, code): "i" int32, "d" double, "s" UTF-16 [32]
-
-
 class ProtocolError(Exception):
     """The byte stream broke the emScon framing or layout rules; the connection is unusable."""
 
@@ -40,75 +38,20 @@ class ProtocolError(Exception):
     packets: list[Packet]
 
 
-def _f(spec: str) -> Fields:
-    """Parse ``"a:i b:d"`` into a field tuple (keeps the tables below compact)."""
-    pairs = [item.split(":") for item in spec.split()]
-    return tuple((name, code) for name, code in pairs)
-
-
-_UNITS = _f("length_unit:i angle_unit:i temperature_unit:i pressure_unit:i humidity_unit:i")
-_ENV = _f("temperature:d pressure:d humidity:d")
-_SETTINGS = _f("weather_monitor_status:i apply_transformation_params:i "
-               "apply_station_orientation_params:i keep_last_position:i send_unsolicited_messages:i "
-               "send_reflector_position_data:i try_measurement_mode:i has_nivel:i has_video_camera:i")
-_XYZ = _f("val1:d val2:d val3:d")
-
-#: command -> (request fields after the 12-byte prefix, answer fields after the 16-byte prefix)
-COMMANDS: dict[ES_Command, tuple[Fields, Fields]] = {
-    ES_Command.ExitApplication: ((), ()),
-    ES_Command.GetSystemStatus: ((), _f(
-        "last_result_status:i tracker_processor_status:i laser_status:i adm_status:i major_version:i "
-        "minor_version:i build_number:i weather_monitor_status:i flags_value:i tracker_serial_number:i")),
-    ES_Command.GetTrackerStatus: ((), _f("tracker_status:i")),
-    ES_Command.SetUnits: (_UNITS, ()),
-    ES_Command.GetUnits: ((), _UNITS),
-    ES_Command.Initialize: ((), ()),
-    ES_Command.SwitchLaser: (_f("is_on:i"), ()),
-    ES_Command.SetEnvironmentParams: (_ENV, ()),
-    ES_Command.GetEnvironmentParams: ((), _ENV),
-    ES_Command.SetMeasurementMode: (_f("meas_mode:i"), ()),
-    ES_Command.GetMeasurementMode: ((), _f("meas_mode:i")),
-    ES_Command.SetCoordinateSystemType: (_f("coord_sys_type:i"), ()),
-    ES_Command.GetCoordinateSystemType: ((), _f("coord_sys_type:i")),
-    ES_Command.SetStationaryModeParams: (_f("meas_time_ms:i use_adm:i"), ()),
-    ES_Command.GetStationaryModeParams: ((), _f("meas_time_ms:i use_adm:i")),
-    ES_Command.SetContinuousTimeModeParams: (
-        _f("time_separation_ms:i number_of_points:i use_region:i region_type:i"), ()),
-    ES_Command.SetReflector: (_f("reflector_id:i"), ()),
-    ES_Command.GetReflector: ((), _f("reflector_id:i")),
-    ES_Command.GetReflectors: ((), _f(
-        "total_reflectors:i reflector_id:i target_type:i surface_offset:d name:s")),
-    ES_Command.SetSearchParams: (_f("search_radius:d timeout_ms:i"), ()),
-    ES_Command.SetSystemSettings: (_SETTINGS, ()),
-    ES_Command.GetSystemSettings: ((), _SETTINGS),
-    ES_Command.StartMeasurement: ((), ()),
-    ES_Command.StopMeasurement: ((), ()),
-    ES_Command.GoBirdBath: ((), ()),
-    ES_Command.GoPosition: (_XYZ + _f("use_adm:i"), ()),
-    ES_Command.PointLaser: (_XYZ, ()),
-    ES_Command.FindReflector: (_f("approx_distance:d"), ()),
-    ES_Command.GetDirection: ((), _f("hz_angle:d vt_angle:d")),
-    ES_Command.GetTrackerInfo: ((), _f(
-        "tracker_type:i tracker_name:s serial_number:i compensation_id:i has_adm:i "
-        "has_overview_camera:i has_nivel:i nivel_mount_offset:d max_distance:d min_distance:d "
-        "max_data_rate:i number_of_faces:i hz_angle_range:d vt_angle_range:d accuracy_model:i "
-        "fw_major:i fw_minor:i")),
-}
-
 #: result packets: data type -> fields after the 12-byte ReturnDataT prefix
-_STD = _f("std1:d std2:d std3:d std_total:d")
-_APRIORI = _f("apriori_std1:d apriori_std2:d apriori_std3:d apriori_std_total:d")
-_ENV_TAIL = _ENV
+_STD = parse_fields("std1:d std2:d std3:d std_total:d")
+_APRIORI = parse_fields("apriori_std1:d apriori_std2:d apriori_std3:d apriori_std_total:d")
+_ENV_TAIL = ENV_FIELDS
 RESULTS: dict[ES_DataType, Fields] = {
-    ES_DataType.SingleMeasResult: _f("meas_mode:i is_try_mode:i") + _XYZ + _STD
-    + _f("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + _ENV_TAIL,
-    ES_DataType.SingleMeasResult2: _f("meas_mode:i is_try_mode:i") + _XYZ + _STD
-    + _f("covar12:d covar13:d covar23:d pointing_error_h:d pointing_error_v:d pointing_error_d:d")
-    + _APRIORI + _f("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + _ENV_TAIL,
-    ES_DataType.MultiMeasResult: _f("number_of_results:i meas_mode:i is_try_mode:i") + _ENV,
-    ES_DataType.MultiMeasResult2: _f("number_of_results:i meas_mode:i is_try_mode:i") + _ENV,
-    ES_DataType.ReflectorPosResult: _XYZ,
-    ES_DataType.NivelResult: _f("nivel_status:i x_tilt:d y_tilt:d nivel_temperature:d"),
+    ES_DataType.SingleMeasResult: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
+    + parse_fields("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + _ENV_TAIL,
+    ES_DataType.SingleMeasResult2: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
+    + parse_fields("covar12:d covar13:d covar23:d pointing_error_h:d pointing_error_v:d pointing_error_d:d")
+    + _APRIORI + parse_fields("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + _ENV_TAIL,
+    ES_DataType.MultiMeasResult: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
+    ES_DataType.MultiMeasResult2: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
+    ES_DataType.ReflectorPosResult: XYZ_FIELDS,
+    ES_DataType.NivelResult: parse_fields("nivel_status:i x_tilt:d y_tilt:d nivel_temperature:d"),
 }
 MULTI_HEAD = 48
 

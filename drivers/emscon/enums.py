@@ -38,6 +38,10 @@ class ES_Command(IntEnum):
     ReleaseMotors = 8
     Park = 10
     SwitchLaser = 11
+    SetStationOrientationParams = 12
+    GetStationOrientationParams = 13
+    SetTransformationParams = 14
+    GetTransformationParams = 15
     SetEnvironmentParams = 20
     GetEnvironmentParams = 21
     SetRefractionParams = 22
@@ -358,6 +362,12 @@ class ES_LTSensorType(IntEnum):
     AT901_MR = 14
     AT901_LR = 15
     AT401 = 70
+
+
+class ES_SystemParameter(IntEnum):
+    """Long system parameter id (Set/GetLongSystemParameter); TcpDataPacketRate is 3-10 packets/s"""
+    TcpCommandQueueSize = 200
+    TcpDataPacketRate = 400
 
 
 class ES_RegionType(IntEnum):

@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("aiohttp")
 
 from daemon.bus.client import Client  # noqa: E402
-from daemon.bus.procedures import DEFAULTS, PARAMS, check_params  # noqa: E402
+from daemon.bus.procedures import EXPERIMENT, PARAMS, REFERENCING, check_params  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 from tests.ritad_up import ritad_in_process  # noqa: E402
 
@@ -71,15 +71,14 @@ def test_parameter_table_keeps_the_worker_defaults():
     """The defaults the worker used before the table existed, unchanged (same values and types)."""
     old = {"distance_mm": 200.0, "speed_mm_s": 100.0, "directions": 8, "repetitions": 5,
            "offset_mm": 3.0, "seed": 1, "kind": "dot"}
-    assert {k: (DEFAULTS[k], type(DEFAULTS[k])) for k in old} == {k: (v, type(v)) for k, v in old.items()}
+    resolved = EXPERIMENT.resolve({"mark_xy": [0, 0]})
+    got = {k: getattr(resolved, k) for k in old}
+    assert {k: (v, type(v)) for k, v in got.items()} == {k: (v, type(v)) for k, v in old.items()}
     # issue #20: sigma_t_mm (0.010 before) has no worker default; the computation states it (the referencing
     # still 0.010, calibration.measure.DEFAULT_SIGMA_T_MM; marks the tracker's MPE at its distance)
     from calibration.measure import DEFAULT_SIGMA_T_MM
 
-    assert "sigma_t_mm" not in DEFAULTS and DEFAULT_SIGMA_T_MM == 0.010
-    from daemon.worker.procedures import DEFAULTS as worker
-
-    assert worker is DEFAULTS
+    assert resolved.sigma_t_mm is None and DEFAULT_SIGMA_T_MM == 0.010
 
 
 @pytest.mark.parametrize("proc, params, field, words", [
@@ -135,7 +134,9 @@ def test_console_checks_the_page_and_reads_the_chosen_files_on_the_robot(tmp_pat
     params = jobs[0]["params"]
     assert params["plate"] == json.loads((data / "sim" / "plate.json").read_text())  # the file's object, as ritactl
     assert params["nests_approx_trk"] == json.loads((data / "sim" / "nests.json").read_text())
-    assert params["reversal"] is True and set(params) == {"plate", "nests_approx_trk", "reversal"}
+    # ritad stores them resolved: every parameter, the defaults applied (the installed camera model: None)
+    assert params["reversal"] is True and set(params) == {p.name for p in REFERENCING.params}
+    assert params["distance_mm"] == 200.0 and params["camera_model"] is None
 
 
 def test_survey_from_the_console_reports_a_bad_folder_and_empty_fields_and_cancels(tmp_path, monkeypatch):

@@ -121,9 +121,15 @@ def test_auto_packet_size_without_negotiation_takes_the_camera_maximum_and_says_
     assert "jumbo frames" in rig.warnings[0]
 
 
-def test_packet_size_outside_the_range_is_refused_by_name() -> None:
-    with pytest.raises(DeviceError, match=r"GevSCPSPacketSize=16000 is outside the camera's range 576\.\.9000"):
-        Rig().apply(CameraSettings(packet_size=16000))
+def test_packet_size_outside_the_range_or_step_is_clamped_with_a_warning_naming_both() -> None:
+    rig = Rig()
+    rig.apply(CameraSettings(packet_size=16000))
+    assert rig.cam["GevSCPSPacketSize"] == 9000
+    assert rig.warnings == ["packet_size=16000 is outside the camera's GevSCPSPacketSize range 576..9000 "
+                            "(step 4); using 9000"]
+    rig = Rig()
+    rig.apply(CameraSettings(packet_size=8999))  # off the step of 4: rounded down
+    assert rig.cam["GevSCPSPacketSize"] == 8996 and "packet_size=8999" in rig.warnings[0]
     with pytest.raises(DeviceError, match=r"packet_size='big' is not 'auto'"):
         Rig().apply(CameraSettings(packet_size="big"))
 
@@ -235,6 +241,47 @@ def test_ptp_state_follows_the_cameras_clock_and_is_polled_at_most_once_a_second
 def test_link_rate_is_the_line_rate_or_the_throughput_limit() -> None:
     rig = Rig()
     w = SettingsWriter(rig.cam, rig.warnings.append)
-    assert link_rate(w) == 125_000_000.0  # no DeviceLinkSpeed, no limit: GigE's line rate
+    assert link_rate(w) == 125_000_000.0  # DeviceLinkSpeed in bytes/s (SFNC), no limit: GigE's line rate
     rig.apply(CameraSettings(throughput_limit_bytes_s=110_000_000))
     assert link_rate(w) == 110_000_000.0
+
+
+def test_link_speed_given_in_mbps_is_read_as_such_with_a_warning() -> None:
+    rig = Rig(camera_node_map(link_speed=1000))  # an SDK that reports Mbps
+    w = SettingsWriter(rig.cam, rig.warnings.append)
+    assert link_rate(w) == 125_000_000.0
+    assert rig.warnings == ["DeviceLinkSpeed=1000 is too small for bytes/s (SFNC's unit); read as Mbps: "
+                            "125000000 bytes/s"]
+    rig = Rig(camera_node_map(without=("DeviceLinkSpeed",)))
+    assert link_rate(SettingsWriter(rig.cam, rig.warnings.append)) == 125_000_000.0 and rig.warnings == []
+
+
+def test_ptp_is_enabled_slave_only_so_the_camera_cannot_win_the_master_election() -> None:
+    rig = Rig(camera_node_map(ptp_wins_election=True))  # no better clock on the network
+    rig.apply(CameraSettings(ptp=True))
+    assert rig.cam["PtpEnable"] is True and rig.cam["PtpSlaveOnly"] is True
+    assert ptp_status(SettingsWriter(rig.cam, rig.warnings.append))["status"] != "Master"
+
+
+def test_a_camera_left_in_single_frame_and_mirrored_is_set_back_at_open() -> None:
+    rig = Rig(camera_node_map(left={"AcquisitionMode": "SingleFrame", "ReverseX": True, "ReverseY": True}))
+    rig.apply(CameraSettings())
+    assert rig.cam["AcquisitionMode"] == "Continuous"
+    assert rig.cam["ReverseX"] is False and rig.cam["ReverseY"] is False
+    assert rig.written[:3] == ["AcquisitionMode", "ReverseX", "ReverseY"]  # before the pixel format
+
+
+def test_a_mirror_the_camera_cannot_switch_off_is_an_error_naming_it() -> None:
+    cam = camera_node_map(left={"ReverseY": True})
+    cam.nodes["ReverseY"].access = 3  # read-only: a mirror the camera holds
+    with pytest.raises(DeviceError, match="camera's ReverseY is on and cannot be switched off"):
+        Rig(cam).apply(CameraSettings())
+
+
+def test_a_clock_whose_port_would_be_master_listens_when_slave_only() -> None:
+    clock = CameraClock(np.random.default_rng(1), ptp_state="Master")  # the sim camera's ptp=Master
+    rig = Rig(cam=camera_node_map(clock=clock))
+    rig.cam.nodes["PtpEnable"].value = True
+    assert ptp_status(SettingsWriter(rig.cam, rig.warnings.append))["status"] == "Master"
+    rig.apply(CameraSettings(ptp=True))
+    assert ptp_status(SettingsWriter(rig.cam, rig.warnings.append))["status"] == "Listening"

@@ -8,15 +8,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import re
 from pathlib import Path
 
 import pytest
 
-from daemon.bus import procedures
+from daemon.bus import procedures, schema_lists
 from daemon.bus.procedure_params import Param
-from daemon.bus.procedures import (ALL, DEFAULTS, EXPERIMENT, PROCEDURES, REFERENCING, Hooks, ParamError, check_params,
-                                   markdown_table)
+from daemon.bus.procedures import (ALL, EXPERIMENT, MEASURE_MARK, PROCEDURES, REFERENCING, Hooks, ParamError,
+                                   check_params, markdown_table)
 from daemon.compute.files import EXTRA_FILES
 from daemon.compute.procedures import COMPUTE
 from daemon.ctl import main as ctl
@@ -28,16 +29,46 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_a_procedure_name_is_a_literal_in_the_declarations_only():
-    """Outside daemon/bus/procedures.py no product module (Python, JavaScript, HTML) writes a procedure's name."""
+    """Outside daemon/bus/procedures.py no product file (Python, JavaScript, HTML, JSON) writes a procedure's
+    name by hand: the schemas' lists are generated (daemon/bus/schema_lists.py), the rest of a schema names
+    none."""
     found = []
     for path in sorted((ROOT / "daemon").rglob("*")):
-        if path.suffix not in (".py", ".js", ".html") or path == ROOT / "daemon" / "bus" / "procedures.py":
+        if path.suffix not in (".py", ".js", ".html", ".json") or path == ROOT / "daemon/bus/procedures.py":
             continue
-        text = path.read_text(encoding="utf-8")
+        text = schema_lists.blanked(path.name, path.read_text(encoding="utf-8"))
         for name in PROCEDURES:
             for m in re.finditer(rf"""["']{re.escape(name)}["']""", text):
                 found.append(f"{path.relative_to(ROOT)}:{text.count(chr(10), 0, m.start()) + 1}: {m.group()}")
     assert found == []
+
+
+def test_the_schemas_procedure_lists_are_the_generated_ones():
+    """Each schema's procedure lists, its state statuses and its per-procedure dispatch are what the
+    declarations give; every procedure's obs and result have their hand-written definition the dispatch points to."""
+    for file in schema_lists.rules():
+        text = (schema_lists.SCHEMAS / file).read_text(encoding="utf-8")
+        regenerate = "python -m daemon.bus.schema_lists --write"
+        assert schema_lists.generated(file, text) == text, f"{file}: {regenerate}"
+    defs = {f: json.loads((schema_lists.SCHEMAS / f).read_text(encoding="utf-8"))["$defs"]
+            for f in ("state.schema.json", "result.schema.json")}
+    for name in PROCEDURES:
+        assert f"obs_{schema_lists.ident(name)}" in defs["state.schema.json"], name
+        assert f"result_{schema_lists.ident(name)}" in defs["result.schema.json"], name
+    assert set(schema_lists.STATUSES) == {"running", "done", "failed", "cancelled", "stopped"}
+
+
+def test_the_generated_lists_hold_a_new_procedure(monkeypatch):
+    """A new declaration's name reaches every list; the file is otherwise unchanged."""
+    monkeypatch.setattr(schema_lists, "PROCEDURES", (*PROCEDURES, "survey-floor"))
+    for file in schema_lists.rules():
+        text = (schema_lists.SCHEMAS / file).read_text(encoding="utf-8")
+        new = schema_lists.generated(file, text)
+        assert "survey-floor" in new and schema_lists.blanked(file, new) == schema_lists.blanked(file, text)
+    text = (schema_lists.SCHEMAS / "state.schema.json").read_text("utf-8")
+    state = json.loads(schema_lists.generated("state.schema.json", text))
+    assert "survey-floor" in state["properties"]["procedure"]["enum"]
+    assert state["allOf"][-1]["then"]["properties"]["obs"]["$ref"] == "#/$defs/obs_survey_floor"
 
 
 def test_every_program_has_its_hook_for_every_declaration():
@@ -79,7 +110,8 @@ def test_a_bool_parameter_can_be_set_and_cleared_whatever_its_default():
     """The reversal is on by default: ``--no-reversal`` clears it, ``--reversal`` (today's flag) keeps it, and
     neither leaves it to the worker's default (the table's)."""
     parser = ctl.build_parser()
-    assert DEFAULTS["reversal"] is True and DEFAULTS["store_bias"] is False
+    assert REFERENCING.resolve({}).reversal is True
+    assert EXPERIMENT.resolve({"mark_xy": [0, 0]}).store_bias is False
     for argv, value in ((["--no-reversal"], False), (["--reversal"], True), ([], None)):
         a = parser.parse_args(["calibrate", *argv])
         assert a.pp_reversal is value, argv

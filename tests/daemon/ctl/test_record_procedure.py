@@ -36,7 +36,7 @@ RECORD_S = hang_s(4 / 3)  # 4 s at the default load factor: outlasts the ~1 s pr
 def _procedure(c, data: Path) -> None:
     job = c.call("calib.start", procedure="measure-mark", params={"mark_xy": [0.0, 0.0]})["job"]  # no worker
     ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": {"mark_xy": [0.0, 0.0]}}, data)
-    nav = Navigator(ctx, speed_mm_s=100.0)
+    nav = Navigator(ctx)  # the declared default speed, 100 mm/s
     nav.move(30.0)  # a heading probe's out and back, then a turn and a drive
     nav.move(-30.0)
     nav.turn(5.0)

@@ -94,7 +94,7 @@ def test_cancel_of_a_finished_job_is_refused_and_leaves_no_stale_cancel():
     e = error_of(bus, "calib.cancel", job=job)
     assert e.code == "bad_args" and "already failed" in str(e)
     bus("calib.resume", job=job)
-    assert take(bus) == {"job": job, "procedure": "intrinsics", "params": {}}
+    assert take(bus) == {"job": job, "procedure": "intrinsics", "params": {"board": None}}  # resolved: installed
     assert bus.state(job)["state"] == "queued" and bus.state(job)["result"] is None
     assert bus("calib.inbox", job=job, timeout_s=0).result(timeout=2) is None
 

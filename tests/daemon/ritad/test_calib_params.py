@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from daemon.bus.command_table import Arg, BadValue
 from daemon.bus.procedure_params import Param
-from daemon.bus.procedures import PARAMS, check_params
+from daemon.bus.procedures import MEASURE_MARK, PARAMS, check_params
 from daemon.bus.protocol import CommandError
 from tests.fuzzscale import cases
 from tests.ritad_up import ritad_in_process
@@ -94,7 +94,12 @@ def test_missing_required_parameter_is_refused_but_a_resume_needs_none(bus):
     assert "'mark_xy'" in refused(bus, "measure-mark", {})
     job = bus.call("calib.start", procedure="measure-mark", params={"mark_xy": [1, 2.5], "imu_readings": 3})["job"]
     posted = {j["job"]: j for j in bus.call("calib.jobs")["jobs"]}[job]
-    assert posted["params"] == {"mark_xy": [1.0, 2.5], "imu_readings": 3}  # checked and normalised
+    # checked, normalised and resolved: every default applied, one following another parameter's value too
+    assert {k: posted["params"][k] for k in ("mark_xy", "imu_readings", "mark_size_mm", "approach_speed_mm_s",
+                                              "heading_deg")} == {"mark_xy": [1.0, 2.5], "imu_readings": 3,
+                                                                  "mark_size_mm": 0.4, "approach_speed_mm_s": 100.0,
+                                                                  "heading_deg": None}
+    assert posted["params"] == MEASURE_MARK.resolve({"mark_xy": [1, 2.5], "imu_readings": 3}).to_dict()
     bus.call("calib.cancel", job=job)
     bus.call("calib.report", job=job, kind="error", data={"message": "cancelled", "cancelled": True})
     assert bus.call("calib.start", procedure="measure-mark", job=job, params={})["job"] == job  # resumes

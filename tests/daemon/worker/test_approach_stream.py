@@ -25,10 +25,11 @@ def test_recorded_approach_holds_stream_and_tilt(tmp_path):
     with ritad_in_process(tmp_path / "rt", tmp_path / "data", configure=_paper_imu,
                           robot="sim:?time_scale=0.1") as (_, c):
         lock_on_robot(c)
-        params = {"mark_xy": [0.0, 0.0], "imu_readings": 5, "stream_rate_hz": 1000.0}
+        # 10 mm/s: 1.5 s of wall time, many robot.status polls for tilt samples
+        params = {"mark_xy": [0.0, 0.0], "imu_readings": 5, "stream_rate_hz": 1000.0, "speed_mm_s": 10.0}
         job = c.call("calib.start", procedure="measure-mark", params=params)["job"]  # no worker takes it
         ctx = JobContext(c, {"job": job, "procedure": "measure-mark", "params": params}, tmp_path / "data")
-        nav = Navigator(ctx, speed_mm_s=10.0)  # 1.5 s of wall time: many robot.status polls for tilt samples
+        nav = Navigator(ctx)
         a, b = nav.straight(150.0, record=True)
         rec = nav.last_record
         assert rec["imu_prev"]["n"] == 5 and abs(rec["imu_prev"]["roll_deg"]) < 1.0, rec["imu_prev"]

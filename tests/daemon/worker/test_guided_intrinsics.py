@@ -12,7 +12,8 @@ from calibration.board import DEFAULT_BOARD, Board
 from calibration.intrinsics_recipe import RECIPE
 from calibration.target import make_board
 from daemon.worker.guided_intrinsics import SETUP, guided_intrinsics as intrinsics
-from daemon.worker.job import StepFailed
+from daemon.bus.procedures import INTRINSICS
+from daemon.worker.job import JobContext, StepFailed
 
 SIZE = (640, 480)
 
@@ -27,8 +28,11 @@ def board_image(shift: float = 0.0) -> np.ndarray:
 class Ctx:
     """Just what the procedure uses of a JobContext; ``answers`` and ``images`` are the operator's."""
 
+    procedure = INTRINSICS.name
+    definition = JobContext.definition  # the job's file, else the installed one: the product's own
+
     def __init__(self, tmp: Path, answers: list[str], images: list[np.ndarray]) -> None:
-        self.params = {"board": dict(DEFAULT_BOARD)}
+        self.params = INTRINSICS.resolve({"board": dict(DEFAULT_BOARD)})
         self.state: dict = {"done": []}
         self.obs: dict = {}
         self.data_dir = tmp
@@ -75,11 +79,11 @@ def test_bad_and_repeated_views_are_asked_again_and_skips_recorded(tmp_path) -> 
 
 def test_a_bad_board_file_is_refused_before_the_operator_starts(tmp_path) -> None:
     ctx = Ctx(tmp_path, [], [])
-    ctx.params["board"] = {**DEFAULT_BOARD, "marker_mm": 5.0}
+    ctx.params = INTRINSICS.resolve({"board": {**DEFAULT_BOARD, "marker_mm": 5.0}})
     with pytest.raises(ValueError, match="marker_mm=5.0 must be in"):
         intrinsics(ctx)
     ctx = Ctx(tmp_path, [], [])
-    del ctx.params["board"]
+    ctx.params = INTRINSICS.resolve({})
     with pytest.raises(ValueError, match="board.json does not exist: pass the board you hold with --board FILE"):
         intrinsics(ctx)
     assert ctx.questions == []

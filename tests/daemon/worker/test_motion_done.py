@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import pytest
 
+from daemon.bus.procedures import MEASURE_MARK
 from daemon.worker.job import Stopped
 from daemon.worker.motion import MotionIncomplete, check_motion, odometry_delta
 from daemon.worker.nav import Navigator
@@ -55,7 +56,7 @@ class Bus:
     def __init__(self, result: str, along: float, latched: bool = False) -> None:
         self.result, self.along, self.latched, self.sent = result, along, latched, []
         self.state = {"nav": {"heading_deg": 0.0}}
-        self.params: dict = {}
+        self.params = MEASURE_MARK.resolve({"mark_xy": [0.0, 0.0]})
         self.resumed = False
 
     def call(self, cmd: str, timeout: float = 0, **args):

@@ -90,3 +90,24 @@ def test_incl_samples_with_a_hole_are_not_bridged():
     assert got is not None and got[1] == len(dense)
     holed = [t for t in dense if not 300_000_000 < t < 300_000_000 + 2 * INCL_REACH_NS]
     assert _incl_tilt([batch(holed)], records, 0, 1_000_000_000) is None
+
+
+def test_three_packets_per_second_are_mapped_within_their_sigma():
+    """ES_SP_TcpDataPacketRate may be as low as 3/s: 333 records a packet at 1 kHz, still mapped in order."""
+    from daemon.worker.stream import LAST_PACKET_WAIT_S, MIN_PACKET_RATE_HZ
+    rng = random.Random(3)
+    msgs, truth = [], []
+    for i in range(6):  # a 2 s move at 3 packets/s
+        t = [(i * 333 + k + 1) * 1e-3 for k in range(333)]
+        dev_us = [round(1e6 * (1000.0 + x * (1 - 50e-6))) for x in t]
+        msgs.append({"n": 333, "x": [float(i * 333 + k) for k in range(333)], "y": [0.0] * 333,
+                     "z": [0.0] * 333, "status": [0] * 333,
+                     "device_time": [[u // 10**6 for u in dev_us], [u % 10**6 for u in dev_us]],
+                     "host_time_ns": HOST0 + round((t[-1] + min(rng.expovariate(1e3), 5e-3)) * 1e9)})
+        truth += [HOST0 + x * 1e9 for x in t]
+    P, t, sigma = _abs_points(msgs, np.eye(4))
+    idx = P[:, 0].astype(int)
+    assert sigma is not None and np.all(np.diff(idx) == 1)
+    err = t - np.array(truth)[idx]
+    assert np.all(np.abs(err) <= 3 * sigma) and np.abs(err).max() < 1e6
+    assert LAST_PACKET_WAIT_S >= 6 / MIN_PACKET_RATE_HZ  # a held-up packet at the slowest rate still counts
