@@ -234,19 +234,7 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
-    g = np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
-    found = []
-    for model in MODELS:
-        rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
-        xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
-        slopes, sig = np.array([r[1] for r in rec], dtype=float), np.array([r[2] for r in rec], dtype=float)
-        w = learn_heading_weight(chord, xy, psi, slopes, sig, model, g)
-        if w.applied:  # shown in-sample: does it also predict the directions it did not see?
-            cv = cross_validate(chord, xy, psi, slopes, g, lambda t: learn_heading_weight(
-                chord[t], xy[t], psi[t], slopes[t], sig[t], model))
-            w = replace(w, cv=cv) if cv is not None else _chord_instead(w, None, chord, psi, (
-                "fewer than 5 directions: the weight cannot be checked on a direction it did not see"))
-        found.append(w)
+    found = [learn_model(stops, psi, groups, model) for model in MODELS]
     shown = [w for w in found if w.applied]
     if not shown:
         return found[0]
@@ -257,6 +245,25 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     return _chord_instead(best, {**cv, "chosen": "chord"}, chord, psi, (
         f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) than "
         f"weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
+
+
+def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> HeadingWeight:
+    """One bend model's weight (:func:`learn_from_stops` without the choice between models), with its
+    leave-one-direction-out figures when it is shown in-sample."""
+    chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
+    psi = np.asarray(headings_deg, dtype=float).reshape(-1)
+    g = np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
+    rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
+    xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
+    slopes, sig = np.array([r[1] for r in rec], dtype=float), np.array([r[2] for r in rec], dtype=float)
+    w = learn_heading_weight(chord, xy, psi, slopes, sig, model, g)
+    if not w.applied:
+        return w
+    # shown in-sample: does it also predict the directions it did not see?
+    cv = cross_validate(chord, xy, psi, slopes, g, lambda t: learn_heading_weight(
+        chord[t], xy[t], psi[t], slopes[t], sig[t], model))
+    return replace(w, cv=cv) if cv is not None else _chord_instead(w, None, chord, psi, (
+        "fewer than 5 directions: the weight cannot be checked on a direction it did not see"))
 
 
 def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarray, psi: np.ndarray,
@@ -283,4 +290,4 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
 
 
 __all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SIGNIFICANCE", "SLOPE_LIMIT", "StopMarks",
-           "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]
+           "learn_from_stops", "learn_heading_weight", "learn_model", "stop_marks", "weighted_slope"]

@@ -78,24 +78,29 @@ def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> li
     return [d for d in out if d]
 
 
-def recheck(applied: Any, own: Any) -> dict[str, Any]:
+def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
     """The stored weight ``applied`` against the experiment's own ``own`` (both
     :class:`calibration.heading_weight.HeadingWeight`; ``own.conditions`` set): {applied_weight,
-    applied_sigma, own_weight, own_sigma, z (null when a σ is not estimated), differs, ok, message}."""
-    s = math.hypot(applied.sigma, own.sigma)
-    z = (own.weight_fit - applied.weight_fit) / s if math.isfinite(s) and s > 0 else None
-    differs = conditions_differ(applied.conditions, own.conditions or {})
+    applied_sigma, own_weight_fit, own_sigma, own_model, z (null when a σ is not estimated), differs, ok,
+    message}. ``same``: the experiment's weight re-learned with the applied one's bend model (None: ``own``),
+    whose weight and slopes are compared (another model's slopes are other numbers); the model ``own`` chose
+    is a condition of its own."""
+    same = own if same is None else same
+    s = math.hypot(applied.sigma, same.sigma)
+    z = (same.weight_fit - applied.weight_fit) / s if math.isfinite(s) and s > 0 else None
+    now = {**(own.conditions or {}), "slope_rms_rad": same.slope_rms_rad, "n_stops": same.n_stops}
+    differs = conditions_differ(applied.conditions, now)
     disagree = z is not None and abs(z) > RECHECK_Z
     ok = not disagree and not differs
-    both = (f"applied weight {applied.weight:.2f} (fit {applied.weight_fit:.2f} ± {applied.sigma:.2f}), this "
-            f"experiment's own {own.weight_fit:.2f} ± {own.sigma:.2f}")
+    both = (f"applied weight {applied.weight:.2f} (fit {applied.weight_fit:.2f} ± {applied.sigma:.2f}, "
+            f"{applied.model}), this experiment's own {same.weight_fit:.2f} ± {same.sigma:.2f}")
     why = ([f"they differ by {z:.1f}σ (> {RECHECK_Z:g}σ)"] if disagree else []) + differs
     message = None if ok else (f"heading_fit's stored weight may not hold for this robot any more: {both}; "
                                f"{'; '.join(why)}; the chord's figures are in the result (chord)")
     return {"applied_weight": applied.weight, "applied_weight_fit": applied.weight_fit,
             "applied_sigma": applied.sigma if math.isfinite(applied.sigma) else None,
-            "own_weight_fit": own.weight_fit, "own_sigma": own.sigma if math.isfinite(own.sigma) else None,
-            "z": z, "differs": differs, "ok": ok, "message": message}
+            "own_weight_fit": same.weight_fit, "own_sigma": same.sigma if math.isfinite(same.sigma) else None,
+            "own_model": own.model, "z": z, "differs": differs, "ok": ok, "message": message}
 
 
 __all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "recheck"]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from calibration.coverage import check_sigma, scatter_sigma
-from calibration.heading_weight import NOT_LEARNED, learn_from_stops
+from calibration.heading_weight import NOT_LEARNED, learn_from_stops, learn_model
 from calibration.metrics import experiment_metrics
 from calibration.weight_check import learning_conditions, recheck
 from daemon.compute.inputs import heading_weight
@@ -61,11 +61,15 @@ def _conditions(stops: list[dict[str, Any]], marks: list[dict[str, Any]], weight
 def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[Any], headings: np.ndarray,
                   groups: np.ndarray) -> tuple[dict[str, Any], dict[str, Any] | None, dict[str, Any]]:
     """(the weight learned here with its conditions, its re-check against the calibration's applied weight (None:
-    the calibration holds none), the chord's metrics: the marks with the chord's heading)."""
+    the calibration holds none, or no stop's bend was fitted here), the chord's metrics: the marks with the
+    chord's heading)."""
     own = learn_from_stops(learn, headings, groups)
     own = replace(own, conditions=_conditions(obs["stops"], marks, own))
     applied, _ = heading_weight(obs["calibration"])
-    check = None if applied is NOT_LEARNED else recheck(applied, own)
+    check = None  # the calibration holds no weight, or no stop here fitted a bend: nothing to compare
+    if applied is not NOT_LEARNED and own.n_stops:
+        same = own if own.model == applied.model else learn_model(learn, headings, groups, applied.model)
+        check = recheck(applied, own, same)
     chord_xy = np.array([c for c, _ in learn], dtype=float).reshape(-1, 2)
     return own.to_dict(), check, experiment_metrics(chord_xy, headings, groups).to_dict()
 

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.heading_weight import HeadingWeight, learn_from_stops, learn_heading_weight
+from calibration.heading_weight import HeadingWeight, learn_from_stops, learn_heading_weight, learn_model
 from calibration.weight_check import RECHECK_Z, conditions_differ, learning_conditions, recheck
 from tests.calibration.weight_world import experiment, rms
 
@@ -25,6 +25,16 @@ def learned(kind: str, seed: int, **kw) -> HeadingWeight:
     return replace(w, conditions=learning_conditions(weight=w, **SAME))
 
 
+def rechecked(applied: HeadingWeight, kind: str, seed: int, **kw) -> tuple[dict, HeadingWeight]:
+    """(the re-check of ``applied`` by an experiment on ``kind`` paths, as daemon/compute does it: the own
+    weight's model is a condition, its weight and slopes compared under the applied model; that weight)."""
+    ex = experiment(kind, seed, **kw)
+    own = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
+    own = replace(own, conditions=learning_conditions(weight=own, **SAME))
+    same = learn_model(ex["stops"], ex["heads"], ex["groups"], applied.model)
+    return recheck(applied, own, same), same
+
+
 @pytest.mark.parametrize("scored", ["late", "kink", "early", "s-curve", "straight"])
 def test_a_weight_learned_on_arcs_warns_wherever_it_is_more_than_10_percent_worse_than_the_chord(scored):
     """The acceptance's rule per seed: a weight > 10 % worse than the chord after the paths changed is never
@@ -32,23 +42,22 @@ def test_a_weight_learned_on_arcs_warns_wherever_it_is_more_than_10_percent_wors
     for seed in (1, 2, 3):
         w = learned("arc", seed)
         ex = experiment(scored, seed + 100, w)
-        own = learned(scored, seed + 100)
-        r = recheck(w, own)
+        r, same = rechecked(w, scored, seed + 100)
         if rms(ex["used_err"]) > 1.1 * rms(ex["chord_err"]):
             assert not r["ok"], (scored, seed, r)
         if not r["ok"]:
-            assert f"applied weight {w.weight:.2f}" in r["message"] and f"own {own.weight_fit:.2f}" in r["message"]
+            assert f"applied weight {w.weight:.2f}" in r["message"] and f"own {same.weight_fit:.2f}" in r["message"]
 
 
 def test_a_shape_change_is_named_even_where_the_weights_agree():
     """Bends late in the move give a weight like the arcs' in value, but the bend model or the slopes differ."""
-    r = recheck(learned("arc", 1), learned("late", 101))
+    r, _ = rechecked(learned("arc", 1), "late", 101)
     assert not r["ok"] and abs(r["z"]) < RECHECK_Z and r["differs"], r
 
 
 def test_the_same_paths_under_the_same_conditions_recheck_ok():
     for seed in (1, 2, 3):
-        r = recheck(learned("arc", seed), learned("arc", seed + 100))
+        r, _ = rechecked(learned("arc", seed), "arc", seed + 100)
         assert r["ok"] and r["message"] is None and abs(r["z"]) < RECHECK_Z, r
 
 
