@@ -14,7 +14,8 @@ Examples::
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
-    ritactl record --out FILE.mcap [--duration S] [--frames every N|off] [--max-size N] [--min-free N]
+    ritactl record --out FILE.mcap [--duration S] [--frames every N|off] [--frames-format raw|jpeg|png]
+                   [--max-size N] [--min-free N]
     ritactl replay FILE.mcap [--speed X|max] [--endpoint ipc:///PATH]  # republish it, for watch
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
