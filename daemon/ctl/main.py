@@ -273,7 +273,7 @@ def _one_blas_thread() -> None:
 
     ritactl's computations (recompute, plate survey) solve small systems (a PnP, a 7-parameter
     refit, 6×6 covariances): OpenBLAS's helper threads gain nothing there and cost a wake-up per
-    call, milliseconds on a busy machine (a referencing recompute ran ~30 % slower with them).
+    call, milliseconds on a busy machine (docs/benchmarks.md, "Referencing compute").
     """
     if "numpy" not in sys.modules:  # the setting is read when numpy loads; a library caller keeps its own
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")

@@ -16,9 +16,9 @@ docs/operations.md ("Record and replay") documents this layout; keep the two in 
 * Frames: channel ``/camera/frame`` with Foxglove's image schema in its ROS 2 form
   (``foxglove_msgs/msg/RawImage`` by default, ``CompressedImage`` with ``--frames-format jpeg|png``;
   schema encoding ``ros2msg``, messages in CDR): raw pixels go in as they are, where JSON would base64
-  them: a third larger, and on the standard machine 58 ms to encode a 12.2 MP frame, a third of the
-  camera's frame interval, against a copy here. Channel ``/camera/frame/header`` has the bus's frame
-  header as JSON, written just before each image so a replay can rebuild the bus frame exactly; both
+  them: a third larger, and slow to encode against a copy here (docs/benchmarks.md, "Recording").
+  Channel ``/camera/frame/header`` has the bus's frame header as JSON, written just before each
+  image so a replay can rebuild the bus frame exactly; both
   are logged at the exposure's mid-time (the header's ``t_ns``).
 * Channel ``/daemon/command``: the session's command/reply pairs as ritad reports them (its
   ``daemon.command`` telemetry), with the fixed schema :data:`COMMAND_SCHEMA` instead of an

@@ -2,7 +2,7 @@
 
 It binds the three bus endpoints a client expects (docs/protocol.md): a command socket that
 answers ``hello`` (which names the other two), ``ping``, ``state`` (the Clone snapshot, as of the
-replay's position) and ``status``/``health`` (the last ``daemon.health`` replayed); every other
+replay's position) and ``status`` (the last ``daemon.health`` replayed); every other
 command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not driven. Telemetry goes out on a PUB socket in the bus's own format
 (``[topic, msgpack {v, seq, t_ns, data}]`` with the message's log time, its sample's time, as t_ns,
 and the replay's own seq, one counter across topics as ritad's: the file's sequences count each
@@ -40,7 +40,7 @@ from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
 
 _LOCAL_TCP = re.compile(r"^tcp://(127\.0\.0\.1|localhost):(\d{1,5}|\*)$")
-ANSWERED = ("hello", "ping", "state", "status", "health")
+ANSWERED = ("hello", "ping", "state", "status")
 
 
 def default_endpoint() -> str:
