@@ -53,8 +53,9 @@ class BendFit:
     stream_sigma_mm: float  # the stream's lateral noise, from second differences of neighbouring points
     significant: bool
     why: str  # why the chord was kept ("" when the fit is used)
-    #: the end slope the fitted path misses near the stop (rad): the fitted end slope against a line through the
-    #: stream's last :data:`END_FRACTION` of the move, beyond that line's noise (a kink there); 0 when none is seen
+    #: the end slope the fitted path misses near the stop (rad): the fitted end slope against a line through
+    #: the stream's last :data:`END_FRACTION` of the move, beyond that line's noise (a kink there); 0 when
+    #: none is seen
     end_lack_of_fit_rad: float = 0.0
 
 
@@ -116,11 +117,12 @@ def _end_slope(x: np.ndarray, e: np.ndarray, deg: int, sig_s: float, anchor_sigm
 
 
 def _end_lack_of_fit(x: np.ndarray, e: np.ndarray, slope: float, var: float, sig_s: float, L: float) -> float:
-    """How far the fitted end ``slope`` (variance ``var``) is from what the stream's last :data:`END_FRACTION` of
-    the move shows by itself (a line through those points: a kink or a late bend leaves the end straight, where a
-    polynomial over the whole move over- or undershoots). Only a difference beyond :data:`SIGNIFICANCE` of its
-    noise counts (the line's slope sits mid-window, which on a smooth bend differs a little from the end's);
-    then √(d² − var_d), an unbiased estimate of the squared slope missed (rad), else 0."""
+    """How far the fitted end ``slope`` (variance ``var``) is from what the stream's last :data:`END_FRACTION`
+    of the move shows by itself (a line through those points: a kink or a late bend leaves the end straight,
+    where a polynomial over the whole move over- or undershoots). Only a difference beyond
+    :data:`SIGNIFICANCE` of its noise counts (the line's slope sits mid-window, which on a smooth bend differs
+    a little from the end's); then √(d² − var_d), an unbiased estimate of the squared slope missed (rad), else
+    0."""
     end = x >= 1.0 - END_FRACTION
     if np.count_nonzero(end) < MIN_FIT_POINTS:
         return 0.0
@@ -207,6 +209,6 @@ def chord_sigma(fit: BendFit, anchor_sigma_mm: float, length_mm: float) -> float
     return fit_heading_sigma(own, anchor_sigma_mm, length_mm) if np.isfinite(own) else 0.0
 
 
-__all__ = ["BendFit", "END_FRACTION", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE", "bend_fit",
-           "chord_sigma", "fit_heading",
+__all__ = ["BendFit", "END_FRACTION", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE",
+           "bend_fit", "chord_sigma", "fit_heading",
            "fit_heading_sigma"]

@@ -17,7 +17,8 @@ applied. None of them changes the paper's equations; they change their inputs:
   slope when the stop's own bend is significant).
 
 Each result also says how well its heading is known beyond the two tracker points
-(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`; ``heading_sigma_basis`` says from what).
+(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`; from what:
+``heading_sigma_basis``).
 * **mount** — the reflector mount's eccentricity, measured by the referencing's reversal
   (calibration/mount.py): fixed relative to the line of sight to the tracker, so the same in
   ACS at every heading; subtracted from the stop's tracker points when the data showed it.
@@ -207,8 +208,8 @@ class Applied:
     #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
     sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
     heading_source: str = "chord"
-    #: what it rests on: "a_priori" (the chord's 250 µrad path deviation), "stop_fit" (the chord, from the stop's
-    #: own fit), "fit" (the fit's σ), "weight" (the weight's σ); the last three with the fit's end lack of fit
+    #: what it rests on: "a_priori" (the chord's 250 µrad path deviation), "stop_fit" (the chord, from the
+    #: stop's own fit), "fit" (the fit's σ), "weight" (the weight's σ); the last three with the end's misfit
     heading_sigma_basis: str = "a_priori"
     #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
     cov_mount_xy_mm2: np.ndarray | None = None
@@ -305,7 +306,8 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
             _chord_kept(out, fit, why, anchor_sigma_mm, length)
             return
         # the population's σ, and what this stop's fitted path misses at its end (a kink there)
-        out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), float(np.hypot(sigma, fit.end_lack_of_fit_rad))
+        out.abs_P_prev = prev_at(slope)
+        out.sigma_heading_rad = float(np.hypot(sigma, fit.end_lack_of_fit_rad))
         out.heading_sigma_basis = "weight"
     elif not fit.significant:
         _chord_kept(out, fit, fit.why, anchor_sigma_mm, length)
@@ -313,13 +315,14 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     else:
         out.abs_P_prev = P_at - sign * length * fit.direction
         sigma = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
-        out.sigma_heading_rad, out.heading_sigma_basis = float(np.hypot(sigma, fit.end_lack_of_fit_rad)), "fit"
+        out.sigma_heading_rad = float(np.hypot(sigma, fit.end_lack_of_fit_rad))
+        out.heading_sigma_basis = "fit"
     out.applied.append("heading_fit")
     out.heading_source = "heading_fit"
 
 
 def _chord_kept(out: Applied, fit: Any, why: str, anchor_sigma_mm: float, length: float) -> None:
-    """The chord kept at a fitted stop: its heading σ raised to its fit's own (bend_fit.chord_sigma), never lowered."""
+    """The chord kept at a fitted stop: its heading σ raised to its fit's own (bend_fit.chord_sigma)."""
     out.skipped["heading_fit"] = why
     own = chord_sigma(fit, anchor_sigma_mm, length)
     if own > out.sigma_heading_rad:

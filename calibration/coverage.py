@@ -87,8 +87,8 @@ def check_sigma(xy: Any, headings_deg: Any, sigma_mm: Sequence[float], what: str
     ok = ratio <= limit
     message = None if ok else (
         f"{what} does not cover the experiment's own scatter: Birge ratio {ratio:.2f} (χ² {chi2:.1f} over "
-        f"{dof} degrees of freedom; consistent up to {limit:.2f} at {100 * ALPHA:g} %): every σ stated here is "
-        f"scaled by {ratio:.2f}")
+        f"{dof} degrees of freedom; consistent up to {limit:.2f} at {100 * ALPHA:g} %): every σ stated "
+        f"here is scaled by {ratio:.2f}")
     return SigmaCheck(chi2, dof, ratio, limit, ALPHA, ok, 1.0 if ok else ratio, len(P), message)
 
 
@@ -105,4 +105,5 @@ def stored_scale(record: Any) -> tuple[float, str]:
     return scale, ""
 
 
-__all__ = ["ALPHA", "COMMON_PARTS", "SigmaCheck", "check_sigma", "chi2_quantile", "scatter_sigma", "stored_scale"]
+__all__ = ["ALPHA", "COMMON_PARTS", "SigmaCheck", "check_sigma", "chi2_quantile", "scatter_sigma",
+           "stored_scale"]

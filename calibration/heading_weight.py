@@ -136,9 +136,9 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> float:
-    """The weight's variance from leaving one direction out at a time (the jackknife over directions; 0 when it
-    cannot be made): a direction's stops share its floor and path, so its errors do not average within it and
-    the sandwich over stops understates the spread between experiments."""
+    """The weight's variance from leaving one direction out at a time (the jackknife over directions; 0 when
+    it cannot be made): a direction's stops share its floor and path, so its errors do not average within it
+    and the sandwich over stops understates the spread between experiments."""
     if groups is None:
         return 0.0
     names = list(dict.fromkeys(groups.tolist()))
@@ -157,7 +157,8 @@ def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | 
 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
-                         fit_sigmas_rad: Any = None, model: str = "lowest", groups: Any = None) -> HeadingWeight:
+                         fit_sigmas_rad: Any = None, model: str = "lowest",
+                         groups: Any = None) -> HeadingWeight:
     """The weight of the fitted slope from an experiment's stops; see the module's docstring.
 
     ``chord_xy`` (N, 2): each stop's mark with the chord's heading; ``fit_xy`` (N, 2): with the full
@@ -186,7 +187,8 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
-    if np.linalg.cond(A) > 1e6:  # as fit_bias; then its four columns (with_weight) are at most as ill-conditioned
+    # as fit_bias; then its four columns (with_weight) are at most as ill-conditioned
+    if np.linalg.cond(A) > 1e6:
         return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark and "
                                     "the robot-frame bias")
     theta, cov = _solve(A, y)
@@ -228,8 +230,8 @@ def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
 
 
 def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> HeadingWeight:
-    """The weight of the model that predicts held-out directions best, or the chord when its own b predicts them
-    better (:func:`learn_heading_weight` per model from each stop's :func:`stop_marks`, compared by
+    """The weight of the model that predicts held-out directions best, or the chord when its own b predicts
+    them better (:func:`learn_heading_weight` per model from each stop's :func:`stop_marks`, compared by
     calibration/weight_cv.py); when no model's weight is shown, the lowest's reason. ``groups``: each stop's
     direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
@@ -243,8 +245,8 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
         return replace(best, cv={**cv, "chosen": "weight"})
     return _chord_instead(best, {**cv, "chosen": "chord"}, chord, psi, (
-        f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) than "
-        f"weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
+        f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
+        f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
 
 
 def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> HeadingWeight:

@@ -33,8 +33,8 @@ def _median(values: list[float]) -> float | None:
     return None if not v else (v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]))
 
 
-def learning_conditions(rates_hz: list[float], speeds_mm_s: list[float], distances_mm: list[float], tilt: bool,
-                        weight: Any) -> dict[str, Any]:
+def learning_conditions(rates_hz: list[float], speeds_mm_s: list[float], distances_mm: list[float],
+                        tilt: bool, weight: Any) -> dict[str, Any]:
     """What a weight was learned under: the stops' median stream rate, approach speed and distance (None where
     no stop gives it), whether the tilt was compensated, the bend model chosen, and the fitted slopes' rms,
     robust scale and count (``weight``: the :class:`calibration.heading_weight.HeadingWeight`)."""
@@ -54,7 +54,8 @@ def _scalar_differs(name: str, a: Any, b: Any) -> str | None:
 
 
 def _slopes_differ(a: dict[str, Any], b: dict[str, Any]) -> str | None:
-    sa, sb, na, nb = a.get("slope_rms_rad"), b.get("slope_rms_rad"), a.get("n_stops") or 0, b.get("n_stops") or 0
+    sa, sb = a.get("slope_rms_rad"), b.get("slope_rms_rad")
+    na, nb = a.get("n_stops") or 0, b.get("n_stops") or 0
     if not sa or not sb or na < 2 or nb < 2:
         return None
     z = abs(math.log(sb / sa)) / math.sqrt(1.0 / (2 * na) + 1.0 / (2 * nb))

@@ -23,12 +23,13 @@ import numpy as np
 
 from calibration.metrics import bias_design
 
-#: the fewest directions a leave-one-direction-out comparison is made with (each fold keeps ≥ 4 to fix M, b, w)
+#: the fewest directions for a leave-one-direction-out comparison (each fold keeps ≥ 4 to fix M, b and w)
 MIN_FOLDS = 5
 
 
 def design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k: calibration/metrics.py), −Δ (the weight's)."""
+    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k: calibration/metrics.py), −Δ (the
+    weight's)."""
     return np.column_stack([bias_design(headings_deg), -delta.reshape(-1)])
 
 
@@ -58,7 +59,8 @@ def cross_validate(P: np.ndarray, F: np.ndarray, psi: np.ndarray, slopes: np.nda
                    learn: Callable[[np.ndarray], Any]) -> dict[str, Any] | None:
     """{folds, chord_rms_mm, weight_rms_mm, weight_folds (the weight each fold learned)} over the directions
     ``groups``; ``learn(train_mask)`` gives the weight record learned on those stops (its ``weight``,
-    ``slope_limit_rad``); None with fewer than :data:`MIN_FOLDS` directions or a fold M, b cannot be fitted in."""
+    ``slope_limit_rad``); None with fewer than :data:`MIN_FOLDS` directions or a fold M, b cannot be fitted
+    in."""
     names = list(dict.fromkeys(groups.tolist()))
     if len(names) < MIN_FOLDS:
         return None

@@ -12,7 +12,8 @@ import numpy as np
 from calibration.compensation import apply_bias
 
 
-def biased_calibration(active: dict[str, Any], result: dict[str, Any], stored: str | None = None) -> dict[str, Any]:
+def biased_calibration(active: dict[str, Any], result: dict[str, Any],
+                       stored: str | None = None) -> dict[str, Any]:
     """``active`` with the experiment ``result``'s fitted bias b added to what it already held, the
     heading_fit weight it learned (calibration/heading_weight.py) and its σ check (calibration/coverage.py:
     later marks scale their σ by it); ``stored``: the time stamp (UTC) the record gets (None: now).
@@ -47,10 +48,10 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any], stored: s
     sigma = (result.get("checks") or {}).get("sigma")
     if sigma:  # the σ this experiment validated goes with its b: a later mark states it (no check: none)
         new["sigma_check"] = {**sigma, "job": result.get("job")}
+    used = [n for n in summary.get("requested", []) if summary["applied"].get(n)]
     return {**new, "robot_bias_mm": b.tolist(),
             "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit_b), "fit_rms_mm": fit.get("rms_mm"),
-                           "added_to_mm": held if applied else None,
-                           "compensation": [n for n in summary.get("requested", []) if summary["applied"].get(n)],
+                           "added_to_mm": held if applied else None, "compensation": used,
                            "stored": stored or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
 
 

@@ -53,16 +53,17 @@ def _conditions(stops: list[dict[str, Any]], marks: list[dict[str, Any]], weight
     streams = [s.get("stream") or {} for s in stops]
     rates = [float(st["rate_hz"]) for st in streams if st.get("rate_hz") is not None]
     speeds = [v for v in (_speed_mm_s(st) for st in streams) if v is not None]
-    dist = [float(np.linalg.norm(np.subtract(s["P_at"]["abs_xyz"], s["P_prev"]["abs_xyz"])[:2])) for s in stops]
+    dist = [float(np.linalg.norm(np.subtract(s["P_at"]["abs_xyz"], s["P_prev"]["abs_xyz"])[:2]))
+            for s in stops]
     tilt = sum("tilt" in m["compensation"]["applied"] for m in marks) * 2 > len(marks)  # the most stops'
     return learning_conditions(rates, speeds, dist, tilt, weight)
 
 
 def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[Any], headings: np.ndarray,
                   groups: np.ndarray) -> tuple[dict[str, Any], dict[str, Any] | None, dict[str, Any]]:
-    """(the weight learned here with its conditions, its re-check against the calibration's applied weight (None:
-    the calibration holds none, or no stop's bend was fitted here), the chord's metrics: the marks with the
-    chord's heading)."""
+    """(the weight learned here with its conditions, its re-check against the calibration's applied weight
+    (None: the calibration holds none, or no stop's bend was fitted here), the chord's metrics: the marks with
+    the chord's heading)."""
     own = learn_from_stops(learn, headings, groups)
     own = replace(own, conditions=_conditions(obs["stops"], marks, own))
     applied, _ = heading_weight(obs["calibration"])

@@ -136,8 +136,10 @@ def no_mount_why(calib: dict[str, Any]) -> str:
         return f"{head}: {calib['reflector_mount_why']}"
     if calib.get("reversal") is None:
         return f"{head}: its referencing had one run (reference with --reversal)"
-    said = [m for m in calib.get("messages") or [] if str(m).startswith("reflector mount offset not estimated: ")]
-    return f"{head}: " + (said[0].split(": ", 1)[1] if said else "its referencing's reversal did not estimate it")
+    said = [m for m in calib.get("messages") or []
+            if str(m).startswith("reflector mount offset not estimated: ")]
+    return f"{head}: " + (said[0].split(": ", 1)[1] if said
+                          else "its referencing's reversal did not estimate it")
 
 
 #: the marks' pixel 1σ (the locator's, calibration.measure.measure_mark's default)
@@ -204,19 +206,21 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
 
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """One floor mark in ACS from one stop (image + approach positions); its σ scaled as the calibration's last
-    experiment found its own σ to need (calibration/coverage.py, stored by ``store_bias`` as ``sigma_check``)."""
+    """One floor mark in ACS from one stop (image + approach positions); its σ scaled as the calibration's
+    last experiment found its own σ to need (calibration/coverage.py, stored by ``store_bias`` as
+    ``sigma_check``)."""
     s = recorded(MEASURE_MARK, obs)
     comp = parse_compensation(s.compensation)
     r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), s.kind, s.mark_size_mm, s.sigma_t_mm,
                      comp)
     record = obs["calibration"].get("sigma_check")
     scale, bad = stored_scale(record)
-    r["sigma"].update(stated_mm=r["std_mm"], scale=scale, scale_source=(record or {}).get("job") if not bad else None)
+    source = (record or {}).get("job") if not bad else None
+    r["sigma"].update(stated_mm=r["std_mm"], scale=scale, scale_source=source)
     r["std_mm"] = r["std_mm"] * scale
-    messages = [bad] if bad else ([f"σ scaled by {scale:.2f}: the calibration's last experiment "
-                                   f"({(record or {}).get('job')}) found its stated σ short of its scatter by that "
-                                   f"Birge ratio"] if scale > 1.0 else [])
+    messages = [bad] if bad else ([f"σ scaled by {scale:.2f}: the calibration's last experiment ({source}) "
+                                   f"found its stated σ short of its scatter by that Birge ratio"]
+                                  if scale > 1.0 else [])
     return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,
             "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),
@@ -225,7 +229,8 @@ def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]
 
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     """The paper's 8-direction repeatability experiment: per-stop marks, the metrics table, and what the
-    experiment's own scatter says about its stated σ and heading_fit's weight (daemon/compute/experiment_checks.py)."""
+    experiment's own scatter says about its stated σ and heading_fit's weight
+    (daemon/compute/experiment_checks.py)."""
     s, load = recorded(EXPERIMENT, obs), _eight_bit(load)
     comp = parse_compensation(s.compensation)
     stops: list[Any] = []
@@ -245,7 +250,8 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
         weight, recheck, chord = weight_checks(obs, marks, stops, headings, groups)
         out.update(heading_weight=weight, chord=chord)
         checks["heading_weight"] = recheck
-        messages += [weight_message(weight)] + ([recheck["message"]] if recheck and recheck["message"] else [])
+        said = [recheck["message"]] if recheck and recheck["message"] else []
+        messages += [weight_message(weight)] + said
     summary = compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"])
     _label_bias(metrics, summary)
     ok = all(c is None or c.get("ok", True) for c in checks.values())

@@ -26,7 +26,8 @@ _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibrati
 
 
 class BiasNotStored(Exception):
-    """The experiment's result gives no bias a calibration can hold (ritactl recompute --store-bias: exit 2)."""
+    """The experiment's result gives no bias a calibration can hold (ritactl recompute --store-bias: exit
+    2)."""
 
 
 class ComputationFailed(Exception):
@@ -156,15 +157,18 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     return result, Difference(d, bad)
 
 
-def store_bias_offline(root: Path, result: dict[str, Any], out: Path, calibration: dict[str, Any] | None = None,
+def store_bias_offline(root: Path, result: dict[str, Any], out: Path,
+                       calibration: dict[str, Any] | None = None,
                        stored: str | None = None) -> dict[str, Any]:
     """Write to ``out`` (atomic) the calibration the live ``store_bias`` would make of ``result``: the
     calibration the experiment used (the dataset's, or the ``calibration`` given in its place) with the
     experiment's b, heading_fit weight and σ check (:func:`daemon.compute.bias_store.biased_calibration`, the
-    function the worker calls). ``stored``: the record's time stamp (None: now). ValueError for a dataset that is
-    no experiment, :class:`BiasNotStored` naming why the result gives no b to store (nothing is written)."""
+    function the worker calls). ``stored``: the record's time stamp (None: now). ValueError for a dataset that
+    is no experiment, :class:`BiasNotStored` naming why the result gives no b to store (nothing is
+    written)."""
     if result.get("procedure") != EXPERIMENT.name:
-        raise ValueError(f"--store-bias applies to an experiment dataset, not {_a(str(result.get('procedure')))}")
+        what = _a(str(result.get("procedure")))
+        raise ValueError(f"--store-bias applies to an experiment dataset, not {what}")
     used = calibration
     if used is None:
         state = json.loads((Path(root) / "state.json").read_text())

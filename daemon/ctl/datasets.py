@@ -159,8 +159,9 @@ def add_parsers(sub: Any) -> None:
                         "(experiment, measure-mark; default: the job's own, the procedure table's when it named none). "
                         "A bad name exits 5")
     p.add_argument("--store-bias", metavar="OUT.json",
-                   help="(experiment) write the calibration the live store_bias would store: the calibration the "
-                        "experiment used with its fitted b, heading_fit weight and σ check (docs/datasets.md)")
+                   help="(experiment) write the calibration the live store_bias would store: the "
+                        "calibration the experiment used with its fitted b, heading_fit weight and σ check "
+                        "(docs/datasets.md)")
     p.set_defaults(fn=cmd_recompute, offline=True)
 
 
