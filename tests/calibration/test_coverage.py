@@ -27,7 +27,7 @@ def marks(seed: int, sigma_true: float = 0.03, n_dirs: int = 8, reps: int = 5):
 
 
 def test_the_chi2_quantile_matches_the_tables():
-    """Wilson–Hilferty against tabulated χ² quantiles at 99 % (e.g. NIST/SEMATECH e-Handbook, table 1.3.6.7.4)."""
+    """Wilson–Hilferty against tabulated χ² quantiles at 99 % (NIST/SEMATECH e-Handbook, table 1.3.6.7.4)."""
     for dof, exact in ((4, 13.277), (12, 26.217), (76, 107.583), (30, 50.892)):
         assert chi2_quantile(dof) == pytest.approx(exact, rel=0.01)
 
@@ -66,7 +66,8 @@ def test_common_parts_are_left_out_and_a_check_that_cannot_be_made_says_none():
     assert scatter_sigma(0.05, {"calibration": 0.03, "mount": 0.0, "tracker": 0.04}) == pytest.approx(0.04)
     assert scatter_sigma(0.01, {"mount": 0.02}) == 0.0
     assert check_sigma(np.zeros((3, 2)), [0, 90, 180], [0.01] * 3) is None  # 2 degrees of freedom
-    assert check_sigma(np.zeros((8, 2)), np.zeros(8), [0.01] * 8) is None  # one heading: M and b not separated
+    # one heading: M and b not separated
+    assert check_sigma(np.zeros((8, 2)), np.zeros(8), [0.01] * 8) is None
     assert check_sigma(np.zeros((8, 2)), 45.0 * np.arange(8), [0.0] * 8) is None
 
 

@@ -46,15 +46,17 @@ def test_a_stop_that_keeps_the_chord_states_its_own_large_bend_not_the_a_priori_
 
 
 def test_a_straight_stop_that_keeps_the_chord_never_states_less_than_the_a_priori_sigma():
-    """A stream cannot see a turn whose trace across it is below its noise: the data raise the σ, never lower it."""
+    """A stream cannot see a turn whose trace across it is below its noise: the data raise the σ, never lower
+    it."""
     stop, _ = _stop(lambda s: 0.0 * s, 4)
     a = compensate(Compensation(heading_fit=True), stop, np.eye(4), heading_weight=NOT_LEARNED)
     assert a.sigma_heading_rad == CHORD_HEADING_SIGMA_RAD and a.heading_sigma_basis == "a_priori"
 
 
 def test_a_late_turn_the_fit_overshoots_is_in_the_stops_sigma_with_the_weight_applied():
-    """A 2 mrad turn at 80–85 % of the move: a polynomial over the whole move ends far off the straight end that
-    follows; the end's own line shows it, and the stated σ carries it (the weight's population σ alone does not)."""
+    """A 2 mrad turn at 80–85 % of the move: a polynomial over the whole move ends far off the straight end
+    that follows; the end's own line shows it, and the stated σ carries it (the weight's population σ alone
+    does not)."""
     stop, end = _stop(turn(0.8, 0.85, 2000e-6), 0)
     fit = bend_fit(stop.stream, stop.abs_P_prev, stop.abs_P_at, 0.010)
     assert fit.shape not in ("other", "arc") and fit.end_lack_of_fit_rad > 0.5 * abs(fit.slope_rad - end)

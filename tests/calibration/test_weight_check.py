@@ -46,11 +46,13 @@ def test_a_weight_learned_on_arcs_warns_wherever_it_is_more_than_10_percent_wors
         if rms(ex["used_err"]) > 1.1 * rms(ex["chord_err"]):
             assert not r["ok"], (scored, seed, r)
         if not r["ok"]:
-            assert f"applied weight {w.weight:.2f}" in r["message"] and f"own {same.weight_fit:.2f}" in r["message"]
+            assert f"applied weight {w.weight:.2f}" in r["message"]
+            assert f"own {same.weight_fit:.2f}" in r["message"]
 
 
 def test_a_shape_change_is_named_even_where_the_weights_agree():
-    """Bends late in the move give a weight like the arcs' in value, but the bend model or the slopes differ."""
+    """Bends late in the move give a weight like the arcs' in value, but the bend model or the slopes
+    differ."""
     r, _ = rechecked(learned("arc", 1), "late", 101)
     assert not r["ok"] and abs(r["z"]) < RECHECK_Z and r["differs"], r
 
@@ -81,9 +83,10 @@ def test_the_conditions_round_trip_with_the_record():
 
 
 def _regression(seed: int, lean: float = 200e-6, floor: float = 0.03):
-    """One experiment's learning inputs drawn directly (no stream): each stop's true end slope β (a lean shared by
-    its direction + its own 250 µrad), the chord off by β + the anchors' 70 µrad, the fit reading β ± 100 µrad,
-    the mark moved by that heading error across the footprint's lever arm, plus the direction's floor offset."""
+    """One experiment's learning inputs drawn directly (no stream): each stop's true end slope β (a lean
+    shared by its direction + its own 250 µrad), the chord off by β + the anchors' 70 µrad, the fit reading β
+    ± 100 µrad, the mark moved by that heading error across the footprint's lever arm, plus the direction's
+    floor offset."""
     rng = np.random.default_rng(seed)
     g = np.repeat(np.arange(8), 5)
     psi = 45.0 * g + rng.normal(0.0, 0.5, 40)
@@ -97,9 +100,9 @@ def _regression(seed: int, lean: float = 200e-6, floor: float = 0.03):
 
 
 def test_the_weights_sigma_covers_the_spread_between_experiments():
-    """Repeated learning runs (100 pairs) where a direction's stops share a lean and a floor offset: the z of two
-    independent runs' weights has an rms near 1 with the jackknife over directions; the sandwich over stops
-    alone (no directions given) understates the spread (rms z ≈ 1.36)."""
+    """Repeated learning runs (100 pairs) where a direction's stops share a lean and a floor offset: the z of
+    two independent runs' weights has an rms near 1 with the jackknife over directions; the sandwich over
+    stops alone (no directions given) understates the spread (rms z ≈ 1.36)."""
     def rms_z(with_groups: bool) -> float:
         zs = []
         for seed in range(1, 101):

@@ -22,8 +22,9 @@ def test_on_arcs_the_weight_predicts_the_directions_left_out_better_and_is_store
 
 
 def test_where_the_chord_with_its_own_b_predicts_better_it_is_stored_with_that_b_and_both_figures():
-    """A kink near the stop that the stream (60 points) does not resolve: in-sample the weight passes its test,
-    held out the chord predicts better; the record keeps the chord, its own b, and says why with both figures."""
+    """A kink near the stop that the stream (60 points) does not resolve: in-sample the weight passes its
+    test, held out the chord predicts better; the record keeps the chord, its own b, and says why with both
+    figures."""
     ex = experiment("kink", 2, n_stream=60)
     w = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
     assert w.cv is not None and w.cv["chosen"] == "chord" and w.cv["chord_rms_mm"] <= w.cv["weight_rms_mm"]

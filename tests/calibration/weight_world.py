@@ -41,7 +41,8 @@ def shape(kind: str, rng: np.random.Generator, lean: float = 0.0) -> Callable[[n
         a = rng.normal(0.0, RAD * L / (2 * np.pi))
         return lambda s: a * np.sin(2 * np.pi * s / L)
     lo, hi = {"late": (0.7, 1.0), "early": (0.0, 0.3), "kink": (0.89, 0.91)}[kind]
-    c = rng.normal(lean, RAD) / ((lo + hi) / 2)  # the turn within [lo, hi]; the chord is off by its share (lo+hi)/2
+    # the turn within [lo, hi]; the chord is off by its share (lo + hi) / 2
+    c = rng.normal(lean, RAD) / ((lo + hi) / 2)
     return lambda s: c * (_ramp(s, lo, hi) - s * float(_ramp(np.array([L]), lo, hi)[0]) / L)
 
 
@@ -50,7 +51,8 @@ def _rot(a: float) -> np.ndarray:
 
 
 def experiment(kind: str, seed: int, weight: HeadingWeight = NOT_LEARNED, *, n_stream: int = 150,
-               sigma_stream: float = 0.015, sigma_anchor: float = 0.010, floor_mm: float = 0.0, lean_rad: float = 0.0,
+               sigma_stream: float = 0.015, sigma_anchor: float = 0.010, floor_mm: float = 0.0,
+               lean_rad: float = 0.0,
                n_dirs: int = 8, reps: int = 5) -> dict[str, Any]:
     """{stops (stop marks), heads, groups, chord_err, used_err (rad), sigma (the stated heading σ per stop),
     applied (each stop's compensation)} of one experiment; ``floor_mm``: 1σ of a per-direction ACS offset of
@@ -68,11 +70,13 @@ def experiment(kind: str, seed: int, weight: HeadingWeight = NOT_LEARNED, *, n_s
             P_at = M_TRUE - _rot(psi_true) @ (R_MARK - B_TRUE)
             u, n = np.array([math.cos(psi_c), math.sin(psi_c)]), np.array([-math.sin(psi_c), math.cos(psi_c)])
             s = np.linspace(0.0, L, n_stream)
-            xy = P_at - L * u + np.outer(s, u) + np.outer(e(s), n) + rng.normal(0.0, sigma_stream, (n_stream, 2))
+            noise = rng.normal(0.0, sigma_stream, (n_stream, 2))
+            xy = P_at - L * u + np.outer(s, u) + np.outer(e(s), n) + noise
             noisy = [P_at - L * u + rng.normal(0.0, sigma_anchor, 2), P_at + rng.normal(0.0, sigma_anchor, 2)]
             stop = Stop(*(np.append(p, 0.0) for p in noisy), stream=np.column_stack([xy, np.zeros(n_stream)]))
             a = compensate(Compensation(heading_fit=True), stop, np.eye(4), heading_weight=weight)
-            rob_P = np.append(_rot(psi_true).T @ (M_TRUE + floor - P_at) + B_TRUE, 0.0)  # the floor moves the mark seen
+            # the floor moves the mark seen
+            rob_P = np.append(_rot(psi_true).T @ (M_TRUE + floor - P_at) + B_TRUE, 0.0)
             out["stops"].append(stop_marks(a, rob_P))
             v, c = a.abs_P_at - a.abs_P_prev, noisy[1] - noisy[0]
             out["heads"].append(math.degrees(math.atan2(v[1], v[0])))
