@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 from bench.accuracy_envelope import CASES, DEFAULT, HONEST_RATIO, coverage, restated
+from calibration.compensation import compensate
+from calibration.heading_weight import NOT_LEARNED
 from calibration.measure import CHORD_HEADING_SIGMA_RAD, measure_mark, tracker_sigma_mm
 from calibration.referencing import reference
 from calibration.scs import make_scs
 from fakes import profiles
-from fakes.accuracy import measure_all, run
+from fakes.accuracy import _stop, measure_all, run
 from fakes.simulate import SimConfig, Simulation
 from fakes.world import World, WorldParams
 
@@ -32,20 +34,25 @@ def test_stated_sigma_is_the_products_and_the_old_one_restates_to_it():
         assert s_t == pytest.approx(tracker_sigma_mm(d)) and 0.018 < s_t < 0.026  # the marks are ~4-5 m away
     old = np.array([measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at, cov_rob_H_scn=cov).std_mm
                     for o in val.observations])
+    # the heading σ the compensation states for each stop: the chord's a-priori, or the stop's own larger one
+    heading = [compensate(DEFAULT, _stop(o), res.rob_H_scn, imu_offset=None, bias_b_mm=None,
+                          abs_t_trk=trk, heading_weight=NOT_LEARNED).sigma_heading_rad
+               for o in val.observations]
+    assert all(h >= CHORD_HEADING_SIGMA_RAD for h in heading)
     new = np.array([measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at, cov_rob_H_scn=cov,
-                                 sigma_t_mm=s, sigma_heading_rad=CHORD_HEADING_SIGMA_RAD).std_mm
-                    for o, s in zip(val.observations, row["sigma_t_mm"])])
+                                 sigma_t_mm=s, sigma_heading_rad=h).std_mm
+                    for o, s, h in zip(val.observations, row["sigma_t_mm"], heading)])
     np.testing.assert_allclose(row["std_old_mm"], old, rtol=1e-9)
     np.testing.assert_allclose(row["std_mm"], new, rtol=1e-9)
     np.testing.assert_allclose(restated(row), old, rtol=1e-9)
-    # the old σ restated with the new tracker σ and the chord's heading term is the new one (the lever arm
+    # the old σ restated with the new tracker σ and the stops' heading term is the new one (the lever arm
     # from the robot frame's xy: the robot stands upright in this world's stops without a tilt compensation)
     np.testing.assert_allclose(restated(row, sigma_t_mm=row["sigma_t_mm"],
-                                        heading_rad=CHORD_HEADING_SIGMA_RAD),
+                                        heading_rad=np.array(heading)),
                                row["std_mm"], rtol=1e-6)
     assert row["lever_mm"] == pytest.approx(np.hypot(200.0, 50.0), abs=10.0)  # the camera footprint's offset
     assert np.all(row["std_mm"] > 2 * row["std_old_mm"]) and len(pts) == 2
-    assert np.all(sig[:, 4] == pytest.approx(CHORD_HEADING_SIGMA_RAD * row["lever_mm"], rel=1e-3))
+    assert np.all(sig[:, 4] == pytest.approx(np.array(heading) * row["lever_mm"], rel=1e-3))
 
 
 #: the coverage check's seeds (8 × 40 stops = 320 marks) and its bound: an honest Gaussian σ gives p95 1.73;
