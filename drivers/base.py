@@ -233,6 +233,11 @@ class Tracker(StreamingDevice):
     def start_stream(self, rate_hz: float) -> None:
         """Start continuous measurement; points go to ``emit('tracker.point', {...})``."""
 
+    def readback(self) -> dict[str, Any]:
+        """What the controller holds now (frames, environment, packet rate), read from it: the commissioning
+        check's evidence. A tracker that cannot read them back says so."""
+        raise DeviceError(f"{type(self).__name__} cannot read its settings back", code="not_supported")
+
 
 # --------------------------------------------------------------------------- camera
 

@@ -34,12 +34,14 @@ class FakeTrackerServer(FrameCommands):
 
     ``packet_rate_hz``: stream packets per second until a client sets ES_SP_TcpDataPacketRate;
     ``max_data_rate``: GetTrackerInfo's iMaxDataRate (a faster time separation is refused);
-    ``foreign_frame``: start with another client's station orientation and transformation applied.
+    ``foreign_frame``: start with another client's station orientation and transformation applied;
+    ``frame_held``: that client holds them (a defect no connect can clear: fakes/tracker_frames.py).
     """
 
     def __init__(self, world: Any, *, sigma_mm: float | None = None, time_scale: float = 0.05,
                  packet_rate_hz: float = 8.0, flood_batch: int = 0, faults: Faults | None = None,
-                 host: str = "127.0.0.1", max_data_rate: int = 1000, foreign_frame: bool = False) -> None:
+                 host: str = "127.0.0.1", max_data_rate: int = 1000, foreign_frame: bool = False,
+                 frame_held: bool = False) -> None:
         if not time_scale >= 0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
         if not 0 < packet_rate_hz <= 100:
@@ -48,7 +50,8 @@ class FakeTrackerServer(FrameCommands):
         self.time_scale = time_scale
         self.packet_rate_hz = packet_rate_hz
         self.max_data_rate = int(max_data_rate)
-        if foreign_frame:
+        self.frame_held = frame_held
+        if foreign_frame or frame_held:
             self.preset_foreign_frame()
         self.flood_batch = int(flood_batch)  # >0: stream full packets as fast as TCP allows (benchmarks)
         self.faults = faults or Faults()
@@ -211,6 +214,7 @@ class FakeTrackerServer(FrameCommands):
 
     async def _c_SetSystemSettings(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
         self.model.state.settings = {k: int(x) for k, x in v.items()}
+        self.held_again()
         return 0, {}, [encode_status_change(SSC.SystemSettingsChanged)]
 
     async def _c_SetSearchParams(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:

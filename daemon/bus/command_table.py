@@ -91,6 +91,11 @@ TABLE: tuple[Command, ...] = (
                    "stream packets {source (clockmap, null before the first), offset_ns, drift_ppm, sigma_ns, samples, "
                    "window_s, two_way, resets}; sigma_ns leaves out the latency's fixed part (docs/architecture.md, Time)",
             polled=True),
+    Command("tracker.readback", "what the controller holds now: frames, environment, packet rate (ritactl commission)",
+            cli=("tracker", "readback"),
+            result="{apply_station_orientation_params, apply_transformation_params, station_orientation, "
+                   "transformation, weather_monitor_status, environment {temperature, pressure, humidity}, "
+                   "packet_rate}"),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),

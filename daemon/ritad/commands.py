@@ -67,6 +67,7 @@ def _tracker(s: Services) -> dict[str, Handler]:
     return {"tracker.measure": measure, "tracker.aim": aim, "tracker.find": find,
             "tracker.stream.start": stream_start,
             "tracker.stream.stop": _then(lambda: s.job("tracker", lambda t: t.stop_stream()), {"streaming": False}),
+            "tracker.readback": lambda req: s.job("tracker", lambda t: t.readback()),
             "tracker.status": lambda req: chain(s.job("tracker", lambda t: t.status()),
                                                 lambda st: {**st, "clock": s.clock_status("tracker")})}
 
