@@ -158,6 +158,15 @@ TABLE: tuple[Command, ...] = (
     Command("robot.release", "clear a latched stop: motions and robot jobs are allowed again (stopped jobs "
             "continue only on calib.resume)", "operator", cli=("robot", "release"),
             result="{released, was_latched}"),
+    Command("robot.commission", "the base firmware's conformance checks (drivers/robot_conformance) run on "
+            "ritad's own port: reachable, versions, reply latency, t_us; with allow_motion the host watchdog "
+            "and STOP's braking (ritactl commission)", "operator", cli=("robot", "commission"),
+            result="{port, checks: [{name, verdict (pass, fail, warn, skip), value, detail}]}", motion="moves", args=(
+                Arg("allow_motion", "bool", "run the checks that drive the base (~0.1 m forwards)", default=False,
+                    cli="--allow-motion"),
+                Arg("clock_s", "float", "how long the base's clock is polled", unit="s", lo=0.5, hi=600,
+                    default=5.0, cli="--clock-s", metavar="S"),
+                _CONFIRM)),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
                    "inclinometer), battery_v, fault, host_time_ns, t_us (the base's clock, protocol 2; else null); "

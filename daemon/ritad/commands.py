@@ -21,6 +21,7 @@ from daemon.bus.command_table import COMMANDS, help_entry, moves, validate
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
 from daemon.ritad import files, plates
+from daemon.ritad.commission import commission_handlers
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -254,7 +255,8 @@ def _detect(s: Services) -> dict[str, Handler]:
     return detect_handlers(s.latest_frame, s.data_dir, s.private_dirs)
 
 
-GROUPS = (_daemon, _tracker, _camera, _robot, _capture, _files, _plates, _keys, _preview, _detect)
+GROUPS = (_daemon, _tracker, _camera, _robot, commission_handlers, _capture, _files, _plates, _keys, _preview,
+          _detect)
 
 
 def validated(cmd: str, handler: Handler, s: Services) -> Handler:
