@@ -160,7 +160,7 @@ TABLE: tuple[Command, ...] = (
             result="{released, was_latched}"),
     Command("robot.commission", "the base firmware's conformance checks (drivers/robot_conformance) run on "
             "ritad's own port: reachable, versions, reply latency, t_us; with allow_motion the host watchdog "
-            "and STOP's braking (ritactl commission)", "operator", cli=("robot", "commission"),
+            "and STOP's braking (ritactl commission)", "operator", cli=("robot", "conformance"),
             result="{port, checks: [{name, verdict (pass, fail, warn, skip), value, detail}]}", motion="moves", args=(
                 Arg("allow_motion", "bool", "run the checks that drive the base (~0.1 m forwards)", default=False,
                     cli="--allow-motion"),

@@ -163,7 +163,9 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     if d.get("mark"):
         x, y, z = d["mark"]["abs_xyz"]
         print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
-    if d.get("table_markdown"):
+    if d.get("checks"):  # ritactl commission: one line per check, as the conformance kit prints them
+        print_checks(d["checks"])
+    elif d.get("table_markdown"):
         print("\n" + d["table_markdown"])
     comp = d.get("compensation")
     if comp:  # which compensations took effect, and why not
@@ -177,6 +179,15 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     return code
 
 
+
+
+def print_checks(checks: list[dict[str, Any]]) -> None:
+    """A commissioning's checks: verdict, device, check, the measured value and why."""
+    for c in checks:
+        detail = f"  ({c['detail']})" if c.get("detail") else ""
+        print(f"  {str(c.get('verdict')).upper():4}  {c.get('device')!s:7} {c.get('name')!s:18} {c.get('value')}{detail}")
+    counts = {v: sum(1 for c in checks if c.get("verdict") == v) for v in ("pass", "fail", "warn", "skip")}
+    print(f"  {counts['pass']} passed, {counts['fail']} failed, {counts['warn']} warned, {counts['skip']} skipped")
 
 
 _show_result = show_result  # the name daemon/ctl/datasets.py imports (recompute)

@@ -127,7 +127,7 @@ OBSERVE: dict[str, Callable[[JobContext], dict[str, Any]]] = {
     "tracker": tracker_obs, "camera": camera_obs, "base": base_obs}
 
 
-def commission(ctx: JobContext) -> None:
+def run_commission(ctx: JobContext) -> None:
     """Every wanted device in turn; a device that is not READY, or refuses, is recorded with the reason."""
     wanted = wanted_devices(ctx.params.devices)
     ctx.obs.setdefault("devices", list(wanted))
@@ -153,4 +153,4 @@ def commission(ctx: JobContext) -> None:
     ctx.progress("judge the checks", 92, "")
 
 
-__all__ = ["DEVICES", "commission", "wanted_devices"]
+__all__ = ["DEVICES", "run_commission", "wanted_devices"]
