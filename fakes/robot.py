@@ -258,16 +258,18 @@ class SimRobot(SerialRobot):
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
-    OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate", "clock_offset_s",
-                                     "defects", worlds.OPTION}
+    OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
+                                     "clock_offset_s", "defects", worlds.OPTION}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
-        kwargs = {"time_scale": url.option("time_scale", 0.02, float), "fault_rate": url.option("fault_rate", 0.0, float),
+        kwargs = {"time_scale": url.option("time_scale", 0.02, float),
+                  "fault_rate": url.option("fault_rate", 0.0, float),
                   "clock_offset_s": url.option("clock_offset_s", None, float)}
         defects = [d for d in url.option("defects", "", str).split(",") if d]
-        self.fake = DefectiveBase(self.world, defects=defects, **kwargs) if defects else FakeBase(self.world, **kwargs)
+        self.fake = (DefectiveBase(self.world, defects=defects, **kwargs) if defects
+                     else FakeBase(self.world, **kwargs))
         self.garbage_rate: float = url.option("garbage_rate", 0.0, float)
         self.corrupt_rate: float = url.option("corrupt_rate", 0.0, float)
         self.server: PtyServer | None = None

@@ -165,17 +165,20 @@ EXPERIMENT = Procedure(
               "(docs/operations.md)", default=False)))
 
 COMMISSION = Procedure(
-    "commission", "commission", "commissioning check: measures every assumption about the real devices the docs "
-    "call unverified, one by one (docs/operations.md, Commissioning)", moves=True, view="checks", params=(
-        Param("devices", "str", "the devices to check: all, or a comma list of tracker, camera, base", default="all"),
-        Param("allow_motion", "bool", "run the base's checks that drive it: the host watchdog and STOP's braking "
-              "(~0.1 m forwards at 20-50 mm/s; clear its path)", default=False, aliases=("--yes",)),
-        Param("reflector_approx_trk", "vec", "approximate reflector position to lock the tracker onto, tracker frame",
-              unit="mm", length=3, default_text="none: a locked tracker, or the worker asks", aliases=("--reflector",)),
-        Param("tracker_rate_hz", "float", "record rate of the tracker stream measured", unit="Hz", lo=0, lo_open=True,
-              hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz)"),
-        Param("duration_s", "float", "how long each device's stream is measured (the tracker's clock is judged "
-              "from 60 s on)", unit="s", default=60.0, lo=1, hi=600)))
+    "commission", "commission", "commissioning check: measures every assumption about the real devices that "
+    "the docs call unverified, one by one (docs/operations.md, Commissioning)", moves=True, view="checks",
+    params=(
+        Param("devices", "str", "the devices to check: all, or a comma list of tracker, camera, base",
+              default="all"),
+        Param("allow_motion", "bool", "run the base's checks that drive it: the host watchdog and STOP's "
+              "braking (~0.1 m forwards at 20-50 mm/s; clear its path)", default=False, aliases=("--yes",)),
+        Param("reflector_approx_trk", "vec", "approximate reflector position to lock the tracker onto, "
+              "tracker frame", unit="mm", length=3, default_text="none: a locked tracker, or the worker asks",
+              aliases=("--reflector",)),
+        Param("tracker_rate_hz", "float", "record rate of the tracker stream measured", unit="Hz", lo=0,
+              lo_open=True, hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz)"),
+        Param("duration_s", "float", "how long each device's stream is measured (the tracker's clock is "
+              "judged from 60 s on)", unit="s", default=60.0, lo=1, hi=600)))
 
 ALL: tuple[Procedure, ...] = (REFERENCING, INTRINSICS, MEASURE_MARK, EXPERIMENT, COMMISSION)
 BY_NAME: dict[str, Procedure] = {p.name: p for p in ALL}
@@ -306,7 +309,8 @@ def markdown_table() -> str:
     return "\n".join(_rows()) + "\n"
 
 
-__all__ = ["ALL", "BY_NAME", "COMMISSION", "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
+__all__ = ["ALL", "BY_NAME", "COMMISSION",
+           "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
            "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "Resolved", "check_params",
            "cli_flags", "describe", "get", "load_files", "markdown_table", "schema"]
 

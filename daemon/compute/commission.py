@@ -30,14 +30,14 @@ PACKET_RATE_TOL = 0.15
 #: frame read-back: anything further from the identity than this is a frame
 IDENTITY_TOL = 1e-9
 #: the records' time σ (99th percentile): pass ≤ 0.5 ms, the error the clock map's acceptance allows at p99
-#: (docs/architecture.md, "Time"); warn ≤ 5 ms, its latency prior (no better than timing by arrival); else fail
+#: (docs/architecture.md, "Time"); warn ≤ 5 ms, its latency prior (no better than arrival times); else fail
 SIGMA_PASS_NS, SIGMA_WARN_NS = 500_000, 5_000_000
 #: the map's window (ClockMap's default): a shorter run cannot tell the drift, and its σ says so
 SIGMA_WINDOW_S = 60.0
 #: the approach stream's clock-map bins (daemon/worker/stream.py CLOCK_BIN_S): one packet each at any rate
 STREAM_BIN_S = 0.01
-#: plausible readings of a weather monitor indoors (°C, mbar, %RH): outside, a sensor fault or a unit mix-up
-#: (°F for °C, inHg or kPa for mbar); the AT901's operating range is 0-40 °C (Leica's data sheet)
+#: plausible readings of air on a factory floor (°C, mbar, %RH): outside, a sensor fault or a unit mix-up
+#: (°F read as °C, inHg or kPa as mbar), or a value typed in wrong
 PLAUSIBLE_ENV = {"temperature": (0.0, 40.0, "°C"), "pressure": (500.0, 1100.0, "mbar"),
                  "humidity": (0.0, 100.0, "%RH")}
 
@@ -82,10 +82,10 @@ def packet_rate(t: dict[str, Any], info: dict[str, Any]) -> Check:
     if taken is None:
         value += f" (asked {asked}; the tracker did not take ES_SP_TcpDataPacketRate)"
     if float(t["rate_hz"]) < float(want):
-        return check("tracker", "packet_rate", "warn", value, f"records at {t['rate_hz']:g} Hz are fewer than "
-                     "the packets: run again with a higher --tracker-rate-hz")
+        return check("tracker", "packet_rate", "warn", value, f"records at {t['rate_hz']:g} Hz are fewer "
+                     "than the packets: run again with a higher --tracker-rate-hz")
     ok = abs(measured - want) <= PACKET_RATE_TOL * want
-    return _tracker("packet_rate", ok, value, "" if ok else "the tracker does not stream at the packet rate set")
+    return _tracker("packet_rate", ok, value, "" if ok else "the tracker does not stream at the rate set")
 
 
 def _not_identity(values: dict[str, Any], scale: bool) -> bool:
@@ -109,7 +109,7 @@ def frame_cleared(rb: dict[str, Any]) -> Check:
             state = "applied" if int(rb.get(flag, 1)) else "set, not applied"
             found.append(f"{key.replace('_', ' ')} {state}: {_frame_text(values)}")
     if not found:
-        return _tracker("frame_cleared", True, "transformation and station orientation: identity, not applied")
+        return _tracker("frame_cleared", True, "transformation, station orientation: identity, not applied")
     return _tracker("frame_cleared", False, "; ".join(found),
                     "another client's frame: points are not in the tracker's frame (docs/emscon.md)")
 
@@ -147,14 +147,14 @@ def clock_sigma(t: dict[str, Any]) -> Check:
     if not sigmas:
         return _tracker("clock_sigma", False, "no clock map", "no stream packet with record times")
     p99, ritad = sigmas[int(0.99 * (len(sigmas) - 1))], (t.get("clock") or {}).get("sigma_ns")
-    value = f"σ p50 {statistics.median(sigmas) / 1e3:.0f} µs, p99 {p99 / 1e3:.0f} µs over {len(sigmas)} records" + (
-        f"; ritad's map {ritad / 1e3:.0f} µs at its newest packet" if ritad is not None else "")
+    value = f"σ p50 {statistics.median(sigmas) / 1e3:.0f} µs, p99 {p99 / 1e3:.0f} µs, {len(sigmas)} records"
+    value += f"; ritad's map {ritad / 1e3:.0f} µs at its newest packet" if ritad is not None else ""
     if float(t.get("duration_s") or 0) < SIGMA_WINDOW_S:
-        return check("tracker", "clock_sigma", "skip", value, f"a run under {SIGMA_WINDOW_S:.0f} s states the drift's "
-                     "prior: judged with --duration-s 60 or more")
+        return check("tracker", "clock_sigma", "skip", value, f"a run under {SIGMA_WINDOW_S:.0f} s states "
+                     "the drift's prior: judged with --duration-s 60 or more")
     verdict = "pass" if p99 <= SIGMA_PASS_NS else "warn" if p99 <= SIGMA_WARN_NS else "fail"
-    return check("tracker", "clock_sigma", verdict, value,
-                 "" if verdict == "pass" else "record times are poorly mapped: a loaded host or a jittery link")
+    why = "" if verdict == "pass" else "record times are poorly mapped: a loaded host or a jittery link"
+    return check("tracker", "clock_sigma", verdict, value, why)
 
 
 def tracker_checks(t: dict[str, Any]) -> Iterator[Check]:
@@ -167,14 +167,14 @@ def tracker_checks(t: dict[str, Any]) -> Iterator[Check]:
 
 
 def base_checks(b: dict[str, Any]) -> Iterator[Check]:
-    """The kit's checks as ritad returned them, and the clock's restarts ritad's map saw since it connected."""
+    """The kit's checks as ritad returned them, and the clock's restarts ritad's map saw since connecting."""
     for c in b.get("checks") or []:
         yield check("base", str(c["name"]), str(c["verdict"]), str(c["value"]), str(c.get("detail", "")))
     resets = (b.get("clock") or {}).get("resets")
     if resets is not None:
+        why = "" if resets == 0 else "t_us wrapped or the base restarted (docs/robot-protocol.md, t_us)"
         yield check("base", "t_us_resets", "pass" if resets == 0 else "fail",
-                    f"the base's clock went back {resets} time(s) since ritad connected",
-                    "" if resets == 0 else "t_us wrapped or the base restarted (docs/robot-protocol.md, t_us)")
+                    f"the base's clock went back {resets} time(s) since ritad connected", why)
 
 
 CHECKS = {"tracker": tracker_checks, "camera": camera_checks, "base": base_checks}
@@ -183,7 +183,7 @@ CHECKS = {"tracker": tracker_checks, "camera": camera_checks, "base": base_check
 def device_checks(name: str, d: dict[str, Any]) -> list[Check]:
     """One device's checks; a device that could not be measured is one failed check naming why."""
     if d.get("error"):
-        return [check(name, "reachable", "fail", d["error"], "fix this first: no other check of it could run")]
+        return [check(name, "reachable", "fail", d["error"], "fix this first: no other check of it ran")]
     return list(CHECKS[name](d))
 
 
@@ -194,16 +194,20 @@ def table(checks: list[Check]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def message(c: Check) -> str:
+    """A failed or warned check as one line of the result's messages."""
+    why = f" ({c['detail']})" if c["detail"] else ""
+    return f"{c['device']} {c['name']}: {c['verdict']}: {c['value']}{why}"
+
+
 def compute_commission(obs: dict[str, Any], load: Any = None) -> dict[str, Any]:
     """Every stored device's checks; the verdict the worst of them (skips not counted)."""
     checks = [c for name in obs.get("devices", []) if name in obs for c in device_checks(name, obs[name])]
     verdicts = {c["verdict"] for c in checks}
     verdict = "fail" if "fail" in verdicts else "warn" if "warn" in verdicts else "ok"
-    messages = [f"{c['device']} {c['name']}: {c['verdict']}: {c['value']}" + (f" ({c['detail']})" if c["detail"]
-                                                                               else "")
-                for c in checks if c["verdict"] in ("fail", "warn")]
-    return {"schema": RESULT_SCHEMA, "procedure": COMMISSION.name, "software": calib_version, "verdict": verdict,
-            "messages": messages, "checks": checks, "table_markdown": table(checks)}
+    messages = [message(c) for c in checks if c["verdict"] in ("fail", "warn")]
+    return {"schema": RESULT_SCHEMA, "procedure": COMMISSION.name, "software": calib_version,
+            "verdict": verdict, "messages": messages, "checks": checks, "table_markdown": table(checks)}
 
 
 __all__ = ["compute_commission", "device_checks", "table"]

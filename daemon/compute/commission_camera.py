@@ -38,7 +38,7 @@ def ptp_role(cam: dict[str, Any]) -> Check:
     if not any(p.get("available") for p in ptp):
         return _c("ptp_role", "skip", "the camera has no PTP", "frames are timed by the clock map")
     if not any(p.get("enabled") for p in ptp) and not (looks[0].get("settings") or {}).get("ptp"):
-        return _c("ptp_role", "skip", "PTP off ([camera] ptp)", "frames are timed by the clock map (σ ~0.1-0.5 ms)")
+        return _c("ptp_role", "skip", "PTP off ([camera] ptp)", "frames timed by the clock map (~0.1-0.5 ms)")
     states = [str(p.get("status")) for p in ptp]
     value = f"PtpStatus {' → '.join(dict.fromkeys(states))} ({len(states)} looks)"
     if "Master" in states:
@@ -57,15 +57,16 @@ def ptp_offset(cam: dict[str, Any]) -> Check:
     if any(o is None for o in offsets):
         return _c("ptp_offset", "warn", "no PtpOffsetFromMaster", "the camera does not report its offset")
     worst = max(abs(float(o)) for o in offsets if o is not None)
-    return _c("ptp_offset", "pass" if worst <= PTP_OFFSET_NS else "fail", f"|offset| ≤ {worst:.0f} ns",
-              "" if worst <= PTP_OFFSET_NS else f"above {PTP_OFFSET_NS} ns: check the master and the NIC's clock")
+    ok = worst <= PTP_OFFSET_NS
+    return _c("ptp_offset", "pass" if ok else "fail", f"|offset| ≤ {worst:.0f} ns",
+              "" if ok else f"above {PTP_OFFSET_NS} ns: check the master and the NIC's clock")
 
 
 def timestamp_unit(cam: dict[str, Any]) -> Check:
     """The camera's stamps advance with the host's clock between captures: a 1 GHz tick (ns)."""
     caps = [c for c in cam.get("captures") or [] if c.get("device_time_ns") is not None]
     if len(caps) < 2:
-        return _c("timestamp_unit", "skip", f"{len(caps)} captures with a device time", "the camera stamps no frames")
+        return _c("timestamp_unit", "skip", f"{len(caps)} captures with a device time", "no stamped frames")
     first, last = caps[0], caps[-1]
     host = int(last["host_time_ns"]) - int(first["host_time_ns"])
     ratio = (int(last["device_time_ns"]) - int(first["device_time_ns"])) / host if host > 0 else 0.0
@@ -75,19 +76,21 @@ def timestamp_unit(cam: dict[str, Any]) -> Check:
 
 
 def timestamp_latch(cam: dict[str, Any]) -> Check:
-    """Taken as the exposure's start: a stamp earlier than one exposure after the trigger was asked proves it is
-    not the exposure's end (the trigger goes out after the call began). Needs the stamp on the host's timeline."""
+    """Taken as the exposure's start: a stamp earlier than one exposure after the trigger was asked proves it
+    is not the exposure's end (the trigger goes out after the call began). Needs the stamp on the host's
+    timeline, so PTP locked with the host on its master."""
     caps = [c for c in cam.get("captures") or [] if c.get("t_source") == "ptp" and c.get("exposure_us")]
     if not caps:
         return _c("timestamp_latch", "skip", "no capture timed by PTP",
                   "needs the PTP lock; else the LED bench check (docs/operations.md, Camera time and PTP)")
-    leads = [(int(c["t_ns"]) - float(c["exposure_us"]) * 500 - int(c["call_ns"]), float(c["exposure_us"]) * 1000)
-             for c in caps]
+    # t_ns is the exposure's mid-time (device stamp + exposure / 2): its stamp is t_ns - exposure / 2
+    leads = [(int(c["t_ns"]) - float(c["exposure_us"]) * 500 - int(c["call_ns"]),
+              float(c["exposure_us"]) * 1e3) for c in caps]
     lead, exposure = min(leads)
     value = f"stamp {lead / 1e3:.0f} µs after the capture was asked; exposure {exposure / 1e3:.0f} µs"
     if lead < -LATCH_MARGIN_NS:
-        return _c("timestamp_latch", "warn", value, "a stamp before the trigger: the host is not on the camera's "
-                  "PTP master (docs/operations.md, Camera time and PTP)")
+        return _c("timestamp_latch", "warn", value, "a stamp before the trigger: the host is not on the "
+                  "camera's PTP master (docs/operations.md, Camera time and PTP)")
     if lead + LATCH_MARGIN_NS < exposure:
         return _c("timestamp_latch", "pass", value, "before the exposure could end: stamped at its start")
     return _c("timestamp_latch", "skip", value, "inconclusive (the trigger's latency is longer than the "
@@ -97,7 +100,7 @@ def timestamp_latch(cam: dict[str, Any]) -> Check:
 def link_speed(cam: dict[str, Any]) -> Check:
     speed = (cam.get("status_before") or {}).get("device_link_speed")
     if speed is None:
-        return _c("link_speed", "skip", "no DeviceLinkSpeed", "the camera does not report it: 125 MB/s assumed")
+        return _c("link_speed", "skip", "no DeviceLinkSpeed", "not reported: 125 MB/s assumed")
     value = f"DeviceLinkSpeed {float(speed):.0f}"
     if abs(float(speed) - GIGE_BYTES_S) <= LINK_TOL * GIGE_BYTES_S:
         return _c("link_speed", "pass", value + " bytes/s (1 GigE)")
@@ -115,7 +118,7 @@ def packet_size(cam: dict[str, Any]) -> Check:
     if got is None:
         return _c("packet_size", "warn", value, "the camera reports no packet size node")
     if warned or (want is not None and int(got) != int(want)):
-        return _c("packet_size", "fail", value, "; ".join(warned) or "the camera did not take the packet size")
+        return _c("packet_size", "fail", value, "; ".join(warned) or "the camera did not take it")
     return _c("packet_size", "pass", value)
 
 
@@ -125,9 +128,10 @@ def resends(cam: dict[str, Any]) -> Check:
     lb, la = before.get("link") or {}, after.get("link") or {}
     frames = int(after.get("frames") or 0) - int(before.get("frames") or 0)
     if not la or all((la.get("source") or {}).get(k) is None for k in LINK_COUNTERS):
-        return _c("resends", "warn", f"{frames} frames; no link counter", "the producer offers no stream counter")
+        return _c("resends", "warn", f"{frames} frames; no link counter", "the producer counts nothing")
     delta = {k: int(la.get(k) or 0) - int(lb.get(k) or 0) for k in LINK_COUNTERS}
-    value = f"{frames} frames in {cam.get('duration_s')} s: " + ", ".join(f"{v} {k}" for k, v in delta.items())
+    counts = ", ".join(f"{v} {k}" for k, v in delta.items())
+    value = f"{frames} frames in {cam.get('duration_s')} s: {counts}"
     if frames <= 0:
         return _c("resends", "fail", value, "no frame streamed")
     if delta["lost_frames"] or delta["incomplete_frames"]:

@@ -185,9 +185,10 @@ def print_checks(checks: list[dict[str, Any]]) -> None:
     """A commissioning's checks: verdict, device, check, the measured value and why."""
     for c in checks:
         detail = f"  ({c['detail']})" if c.get("detail") else ""
-        print(f"  {str(c.get('verdict')).upper():4}  {c.get('device')!s:7} {c.get('name')!s:18} {c.get('value')}{detail}")
-    counts = {v: sum(1 for c in checks if c.get("verdict") == v) for v in ("pass", "fail", "warn", "skip")}
-    print(f"  {counts['pass']} passed, {counts['fail']} failed, {counts['warn']} warned, {counts['skip']} skipped")
+        verdict = str(c.get("verdict")).upper()
+        print(f"  {verdict:4}  {c.get('device')!s:7} {c.get('name')!s:18} {c.get('value')}{detail}")
+    n = {v: sum(1 for c in checks if c.get("verdict") == v) for v in ("pass", "fail", "warn", "skip")}
+    print(f"  {n['pass']} passed, {n['fail']} failed, {n['warn']} warned, {n['skip']} skipped")
 
 
 _show_result = show_result  # the name daemon/ctl/datasets.py imports (recompute)

@@ -1,15 +1,15 @@
-"""``robot.commission``: the base's part of ``ritactl commission``, the conformance kit's checks run by ritad on
-its own port.
+"""``robot.commission``: the base's part of ``ritactl commission``, the conformance kit's checks run by
+ritad on its own port.
 
-The kit (``python -m drivers.robot_conformance``, drivers/robot_conformance*.py) must see what the driver hides
-(a reply's exact timing, a ``t_us`` that goes back, a base that keeps driving when its host goes quiet), so it
-talks over its own :class:`Link`, not through :class:`SerialRobot`. ritad owns the port, so the checks run as
-one job of the robot's owner thread: the driver closes the port, the kit opens it as the driver does, runs the
-base's checks (reachable, versions, reply latency, ``t_us``; with ``allow_motion`` the host watchdog and STOP's
-braking, each a short motion ending in STOP), closes it, and the driver opens it again (HELLO, a latched STOP
-first, its streams). Meanwhile ritad publishes no robot telemetry, and a STOP from an operator is written when
-the job ends: the kit's motions are short (~0.1 m) and each ends with a STOP of its own (the watchdog's halts
-itself within 0.3 s of silence).
+The kit (``python -m drivers.robot_conformance``, drivers/robot_conformance*.py) must see what the driver
+hides (a reply's exact timing, a ``t_us`` that goes back, a base that keeps driving when its host goes
+quiet), so it talks over its own :class:`Link`, not through :class:`SerialRobot`. ritad owns the port, so
+the checks run as one job of the robot's owner thread: the driver closes the port, the kit opens it as the
+driver does, runs the base's checks (reachable, versions, reply latency, ``t_us``; with ``allow_motion``
+the host watchdog and STOP's braking, each a short motion ending in STOP), closes it, and the driver opens
+it again (HELLO, a latched STOP first, its streams). Meanwhile ritad publishes no robot telemetry, and a
+STOP from an operator is written when the job ends: the kit's motions are short (~0.1 m) and each ends
+with a STOP of its own (the watchdog's halts itself within 0.3 s of silence).
 """
 from __future__ import annotations
 
@@ -45,8 +45,8 @@ def kit_checks(link: Link, *, baudrate: int, allow_motion: bool, clock_s: float)
     if rp_clock(protocol, caps):
         results.append(cc.check_clock(cc.status_t_us(link, clock_s)))
     else:
-        results.append(Check("t_us", "fail", f"protocol {protocol} without CLOCK",
-                             "the host maps samples by arrival (σ 6 ms): update the firmware (version 2 or 3)"))
+        results.append(Check("t_us", "fail", f"protocol {protocol} without CLOCK", "the host times the "
+                             "base by arrival (σ 6 ms): update the firmware to protocol 2 or 3"))
     if allow_motion:
         results += [cm.check_watchdog(link, protocol, caps), *cm.check_stop_braking(link, protocol)]
     else:
@@ -55,18 +55,24 @@ def kit_checks(link: Link, *, baudrate: int, allow_motion: bool, clock_s: float)
     return results
 
 
+def _kit_port(robot: SerialRobot, target: str) -> Any:
+    """The port opened as ``python -m drivers.robot_conformance`` opens it (DTR and RTS as the driver's)."""
+    try:
+        return open_port(target, robot.url.scheme, baudrate=robot.baudrate, timeout=KIT_SLICE_S,
+                         write_timeout=robot.reply_timeout, dtr=bool(robot.dtr), rts=bool(robot.rts))
+    except (serial.SerialException, OSError) as exc:
+        raise DeviceLost(open_error(target, exc)) from exc
+
+
 def run_on_port(robot: Robot, allow_motion: bool, clock_s: float) -> dict[str, Any]:
     """In the robot's owner thread: the driver's port handed to the kit and back (see the module's text)."""
     if not isinstance(robot, SerialRobot):
-        raise DeviceError(f"{type(robot).__name__} is no serial base: the kit cannot check it", code="not_supported")
+        raise DeviceError(f"{type(robot).__name__} is no serial base: the kit cannot check it",
+                          code="not_supported")
     target = robot.port_target()
     robot.close()
     try:
-        try:
-            port = open_port(target, robot.url.scheme, baudrate=robot.baudrate, timeout=KIT_SLICE_S,
-                             write_timeout=robot.reply_timeout, dtr=bool(robot.dtr), rts=bool(robot.rts))
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceLost(open_error(target, exc)) from exc
+        port = _kit_port(robot, target)
         try:
             checks = kit_checks(Link(port, robot.reply_timeout), baudrate=robot.baudrate,
                                 allow_motion=allow_motion, clock_s=clock_s)
@@ -81,8 +87,8 @@ def commission_handlers(s: Services) -> dict[str, Handler]:
     def run(req: Request) -> Any:
         allow, clock_s = bool(req.args["allow_motion"]), float(req.args["clock_s"])
         if allow and req.args["confirm"] is not True:
-            raise CommandError(ErrorCode.CONFIRM_REQUIRED, "robot.commission with allow_motion moves the robot: "
-                                                           "send it again with confirm=true")
+            raise CommandError(ErrorCode.CONFIRM_REQUIRED, "robot.commission with allow_motion moves the "
+                                                           "robot: send it again with confirm=true")
 
         def guarded(robot: Robot) -> dict[str, Any]:  # in the owner thread: a STOP may have come meanwhile
             if allow:

@@ -40,7 +40,7 @@ def wanted_devices(text: str) -> tuple[str, ...]:
 
 
 def _records(sub: Subscriber, seconds: float) -> list[dict[str, Any]]:
-    """The tracker.point packets read for ``seconds``: arrival (host ns) and each record's device time (µs)."""
+    """The tracker.point packets read for ``seconds``: arrival (host ns), each record's device time (µs)."""
     out: list[dict[str, Any]] = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -140,7 +140,8 @@ def run_commission(ctx: JobContext) -> None:
         obs: dict[str, Any] = {"state": health.get("state"), "reason": health.get("reason", ""),
                                "info": health.get("info") or {}}
         if health.get("state") not in ("READY", "BUSY"):
-            obs["error"] = f"{RITAD_NAME[name]} is {health.get('state')}: {health.get('reason') or 'no reason given'}"
+            why = health.get("reason") or "no reason given"
+            obs["error"] = f"{RITAD_NAME[name]} is {health.get('state')}: {why}"
         else:
             try:
                 obs.update(OBSERVE[name](ctx))

@@ -332,7 +332,7 @@ class EmsconTracker(Tracker):
         return {"url": self.url.raw, **self._info}
 
     def readback(self) -> dict[str, Any]:
-        """The controller's frames, environment and packet rate as it reads them back now (``tracker.readback``)."""
+        """The controller's frames, environment and packet rate, read back now (``tracker.readback``)."""
         return read_back(self._conn())
 
     # ------------------------------------------------------------------ async input
