@@ -188,9 +188,13 @@ def device_checks(name: str, d: dict[str, Any]) -> list[Check]:
 
 
 def table(checks: list[Check]) -> str:
+    """The checks as a Markdown table (a bar inside a cell would split it: written \\|)."""
+    def cell(text: str) -> str:
+        return text.replace("\n", " ").replace("|", "\\|")
+
     rows = ["| device | check | verdict | measured | detail |", "|---|---|---|---|---|"]
-    rows += [f"| {c['device']} | {c['name']} | {c['verdict'].upper()} | {c['value']} | {c['detail']} |"
-             .replace("\n", " ") for c in checks]
+    rows += [f"| {c['device']} | {c['name']} | {c['verdict'].upper()} | {cell(c['value'])} | {cell(c['detail'])} |"
+             for c in checks]
     return "\n".join(rows) + "\n"
 
 

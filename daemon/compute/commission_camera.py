@@ -58,7 +58,7 @@ def ptp_offset(cam: dict[str, Any]) -> Check:
         return _c("ptp_offset", "warn", "no PtpOffsetFromMaster", "the camera does not report its offset")
     worst = max(abs(float(o)) for o in offsets if o is not None)
     ok = worst <= PTP_OFFSET_NS
-    return _c("ptp_offset", "pass" if ok else "fail", f"|offset| ≤ {worst:.0f} ns",
+    return _c("ptp_offset", "pass" if ok else "fail", f"offset within ±{worst:.0f} ns",
               "" if ok else f"above {PTP_OFFSET_NS} ns: check the master and the NIC's clock")
 
 
