@@ -16,7 +16,7 @@ from typing import Any
 from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS
 from daemon.bus.names import JobState
-from daemon.bus.procedures import MOVING_PROCEDURES
+from daemon.bus.procedures import BY_NAME, MOVING_PROCEDURES
 from daemon.ctl.device import add_table_args, table_args
 from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
@@ -163,7 +163,7 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     if d.get("mark"):
         x, y, z = d["mark"]["abs_xyz"]
         print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
-    if d.get("checks"):  # ritactl commission: one line per check, as the conformance kit prints them
+    if view_of(d.get("procedure")) == "checks" and d.get("checks"):  # one line per check, as the kit's
         print_checks(d["checks"])
     elif d.get("table_markdown"):
         print("\n" + d["table_markdown"])
@@ -179,6 +179,12 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     return code
 
 
+
+
+def view_of(procedure: Any) -> str:
+    """What a procedure's result shows (daemon/bus/procedures.py ``view``); "" for an unknown one."""
+    proc = BY_NAME.get(procedure) if isinstance(procedure, str) else None
+    return proc.view if proc else ""
 
 
 def print_checks(checks: list[dict[str, Any]]) -> None:

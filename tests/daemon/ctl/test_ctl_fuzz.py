@@ -23,6 +23,7 @@ import pytest
 
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
+from daemon.bus import procedures
 from daemon.bus.command_table import COMMANDS
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
@@ -33,7 +34,7 @@ SIZES = (1200, 400)  # full run, make-test sample
 N_CASES = cases(*SIZES)
 CASE_S = 30.0  # no case may take longer (a hang is a finding, not a stuck test run)
 DOCUMENTED = {int(e) for e in Exit}
-PROCEDURE_VERBS = {"calibrate", "intrinsics", "measure-mark", "experiment"}
+PROCEDURE_VERBS = {p.verb for p in procedures.ALL}
 JOB_VERBS = {"follow", "resume", "answer", "cancel"}
 # verbs whose --json output is not the error object: validate prints its problem report (a JSON
 # document, docs/datasets.md); keys reports its errors as text (daemon/ctl/keys.py)
@@ -41,7 +42,8 @@ OWN_ERROR_TEXT = {"keys", "validate"}
 # the ended jobs follow may see: no case may post them again (calibrate --job, call calib.start)
 ENDED = ("fz-done", "fz-failed")
 # bus commands `call` may send: no motion, no long poll that would hold the reply
-CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox"})
+# (robot.commission: the base's checks run for seconds, up to 600: its verb is fuzzed and always refused)
+CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox", "robot.commission"})
 NUMBERS = ["0", "-1", "1", "200", "-200", "3.5", "1e3", "1e400", "-1e400", "nan", "inf", "-inf", "abc", "",
            "0x10", "1_000", "5e-324", "10001", "360", "-360.5", "1,5", " 7 "]
 TEXTS = ["", "x", "a b", "é€", "--", "-", "-x", "../../etc/passwd", "x" * 300, "{}", "null"]
@@ -95,6 +97,8 @@ def draw_argv(rng: random.Random, path: tuple[str, ...], p: argparse.ArgumentPar
 def make_safe(argv: list[str], path: tuple[str, ...], rng: random.Random, tmp: str, endpoint: str) -> list[str]:
     if path[:1] == ("robot",):
         argv = [t for t in argv if t != "--yes"]  # never confirm a motion
+    if path == ("robot", "conformance"):
+        argv += ["--clock-s", "0"]  # refused: a valid one runs the base's checks for seconds
     verb = path[0] if path else ""
     if verb in PROCEDURE_VERBS:
         argv.append("--detach")  # no worker here: following would wait for ever
