@@ -6,9 +6,12 @@ column says the real requirement directly: how many times faster than the sessio
 the recorder takes the workload's messages (its simulated seconds ÷ the recorder's seconds).
 
 Method: bus messages are made up front exactly as a subscriber receives them (topic, msgpack
-telemetry; frame header + raw pixels), from a seeded RNG. "Recorder" is what ``ritactl record``
-does per message after ``recv``: unpack the msgpack, JSON-encode telemetry and frame headers, wrap
-the pixels in a CDR ``foxglove_msgs/msg/RawImage``, add to the MCAP writer (chunking, compression, indexes), then ``finish``.
+telemetry with each record's ``t_ns``; frame header + raw pixels), from a seeded RNG. "Recorder" is
+what ``ritactl record`` does per message after ``recv``: unpack the msgpack, JSON-encode telemetry
+and frame headers, add the Foxglove messages (a PoseInFrame per tracker record and per robot.state),
+wrap the pixels in a CDR ``foxglove_msgs/msg/RawImage`` (or encode them as JPEG or PNG in a
+``CompressedImage``: the rows marked so), add to the MCAP writer (chunking, compression, indexes),
+then ``finish``.
 "Plain" writes the same received bytes (the messages' frames, concatenated) to a file with one
 ``write`` per message. Both write to the same temporary folder without fsync (the page cache: the
 stricter comparison, since a disk's own speed would hide the recorder's CPU cost); median of
@@ -47,13 +50,16 @@ def tracker_session(seconds: int, rng: random.Random) -> list[Message]:
         t = t0 + k * 100_000_000
         seq += 1
         pts = {c: [rng.uniform(-3000, 3000) for _ in range(100)] for c in "xyz"}
-        data = {"n": 100, **pts, "status": [0] * 100, "device_time": [t / 1e9 + i / 1e3 for i in range(100)],
-                "host_time_ns": t, "host_monotonic_ns": t - t0, "seq": rec}
+        times = [t - 100_000_000 + (i + 1) * 1_000_000 for i in range(100)]  # each record's time, as ritad's
+        data = {"n": 100, **pts, "status": [0] * 100,
+                "device_time": [[ts // 10**9 for ts in times], [ts % 10**9 // 1000 for ts in times]],
+                "host_time_ns": t, "host_monotonic_ns": t - t0, "seq": rec, "t_ns": times,
+                "t_sigma_ns": [20_000] * 100}
         rec += 100
         msgs.append([b"tracker.point", telemetry(seq, t, data)])
         seq += 1
         state = {"state": "MOVING", "x_mm": rng.uniform(0, 500), "y_mm": 0.0, "heading_deg": 0.0,
-                 "roll_deg": 0.01, "pitch_deg": -0.02, "battery_v": 25.1}
+                 "roll_deg": 0.01, "pitch_deg": -0.02, "battery_v": 25.1, "t_ns": t - 3_000_000}
         msgs.append([b"robot.state", telemetry(seq, t, state)])
     return msgs
 
@@ -62,15 +68,16 @@ def frames(count: int, shape: tuple[int, int], rng: random.Random) -> list[Messa
     t0 = 1_764_000_000_000_000_000
     return [[b"camera.frame", pack({"v": 1, "seq": i + 1, "dropped": 0, "frame_id": i + 1, "pixel_format": "Mono8",
                                     "shape": list(shape), "dtype": "|u1", "exposure_us": 2000.0,
+                                    "t_ns": t0 + i * 200_000_000 - 7_000_000, "t_sigma_ns": 300_000,
                                     "device_time_ns": None, "host_time_ns": t0 + i * 200_000_000,
                                     "host_monotonic_ns": i * 200_000_000, "incomplete_count": 0}),
              rng.randbytes(shape[0] * shape[1])]  # noise, new in every frame: what compresses least
             for i in range(count)]
 
 
-def run_recorder(msgs: list[Message], path: Path, compression: str) -> None:
+def run_recorder(msgs: list[Message], path: Path, compression: str, frames_format: str = "raw") -> None:
     with open(path, "wb") as f:
-        rec = Recorder(f, {"bench": "1"}, compression)
+        rec = Recorder(f, {"bench": "1"}, compression, frames_format=frames_format)
         for m in msgs:
             now = time.time_ns()
             if m[0] == b"camera.frame":
@@ -96,11 +103,12 @@ def timed(fn: Callable[[], None], repeat: int) -> float:
 
 
 def measure(name: str, msgs: list[Message], session_s: float, compression: str, repeat: int,
-            tmp: Path) -> dict[str, Any]:
+            tmp: Path, frames_format: str = "raw") -> dict[str, Any]:
     size = sum(len(p) for m in msgs for p in m)
-    rec_s = timed(lambda: run_recorder(msgs, tmp / "r.mcap", compression), repeat)
+    rec_s = timed(lambda: run_recorder(msgs, tmp / "r.mcap", compression, frames_format), repeat)
     plain_s = timed(lambda: run_plain(msgs, tmp / "p.bin"), repeat)
-    return {"workload": name, "compression": compression, "messages": len(msgs), "in_mb": size / 1e6,
+    return {"workload": name if frames_format == "raw" else f"{name}, {frames_format}",
+            "compression": compression, "messages": len(msgs), "in_mb": size / 1e6,
             "file_mb": (tmp / "r.mcap").stat().st_size / 1e6, "rec_mbs": size / 1e6 / rec_s,
             "plain_mbs": size / 1e6 / plain_s, "ratio": plain_s / rec_s, "msg_per_s": len(msgs) / rec_s,
             "real_time": session_s / rec_s}
@@ -120,6 +128,9 @@ def main() -> None:
         for name, msgs, session_s in loads:
             for comp in ("zstd", "lz4", "none"):
                 rows.append(measure(name, msgs, session_s, comp, a.repeat, Path(d)))
+            if name.startswith("frames"):  # CompressedImage: the encoding is the cost (auto: no compression)
+                for ff in ("jpeg", "png"):
+                    rows.append(measure(name, msgs, session_s, "none", a.repeat, Path(d), ff))
     print(machine())
     print("\n| workload | compression | bus MB in | file MB | recorder MB/s | plain write MB/s | ratio (goal ≥ 0.8) "
           "| messages/s | × the session's rate |")

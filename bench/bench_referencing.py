@@ -10,7 +10,8 @@ lands from that stored result. Then, alternately and each in a fresh process:
 * the **full run**: ``ritactl --json recompute FOLDER`` (validation, image decode, detection,
   PnP, SCS, plate and robot pose, Monte Carlo uncertainty, camera-model checks, verdict).
 
-Compute = median(full) − median(baseline); ratio = median(full) / median(baseline); peak
+The goal is the full run's wall time, what the operator waits for (imports and validation included):
+median ≤ ``GOAL_S``. Compute = median(full) − median(baseline); ratio = median(full) / median(baseline); peak
 memory is the full run's peak RSS (its own VmHWM); CPU time (user + system, ``os.wait4``) is
 printed too: it says what the computation costs whatever the load. A missed goal prints **MISSED**, the
 exit code stays 0. ``--profile`` also profiles one recompute in this process (cProfile,
@@ -35,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import FULL, ROOT, machine, write_referencing_folder  # noqa: E402
 
-GOAL_S = 0.25
+GOAL_S = 1.0  # ritactl recompute of a 12 MP referencing, end to end
 GOAL_MIB = 150.0
 CACHE = Path(tempfile.gettempdir()) / f"rita-bench-referencing-{FULL[0]}x{FULL[1]}" / "ref"
 
@@ -159,8 +160,9 @@ def main() -> int:
     print("| metric | median (min–max) | goal | |\n|---|---|---|---|")
     print(f"| import baseline ({n_mods} modules, interpreter included) | {med(base):.3f} s "
           f"({min(base):.3f}–{max(base):.3f}) | | |")
-    print(f"| `ritactl --json recompute` | {med(full):.3f} s ({min(full):.3f}–{max(full):.3f}) | | |")
-    print(f"| compute = full − baseline | {compute:.3f} s | ≤ {GOAL_S} s | {verdict(compute <= GOAL_S)} |")
+    print(f"| `ritactl --json recompute` | {med(full):.3f} s ({min(full):.3f}–{max(full):.3f}) "
+          f"| ≤ {GOAL_S} s | {verdict(med(full) <= GOAL_S)} |")
+    print(f"| compute = full − baseline | {compute:.3f} s | | |")
     print(f"| ratio full / baseline | {med(full) / med(base):.2f} | | |")
     print(f"| CPU (user + system): baseline / full / compute | {med(cpu_base):.3f} / {med(cpu_full):.3f} / "
           f"{med(cpu_full) - med(cpu_base):.3f} s | | |")

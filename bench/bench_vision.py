@@ -6,7 +6,8 @@ Each stage group runs in its own child process so its peak RSS is its own:
   sizes, and the corner accuracy of the rendered image against the true projections;
 * pose: ``estimate_cam_H_ref`` (detection + IPPE + LM) on the full-size image, with
   this project's marker identification and with OpenCV's, plus ``make_scs`` and
-  locating a dot mark;
+  locating a dot mark; the console's live detection (``camera.detect``: the newest frame
+  area-reduced to the search width the operator picked, then the corners) at each width;
 * marks: whole-image search (no prior) for a dot and a cross at 4024×3036, coarse to
   fine and at full resolution, median and p95 over several mark placements, and how
   far apart the two results are.
@@ -67,6 +68,10 @@ def render_group(size: tuple[int, int], repeats: int, save: str | None, q: mp.Qu
            "rms": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))), "bias": np.abs(d.mean(axis=0)).max()})
 
 
+#: the search widths the console offers for camera.detect (daemon/console/static/index.html; 0: full)
+LIVE_WIDTHS = (640, 1000, 2000, 0)
+
+
 def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> None:
     """Child: cam_H_ref, SCS and mark timings on the saved full-size image."""
     from calibration.marks import locate_mark
@@ -83,6 +88,9 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
     t_fast, pose = _timed(lambda: estimate_cam_H_ref(img, model, plate), repeats)
     t_ocv, _ = _timed(lambda: pose_from_corners(*detect_corners(img, plate, fast=False), model, plate), repeats)
     t_scs, scs = _timed(lambda: make_scs(model, pose.cam_H_ref), repeats)
+    from daemon.ritad.detect import _downscaled
+
+    live = {w: _timed(lambda: detect_corners(_downscaled(img, w)[0], plate), repeats) for w in LIVE_WIDTHS}
     # a synthetic dot in the middle of the image, for the locator's timing only
     dot = np.full((size[1], size[0]), 180, np.uint8)
     c = np.array(size) / 2 + 0.3
@@ -101,6 +109,7 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
         return (C - C[2] / d[2] * d)[:2]
 
     q.put({"fast": t_fast, "opencv": t_ocv, "scs": t_scs, "dot": t_dot, "rss": _rss_mb(),
+           "live": {w: (t, len(ids)) for w, (t, (ids, _)) in live.items()},
            "n": pose.n_corners, "ratio": pose.ambiguity_ratio,
            "rot": rotation_error_deg(pose.cam_H_ref[:3, :3], true[:3, :3]),
            "foot": float(np.linalg.norm(foot(pose.cam_H_ref) - foot(true))) * 1000})
@@ -177,6 +186,8 @@ def _render_and_pose_rows(repeats: int) -> list[tuple[str, str, str]]:
                   f"{r['n']} corners, ambiguity {r['ratio']:.0f}, peak RSS {r['rss']:.0f} MB"),
                  ("  same with OpenCV's marker identification", f"{r['opencv']:.2f} s", ""),
                  ("  cam_H_ref vs truth 4024×3036", f"{r['rot']:.5f}°", f"footprint error {r['foot']:.2f} µm"),
+                 *[(f"live detection (camera.detect), search width {w or 'full'}", f"{t:.2f} s",
+                    f"{n} corners") for w, (t, n) in r["live"].items()],
                  ("make_scs", f"{r['scs'] * 1000:.1f} ms", ""),
                  ("locate_mark dot 4024×3036", f"{r['dot'] * 1000:.1f} ms", "")]
     return rows

@@ -102,8 +102,7 @@ def detect_board_corners(image: np.ndarray, board: BoardLayout) -> tuple[np.ndar
 
     Uses OpenCV's own marker detection (``fast=False``): for a board's small dictionary it
     is as quick as the plate-tuned fast path, and it finds the small 4x4 markers that path
-    misses (measured on rendered recipe views at 640x480: all 88 corners of a square-on
-    view against 51).
+    misses (docs/accuracy.md, "Reference figures").
     """
     from calibration.target import detect_corners
 

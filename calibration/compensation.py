@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -48,8 +48,30 @@ from calibration.measure import CHORD_HEADING_SIGMA_RAD
 from calibration.mount import MountOffset
 from calibration.registration import as_points
 
-#: the compensation names, in the order results list them
-NAMES = ("tilt", "heading_fit", "bias", "mount")
+#: the compensations built into :func:`compensate`, in the order results list them
+BUILT_IN = ("tilt", "heading_fit", "bias", "mount")
+
+#: a compensation added by registration (:func:`register`): it applies itself to the stop's
+#: :class:`Applied` (its name appended to ``applied``) or says in ``skipped`` why not. It runs after the
+#: built-in ones, so it sees what they applied, and reads its inputs from the calibration document.
+Step = Callable[["Applied", "Stop", Mapping[str, Any]], None]
+#: the registered compensations, in the order they run and results list them
+STEPS: dict[str, Step] = {}
+
+
+def register(name: str) -> Callable[[Step], Step]:
+    """Decorator: ``step`` is the compensation ``name`` (docs/architecture.md, "Add a compensation")."""
+    def add(step: Step) -> Step:
+        if name in BUILT_IN or name in STEPS:
+            raise ValueError(f"compensation {name!r} is registered twice")
+        STEPS[name] = step
+        return step
+    return add
+
+
+def names_known() -> tuple[str, ...]:
+    """Every compensation name, built in and registered, in the order results list them."""
+    return BUILT_IN + tuple(STEPS)
 
 
 @dataclass(frozen=True)
@@ -60,22 +82,25 @@ class Compensation:
     heading_fit: bool = False
     bias: bool = False
     mount: bool = False
+    registered: frozenset[str] = frozenset()  # the registered ones (STEPS) asked for
 
     @classmethod
     def parse(cls, value: Any) -> "Compensation":
         """From a config/params value: None/False/"none", True/"all", or names (list or comma string)."""
         if value is None or value is False or value == "none" or value == []:
             return cls()
-        if value is True or value == "all":
-            return cls(**{n: True for n in NAMES})
-        names = [s.strip() for s in value.split(",")] if isinstance(value, str) else list(value)
-        unknown = [n for n in names if n not in NAMES]
+        known = names_known()
+        names = list(known) if value is True or value == "all" else \
+            [s.strip() for s in value.split(",")] if isinstance(value, str) else list(value)
+        unknown = [n for n in names if n not in known]
         if unknown:
-            raise ValueError(f"unknown compensation(s) {unknown} (known: {', '.join(NAMES)}, or 'all'/'none')")
-        return cls(**{n: True for n in names})
+            raise ValueError(f"unknown compensation(s) {unknown} "
+                             f"(known: {', '.join(known)}, or 'all'/'none')")
+        chosen = {n: True for n in names if n in BUILT_IN}
+        return cls(**chosen, registered=frozenset(n for n in names if n in STEPS))
 
     def names(self) -> list[str]:
-        return [n for n in NAMES if getattr(self, n)]
+        return [n for n in BUILT_IN if getattr(self, n)] + [n for n in STEPS if n in self.registered]
 
 
 def tilt_of_pose(abs_H_rob: np.ndarray) -> tuple[float, float]:
@@ -333,11 +358,13 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
 def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
                imu_offset: tuple[float, float] | None = None, bias_b_mm: Any = None,
                anchor_sigma_mm: float = 0.010, imu_yaw_deg: float = 0.0, mount: MountOffset | None = None,
-               abs_t_trk: Any = None, heading_weight: HeadingWeight | None = None) -> Applied:
+               abs_t_trk: Any = None, heading_weight: HeadingWeight | None = None,
+               calibration: Mapping[str, Any] | None = None) -> Applied:
     """Apply ``comp`` to one stop; a compensation without its input, or one the data contradict, is skipped
     and says why. ``abs_P_prev`` of the result always gives the robot's x axis (``stop.reverse`` honoured).
     ``mount`` and ``abs_t_trk`` (the tracker's ACS position): the calibration's reflector mount offset;
-    ``heading_weight``: the calibration's learned share of the fitted bend (None: each stop's own test)."""
+    ``heading_weight``: the calibration's learned share of the fitted bend (None: each stop's own test);
+    ``calibration``: the calibration document, where the registered compensations read their inputs."""
     skipped: dict[str, str] = {}
     stop, cov_mount = _mount_applied(comp, stop, mount, abs_t_trk, skipped)
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
@@ -372,17 +399,26 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         else:
             _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg, heading_weight)
     if comp.bias:
-        if bias_b_mm is None:
-            out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"
-        else:
-            try:
-                out.rob_H_scn = apply_bias(out.rob_H_scn, bias_b_mm)
-                out.applied.append("bias")
-            except ValueError as exc:  # a stored b that cannot be a calibration bias: measure without it
-                out.skipped["bias"] = str(exc)
+        _bias_applied(out, bias_b_mm)
+    for name, step in STEPS.items():
+        if name in comp.registered:
+            step(out, stop, calibration or {})
     return out
 
 
-__all__ = ["Applied", "Compensation", "LEAN_NOT_COMPENSATED", "NAMES", "NO_STREAM_TILT", "Stop", "apply_bias",
+def _bias_applied(out: Applied, bias_b_mm: Any) -> None:
+    """The bias compensation: the calibration's robot-frame bias added to ``out.rob_H_scn``, or why not."""
+    if bias_b_mm is None:
+        out.skipped["bias"] = "the calibration holds no robot-frame bias (run an experiment and store it)"
+        return
+    try:
+        out.rob_H_scn = apply_bias(out.rob_H_scn, bias_b_mm)
+        out.applied.append("bias")
+    except ValueError as exc:  # a stored b that cannot be a calibration bias: measure without it
+        out.skipped["bias"] = str(exc)
+
+
+__all__ = ["Applied", "BUILT_IN", "Compensation", "LEAN_NOT_COMPENSATED", "NO_STREAM_TILT", "STEPS", "Step",
+           "Stop", "apply_bias", "names_known", "register",
            "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord", "ground_point",
            "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]

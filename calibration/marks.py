@@ -14,7 +14,8 @@ Without ``approx_uv`` the whole image is searched coarse to fine: the image is
 box-averaged by an integer factor so the mark is ~3 px, the same detector runs there,
 and its best few peaks are refined by the full-resolution detector in a window each
 (the best score wins). Inside a window the full-resolution scores are the ones a
-whole-image search computes, so the result is the same (4024×3036: ~10x faster).
+whole-image search computes, so the result is the same, in a fraction of the time
+(docs/benchmarks.md, "Calibration and vision").
 
 Localise here, then map the point analytically with :meth:`calibration.scs.Scs.image_to_scn`;
 never measure in a rectified image.
@@ -82,7 +83,7 @@ def _estimate_dot_radius(patch: np.ndarray) -> float:
 def dot_template(radius_px: float, blur_px: float = 1.0, ss: int = 8) -> np.ndarray:
     """A float32 template: dark disc (0) of ``radius_px`` on white (1), centred on its middle pixel.
 
-    Cached (a 25 px disc costs ~20 ms to supersample) and therefore read-only.
+    Cached (supersampling a disc costs more than a search) and therefore read-only.
     """
     half = int(math.ceil(1.6 * radius_px + 2 * blur_px)) + 1
     n = 2 * half + 1

@@ -116,8 +116,8 @@ def half_diff_cov(cov_runs: Sequence[np.ndarray]) -> np.ndarray:
 
     Independent runs would give (C₀ + C₁)/4, but both runs share the nests' measurement, whose share
     of each run's error flips sign with the robot in RCS and so adds fully to the difference. The
-    bound holds whatever that share; over 40 simulated seeds the /4 figure was just covering
-    (Mahalanobis p95 2.44 against 2.45), so the bound is taken."""
+    bound holds whatever that share, where /4 only just covers the errors (docs/accuracy.md), so the
+    bound is taken."""
     if len(cov_runs) != 2:
         raise ValueError(f"half_diff_cov: two runs' covariances needed, got {len(cov_runs)}")
     return (np.asarray(cov_runs[0], dtype=float) + np.asarray(cov_runs[1], dtype=float)) / 2.0

@@ -7,11 +7,10 @@ Pipeline (docs/operations.md, "Plate survey"):
    planar target: ``cv2.calibrateCamera`` gives the intrinsics and the poses;
 2. nest rings: edge points undistorted to the normalised image plane, one ellipse per
    edge (outer, inner) fitted there (a circle's image under a pinhole is an exact
-   conic); their centres are not the image of the ring centre (perspective bias,
-   0.04–0.2 px in the tests' geometry; left in, it put the seats' z 98–131 µm off on two
-   seeds, against ≤ 12 µm corrected on seed 2): the bias is computed from the current
-   pose and seat estimate and removed; the mean of the two corrected centres is the
-   ring's observation;
+   conic); their centres are not the image of the ring centre (perspective bias, large
+   against the seats' goal: docs/accuracy.md, "Reference figures"): the bias is computed
+   from the current pose and seat estimate and removed; the mean of the two corrected
+   centres is the ring's observation;
 3. a Gauss–Newton bundle (:mod:`calibration.survey_bundle`): camera from the corners,
    seats from the rings; each seat's covariance holds the ring residuals' σ and the
    camera's covariance propagated to it. A ring observation far off the others'

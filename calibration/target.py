@@ -7,17 +7,15 @@ returns both mirror solutions; it keeps the better one only when its reprojectio
 RMS beats the other by ``min_ambiguity_ratio`` (docs/accuracy.md, "Image side"), then polishes
 it with Levenberg–Marquardt.
 
-Marker candidates are the squares OpenCV's detector finds (found as it does, without
-its comparison of every candidate pair: :mod:`calibration.marker_candidates`), but the
-markers are identified here: OpenCV 5 matches each candidate against the dictionary one
-entry at a time, which costs ~2 s per image for this 600-marker board; reading each
-candidate's bits once and matching them against all markers and rotations at once takes
-~0.1 s and finds the same markers. A match may differ in as many bits as OpenCV allows for the dictionary
-(none for DICT_4X4_1000), and a marker whose id disagrees with its image neighbours
-is dropped. The chessboard corners are then interpolated and refined from those markers
-as OpenCV's CharucoDetector does (:mod:`calibration.charuco_corners`, the same corners
-without its linear searches); if its board check rejects the marker set, OpenCV's own
-detector decides (``fast=False`` uses OpenCV for both steps).
+Marker candidates are the squares OpenCV's detector finds, but the markers are
+identified here: OpenCV 5 matches each candidate against the dictionary one entry at a
+time, which is slow for a board of hundreds of markers (docs/benchmarks.md, "Referencing
+compute"); reading each candidate's bits once and matching them against all markers and
+rotations at once finds the same markers. A match may differ in as many bits as OpenCV
+allows for the dictionary (none for DICT_4X4_1000), and a marker whose id disagrees with
+its image neighbours is dropped. OpenCV's CharucoDetector then interpolates and refines
+the chessboard corners from those markers; if its board check rejects the marker set,
+OpenCV's own detector decides (``fast=False`` uses OpenCV for both steps).
 """
 from __future__ import annotations
 
@@ -30,10 +28,8 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from calibration.charuco_corners import detect_board
 from calibration.errors import CalibrationError
 from calibration.frames import make_H
-from calibration.marker_candidates import find_candidates
 from calibration.plate import Plate
 
 LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -50,8 +46,8 @@ def _board(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: 
         raise ValueError(f"board {cols}x{rows} needs {n_markers} markers but {dict_name} has only "
                          f"{dictionary.bytesList.shape[0]}")
     # keep only the markers the board uses: marker identification in OpenCV 5 costs
-    # time in proportion to the dictionary size (1000 vs 600: ~1.7x), and ids the
-    # board cannot contain are rejected outright
+    # time in proportion to the dictionary size, and ids the board cannot contain are
+    # rejected outright
     board_dict = cv2.aruco.Dictionary(dictionary.bytesList[:n_markers].copy(), dictionary.markerSize,
                                       dictionary.maxCorrectionBits)
     return cv2.aruco.CharucoBoard((cols, rows), square_mm, marker_mm, board_dict)
@@ -104,37 +100,22 @@ _CANDIDATE_WIDTH = 1400
 
 
 @lru_cache(maxsize=8)
-def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.DetectorParameters]:
+def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, cv2.aruco.ArucoDetector]:
     """Packed inner bits of every board marker, the marker size, the bits a match may
-    differ in, and the candidate search's parameters (OpenCV's defaults)."""
+    differ in, and a candidate finder."""
     d = board.getDictionary()
     n = d.markerSize
     weights = 1 << np.arange(n * n, dtype=np.int64)
     codes = np.array([int(d.getBitsFromByteList(d.bytesList[k:k + 1], n).reshape(-1).astype(np.int64) @ weights)
                       for k in range(d.bytesList.shape[0])])
-    params = cv2.aruco.DetectorParameters()
+    # a one-marker dictionary: OpenCV then finds and returns all square candidates
+    # quickly, and the identification below matches them against the board's markers
+    finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), n, 0))
     # the dictionary's own limit, scaled as OpenCV's identification does: markers of
     # a dense dictionary (DICT_4X4_1000: 0 bits) differ from a neighbour in one bit, so
     # accepting a wrong bit there would read a misread marker as another id
-    max_bits = int(d.maxCorrectionBits * params.errorCorrectionRate)
-    return codes, n, max_bits, params
-
-
-def _shrink(img: np.ndarray, f: int) -> np.ndarray:
-    """``img`` reduced f times (INTER_AREA), the two halves in parallel when the row scale is exactly f:
-    each output row then comes from its own f input rows, so the halves join to the same image."""
-    if f == 1:
-        return img
-    size = (img.shape[1] // f, img.shape[0] // f)
-    if img.shape[0] != size[1] * f or size[1] < 2:
-        return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-    half = size[1] // 2
-    out = np.empty((size[1], size[0]), img.dtype)
-    with ThreadPoolExecutor(2) as pool:
-        top = pool.submit(cv2.resize, img[:half * f], (size[0], half), out[:half], 0, 0, cv2.INTER_AREA)
-        cv2.resize(img[half * f:], (size[0], size[1] - half), out[half:], 0, 0, cv2.INTER_AREA)
-        top.result()
-    return out
+    max_bits = int(d.maxCorrectionBits * cv2.aruco.DetectorParameters().errorCorrectionRate)
+    return codes, n, max_bits, finder
 
 
 def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -174,13 +155,6 @@ def _read_codes(img: np.ndarray, quads: np.ndarray, n: int) -> tuple[np.ndarray,
     return codes, keep
 
 
-def _quad_area(q: np.ndarray) -> np.ndarray:
-    """``abs(cv2.contourArea(quad))`` of float32 quads (n, 4, 2), in its arithmetic (double, same order)."""
-    x, y = q[..., 0].astype(np.float64), q[..., 1].astype(np.float64)
-    t = np.roll(x, 1, axis=1) * y - np.roll(y, 1, axis=1) * x  # previous corner × this one, from the last
-    return np.abs((((t[:, 0] + t[:, 1]) + t[:, 2]) + t[:, 3]) * 0.5)
-
-
 def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[list[np.ndarray], np.ndarray]:
     """Board markers in ``img``: corners (each (1, 4, 2) float32, OpenCV order) and ids (N, 1).
 
@@ -190,9 +164,12 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     vectorised Hamming distances, accepting as many wrong bits as OpenCV would for
     this dictionary (``maxCorrectionBits`` × ``errorCorrectionRate``).
     """
-    codes, n, max_bits, params = _marker_codes(board)
+    codes, n, max_bits, finder = _marker_codes(board)
     f = max(1, int(np.ceil(img.shape[1] / _CANDIDATE_WIDTH)))
-    quads = find_candidates(_shrink(img, f), params).astype(np.float64)
+    size = (img.shape[1] // f, img.shape[0] // f)
+    small = img if f == 1 else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    found, _, rejected = finder.detectMarkers(small)
+    quads = np.array([np.reshape(q, (4, 2)) for q in (*found, *rejected)], np.float64)
     if not len(quads):
         return [], np.zeros((0, 1), np.int32)
     quads = (quads + 0.5) * f - 0.5  # back to full-image pixel coordinates
@@ -206,7 +183,7 @@ def _detect_markers(img: np.ndarray, board: cv2.aruco.CharucoBoard) -> tuple[lis
     # per id the candidate with the fewest wrong bits, then the largest area, then the first
     ok = np.flatnonzero(best <= max_bits)
     k, marker, bits, r = keep[ok], ident[ok], best[ok], rot[ok]
-    area = _quad_area(quads[k].astype(np.float32))
+    area = np.array([abs(cv2.contourArea(q)) for q in quads[k].astype(np.float32)])
     order = np.lexsort((np.arange(len(k)), -area, bits, marker))
     first = order[np.r_[True, np.diff(marker[order]) != 0]] if len(order) else order
     # bits read from corners in native order equal the marker rotated by r:
@@ -251,10 +228,14 @@ def _consistent(corners: list[np.ndarray], ids: np.ndarray, board: cv2.aruco.Cha
     return [c for c, k in zip(corners, keep) if k], ids[keep]
 
 
-def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """OpenCV's own ``detectBoard`` (corners, ids); both are None when it finds no corner (its stub says
-    arrays, always)."""
-    corners, ids, _, _ = det.detectBoard(img)
+def _detect_board(det: cv2.aruco.CharucoDetector, img: np.ndarray, markers: list[np.ndarray] | None = None,
+                  marker_ids: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """OpenCV's ``detectBoard`` (corners, ids), from the given markers or its own; both are None when
+    it finds no corner (its stub says arrays, always)."""
+    if markers is None:
+        corners, ids, _, _ = det.detectBoard(img)
+    else:
+        corners, ids, _, _ = det.detectBoard(img, markerCorners=markers, markerIds=marker_ids)
     return corners, ids
 
 
@@ -270,7 +251,7 @@ def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | N
     """Detect ChArUco inner corners: ``(ids (N,), uv (N, 2))``, empty when none are found.
 
     ``model`` is only used to check that the image has the model's size. ``fast``
-    uses this module's marker identification (same markers, ~10x quicker); the
+    uses this module's marker identification (the same markers, much quicker); the
     chessboard corners are interpolated and refined as OpenCV's CharucoDetector does
     either way. When OpenCV's board check keeps fewer corners than half the markers
     found, OpenCV's own marker detection runs too and the larger corner set is kept.
@@ -287,7 +268,7 @@ def detect_corners(image: np.ndarray, plate: BoardLayout, model: CameraModel | N
     if fast:
         m_corners, m_ids = _detect_markers(img, board)
         if len(m_ids):
-            corners, ids = detect_board(img, board, det, m_corners, m_ids)
+            corners, ids = _detect_board(det, img, m_corners, m_ids)
         # OpenCV's board check rejects a marker set it finds inconsistent (no or few
         # corners from many markers): let OpenCV's own detector decide then
         fast = len(m_ids) == 0 or (ids is not None and len(ids) >= len(m_ids) // 2)

@@ -309,6 +309,7 @@ class SimRobot(SerialRobot):
     def info(self) -> dict[str, Any]:
         out = super().info()
         out["simulated"] = True
+        out["time_scale"] = self.fake.time_scale  # wall seconds per simulated second (a recording states it)
         if self.server is not None:
             out["fake_counters"] = {**self.fake.counters, **self.server.counters}
         return out

@@ -183,6 +183,10 @@ class SimTracker(EmsconTracker):
             self.server.start(0)
         return "127.0.0.1", self.server.port
 
+    def info(self) -> dict[str, Any]:
+        """The adapter's, plus the simulated time's scale (a recording's metadata states it)."""
+        return {**super().info(), "simulated": True, "time_scale": self.sim_options["time_scale"]}
+
     def shutdown(self) -> None:
         """Close the adapter and stop the fake server thread (tests, daemon exit)."""
         self.close()

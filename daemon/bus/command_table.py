@@ -66,7 +66,6 @@ TABLE: tuple[Command, ...] = (
     Command("hello", "who is this daemon: version, schema, endpoints",
             result="name, version, schema, pid, sim, endpoints, device URLs", polled=True),
     Command("status", "device states at a glance", verb="status", result="the daemon.health payload", polled=True),
-    Command("health", "same as status", result="the daemon.health payload", polled=True),
     Command("state", "Clone snapshot for late joiners", verb="watch",
             result="{seq, latest: {topic: {seq, t_ns, data}}, devices}", polled=True),
     Command("tracker.measure", "one stationary point of the locked reflector", "operator",

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 from daemon.bus.procedures import BY_NAME
 from daemon.bus.obs_checks import stream_problems
@@ -237,8 +237,8 @@ def _depth(doc: Any) -> int:
 class _Images:
     """Checks each referenced image once: complete PNG, and the size its header or model says."""
 
-    def __init__(self, root: Path, problems: list[Problem], png: Callable[[Path], tuple[int, ...]]) -> None:
-        self.root, self.problems, self.png = root, problems, png
+    def __init__(self, root: Path, problems: list[Problem]) -> None:
+        self.root, self.problems = root, problems
         self.info: dict[str, tuple[int, ...] | str] = {}  # file -> png_info, or what is wrong
 
     def check(self, file: Any, where: str, path: str, header: Any = None,
@@ -247,7 +247,7 @@ class _Images:
             return  # the schema already reported the bad name
         if file not in self.info:
             try:
-                self.info[file] = self.png(self.root / file) if (self.root / file).is_file() else "missing"
+                self.info[file] = png_info(self.root / file) if (self.root / file).is_file() else "missing"
             except (OSError, ValueError) as exc:
                 self.info[file] = str(exc)
         info = self.info[file]
@@ -316,6 +316,18 @@ def _model_problems(model: Any, file: str, parts: tuple[Any, ...]) -> list[Probl
     return []
 
 
+def _compensation_problems(obs: dict[str, Any]) -> list[Problem]:
+    """The names of a comma list of compensations: JSON Schema checks the list's syntax, the names are
+    the enum of common.schema.json's ``compensation`` (the one list of them in the bus)."""
+    value = obs.get("compensation")
+    if not isinstance(value, str) or value.strip() in ("none", "all"):
+        return []
+    known = json.loads(schema_text("common"))["$defs"]["compensation"]["enum"]
+    unknown = [n.strip() for n in value.split(",") if n.strip() not in known]
+    why = f"unknown compensation(s) {unknown} (known: {', '.join(known)}, or all/none)"
+    return [Problem("state.json", "$.obs.compensation", why)] if unknown else []
+
+
 def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     problems += check_schema(state, "state", "state.json") + check_values(state, "state.json")
     obs = state.get("obs") if isinstance(state, dict) else None
@@ -326,6 +338,7 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
     for key in ("camera_model", "initial_model"):
         problems += _model_problems(obs.get(key), "state.json", ("obs", key))
     problems += [Problem("state.json", _json_path(parts), msg) for parts, msg in stream_problems(obs)]
+    problems += _compensation_problems(obs)
     calib = obs.get("calibration")
     scs = calib.get("scs") if isinstance(calib, dict) else None
     if isinstance(scs, dict):
@@ -356,19 +369,18 @@ def _check_manifest(root: Path, manifest: Any, images: _Images, problems: list[P
             images.check(e["image"], "dataset.json", _json_path(("entries", i, "image")), header)
 
 
-def validate_folder(root: Path | str, png: Callable[[Path], tuple[int, ...]] = png_info) -> list[Problem]:
+def validate_folder(root: Path | str) -> list[Problem]:
     """Every problem of a dataset folder (empty list: clean). Never raises for bad content.
 
     A procedure folder (with ``state.json``) must be complete enough to recompute;
     its ``dataset.json`` and ``result.json`` are checked when present. A captures
-    folder needs ``dataset.json``. ``png`` is the image check (:func:`png_info`, or one
-    that has already run it, daemon.compute.images.PrefetchedLoader.png_info).
+    folder needs ``dataset.json``.
     """
     root = Path(root)
     if not root.is_dir():
         return [Problem(str(root), "$", "not a folder (does not exist or is a file)")]
     problems: list[Problem] = []
-    images = _Images(root, problems, png)
+    images = _Images(root, problems)
     is_procedure = (root / "state.json").exists()
     manifest = _load_json(root, "dataset.json", problems, required=not is_procedure)
     if manifest is not None:

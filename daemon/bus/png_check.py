@@ -2,15 +2,12 @@
 
 ``ritactl validate`` runs on the operator's laptop without OpenCV; this reads the
 chunk structure (PNG specification, ISO/IEC 15948) and inflates the image data.
-:func:`read_png` also hands back what it inflated, so a reader with numpy can take the
-pixels from there instead of inflating the file a second time (daemon/compute/images.py).
 """
 from __future__ import annotations
 
 import struct
 import zlib
 from pathlib import Path
-from typing import NamedTuple
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pixel
@@ -18,28 +15,10 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pix
 MAX_IMAGE_BYTES = 512 * 2 ** 20
 
 
-class Png(NamedTuple):
-    """A checked PNG: its header and its image data inflated (filtered scanlines, not yet pixels)."""
-
-    width: int
-    height: int
-    channels: int
-    depth: int
-    colour: int  # colour type
-    interlace: int
-    tags: frozenset[bytes]  # the chunk types the file has
-    rows: bytes
-
-    @property
-    def info(self) -> tuple[int, int, int, int]:
-        """(width, height, channels, bit depth), as :func:`png_info` gives."""
-        return self.width, self.height, self.channels, self.depth
-
-
-def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[memoryview], set[bytes], bool]:
-    """(IHDR fields, IDAT bodies, chunk types, IEND seen) after checking every chunk's length and CRC."""
+def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[memoryview], bool]:
+    """(IHDR fields, IDAT bodies, IEND seen) after checking every chunk's length and CRC."""
     view = memoryview(data)  # chunk bodies as views: a 7 MB file is not copied chunk by chunk
-    pos, ihdr, idat, tags, ended = 8, None, [], set(), False
+    pos, ihdr, idat, ended = 8, None, [], False
     while pos + 8 <= len(data) and not ended:
         length, tag = struct.unpack_from(">I4s", data, pos)
         body = view[pos + 8:pos + 8 + length]
@@ -52,18 +31,21 @@ def _chunks(data: bytes) -> tuple[tuple[int, ...] | None, list[memoryview], set[
             ihdr = struct.unpack(">IIBBBBB", body)
         elif tag == b"IDAT":
             idat.append(body)
-        tags.add(tag)
         ended = tag == b"IEND"
         pos += 12 + length
-    return ihdr, idat, tags, ended
+    return ihdr, idat, ended
 
 
-def read_png(path: Path) -> Png:
-    """The checks of :func:`png_info`, returning the header and the inflated image data too."""
+def png_info(path: Path) -> tuple[int, int, int, int]:
+    """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
+
+    Reads every chunk, checks each CRC and inflates the image data to its exact size,
+    so a truncated or corrupted file is found without an imaging library.
+    """
     data = path.read_bytes()
     if not data.startswith(_PNG_SIGNATURE):
         raise ValueError("not a PNG file (bad signature)")
-    ihdr, idat, tags, ended = _chunks(data)
+    ihdr, idat, ended = _chunks(data)
     if ihdr is None or not ended:
         raise ValueError("truncated: " + ("no IHDR header" if ihdr is None else "no IEND chunk"))
     w, h, depth, colour, _, _, interlace = ihdr
@@ -80,16 +62,7 @@ def read_png(path: Path) -> Png:
     if interlace == 0 and (len(raw) != want or not inflate.eof):
         raise ValueError(f"image data has {len(raw)}{'' if inflate.eof else '+'} bytes, "
                          f"a {w}x{h} image needs {want}")
-    return Png(w, h, _PNG_CHANNELS[colour], depth, colour, interlace, frozenset(tags), raw)
+    return w, h, _PNG_CHANNELS[colour], depth
 
 
-def png_info(path: Path) -> tuple[int, int, int, int]:
-    """(width, height, channels, bit depth) of a complete PNG; ValueError says what is wrong.
-
-    Reads every chunk, checks each CRC and inflates the image data to its exact size,
-    so a truncated or corrupted file is found without an imaging library.
-    """
-    return read_png(path).info
-
-
-__all__ = ["MAX_IMAGE_BYTES", "Png", "png_info", "read_png"]
+__all__ = ["MAX_IMAGE_BYTES", "png_info"]

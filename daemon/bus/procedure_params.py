@@ -98,8 +98,8 @@ IMU_READINGS = Param("imu_readings", "int", "inclinometer readings averaged at e
                      default=10, lo=1, hi=1000)
 IMU_INTERVAL = Param("imu_interval_s", _FLOAT, "time between those readings: the inclinometer's output period "
                      "(closer readings repeat one sample)", unit="s", default=0.1, lo=0, hi=10)
-COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of tilt, heading_fit, bias, "
-                     "mount (docs/accuracy.md)", default="tilt,heading_fit,bias,mount")
+COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of names (docs/accuracy.md, "
+                     "\"Compensations\")", default="tilt,heading_fit,bias,mount")
 APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT, "speed of the recorded final move of each approach (more "
                        "stream points and inclinometer samples along it)", unit="mm/s", lo=0, lo_open=True,
                        default_text="speed_mm_s", default_of=SPEED.name)

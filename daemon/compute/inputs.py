@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from calibration.compensation import NAMES, Compensation, Stop, tilt_of_pose
+from calibration.compensation import Compensation, Stop, names_known, tilt_of_pose
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight
 from calibration.imu_mount import imu_mount
 from calibration.mount import MountOffset
@@ -139,7 +139,7 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
                            "imu_offset_deg": None if offset is None else list(offset), "robot_bias_mm": bias,
                            "reflector_mount_los_mm": (calib.get("reflector_mount") or {}).get("los_mm"),
                            "heading_weight": _weight_value(calib)}
-    for name in NAMES:
+    for name in names_known():
         if name not in out["requested"]:
             continue
         out["applied"][name] = sum(name in r["applied"] for r in records)

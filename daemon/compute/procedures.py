@@ -161,7 +161,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     weight, bad_weight = heading_weight(calib)
     a = compensate(comp, stop_of(stop), np.array(calib["rob_H_scn"], dtype=float), imu_offset=offset,
                    bias_b_mm=bias, anchor_sigma_mm=anchor, imu_yaw_deg=imu_yaw(calib), mount=mount,
-                   abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight)
+                   abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight, calibration=calib)
     if bad_mount and comp.mount:  # a record no offset can be read from: measure without it, say why
         a.skipped["mount"] = bad_mount
     if bad_weight and comp.heading_fit:  # a record no weight can be read from: the chord, say why

@@ -16,16 +16,11 @@ from calibration.errors import CalibrationError  # noqa: F401 - re-exported for 
 from daemon.bus.procedures import ALL, REFERENCING, get
 from daemon.compute.inputs import parse_compensation
 from daemon.compute.procedures import COMPUTE, shown_params
-from daemon.compute.images import PrefetchedLoader, first_image
+from daemon.compute.images import grey_loader
 from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
 #: the schema each override file must meet
 _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibration": "result"}
-
-
-def _load(root: Path) -> PrefetchedLoader:
-    """The image loader, already checking and decoding the first image for the validation and the computation."""
-    return PrefetchedLoader(root, first_image(root))
 
 
 class ComputationFailed(Exception):
@@ -127,20 +122,19 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     (``CalibrationError`` when the data cannot give a trustworthy result).
     """
     root = Path(root)
-    with _load(root) as load:
-        problems = validate_folder(root, png=load.png_info)  # the first image's check runs once, in the loader
-        if problems:
-            raise DatasetInvalid(root, problems)
-        state = json.loads((root / "state.json").read_text())
-        proc = state["procedure"]
-        overrides = {"camera_model": camera_model, "plate": plate, "calibration": calibration}
-        obs = apply_compensation(proc, apply_overrides(root, proc, state["obs"], overrides), compensation)
-        try:
-            result = COMPUTE[proc](obs, load)
-        except (ValueError, KeyError, TypeError, IndexError, ArithmeticError) as exc:
-            # the folder met its contract, so this is the computation failing on the data, not bad input
-            what = f"the stored data lacks {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
-            raise ComputationFailed(f"the {proc} computation failed on the stored data: {what}") from exc
+    problems = validate_folder(root)
+    if problems:
+        raise DatasetInvalid(root, problems)
+    state = json.loads((root / "state.json").read_text())
+    proc = state["procedure"]
+    overrides = {"camera_model": camera_model, "plate": plate, "calibration": calibration}
+    obs = apply_compensation(proc, apply_overrides(root, proc, state["obs"], overrides), compensation)
+    try:
+        result = COMPUTE[proc](obs, grey_loader(root))
+    except (ValueError, KeyError, TypeError, IndexError, ArithmeticError) as exc:
+        # the folder met its contract, so this is the computation failing on the data, not bad input
+        what = f"the stored data lacks {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
+        raise ComputationFailed(f"the {proc} computation failed on the stored data: {what}") from exc
     result["job"] = state.get("job") or root.name
     result["params"] = shown_params(proc, state.get("params") or {})
     given = [k for k, v in (*overrides.items(), ("compensation", compensation)) if v is not None]

@@ -3,7 +3,3 @@
 A bus client like ritactl (layers: bus library <- programs). Needs the ``console``
 extra (aiohttp); static files ship in ``daemon/console/static``.
 """
-
-from daemon.face import lazy_face  # noqa: E402
-
-__all__, __getattr__ = lazy_face(__name__, {"Console": "server", "serve": "server"})

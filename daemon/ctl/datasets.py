@@ -77,7 +77,7 @@ def _single_threaded_opencv() -> None:
 
     A recompute makes many small OpenCV calls (800 marker warps, per-corner refinement) where
     waking OpenCV's workers costs more than it saves, most on a busy machine; the computation
-    splits its larger steps over threads itself (calibration.marker_candidates, .target).
+    splits its larger steps over threads itself (calibration.target: the marker warps).
     """
     if "cv2" not in sys.modules:  # read when OpenCV loads
         os.environ.setdefault("OPENCV_FOR_THREADS_NUM", "1")

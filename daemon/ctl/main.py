@@ -14,7 +14,8 @@ Examples::
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
-    ritactl record --out FILE.mcap [--duration S] [--frames every N|off] [--max-size N] [--min-free N]
+    ritactl record --out FILE.mcap [--duration S] [--frames every N|off] [--frames-format raw|jpeg|png]
+                   [--max-size N] [--min-free N]
     ritactl replay FILE.mcap [--speed X|max] [--endpoint ipc:///PATH]  # republish it, for watch
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
     ritactl completion bash           # shell completion script
@@ -272,7 +273,7 @@ def _one_blas_thread() -> None:
 
     ritactl's computations (recompute, plate survey) solve small systems (a PnP, a 7-parameter
     refit, 6×6 covariances): OpenBLAS's helper threads gain nothing there and cost a wake-up per
-    call, milliseconds on a busy machine (a referencing recompute ran ~30 % slower with them).
+    call, milliseconds on a busy machine (docs/benchmarks.md, "Referencing compute").
     """
     if "numpy" not in sys.modules:  # the setting is read when numpy loads; a library caller keeps its own
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")

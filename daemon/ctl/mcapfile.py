@@ -2,24 +2,31 @@
 
 docs/operations.md ("Record and replay") documents this layout; keep the two in step.
 
-* One channel per telemetry topic, JSON message encoding. Each message is the bus message's
-  ``data`` map as JSON, less the nulls its schema has a type for (:func:`drop_typed_nulls`); the
-  MCAP ``sequence`` counts the channel's messages from 1 (modulo 2**32), the daemon's ``t_ns`` is
-  its ``log_time`` and the recorder's receive time its ``publish_time``.
+* One channel per telemetry topic, named by :func:`mcap_topic` (``robot.state`` → ``/robot/state``:
+  Foxglove's message paths need no quotes), JSON message encoding. Each message is the bus
+  message's ``data`` map as JSON, less the nulls its schema has a type for (:func:`drop_typed_nulls`);
+  the MCAP ``sequence`` counts the channel's messages from 1 (modulo 2**32), the ``log_time`` is the
+  sample's own time (:func:`sample_time`) and the recorder's receive time is the ``publish_time``.
   The channel's schema (``jsonschema``) is inferred from the topic's first message: field names and
   JSON types, so Foxglove's panels can offer the fields; written in the subset of JSON Schema that
   Foxglove's reader accepts (:func:`_json_type`), since it refuses a channel for one field outside it.
-* Frames: channel ``camera.frame`` with Foxglove's raw-image schema in its ROS 2 form
-  (``foxglove_msgs/msg/RawImage``, schema encoding ``ros2msg``, messages in CDR): the pixels go in
-  as they are, where JSON would base64 them: a third larger, and on the standard machine 58 ms to
-  encode a 12.2 MP frame, a third of the camera's frame interval, against a copy here. Channel ``camera.frame.header`` has the bus's frame header as JSON,
-  written just before each image so a replay can rebuild the bus frame exactly.
-* Channel ``daemon.command``: the session's command/reply pairs as ritad reports them (its
+  The bus's ``log`` is the exception: it goes in as Foxglove's ``foxglove.Log`` on ``/log``.
+* Foxglove's well-known messages beside them (daemon/ctl/foxglove.py): ``/robot/pose`` and
+  ``/tracker/pose`` (``foxglove.PoseInFrame``, one message per sample or tracker record).
+* Frames: channel ``/camera/frame`` with Foxglove's image schema in its ROS 2 form
+  (``foxglove_msgs/msg/RawImage`` by default, ``CompressedImage`` with ``--frames-format jpeg|png``;
+  schema encoding ``ros2msg``, messages in CDR): raw pixels go in as they are, where JSON would base64
+  them: a third larger, and slow to encode against a copy here (docs/benchmarks.md, "Recording").
+  Channel ``/camera/frame/header`` has the bus's frame header as JSON, written just before each
+  image so a replay can rebuild the bus frame exactly; both
+  are logged at the exposure's mid-time (the header's ``t_ns``).
+* Channel ``/daemon/command``: the session's command/reply pairs as ritad reports them (its
   ``daemon.command`` telemetry), with the fixed schema :data:`COMMAND_SCHEMA` instead of an
   inferred one, since ``args`` differs from one command to the next.
-* Metadata record ``ritactl.record``: who recorded what (ritad's ``hello``, the options); record
-  ``ritactl.record.end``: how the recording ended (``duration``, ``interrupted``, ``max_size``,
-  ``min_free`` or ``error`` and the error) and what it lost, written just before the summary.
+* Metadata record ``ritactl.record``: who recorded what (ritad's ``hello``, the options, a
+  simulator's time scale); record ``ritactl.record.end``: how the recording ended (``duration``,
+  ``interrupted``, ``max_size``, ``min_free`` or ``error`` and the error) and what it lost, written
+  just before the summary.
 
 Imports only the standard library (and the bus's names) so the thin client stays thin; the ``mcap``
 package is imported by the verbs that write and read.
@@ -36,10 +43,16 @@ from daemon.bus.names import Topic
 
 PROFILE = ""  # no ROS profile: plain JSON channels
 END_METADATA_NAME = "ritactl.record.end"
+#: the bus's frame topic, and the recording's channels for frames (mcap_topic of the bus names)
 FRAME_TOPIC = "camera.frame"
 FRAME_HEADER_TOPIC = "camera.frame.header"
+FRAME_CHANNEL = "/camera/frame"
+FRAME_HEADER_CHANNEL = "/camera/frame/header"
 METADATA_NAME = "ritactl.record"
 RAW_IMAGE_SCHEMA = "foxglove_msgs/msg/RawImage"
+COMPRESSED_IMAGE_SCHEMA = "foxglove_msgs/msg/CompressedImage"
+#: the bus topics whose ``data`` holds a batch of samples, each with its own time in ``t_ns``
+BATCHED = ("tracker.point", "robot.odometry", "robot.incl")
 SEQ_MOD = 1 << 32  # an MCAP sequence is a uint32
 
 #: GenICam pixel formats with a Foxglove RawImage encoding of their own; others fall back on dtype
@@ -56,6 +69,16 @@ uint32 height
 string encoding
 uint32 step
 uint8[] data
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+#: Foxglove's CompressedImage in ROS 2 message syntax (schemas/ros2/CompressedImage.msg of foxglove-sdk)
+COMPRESSED_IMAGE_ROS2MSG = """builtin_interfaces/Time timestamp
+string frame_id
+uint8[] data
+string format
 ================================================================================
 MSG: builtin_interfaces/Time
 int32 sec
@@ -166,6 +189,56 @@ def restore_nulls(value: Any, schema: dict[str, Any]) -> Any:
     return value
 
 
+def mcap_topic(topic: str) -> str:
+    """The channel of a bus topic: ``robot.state`` → ``/robot/state``. Foxglove's message paths take
+    a topic with dots only in quotes (``"robot.state".x_mm``); a slash-separated one needs none."""
+    return "/" + topic.replace(".", "/")
+
+
+def bus_topic(channel: str) -> str:
+    """The inverse of :func:`mcap_topic`; a channel of an older recording (``robot.state``) is its own."""
+    return channel[1:].replace("/", ".") if channel.startswith("/") else channel
+
+
+def _int(value: Any) -> int | None:
+    try:
+        return int(value) if value is not None and not isinstance(value, bool) else None
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
+def sample_times(topic: str, data: Any) -> list[int] | None:
+    """Each sample's own time (ns, host timeline) in a batched message (:data:`BATCHED`): ``t_ns``
+    per sample, else the host's arrival ``host_time_ns`` (per sample, or the packet's for all);
+    None when the message has neither."""
+    if topic not in BATCHED or not isinstance(data, dict):
+        return None
+    for key in ("t_ns", "host_time_ns"):
+        value = data.get(key)
+        if isinstance(value, list) and value and all(_int(v) is not None for v in value):
+            return [int(v) for v in value]
+        if (one := _int(value)) is not None and isinstance(data.get("x"), list):  # one arrival for a packet
+            return [one] * len(data["x"])
+    return None
+
+
+def sample_time(topic: str, data: Any, published_ns: int) -> int:
+    """The instant a message describes, its MCAP log time: a frame's exposure mid-time, a STATUS's or
+    an event's time, a batch's last sample, a log record's; ``published_ns`` (when ritad sent it) for
+    a message with none (health, commands, state changes)."""
+    if not isinstance(data, dict):
+        return published_ns
+    batch = sample_times(topic, data)
+    if batch:
+        return batch[-1]
+    if topic == "log" and isinstance(data.get("t"), (int, float)):
+        return int(round(data["t"] * 1e9))
+    for key in ("t_ns", "host_time_ns"):  # frames, robot.state, robot.event
+        if (t := _int(data.get(key))) is not None:
+            return t
+    return published_ns
+
+
 def raw_image_encoding(header: dict[str, Any]) -> str:
     """The RawImage ``encoding`` of a bus frame, from its pixel format, else its dtype and shape."""
     fmt = str(header.get("pixel_format") or "")
@@ -206,7 +279,7 @@ def raw_image(header: dict[str, Any], pixels: bytes | memoryview) -> bytes:
         height, width = (int(n) for n in header["shape"][:2])
     except (KeyError, TypeError, ValueError) as exc:
         raise UnsupportedFrame(f"frame header has no usable shape ({header.get('shape')!r})") from exc
-    t = int(header.get("host_time_ns") or 0)
+    t = int(header.get("t_ns") or header.get("host_time_ns") or 0)  # the exposure's mid-time
     c = _Cdr()
     c.u32(t // 1_000_000_000, t % 1_000_000_000)  # sec is int32 in the schema: fine until 2038
     c.string("camera")
@@ -215,6 +288,29 @@ def raw_image(header: dict[str, Any], pixels: bytes | memoryview) -> bytes:
     c.u32(len(pixels) // height if height else 0)
     c.u32(len(pixels))
     return b"".join((c.buf, pixels))
+
+
+def compressed_image(header: dict[str, Any], data: bytes, fmt_name: str) -> bytes:
+    """An encoded picture (``fmt_name``: jpeg or png) as a CDR ``foxglove_msgs/msg/CompressedImage``."""
+    t = int(header.get("t_ns") or header.get("host_time_ns") or 0)
+    c = _Cdr()
+    c.u32(t // 1_000_000_000, t % 1_000_000_000)
+    c.string("camera")
+    c.u32(len(data))
+    c.buf += data
+    c.string(fmt_name)
+    return bytes(c.buf)
+
+
+def compressed_data(raw: bytes | memoryview) -> memoryview:
+    """The encoded picture of a CDR CompressedImage made by :func:`compressed_image` (no copy)."""
+    view = memoryview(raw)
+    off = 4 + 8  # header, timestamp
+    n = struct.unpack_from("<I", view, off)[0]  # frame_id
+    off += 4 + n
+    off += -(off - 4) % 4
+    n = struct.unpack_from("<I", view, off)[0]  # data
+    return view[off + 4:off + 4 + n]
 
 
 def pixels_of(raw: bytes | memoryview) -> memoryview:
@@ -237,7 +333,9 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
     return view[off:off + n]
 
 
-__all__ = ["COMMAND_SCHEMA", "END_METADATA_NAME", "FRAME_HEADER_TOPIC", "FRAME_TOPIC", "METADATA_NAME",
-           "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD", "UnsupportedFrame",
-           "drop_typed_nulls", "infer_schema", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
-           "to_json"]
+__all__ = ["BATCHED", "COMMAND_SCHEMA", "COMPRESSED_IMAGE_ROS2MSG", "COMPRESSED_IMAGE_SCHEMA",
+           "END_METADATA_NAME", "FRAME_CHANNEL", "FRAME_HEADER_CHANNEL", "FRAME_HEADER_TOPIC",
+           "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD",
+           "UnsupportedFrame", "bus_topic", "compressed_data", "compressed_image", "drop_typed_nulls",
+           "infer_schema", "mcap_topic", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
+           "sample_time", "sample_times", "to_json"]

@@ -1,7 +1,7 @@
 """``ritactl record``: ritad's telemetry (and frames) to an MCAP file, the way rosbag2 records a session.
 
 It subscribes as ``ritactl watch`` does (same endpoint discovery through ``hello``, same CURVE
-keys) and writes each message as it arrives (layout: daemon/ctl/mcapfile.py). The file is
+keys) and writes each message as it arrives (daemon/ctl/recorder.py; layout: daemon/ctl/mcapfile.py). The file is
 written under a hidden ``.NAME.partial`` beside the target and renamed into place once the
 MCAP summary is written, so a reader never sees a truncated recording under the real name.
 Ctrl-C and ``--duration`` end it the same way; a progress line shows the size and duration. An
@@ -18,19 +18,18 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any, Callable, Iterator
 
 import zmq
 
-from daemon import __version__
 from daemon.bus.client import Client, Subscriber
 from daemon.bus.protocol import CommandError, unpack
 from daemon.bus.storage import fsync_dir
-from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
 from daemon.ctl.reclimits import DEFAULT_MIN_FREE, Limits
+from daemon.ctl.recorder import FRAME_FORMATS, Counts, Recorder, image_encoder
 from daemon.ctl.watch import NO_FRAMES, Screen
 
 #: deep enough for many seconds of 1 kHz tracker packets while a chunk is compressed or the disk stalls
@@ -40,130 +39,10 @@ FRAME_HWM = 4
 FRAME_BATCH = 2
 #: the most the end waits on writing what was queued when the recording was stopped
 FINAL_DRAIN_S = 1.0
+#: the recording thread's nice value: beside ritad and its live viewers on the same CPUs, the recorder
+#: gives way, and drops (and counts) the frames it then has no time for (docs/benchmarks.md, "Recording")
+RECORD_NICE = 10
 COMPRESSIONS = ("auto", "zstd", "lz4", "none")
-
-
-@dataclass
-class Counts:
-    messages: int = 0
-    frames: int = 0
-    missed: int = 0          # telemetry messages lost before they reached the recorder (seq gaps)
-    frames_missed: int = 0   # frames dropped for this subscriber (not the ones --frames skips): see FRAME_HWM
-    unsupported: int = 0     # frames with no RawImage encoding: only their header is recorded
-    topics: dict[str, int] = field(default_factory=dict)
-
-
-class Recorder:
-    """Bus messages in, MCAP out (no sockets: the benchmark drives it directly).
-
-    With ``limits``, a message that would take the file past ``--max-size`` or the disk under
-    ``--min-free`` is not written: ``ended`` says which, and the caller finishes the file."""
-
-    def __init__(self, stream: IO[bytes], metadata: dict[str, str], compression: str = "zstd",
-                 limits: Limits | None = None) -> None:
-        try:
-            from mcap.writer import CompressionType, Writer
-        except ImportError as exc:
-            raise CtlError(Exit.BAD_INPUT, "missing_package",
-                           f"recording needs the mcap package ({exc.name} is not installed): "
-                           f"pip install --upgrade rita") from None
-        kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
-        self.stream = stream
-        self.writer = Writer(stream, compression=kind)
-        self.writer.start(profile=fmt.PROFILE, library=f"ritactl {__version__}")
-        self.writer.add_metadata(fmt.METADATA_NAME, metadata)
-        self.channels: dict[str, int] = {}
-        self.schemas: dict[str, dict[str, Any]] = {}
-        self.sequences: dict[int, int] = {}  # channel → the last MCAP sequence written on it
-        self.counts = Counts()
-        self.limits = limits
-        self.ended: str | None = None  # "max_size" / "min_free": a limit stopped the writing
-        self._seq: int | None = None
-        self._frame_seq: int | None = None  # the last frame seen
-        self.kept_seq: int | None = None  # the last frame written (--frames every N counts from it)
-        self.finishing = False  # finish() was called: a second try after its failure would write garbage
-
-    def _channel(self, topic: str, sample: Any) -> int:
-        ch = self.channels.get(topic)
-        if ch is None:
-            if topic == fmt.FRAME_TOPIC:
-                schema = self.writer.register_schema(fmt.RAW_IMAGE_SCHEMA, "ros2msg", fmt.RAW_IMAGE_ROS2MSG.encode())
-                ch = self.channels[topic] = self.writer.register_channel(topic, "cdr", schema)
-                return ch
-            inferred = self.schemas[topic] = fmt.infer_schema(topic, sample)
-            schema = self.writer.register_schema(topic, "jsonschema", fmt.to_json(inferred))
-            ch = self.channels[topic] = self.writer.register_channel(topic, "json", schema)
-        return ch
-
-    def _json(self, topic: str, data: Any) -> bytes:
-        """``data`` as JSON that its channel's schema accepts: a null where the schema has a type is
-        left out (a replay puts it back), since a strict reader refuses a null "string"."""
-        body = fmt.to_json(data)
-        if b"null" in body:  # rare: the walk only for messages that may hold one
-            body = fmt.to_json(fmt.drop_typed_nulls(data, self.schemas[topic]))
-        return body
-
-    def allowed(self, incoming: int) -> bool:
-        """False once the limits end the recording (``ended`` says why)."""
-        if self.ended is None and self.limits is not None:
-            self.ended = self.limits.reason(self.stream.tell(), incoming)
-        return self.ended is None
-
-    def telemetry(self, topic: str, msg: dict[str, Any], recv_ns: int) -> None:
-        seq = int(msg.get("seq") or 0)
-        data = msg.get("data")
-        ch = self._channel(topic, data)
-        body = self._json(topic, data)
-        if not self.allowed(len(body)):
-            return
-        if self._seq is not None and seq > self._seq + 1:
-            self.counts.missed += seq - self._seq - 1
-        self._seq = seq
-        self._write(topic, ch, body, int(msg.get("t_ns") or recv_ns), recv_ns)
-
-    def frame(self, header: dict[str, Any], pixels: bytes | memoryview, recv_ns: int) -> None:
-        hch = self._channel(fmt.FRAME_HEADER_TOPIC, header)
-        head = self._json(fmt.FRAME_HEADER_TOPIC, header)
-        if not self.allowed(len(head) + len(pixels) + 256):  # 256: the RawImage's own fields
-            return
-        self.note_frame_seen(int(header.get("seq") or 0))
-        self.kept_seq = self._frame_seq
-        t = int(header.get("host_time_ns") or recv_ns)
-        self._write(fmt.FRAME_HEADER_TOPIC, hch, head, t, recv_ns)
-        try:
-            image = fmt.raw_image(header, pixels)
-        except fmt.UnsupportedFrame:
-            self.counts.unsupported += 1
-            return
-        self._write(fmt.FRAME_TOPIC, self._channel(fmt.FRAME_TOPIC, None), image, t, recv_ns)
-        self.counts.frames += 1
-
-    def note_frame_seen(self, seq: int) -> None:
-        """A frame --frames skips: keeps the frame gap count honest."""
-        if self._frame_seq is not None and seq > self._frame_seq + 1:
-            self.counts.frames_missed += seq - self._frame_seq - 1
-        self._frame_seq = seq
-
-    def _write(self, topic: str, ch: int, data: bytes, log_ns: int, recv_ns: int) -> None:
-        # the MCAP sequence counts this channel's messages (1, 2, ...): a reader's gap check per
-        # channel finds none; the bus seq, one counter across topics, gave every channel false gaps
-        seq = self.sequences[ch] = self.sequences.get(ch, 0) + 1
-        self.writer.add_message(ch, log_time=log_ns, data=data, publish_time=recv_ns,
-                                sequence=seq % fmt.SEQ_MOD)
-        self.counts.messages += 1
-        topics = self.counts.topics
-        topics[topic] = topics.get(topic, 0) + 1
-
-    def finish(self, ended: str = "", error: str = "") -> None:
-        """The end record (how it ended, what was lost), then the summary; call once."""
-        self.finishing = True
-        if ended:
-            c = self.counts
-            self.writer.add_metadata(fmt.END_METADATA_NAME, {
-                "ended": ended, "error": error, "messages": str(c.messages), "frames": str(c.frames),
-                "frames_dropped": str(c.frames_missed), "telemetry_missed": str(c.missed),
-                "frames_unsupported": str(c.unsupported)})
-        self.writer.finish()  # type: ignore[no-untyped-call]  # mcap 1.6 leaves finish() unannotated
 
 
 def parse_frames(words: list[str] | None) -> int:
@@ -256,6 +135,38 @@ def _record_loop(subs: list[tuple[Subscriber, int]], rec: Recorder, a: argparse.
     return time.monotonic() - start
 
 
+def _give_way() -> None:
+    """Lower this thread's CPU priority to RECORD_NICE (Linux: a thread's own; never raised back,
+    which is why the recording has a thread of its own). Where that is refused it runs as it is."""
+    try:
+        me = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, me, max(RECORD_NICE, os.getpriority(os.PRIO_PROCESS, me)))
+    except (OSError, AttributeError):
+        pass
+
+
+def _at_low_priority(record: Callable[[], float]) -> float:
+    """``record()`` on a thread of its own that gives way to ritad and the live viewers; this thread
+    stays free for Ctrl-C, which sets the recording's stop (:func:`_stop_on_sigint`)."""
+    done: list[float] = []
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        _give_way()
+        try:
+            done.append(record())
+        except BaseException as exc:  # handed to the caller's thread, which finishes the file
+            failed.append(exc)
+
+    worker = threading.Thread(target=run, name="ritactl-record", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.2)
+    if failed:
+        raise failed[0]
+    return done[0]
+
+
 def _frames_hint(c: Client) -> str | None:
     try:
         return None if c.call("camera.status", timeout=5).get("streaming") else NO_FRAMES
@@ -263,10 +174,34 @@ def _frames_hint(c: Client) -> str | None:
         return f"no frames: the camera is not available ({exc.args[0]})"
 
 
+def sim_metadata(c: Client, hello: dict[str, Any]) -> dict[str, str]:
+    """What a recording of a simulator must say about its time: the fakes run their motions and
+    measurements faster than real ones (``time_scale`` wall seconds per simulated second, in each
+    simulated device's info); the log times stay the host's wall clock, nothing is rescaled."""
+    if not hello.get("sim"):
+        return {"sim": "false"}
+    try:
+        devices = c.call("status", timeout=5).get("devices") or {}
+    except CommandError as exc:
+        return {"sim": "true", "sim_time_scale": f"unknown ({exc.args[0]})"}
+    out = {"sim": "true"}
+    for kind in ("robot", "tracker"):
+        scale = ((devices.get(kind) or {}).get("info") or {}).get("time_scale")
+        if isinstance(scale, (int, float)) and scale > 0:
+            out[f"sim_time_scale_{kind}"] = f"{scale:g}"
+            out[f"sim_speedup_{kind}"] = f"{1 / scale:g}"
+    out["sim_note"] = ("simulated devices: log times are the host's wall clock, unscaled; the simulated "
+                       "robot's motions take sim_time_scale_robot of the time a real one would "
+                       "(sim_speedup_robot times faster), the tracker's measurements sim_time_scale_tracker")
+    return out
+
+
 def cmd_record(c: Client, a: argparse.Namespace) -> int:
     every = parse_frames(a.frames)
     if a.duration is not None and not 0 < a.duration < 1e7:
         raise CtlError(Exit.USAGE, "usage", f"--duration must be more than 0 seconds, got {a.duration:g}")
+    if every:
+        image_encoder(a.frames_format)  # a missing OpenCV is refused before anything is written
     out = check_out(Path(a.out), a.force)
     limits = Limits.from_options(out.parent, a.min_free, a.max_size)
     tmp = out.parent / f".{out.name}.partial"
@@ -278,16 +213,17 @@ def cmd_record(c: Client, a: argparse.Namespace) -> int:
     # auto: frames are nearly all of the bytes and compressing them halves the recorder's speed
     # (bench/bench_record.py); telemetry alone is small and shrinks to 40 % with zstd
     compression = ("none" if every else "zstd") if a.compression == "auto" else a.compression
-    meta = {"hello": json.dumps(c.hello(), default=str), "frames": f"every {every}" if every else "off",
+    hello = c.hello()
+    meta = {"hello": json.dumps(hello, default=str), "frames": f"every {every}" if every else "off",
             "compression": compression, "endpoint": c.endpoint, "min_free": str(limits.min_free),
-            "max_size": str(limits.max_size or "")}
+            "max_size": str(limits.max_size or ""), **sim_metadata(c, hello)}
     stop = threading.Event()
     rec: Recorder | None = None
     try:
         with open(tmp, "wb") as f, _stop_on_sigint(stop):
-            rec = Recorder(f, meta, compression, limits)
+            rec = Recorder(f, meta, compression, limits, a.frames_format)
             try:
-                seconds = _record_loop(subs, rec, a, out, stop)
+                seconds = _at_low_priority(partial(_record_loop, subs, rec, a, out, stop))
                 rec.finish(rec.ended or ("interrupted" if stop.is_set() else "duration"))
                 f.flush()
                 os.fsync(f.fileno())
@@ -379,6 +315,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--frames", nargs="+", metavar="every N|off", default=["off"],
                    help="record one camera frame in N ('every 1': all of them), or none (default: off)")
+    p.add_argument("--frames-format", choices=FRAME_FORMATS, default="raw",
+                   help="frames as Foxglove RawImage (raw: the pixels as they are, default), or "
+                        "CompressedImage jpeg (lossy, small) or png (lossless); jpeg and png need OpenCV")
     p.add_argument("--compression", choices=COMPRESSIONS, default="auto", help="MCAP chunk compression "
                    "(default auto: none when frames are recorded, else zstd)")
     p.add_argument("--max-size", metavar="SIZE", help="end the recording before the file passes SIZE (500M)")
@@ -388,5 +327,5 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(fn=cmd_record)
 
 
-__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "check_out", "cmd_record", "parse_frames",
+__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "sim_metadata", "check_out", "cmd_record", "parse_frames",
            "partial_name", "progress_line"]

@@ -2,13 +2,17 @@
 
 It binds the three bus endpoints a client expects (docs/protocol.md): a command socket that
 answers ``hello`` (which names the other two), ``ping``, ``state`` (the Clone snapshot, as of the
-replay's position) and ``status``/``health`` (the last ``daemon.health`` replayed); every other
+replay's position) and ``status`` (the last ``daemon.health`` replayed); every other
 command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not driven. Telemetry goes out on a PUB socket in the bus's own format
-(``[topic, msgpack {v, seq, t_ns, data}]`` with the recorded t_ns and the replay's own seq, one
-counter across topics as ritad's: the file's sequences count each channel's messages), frames on a
-frame socket. A null the recorder left out of a message (its schema has a type for the field:
-mcapfile.drop_typed_nulls) is put back. Messages keep the file's order; pacing follows their log
-times divided by ``--speed``.
+(``[topic, msgpack {v, seq, t_ns, data}]`` with the message's log time, its sample's time, as t_ns,
+and the replay's own seq, one counter across topics as ritad's: the file's sequences count each
+channel's messages), frames on a frame socket. Channels are named ``/robot/state`` for the bus's
+``robot.state`` (mcapfile.mcap_topic; an older recording's ``robot.state`` is read as it is). A null
+the recorder left out of a message (its schema has a type for the field: mcapfile.drop_typed_nulls)
+is put back; the journal's foxglove.Log becomes a ``log`` record again; a CompressedImage frame is
+decoded (with OpenCV; skipped without it); the channels derived for Foxglove (poses) are not
+replayed, their sources are. Messages keep the file's order; pacing follows their log times
+divided by ``--speed``.
 
 Only 127.0.0.1 and ipc endpoints are accepted: a replay is for this computer.
 """
@@ -31,11 +35,12 @@ import zmq
 from daemon import __version__
 from daemon.bus.protocol import SCHEMA_VERSION, ErrorCode, ProtocolError, error_reply, ok_reply, pack, parse_request, \
     telemetry
+from daemon.ctl import foxglove as fox
 from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
 
 _LOCAL_TCP = re.compile(r"^tcp://(127\.0\.0\.1|localhost):(\d{1,5}|\*)$")
-ANSWERED = ("hello", "ping", "state", "status", "health")
+ANSWERED = ("hello", "ping", "state", "status")
 
 
 def default_endpoint() -> str:
@@ -179,8 +184,9 @@ class ReplayServer:
             s.close()
 
 
-def messages(f: IO[bytes]) -> Iterator[tuple[str, str, bytes, int, bytes]]:
-    """``(topic, message encoding, schema data, log_time, data)`` in the file's order (the order received)."""
+def messages(f: IO[bytes]) -> Iterator[tuple[str, str, str, bytes, int, bytes]]:
+    """``(channel, message encoding, schema name, schema data, log_time, data)`` in the file's order
+    (the order received)."""
     try:
         from mcap.exceptions import McapError
         from mcap.reader import make_reader
@@ -189,20 +195,41 @@ def messages(f: IO[bytes]) -> Iterator[tuple[str, str, bytes, int, bytes]]:
                                                           f"installed): pip install --upgrade rita") from None
     try:
         for schema, channel, m in make_reader(f).iter_messages(log_time_order=False):
-            yield channel.topic, channel.message_encoding, schema.data if schema else b"", m.log_time, m.data
+            yield (channel.topic, channel.message_encoding, schema.name if schema else "",
+                   schema.data if schema else b"", m.log_time, m.data)
     except (McapError, OSError, ValueError, struct.error) as exc:  # a truncated file fails its seeks too
         raise bad_input(f"{getattr(f, 'name', 'the file')} is not a readable MCAP recording: {exc}") from None
 
 
-def _decoded(topic: str, encoding: str, data: bytes, schema: dict[str, Any]) -> Any:
-    """A message's content, or None for one not in ritad's layout (another tool's channel, bad JSON)."""
+#: channels the recorder derives from others for Foxglove: a replay has their source already
+DERIVED = (fox.ROBOT_POSE_TOPIC, fox.TRACKER_POSE_TOPIC)
+
+
+def _image(schema_name: str, data: bytes) -> memoryview | None:
+    """A frame's pixels from its RawImage, or its CompressedImage decoded (OpenCV; None without it)."""
+    if schema_name != fmt.COMPRESSED_IMAGE_SCHEMA:
+        return fmt.pixels_of(data)
+    try:
+        import cv2
+        import numpy as np
+    except ImportError:
+        return None
+    image = cv2.imdecode(np.frombuffer(fmt.compressed_data(data), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    return None if image is None else memoryview(np.ascontiguousarray(image).tobytes())
+
+
+def _decoded(topic: str, encoding: str, schema_name: str, data: bytes, schema: dict[str, Any]) -> Any:
+    """A message's content, or None for one not in ritad's layout (another tool's channel, bad JSON):
+    a frame's pixels, or the bus message's ``data`` (a foxglove.Log turned back into a ``log`` record)."""
     if topic == fmt.FRAME_TOPIC:
-        return data if encoding == "cdr" else None
+        return _image(schema_name, data) if encoding == "cdr" else None
     if encoding != "json":
         return None
     try:
+        if schema_name == "foxglove." + fox.LOG_SCHEMA:
+            return fox.log_record(json.loads(data))
         return fmt.restore_nulls(json.loads(data), schema)
-    except ValueError:
+    except (ValueError, TypeError):
         return None
 
 
@@ -224,14 +251,18 @@ def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, 
     due = 0.0
     header: dict[str, Any] | None = None
     schemas: dict[bytes, dict[str, Any]] = {}
-    for topic, encoding, schema, log_ns, data in messages(f):
+    for channel, encoding, schema_name, schema, log_ns, data in messages(f):
+        if channel in DERIVED:
+            continue
+        topic = fmt.bus_topic(channel)
         first = log_ns if first is None else first
         if speed is not None:
             due = max(due, (log_ns - first) / 1e9 / speed)
             server.serve(max(0.0, start + due - time.monotonic()))
         elif n % 256 == 0:
             server.serve(0)
-        content = _decoded(topic, encoding, data, _schema(schemas, schema) if encoding == "json" else {})
+        content = _decoded(topic, encoding, schema_name, data,
+                           _schema(schemas, schema) if encoding == "json" else {})
         if content is None:
             skipped += 1
             continue
@@ -239,7 +270,7 @@ def play(server: ReplayServer, f: IO[bytes], speed: float | None) -> tuple[int, 
             header = content
         elif topic == fmt.FRAME_TOPIC:
             if header is not None:
-                server.publish_frame(header, fmt.pixels_of(data))
+                server.publish_frame(header, content)
             header = None
         else:
             server.publish(topic, server.seq + 1, log_ns, content)
@@ -313,5 +344,5 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(fn=cmd_replay, offline=True)
 
 
-__all__ = ["ANSWERED", "ReplayServer", "add_parser", "cmd_replay", "default_endpoint", "endpoints", "messages",
+__all__ = ["ANSWERED", "DERIVED", "ReplayServer", "add_parser", "cmd_replay", "default_endpoint", "endpoints", "messages",
            "play"]

@@ -10,7 +10,6 @@ procedure and kind choices); the job id's syntax and the job states are checked 
 """
 from __future__ import annotations
 
-import builtins
 import collections
 import json
 import logging
@@ -229,11 +228,11 @@ class CalibJobs:
         self._inboxes[job["job"]].put({"cancel": True})
         return {"cancel_requested": True, "state": job["state"]}
 
-    def list(self, req: Request) -> Any:
+    def list_jobs(self, req: Request) -> Any:
         return {"jobs": list(self.jobs.values()), "queued": len(self._queue),
                 "worker_seen_s_ago": self.worker_age(), "latch": self.latch.snapshot()}
 
-    def stop_moving_jobs(self, by: str) -> builtins.list[str]:  # builtins: the method list() shadows it here
+    def stop_moving_jobs(self, by: str) -> list[str]:
         """A robot STOP: every active job that drives becomes ``stopped`` now; their ids."""
         out = []
         for job in self.jobs.values():
@@ -306,5 +305,5 @@ class CalibJobs:
 
     def handlers(self) -> dict[str, Callable[[Request], Any]]:
         return {"calib.start": self.start, "calib.resume": self.resume, "calib.answer": self.answer,
-                "calib.cancel": self.cancel, "calib.jobs": self.list, "calib.next": self.next,
+                "calib.cancel": self.cancel, "calib.jobs": self.list_jobs, "calib.next": self.next,
                 "calib.inbox": self.inbox, "calib.report": self.report}

@@ -44,7 +44,7 @@ def _then(fut_of: Callable[[], Any], result: Any) -> Handler:
 def _daemon(s: Services) -> dict[str, Handler]:
     return {"ping": lambda req: {"pong": True, "t_ns": time.time_ns()},
             "help": lambda req: {"commands": {c.name: help_entry(c) for c in COMMANDS.values()}},
-            "hello": lambda req: s.hello(), "status": lambda req: s.health(), "health": lambda req: s.health(),
+            "hello": lambda req: s.hello(), "status": lambda req: s.health(),
             "state": lambda req: s.state(), "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
             "calib.results": lambda req: read_results(s.data_dir)}
 

@@ -1,8 +1,8 @@
 """``camera.detect``: the plate target's corners or a floor mark in the newest frame, on demand.
 
-A live view that detects continuously costs the robot seconds of CPU per picture
-(OpenCV's own ArUco search over DICT_5X5_1000 took 3–6 s on a 500×375 view), so the
-console asks only when the operator presses "Detect" (or at most every few seconds).
+A live view that detects continuously costs the robot much CPU per picture (docs/operations.md,
+"Operator console"), so the console asks only when the operator presses "Detect" (or at most
+every few seconds).
 The product's own detectors run: ``calibration.target.detect_corners`` (its fast marker
 path) with a plate definition file from the data dir, or ``calibration.marks.locate_mark``.
 One detection runs at a time, on a thread of its own (never the bus or a device thread);

@@ -58,7 +58,7 @@ class Timelines:
             payload = robot_clock.observe_robot(topic, payload)
         try:
             if topic == Topic.TRACKER_POINT:
-                self._tracker(payload)
+                payload = self._tracker(payload)
             elif topic == Topic.ROBOT_STATE:
                 self._robot(payload)
             elif topic in (Topic.ROBOT_ODOMETRY, Topic.ROBOT_INCL):
@@ -71,18 +71,21 @@ class Timelines:
             self._arrived.notify_all()
         return payload
 
-    def _tracker(self, p: dict[str, Any]) -> None:
+    def _tracker(self, p: dict[str, Any]) -> dict[str, Any]:
+        """Feeds the clock map and the stream; the packet comes back with each record's host-timeline
+        ``t_ns`` and ``t_sigma_ns`` (as the base's samples), unchanged without a device clock."""
         clock = self._clock_of("tracker")
         if clock is None:
-            return
+            return p
         clock.observe_tracker_packet(p)  # the map first: this packet's records are mapped with it
         timed = clock.map_packet(p)
         if timed is None:  # records without a device clock cannot be put on the timeline
-            return
+            return p
         status = p.get("status") or [0] * int(p["n"])
         for (t, sigma), x, y, z, st in zip(timed, p["x"], p["y"], p["z"], status):
             if st == 0:
                 self.streams["tracker"].add(t, (x, y, z), sigma)
+        return {**p, "t_ns": [t for t, _ in timed], "t_sigma_ns": [s for _, s in timed]}
 
     def _robot(self, p: dict[str, Any]) -> None:
         if "t_ns" in p:

@@ -3,7 +3,3 @@
 It measures over the bus and stores datasets; ``daemon.compute`` turns the stored
 observations into results, both live and for ``ritactl recompute`` on a laptop.
 """
-
-from daemon.face import lazy_face  # noqa: E402
-
-__all__, __getattr__ = lazy_face(__name__, {"main": "__main__"})

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from calibration import compensation
 from calibration.bend_fit import bend_fit
 from calibration.compensation import (Compensation, Stop, apply_bias, compensate, fit_heading, ground_chord,
                                       ground_point, imu_offset_deg, reflector_height_mm, tilt_of_pose)
@@ -28,6 +29,41 @@ def test_parse_names_and_refusal():
     assert Compensation.parse("bias, tilt").names() == ["tilt", "bias"]
     with pytest.raises(ValueError, match="'tlit'"):
         Compensation.parse(["tlit"])
+
+
+def test_a_registered_compensation_runs_after_the_built_in_ones(monkeypatch):
+    """The seam docs/architecture.md's "Add a compensation" uses: named, parsed, run after the built-in
+    ones (it sees what they applied), its input read from the calibration document, skipped with a reason."""
+    seen = []
+
+    def trim(out, stop, calibration):
+        seen.append(list(out.applied))
+        if calibration.get("yaw_trim_deg") is None:
+            out.skipped["trim"] = "the calibration holds no yaw trim"
+            return
+        out.applied.append("trim")
+
+    monkeypatch.setattr(compensation, "STEPS", {})
+    compensation.register("trim")(trim)
+    assert Compensation.parse("all").names() == [*compensation.BUILT_IN, "trim"]
+    comp = Compensation.parse("trim, bias")
+    assert comp.names() == ["bias", "trim"]
+    stop = Stop(np.array([0.0, 0.0, H_MM]), np.array([200.0, 0.0, H_MM]))
+    a = compensate(comp, stop, ROB_H_SCN, bias_b_mm=[0.01, 0.0], calibration={"yaw_trim_deg": 0.1})
+    assert a.applied == ["bias", "trim"] and seen == [["bias"]]
+    assert compensate(comp, stop, ROB_H_SCN).skipped["trim"] == "the calibration holds no yaw trim"
+    assert "trim" not in compensate(Compensation.parse("bias"), stop, ROB_H_SCN).skipped
+    with pytest.raises(ValueError, match="'tilt' is registered twice"):
+        compensation.register("tilt")(trim)
+
+
+def test_the_bus_lists_the_same_compensations():
+    """``ritactl validate`` checks names without this package (common.schema.json): the same, in order."""
+    import json
+
+    from daemon.bus.datasets import schema_text
+
+    assert json.loads(schema_text("common"))["$defs"]["compensation"]["enum"] == list(compensation.names_known())
 
 
 def test_tilt_of_pose_round_trip_and_offset():

@@ -90,7 +90,7 @@ def test_keyring_rescans_for_a_file_edited_in_place(tmp_path):
 
 def test_fixed_facts_of_the_table():
     """The acceptance cases, spelled out (the fuzz below checks the rule itself)."""
-    for cmd in ("status", "health", "state", "ping", "hello", "help", "calib.results", "calib.jobs",
+    for cmd in ("status", "state", "ping", "hello", "help", "calib.results", "calib.jobs",
                 "files.list", "files.read", "robot.status", "camera.status", "robot.stop"):
         assert roles.may("viewer", cmd), cmd  # stopping is never forbidden
     for cmd in ("robot.move", "robot.turn", "robot.release", "calib.start", "calib.resume", "capture",

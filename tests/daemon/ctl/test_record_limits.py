@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import re
 import shutil
+import time
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -24,20 +25,22 @@ from daemon.ctl.reclimits import PROBE_BYTES, RESERVE, Limits, parse_size
 from daemon.ctl.record import Recorder
 from daemon.ritad.main import Daemon
 from tests.ritad_up import ritad_in_process
+from tools.harness.load import hang_s
 
 #: the simulated camera at its top rate: tiny prerendered frames, asked for far faster than written
 FAST_CAMERA = "sim:?size=64x48&noise=0&prerender=4&fps=1000"
 
 
 def _end_record(path: Path) -> dict[str, str]:
+    """The end metadata of a finished file, checked against what the file holds."""
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
-        n = sum(1 for _ in reader.iter_messages(log_time_order=False))
-        assert summary.statistics.message_count == n
+        topics = [ch.topic for _, ch, _ in reader.iter_messages(log_time_order=False)]
+        assert summary.statistics.message_count == len(topics)
         end = {m.name: m.metadata for m in reader.iter_metadata()}[fmt.END_METADATA_NAME]
-    assert end["messages"] == str(n)
+    assert end["messages"] == str(len(topics)) and end["frames"] == str(topics.count(fmt.FRAME_CHANNEL))
     return end
 
 
@@ -110,14 +113,15 @@ def test_duration_ends_a_recording_at_the_cameras_top_rate_and_counts_the_drops(
     write = Recorder.frame
 
     def slow_disk(self: Recorder, header: dict[str, Any], pixels: Any, recv_ns: int) -> None:
-        import time
         time.sleep(0.02)  # a writer slower than the camera, whatever this machine's speed
         write(self, header, pixels, recv_ns)
 
     monkeypatch.setattr(Recorder, "frame", slow_disk)
     out = tmp_path / "fast.mcap"
+    start = time.monotonic()
     assert ctl.main(["--endpoint", ep, "record", "--out", str(out), "--frames", "every", "1",
                      "--duration", "3"]) == Exit.OK
+    assert time.monotonic() - start < hang_s(5)  # ended: 5 s on a quiet machine, more under load
     line = capsys.readouterr().out
     end = _end_record(out)
     assert end["ended"] == "duration" and int(end["frames"]) >= 1
@@ -148,3 +152,38 @@ def test_max_size_ends_the_recording_before_the_file_passes_it(fast, tmp_path: P
                      "--duration", "60", "--max-size", "5M", "--compression", "none"]) == Exit.OK
     assert "--max-size 5.0 MB" in capsys.readouterr().err
     assert _end_record(out)["ended"] == "max_size" and out.stat().st_size <= 5_000_000
+
+
+def test_the_recording_thread_gives_way_and_no_other_thread_does() -> None:
+    import os
+    import threading
+
+    from daemon.ctl.record import RECORD_NICE, _at_low_priority
+
+    def nice_here() -> float:
+        return float(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+
+    before = nice_here()
+    assert _at_low_priority(nice_here) >= min(RECORD_NICE, 19)  # the recording's own thread
+    assert nice_here() == before  # the caller's (in ritad's tests: the daemon's) is untouched
+
+
+def test_frames_as_png_from_the_cli_and_a_clear_error_without_opencv(fast, tmp_path: Path, monkeypatch,
+                                                                      capsys) -> None:
+    import sys
+
+    _, _, ep = fast
+    out = tmp_path / "png.mcap"
+    assert ctl.main(["--endpoint", ep, "record", "--out", str(out), "--frames", "every", "1",
+                     "--frames-format", "png", "--duration", "1"]) == Exit.OK
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    images = {summary.schemas[c.schema_id].name for c in summary.channels.values()
+              if c.topic == fmt.FRAME_CHANNEL}
+    assert images == {fmt.COMPRESSED_IMAGE_SCHEMA} and int(_end_record(out)["frames"]) >= 1
+    monkeypatch.setitem(sys.modules, "cv2", None)  # an install without OpenCV
+    capsys.readouterr()
+    assert ctl.main(["--endpoint", ep, "record", "--out", str(tmp_path / "no.mcap"), "--frames", "every", "1",
+                     "--frames-format", "jpeg", "--duration", "1"]) == Exit.BAD_INPUT
+    assert "--frames-format jpeg needs OpenCV" in capsys.readouterr().err and not list(tmp_path.glob("*no*"))

@@ -69,7 +69,8 @@ def test_recording_during_a_procedure_has_every_record_frames_and_the_motions(tm
     with open(out, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
-        msgs = [(ch.topic, sch, m) for sch, ch, m in reader.iter_messages(log_time_order=False)]
+        msgs = [(fmt.bus_topic(ch.topic), sch, m)
+                for sch, ch, m in reader.iter_messages(log_time_order=False)]
         assert summary is not None and summary.statistics is not None
         assert summary.statistics.message_count == len(msgs)
         ended = {md.name: md.metadata for md in reader.iter_metadata()}[fmt.END_METADATA_NAME]

@@ -16,7 +16,7 @@ from tests.ritad_up import ritad_in_process
 
 #: what one open console page sends (daemon/console/bridge.py, static/console.js, procedures.js)
 #: and the picture and file-chunk requests of the live view, the forms and ritactl fetch
-POLLS = ("state", "status", "health", "tracker.status", "camera.status", "robot.status", "calib.jobs",
+POLLS = ("state", "status", "tracker.status", "camera.status", "robot.status", "calib.jobs",
          "calib.results", "data.dir", "camera.preview", "files.list", "files.read", "files.hash")
 
 

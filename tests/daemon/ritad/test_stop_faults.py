@@ -59,7 +59,7 @@ def test_f1_stop_while_the_link_is_down_halts_the_base_when_it_is_back(rig: Rig)
         x_self = rig.halted(timeout=5)
         assert x_self - x_cut <= WATCHDOG_MM, f"drove {x_self - x_cut:.1f} mm after the link dropped"
         assert rig.base.fault == rp.FAULT_HOST_LOST
-    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] != "READY", 10, "ritad sees the loss",
+    wait_for(lambda: c.call("status")["devices"]["robot"]["state"] != "READY", 10, "ritad sees the loss",
              0.05)
     time.sleep(max(0.0, t_cut + 2.5 - time.monotonic()))  # the tester's 2.5 s outage (not a limit)
     reply = _stop(c)
@@ -94,7 +94,7 @@ def test_stop_while_ritad_reconnects(rig: Rig) -> None:
     c = rig.client()
     rig.move(c)
     rig.proxy.cut()
-    wait_for(lambda: c.call("health")["devices"]["robot"]["state"] in ("CONNECTING", "FAULT"), 10,
+    wait_for(lambda: c.call("status")["devices"]["robot"]["state"] in ("CONNECTING", "FAULT"), 10,
              "ritad reconnecting", 0.05)
     _stop(c)
     x_back = rig.x()
