@@ -193,8 +193,8 @@ def table(checks: list[Check]) -> str:
         return text.replace("\n", " ").replace("|", "\\|")
 
     rows = ["| device | check | verdict | measured | detail |", "|---|---|---|---|---|"]
-    rows += [f"| {c['device']} | {c['name']} | {c['verdict'].upper()} | {cell(c['value'])} | {cell(c['detail'])} |"
-             for c in checks]
+    rows += [f"| {c['device']} | {c['name']} | {c['verdict'].upper()} | {cell(c['value'])} | "
+             f"{cell(c['detail'])} |" for c in checks]
     return "\n".join(rows) + "\n"
 
 
