@@ -69,6 +69,8 @@ def run_on_port(robot: Robot, allow_motion: bool, clock_s: float) -> dict[str, A
     if not isinstance(robot, SerialRobot):
         raise DeviceError(f"{type(robot).__name__} is no serial base: the kit cannot check it",
                           code="not_supported")
+    if robot.status().state == "MOVING":  # the kit's first line is a STOP: it would cut a motion short
+        raise DeviceError("the base is moving: run the base's checks when it stands", code="robot_busy")
     target = robot.port_target()
     robot.close()
     try:
