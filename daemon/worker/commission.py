@@ -124,7 +124,7 @@ def base_obs(ctx: JobContext) -> dict[str, Any]:
 
 
 #: what each device's step waits for, as the progress line says it
-WAITING = {"tracker": "the tracker's stream ({s:g} s)", "camera": "the camera's frames ({s:g} s) and 5 captures",
+WAITING = {"tracker": "the tracker's stream ({s:g} s)", "camera": "the camera's frames ({s:g} s), 5 captures",
            "base": "the base's checks on its port (its clock {s:g} s)"}
 OBSERVE: dict[str, Callable[[JobContext], dict[str, Any]]] = {
     "tracker": tracker_obs, "camera": camera_obs, "base": base_obs}
@@ -138,7 +138,8 @@ def run_commission(ctx: JobContext) -> None:
     for i, name in enumerate(wanted):
         if ctx.done(name):
             continue
-        ctx.progress(f"check the {name}", 5 + 85 * i / len(wanted), WAITING[name].format(s=ctx.params.duration_s))
+        waiting = WAITING[name].format(s=ctx.params.duration_s)
+        ctx.progress(f"check the {name}", 5 + 85 * i / len(wanted), waiting)
         health = ctx.call("status")["devices"].get(RITAD_NAME[name], {})
         obs: dict[str, Any] = {"state": health.get("state"), "reason": health.get("reason", ""),
                                "info": health.get("info") or {}}

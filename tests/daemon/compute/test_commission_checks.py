@@ -17,8 +17,8 @@ T0_US, HOST0_NS = 1_000_000, 1_795_000_000_000_000_000
 def packets(seconds: float, rate: float = 10.0, record_hz: float = 1000.0, seed: int = 1,
             latency_s: Callable[[np.random.Generator], float] = lambda r: r.exponential(0.0005),
             tick_us: float = 1.0) -> list[dict[str, Any]]:
-    """A stream of ``seconds``: packets at ``rate`` of records at ``record_hz``, each packet arriving after its
-    last record plus a random latency (seeded). ``tick_us``: the device's record-time unit, in µs."""
+    """A stream of ``seconds``: packets at ``rate`` of records at ``record_hz``, each packet arriving after
+    its last record plus a random latency (seeded). ``tick_us``: the device's record-time unit, in µs."""
     rng, out = np.random.default_rng(seed), []
     step = int(1e6 / record_hz)
     for k in range(int(seconds * rate)):
@@ -39,7 +39,8 @@ def test_clock_sigma_is_judged_over_a_full_window_only() -> None:
     assert good["verdict"] == "pass" and "p99" in good["value"], good
     short = clock_sigma({"packets": packets(10), "duration_s": 10.0})
     assert short["verdict"] == "skip" and "--duration-s 60" in short["detail"], short
-    jittery = clock_sigma({"packets": packets(60, latency_s=lambda r: r.uniform(0, 0.05)), "duration_s": 60.0})
+    noisy = packets(60, latency_s=lambda r: r.uniform(0, 0.05))
+    jittery = clock_sigma({"packets": noisy, "duration_s": 60.0})
     assert jittery["verdict"] == "warn", jittery  # 0-50 ms of arrival jitter: σ of ms
 
 
@@ -71,11 +72,12 @@ def test_camera_checks_name_what_breaks_them() -> None:
     assert mirrored["verdict"] == "fail" and "ReverseX on" in mirrored["value"], mirrored
     lost = resends({"status_before": _status(), "duration_s": 60, "status_after": _status(
         frames=540, link={**_status()["link"], "lost_frames": 3})})
-    assert lost["verdict"] == "fail" and "540 frames in 60 s" in lost["value"] and "3 lost_frames" in lost["value"]
+    assert lost["verdict"] == "fail" and "540 frames in 60 s" in lost["value"], lost
+    assert "3 lost_frames" in lost["value"], lost
 
 
 def _captures(stamp_after_call_us: float, tick: float = 1.0) -> list[dict[str, Any]]:
-    """Five captures 0.25 s apart whose PTP stamps lie ``stamp_after_call_us`` after the call; 2 ms exposure."""
+    """Five captures 0.25 s apart, PTP stamps ``stamp_after_call_us`` after the call; 2 ms exposure."""
     out = []
     for k in range(5):
         call = HOST0_NS + int(k * 0.25e9)
@@ -97,8 +99,10 @@ def test_the_timestamp_latch_and_unit_from_timed_captures() -> None:
 
 @pytest.mark.parametrize("verdicts, overall", [(("pass", "skip"), "ok"), (("pass", "warn", "skip"), "warn"),
                                                (("warn", "fail"), "fail")])
-def test_the_verdict_is_the_worst_check_and_skips_do_not_count(verdicts: tuple[str, ...], overall: str) -> None:
-    checks = [{"name": f"c{i}", "verdict": v, "value": f"v{i} | bar", "detail": ""} for i, v in enumerate(verdicts)]
+def test_the_verdict_is_the_worst_check_and_skips_do_not_count(verdicts: tuple[str, ...],
+                                                                overall: str) -> None:
+    checks = [{"name": f"c{i}", "verdict": v, "value": f"v{i} | bar", "detail": ""}
+              for i, v in enumerate(verdicts)]
     result = compute_commission({"devices": ["base"], "base": {"state": "READY", "checks": checks}})
     assert result["verdict"] == overall
     assert len(result["messages"]) == sum(v in ("warn", "fail") for v in verdicts)
