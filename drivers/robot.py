@@ -32,7 +32,8 @@ from drivers import robot_protocol as rp
 from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot
 from drivers.base import RobotState, no_emit
 from drivers.motion_gate import MotionGate
-from drivers.robot_line import READ_SLICE_S, RobotLine
+from drivers.robot_line import READ_SLICE_S, NoReply, RobotLine
+from drivers.robot_port import open_error, open_port
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,7 @@ class SerialRobot(RobotLine, Robot):
 
     #: options this adapter reads itself (removed before pyserial sees the URL)
     OPTIONS = frozenset({"baudrate", "timeout", "retries", "state_hz", "protocol", "stream_hz",
-                         "host_timeout"})
+                         "host_timeout", "dtr", "rts", "boot"})
     #: pyserial's own URL options per scheme (pyserial/urlhandler), passed on to it as given
     PYSERIAL_OPTIONS: dict[str, frozenset[str]] = {
         "socket": frozenset({"logging"}), "loop": frozenset({"logging"}),
@@ -70,6 +71,9 @@ class SerialRobot(RobotLine, Robot):
         self.protocol: int = url.option("protocol", rp.PROTOCOL_VERSION, int)
         self.stream_hz: float = url.option("stream_hz", DEFAULT_STREAM_HZ, float)
         self.host_timeout: float = url.option("host_timeout", rp.DEFAULT_HOST_TIMEOUT_MS / 1000.0, float)
+        self.dtr: int = url.option("dtr", 0, int)  # held low: an Arduino-class base resets on DTR
+        self.rts: int = url.option("rts", 0, int)
+        self.boot_s: float = url.option("boot", rp.BOOT_S, float)  # HELLO retried this long after open
         for name, value, ok in (("baudrate", self.baudrate, self.baudrate > 0),
                                 ("timeout", self.reply_timeout, self.reply_timeout > 0),
                                 ("retries", self.retries, 0 <= self.retries <= 20),
@@ -77,7 +81,9 @@ class SerialRobot(RobotLine, Robot):
                                 ("protocol", self.protocol, self.protocol in rp.PROTOCOL_VERSIONS),
                                 ("stream_hz", self.stream_hz, rp.state_rate_error(self.stream_hz) is None),
                                 ("host_timeout", self.host_timeout,  # kept alive at a third of it
-                                 MIN_HOST_TIMEOUT_S <= self.host_timeout <= rp.MAX_HOST_TIMEOUT_MS / 1000)):
+                                 MIN_HOST_TIMEOUT_S <= self.host_timeout <= rp.MAX_HOST_TIMEOUT_MS / 1000),
+                                ("dtr", self.dtr, self.dtr in (0, 1)), ("rts", self.rts, self.rts in (0, 1)),
+                                ("boot", self.boot_s, 0 <= self.boot_s <= 60)):
             if not ok:
                 raise ValueError(f"robot URL {url.raw!r}: option {name}={value!r} is out of range")
         if url.scheme == "serial" and not url.path:
@@ -90,6 +96,8 @@ class SerialRobot(RobotLine, Robot):
         self._last_state: RobotState | None = None
         self._last_state_emit = 0.0
         self._version: dict[str, Any] = {}
+        self._opened_at = 0.0
+        self._last_t_us = -1  # the base's clock at its last STATUS: a step back means it restarted
 
     # ------------------------------------------------------------------ connection
 
@@ -109,12 +117,14 @@ class SerialRobot(RobotLine, Robot):
         self._version = {}
         target = self._target = self.port_target()
         try:
-            self._port = serial.serial_for_url(target, baudrate=self.baudrate, timeout=READ_SLICE_S,
-                                               write_timeout=self.reply_timeout)
+            self._port = open_port(target, self.url.scheme, baudrate=self.baudrate, timeout=READ_SLICE_S,
+                                   write_timeout=self.reply_timeout, dtr=bool(self.dtr), rts=bool(self.rts))
             self._port.reset_input_buffer()
         except (serial.SerialException, OSError) as exc:
             self._port = None
-            raise DeviceLost(f"cannot open robot port {target!r}: {exc}") from exc
+            raise DeviceLost(open_error(target, exc)) from exc
+        self._opened_at = time.monotonic()
+        self._last_t_us = -1
         self._splitter.clear()
         self._batcher.clear()
         self._streaming = False
@@ -154,7 +164,7 @@ class SerialRobot(RobotLine, Robot):
         for protocol in range(self.protocol, 0, -1):
             extra = (rp.num(self.host_timeout * 1000.0, 0),) if protocol >= 3 else ()
             try:
-                reply = self._transact("HELLO", protocol, *extra, expect="VERSION")
+                reply = self._first_reply(protocol, *extra)
                 break
             except DeviceError as exc:
                 if exc.code != "robot_version" or protocol == 1:
@@ -179,6 +189,17 @@ class SerialRobot(RobotLine, Robot):
             self._version["host_timeout_ms"] = None
             log.warning("%s (protocol %s, %s)", NO_WATCHDOG, self._version["protocol"],
                         self._version["model"])
+
+    def _first_reply(self, protocol: int, *extra: object) -> rp.Message:
+        """HELLO's VERSION; a base that says nothing is asked again until the boot window after the open is
+        over (a base reset by the open, or powered on with the host, is silent while it boots)."""
+        while True:
+            try:
+                return self._transact("HELLO", protocol, *extra, expect="VERSION")
+            except NoReply:
+                if self._port is None or time.monotonic() - self._opened_at >= self.boot_s:
+                    raise
+                self.counters["boot_waits"] += 1
 
     def _keepalive_period(self) -> float | None:
         watchdog = self._watchdog_s
@@ -262,6 +283,7 @@ class SerialRobot(RobotLine, Robot):
                                t_us=rp.device_us(reply, 9) if self._clock and len(reply.fields) > 9 else None)
         except rp.ProtocolError as exc:
             raise DeviceError(f"robot base sent a malformed STATUS: {exc}", code="robot_protocol") from exc
+        self._check_session(state, reply.fields)
         if state.state not in ("IDLE", "MOVING", "FAULT"):
             raise DeviceError(f"robot base reports unknown state {state.state!r}", code="robot_protocol")
         if state.state != "MOVING" and self._moving_seq is not None:
@@ -272,6 +294,17 @@ class SerialRobot(RobotLine, Robot):
             self._last_state_emit = now
             self.emit("robot.state", state.to_dict())
         return state
+
+    def _check_session(self, state: RobotState, fields: tuple[str, ...]) -> None:
+        """A base that restarted (power, brown-out, a reset line) forgot the session: its STATUS is a
+        version-1 one (no ``t_us``) in a session with CLOCK, or its clock went back. Then the session is
+        over: DeviceLost, and the reconnect shakes hands again (streams, host watchdog)."""
+        if self._clock and state.t_us is None and len(fields) == rp.STATUS_V1_FIELDS or \
+                state.t_us is not None and state.t_us < self._last_t_us:
+            self._version = {}
+            raise DeviceLost(f"robot base restarted (STATUS t_us {state.t_us} after {self._last_t_us}): "
+                             "its session is gone; reconnecting")
+        self._last_t_us = -1 if state.t_us is None else state.t_us
 
     def _recover_event(self, state: RobotState) -> None:
         """The motion is over but its DONE/FAULT never arrived (lost on the line, or

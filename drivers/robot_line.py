@@ -27,7 +27,11 @@ READ_SLICE_S = 0.02
 HALT_RESEND_S = 0.05
 
 COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
-                 "retries", "naks", "events", "recovered_events", "overflows", "halts")
+                 "retries", "naks", "events", "recovered_events", "overflows", "halts", "boot_waits")
+
+
+class NoReply(DeviceLost):
+    """A command's every try went unanswered (the port itself is fine: a silent or booting base)."""
 
 
 @dataclass
@@ -167,7 +171,7 @@ class RobotLine:
                         for rest in got[i + 1:]:  # read in the same chunk after our reply: strays, counted
                             self._count_stray(rest)
                         return msg
-        raise DeviceLost(f"robot base did not answer {kind} (seq {seq}) in "
+        raise NoReply(f"robot base did not answer {kind} (seq {seq}) in "
                          f"{self.retries + 1} tries of {self.reply_timeout:.3g} s")
 
     def _write(self, line: bytes) -> None:
@@ -217,12 +221,35 @@ class RobotLine:
             return None
         try:
             msg = rp.decode(raw)
-            if msg.kind in rp.REPLIES or msg.kind in rp.EVENTS:
-                msg.seq()  # validate early so callers can rely on it
-            return msg
         except rp.ProtocolError as exc:
+            if (framed := self._after_noise(raw, exc)) is not None:
+                return framed
             self.counters[{"checksum": "bad_checksum", "garbage": "garbage"}.get(exc.kind, "syntax")] += 1
             return None
+        return self._checked(msg)
+
+    def _after_noise(self, raw: bytes, exc: rp.ProtocolError) -> rp.Message | None:
+        """A valid frame after noise on one line (a boot banner's prompt without a line end, bootloader
+        bytes): the noise counted as garbage, the frame read. None when there is none (one count then)."""
+        start = raw.rfind(b"$")
+        if exc.kind != "garbage" or start <= 0:
+            return None
+        try:
+            msg = rp.decode(raw[start:])
+        except rp.ProtocolError:
+            return None
+        self.counters["garbage"] += 1
+        return self._checked(msg)
+
+    def _checked(self, msg: rp.Message) -> rp.Message | None:
+        """``msg``, its seq validated early for a reply or event, so that callers can rely on it."""
+        try:
+            if msg.kind in rp.REPLIES or msg.kind in rp.EVENTS:
+                msg.seq()
+        except rp.ProtocolError:
+            self.counters["syntax"] += 1
+            return None
+        return msg
 
     def _dispatch_event(self, msg: rp.Message, rx_ns: int) -> rp.Message | None:
         """Publish DONE/FAULT events and batch samples; returns the message back when it is neither."""

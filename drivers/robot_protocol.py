@@ -44,10 +44,31 @@ DEFAULT_HOST_TIMEOUT_MS = 300
 MIN_HOST_TIMEOUT_MS, MAX_HOST_TIMEOUT_MS = 50, 5000
 #: the FAULT reason of a motion the host watchdog halted
 FAULT_HOST_LOST = "HOST_LOST"
+#: every FAULT reason a base may report (docs/robot-protocol.md, "Fault reasons")
+FAULT_REASONS = ("STALL", FAULT_HOST_LOST, "ESTOP", "DRIVER", "BATTERY")
 #: STATE stream rates (Hz) a base accepts besides 0 (off): 100 Hz of ~80-byte STATE lines is
 #: 8 kB/s, under 70 % of a 115200-baud line, with room left for INCL, replies and events
 MIN_STATE_HZ = 1.0
 MAX_STATE_HZ = 100.0
+
+#: the boot window (s): a base answers HELLO at most this long after its power-on or reset (its
+#: bootloader's wait and its own start-up); the host asks again until it is over
+BOOT_S = 3.0
+
+#: timing the host relies on (docs/robot-protocol.md, "Timing"): a base starts its reply within
+#: REPLY_BUDGET_S of the command's last byte; a USB-serial adapter may hold received bytes up to its
+#: latency timer (FTDI's default: 16 ms, FTDI application note AN232B-04) before the host sees them
+REPLY_BUDGET_S = 0.020
+USB_LATENCY_S = 0.016
+#: STOP (and a watchdog halt, a FAULT) brakes at least this hard: at 300 mm/s the wheels stand within 90 mm
+STOP_DECEL_MM_S2 = 500.0
+STOP_DECEL_DEG_S2 = 180.0
+#: a base's receive buffer holds at least this many bytes: a command, an owed STOP and a keep-alive STATUS
+RX_BUFFER_BYTES = 3 * MAX_LINE
+
+#: a version-1 STATUS reply's fields after its kind (seq, state, x, y, heading, roll, pitch, battery, fault);
+#: a version-2 or 3 one adds t_us
+STATUS_V1_FIELDS = 9
 
 #: NAK reasons
 NAK_REASONS = ("CHECKSUM", "SYNTAX", "UNKNOWN", "RANGE", "BUSY", "FAULT", "VERSION")

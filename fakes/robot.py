@@ -2,7 +2,9 @@
 
 ``python -m fakes.robot [--seed N] [--time-scale S] [--max-protocol 1|2] [--param key=value ...]`` starts a
 simulated base on a fresh pty, prints the device path (one line) and serves until
-killed; connect with ``serial:///dev/pts/N``. :class:`SimRobot` (URL ``sim:``) does
+killed; connect with ``serial:///dev/pts/N``. ``--boot-s S``: it boots (silent, then a banner) at start
+and after a reset; ``--rfc2217``: served over RFC 2217 instead (prints ``rfc2217://127.0.0.1:PORT``),
+resetting when a host asserts DTR. :class:`SimRobot` (URL ``sim:``) does
 the same in a background thread on its first ``open()`` and then talks to it as a
 plain :class:`~drivers.robot.SerialRobot`, so the sim exercises the real driver,
 codec and pyserial.
@@ -44,7 +46,9 @@ from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase, unit_interval
+from fakes.robot_boot import Boot
 from fakes.robot_defects import DefectiveBase
+from fakes.robot_rfc2217 import Rfc2217Base
 from fakes import worlds
 from fakes.world import World, WorldParams
 
@@ -338,21 +342,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fault-rate", type=float, default=0.0)
     ap.add_argument("--max-protocol", type=int, choices=rp.PROTOCOL_VERSIONS, default=rp.PROTOCOL_VERSION,
                     help="the newest protocol the base speaks (1: a version-1 base)")
+    ap.add_argument("--boot-s", type=float, default=0.0,
+                    help="boot time after power-on or a reset (silent, then a banner): fakes/robot_boot.py")
+    ap.add_argument("--rfc2217", action="store_true",
+                    help="serve over RFC 2217 on 127.0.0.1 (prints its URL), resetting on DTR, not on a pty")
     ap.add_argument("--param", type=_param, action="append", default=[], metavar="KEY=VALUE",
                     help="set a WorldParams field, e.g. drive_lateral_sigma_mm=0.05")
     args = ap.parse_args(argv)
     world = World(WorldParams(seed=args.seed).with_(**dict(args.param)))
-    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate, max_protocol=args.max_protocol)
-    server = PtyServer(base, garbage_rate=args.garbage_rate, corrupt_rate=args.corrupt_rate)
-    print(server.path, flush=True)
+    base = FakeBase(world, time_scale=args.time_scale, fault_rate=args.fault_rate,
+                    max_protocol=args.max_protocol, boot=Boot(boot_s=args.boot_s, reset_on_dtr=args.rfc2217))
+    server: Any = Rfc2217Base(base) if args.rfc2217 else \
+        PtyServer(base, garbage_rate=args.garbage_rate, corrupt_rate=args.corrupt_rate)
+    print(server.url if args.rfc2217 else server.path, flush=True)
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:
-        while not done.wait(0.5) and server.alive:
+        while not done.wait(0.5) and getattr(server, "alive", True):
             pass
     except KeyboardInterrupt:
         pass
-    server.shutdown()
+    (server.close if args.rfc2217 else server.shutdown)()
     return 0
 
 

@@ -1,21 +1,20 @@
 """The simulated drive controller: protocol state machine and kinematics.
 
-:class:`FakeBase` answers protocol lines (docs/robot-protocol.md) and moves the robot
-in the shared :class:`~fakes.world.World`. It knows nothing about ports: the pty
-server in :mod:`fakes.robot` feeds it lines, calls :meth:`FakeBase.tick` and sends
-what :meth:`FakeBase.drain` returns. Every public method takes the base's own lock,
-so tests may inject faults from another thread.
+:class:`FakeBase` answers protocol lines (docs/robot-protocol.md) and moves the robot in the shared
+:class:`~fakes.world.World`. It knows nothing about ports: the pty server in :mod:`fakes.robot` feeds it
+lines, calls :meth:`FakeBase.tick` and sends what :meth:`FakeBase.drain` returns. Every public method
+takes the base's own lock, so tests may inject faults from another thread. Its boot (silence, banner,
+a reset on DTR): :mod:`fakes.robot_boot`; protocol defects for the conformance kit:
+:mod:`fakes.robot_defects`.
 
-Two poses are kept apart on purpose: *odometry* integrates the commanded motion
-(starts at 0, 0, 0 at power-on, like wheel encoders) and *truth* (``world.robot``)
-adds the drive errors from ``world.params``:
+Two poses are kept apart on purpose: *odometry* integrates the commanded motion (starts at 0, 0, 0 at
+power-on, like wheel encoders) and *truth* (``world.robot``) adds the drive errors from ``world.params``:
 
 * ``drive_scale_error`` — a fixed relative error of every move distance and turn
   angle (a wrong wheel diameter), not random;
 * ``drive_heading_sigma_deg`` — Gaussian heading error per move and per turn;
 * ``drive_lateral_sigma_mm`` — Gaussian sideways offset of the end point per move;
-* ``floor_tilt_sigma_mrad`` — a new Gaussian roll and pitch at every stop, reported
-  in STATUS only when ``base_has_inclinometer`` is set.
+* ``floor_tilt_sigma_mrad`` — a new Gaussian roll and pitch at every stop, in STATUS with an inclinometer.
 
 Protocol version 2 (a host's ``HELLO,seq,2``; ``max_protocol=1`` makes a version-1 base): the
 base's own clock (offset and drift apart from the host's) in STATUS, and the STATE/INCL sample
@@ -32,8 +31,9 @@ from dataclasses import replace
 from typing import Callable
 
 from drivers import robot_protocol as rp
-from fakes.robot_motion import (HostWatchdog, Motion, fraction_at, motion_state, pose_on_path, unit_interval,
-                                 wrap_deg)
+from fakes.robot_boot import Boot, reboot
+from fakes.robot_motion import (HostWatchdog, Motion, fraction_at, inclinometer_output, motion_state,
+                                pose_on_path, unit_interval, wrap_deg)
 from fakes.robot_stream import DEFAULT_DRIFT_PPM, INCL_RATE_HZ, BaseClock, SampleStreams, seeded_offset_s
 from fakes.world import RobotPose, World
 
@@ -44,17 +44,13 @@ BATTERY_FULL_V = 25.2
 BATTERY_V_PER_M = 0.002  # volts lost per metre driven (keeps the number alive)
 
 
-#: the inclinometer's output period in robot time (its rate: fakes/robot_stream.py)
-IMU_PERIOD_S = 1.0 / INCL_RATE_HZ
-
-
 class FakeBase:
     """A simulated base controller driving ``world.robot``."""
 
     def __init__(self, world: World, *, time_scale: float = 0.02, fault_rate: float = 0.0,
                  clock: Callable[[], float] = time.monotonic, max_protocol: int = rp.PROTOCOL_VERSION,
                  clock_offset_s: float | None = None, clock_drift_ppm: float = DEFAULT_DRIFT_PPM,
-                 incl_rate_hz: float = INCL_RATE_HZ) -> None:
+                 incl_rate_hz: float = INCL_RATE_HZ, boot: Boot | None = None) -> None:
         if not time_scale >= 0.0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
         if max_protocol not in rp.PROTOCOL_VERSIONS:
@@ -96,7 +92,10 @@ class FakeBase:
         incl_rng = world.rng("robot.incl.stream")  # its own: STATUS readings stay as they were
         self.streams = SampleStreams(self.base_clock, (lambda r, p: world.effects.inclinometer(r, p, incl_rng))
                                      if world.params.base_has_inclinometer else None, time_scale, incl_rate_hz)
-        self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0}
+        self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0,
+                         "lost_booting": 0}
+        self.boot = boot or Boot()  # silent while it boots, its banner after (fakes/robot_boot.py)
+        self.boot.power_on(clock())  # a base with a boot time boots with its host
 
     # ------------------------------------------------------------------ I/O side
 
@@ -125,6 +124,9 @@ class FakeBase:
         """Process one received line (terminator removed); replies go to the outbox."""
         with self._lock:
             if not line.strip():
+                return
+            if self.boot.booting(self.clock()):  # the bootloader does not listen to the protocol
+                self.counters["lost_booting"] += 1
                 return
             self.counters["rx_lines"] += 1
             try:
@@ -206,24 +208,13 @@ class FakeBase:
             pose = self.world.robot
         roll = pitch = None
         if self.world.params.base_has_inclinometer:
-            roll, pitch = self._inclinometer(pose)
+            roll, pitch = inclinometer_output(self, pose)
         x, y, h = self.odometry
         battery = BATTERY_FULL_V - BATTERY_V_PER_M * self.travelled_mm / 1000.0
         clock = (self.base_clock.device_us(self.clock()),) if self.session >= 2 else ()  # CLOCK: t_us last
         self._send("STATUS", seq, self.state, rp.num(x, 4), rp.num(y, 4), rp.num(h, 6),
                    None if roll is None else rp.num(roll, 6), None if pitch is None else rp.num(pitch, 6),
                    rp.num(battery, 3), rp.text_field(self.fault), *clock)
-
-    def _inclinometer(self, pose: RobotPose) -> tuple[float, float]:
-        """The inclinometer's output (deg): a new sample every IMU_PERIOD_S of robot time, held between."""
-        now = self.clock()
-        held = self._imu_held
-        if held is not None and self.motion is None and now - held[0] < IMU_PERIOD_S * self.time_scale:
-            return held[1]
-        rng = self._imu_rng if self.motion is None else self._imu_moving_rng
-        r, p = self.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
-        self._imu_held = (now, (math.degrees(r), math.degrees(p)))
-        return self._imu_held[1]
 
     def _stop(self, seq: int, msg: rp.Message) -> None:
         self._advance()
@@ -318,8 +309,20 @@ class FakeBase:
     def tick(self) -> None:
         """Advance the motion in progress to the current time and queue the samples due (the server calls it)."""
         with self._lock:
+            if (banner := self.boot.banner_due(self.clock())) is not None:
+                self._out.append(banner)
             self._advance()
             self._stream_out += self.streams.due(self.clock(), self)
+
+    def set_dtr(self, on: bool) -> None:
+        """The host set DTR (over RFC 2217); an assertion resets a base with auto-reset (robot_boot.py)."""
+        self.reset(when=self.boot.set_dtr(on))
+
+    def reset(self, when: bool = True) -> None:
+        """The MCU restarts now (a reset line, a brown-out): boot silence, banner, state forgotten."""
+        with self._lock:
+            if when:
+                reboot(self, self.clock())
 
     def state_at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
         """Odometry, wheel speeds and true tilt at clock time ``t`` (the STATE/INCL samples' source)."""

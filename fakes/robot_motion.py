@@ -5,8 +5,11 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
+from fakes.robot_stream import INCL_RATE_HZ
 from fakes.world import RobotPose, World
 
+#: the inclinometer's output period in robot time (its rate: fakes/robot_stream.py)
+IMU_PERIOD_S = 1.0 / INCL_RATE_HZ
 #: the wheels' distance apart (mm): a turn on the spot shows as opposite wheel speeds in STATE
 TRACK_MM = 400.0
 
@@ -106,3 +109,15 @@ def pose_on_path(world: World, m: Motion, f: float) -> RobotPose:
     if world.effects.settles:  # on an uneven surface the tilt changes along the path
         pose = world.settle(replace(pose, roll_rad=0.0, pitch_rad=0.0, z_mm=None))
     return pose
+
+
+def inclinometer_output(base: Any, pose: RobotPose) -> tuple[float, float]:
+    """The inclinometer's output (deg): a new sample every IMU_PERIOD_S of robot time, held between."""
+    now = base.clock()
+    held = base._imu_held
+    if held is not None and base.motion is None and now - held[0] < IMU_PERIOD_S * base.time_scale:
+        return held[1]
+    rng = base._imu_rng if base.motion is None else base._imu_moving_rng
+    r, p = base.world.effects.inclinometer(pose.roll_rad, pose.pitch_rad, rng)
+    base._imu_held = (now, (math.degrees(r), math.degrees(p)))
+    return base._imu_held[1]

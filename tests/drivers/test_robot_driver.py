@@ -323,7 +323,7 @@ def test_url_options_are_checked() -> None:
 
 
 def test_loop_url_hears_only_its_own_commands_and_gives_up() -> None:
-    robot = SerialRobot(DeviceURL.parse("loop://?timeout=0.05&retries=1"))
+    robot = SerialRobot(DeviceURL.parse("loop://?timeout=0.05&retries=1&boot=0"))  # no boot window: 2 tries
     assert robot.port_target() == "loop://"
     with pytest.raises(DeviceLost, match="did not answer HELLO"):
         robot.open()

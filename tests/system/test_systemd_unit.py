@@ -32,6 +32,13 @@ def test_unit_has_the_required_settings():
         assert needle in text, needle
 
 
+def test_the_serial_port_group_is_not_lost_in_a_private_user_namespace():
+    # PrivateUsers=yes leaves SupplementaryGroups= unmapped (systemd issue #41994): the port would not open
+    text = UNIT.read_text()
+    assert re.search(r"^SupplementaryGroups=.*dialout", text, re.M)
+    assert not re.search(r"^PrivateUsers=(yes|true|1|on|self)\s*$", text, re.M)
+
+
 def test_verify_is_clean(unit_copy):
     assert ANALYZE, "systemd-analyze missing: .ci/run installs the systemd package"
     res = subprocess.run([ANALYZE, "verify", str(unit_copy)], capture_output=True, text=True, timeout=60)
