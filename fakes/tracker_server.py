@@ -27,6 +27,7 @@ from fakes.tracker_session import Faults, Session, bare_answer, Dropped
 
 MAX_RECORDS = 20000  # per MultiMeasResult packet (well under the 1 MiB framer limit)
 COMPUTE_STEP_S = 0.005  # a stream's records are computed this often between packets
+MAX_BEHIND_S = 1.0  # a stream stalled longer than this (a suspended host) resumes its cadence from now
 
 
 class FakeTrackerServer(FrameCommands):
@@ -348,11 +349,11 @@ class FakeTrackerServer(FrameCommands):
             rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         return rec
 
-    async def _packet(self, t_next: float, dt: float, left: int) -> np.ndarray | None:
-        """One packet's records, due by the time it is sent. They are computed a few ms at a time as they
-        fall due (a moving robot's pose costs tens of µs a record), so the packet leaves right after its
-        last record's time, as a device's would, not a packet's computation later."""
-        end = time.monotonic() + 1.0 / self.packet_rate_hz
+    async def _packet(self, t_next: float, dt: float, left: int, end: float) -> np.ndarray | None:
+        """One packet's records, due by the time it is sent (``end``, its slot on the server's clock). They
+        are computed a few ms at a time as they fall due (a moving robot's pose costs tens of µs a record),
+        so the packet leaves right after its last record's time, as a device's would, not a packet's
+        computation later."""
         parts: list[np.ndarray] = []
         t, got = t_next, 0
         while True:
@@ -373,7 +374,7 @@ class FakeTrackerServer(FrameCommands):
         """Continuous-time mode: batches of records at the packet rate until stopped."""
         st = self.model.state
         dt = st.time_separation_ms / 1000.0
-        t_next = time.monotonic()
+        t_next = slot = time.monotonic()
         left = st.number_of_points or -1
         env = dict(zip(("temperature", "pressure", "humidity"), st.environment))
         try:
@@ -383,7 +384,12 @@ class FakeTrackerServer(FrameCommands):
                     await asyncio.sleep(0)
                     rec = self._records(min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS), t_next, dt)
                 else:
-                    rec = await self._packet(t_next, dt, left)
+                    # packets on a fixed cadence of the server's clock, as a device's timer sends them:
+                    # after a stall (a busy host) the packets due go out back to back, each with its own
+                    # records; one of more than MAX_BEHIND_S restarts the cadence
+                    slot += 1.0 / self.packet_rate_hz
+                    slot = slot if time.monotonic() - slot < MAX_BEHIND_S else time.monotonic()
+                    rec = await self._packet(t_next, dt, left, slot)
                 if rec is None:  # beam lost: tell the client the way a real server does
                     await s.send(encode_error(C.StartMeasurement, RS.MeasurementStatusNotReady))
                     return

@@ -25,7 +25,7 @@ STEP_TOL = 0.10
 STEP_MEDIAN_TOL = 0.01
 #: the share of steps that must be on time
 STEPS_ON_TIME = 0.99
-#: packets per second within this share of the expected rate (arrival jitter over the run)
+#: packets per second within this share of the expected rate (a packet more or less over a short run)
 PACKET_RATE_TOL = 0.15
 #: frame read-back: anything further from the identity than this is a frame
 IDENTITY_TOL = 1e-9
@@ -71,14 +71,17 @@ def record_steps(t: dict[str, Any]) -> Check:
 
 
 def packet_rate(t: dict[str, Any], info: dict[str, Any]) -> Check:
-    """Stream packets per second as they arrived, against the rate the tracker read back (or was asked)."""
-    arrivals = [int(p["host_time_ns"]) for p in t["packets"]]
+    """Stream packets per second of the tracker's clock (each packet's last record time; by arrival when the
+    records carry none), against the rate the tracker read back, or the one asked when it refused it."""
+    stamped = [p["device_us"][-1] * 1000 for p in t["packets"] if p.get("device_us")]
+    times = stamped if len(stamped) == len(t["packets"]) else [int(p["host_time_ns"]) for p in t["packets"]]
+    clock = "the tracker's clock" if times is stamped else "arrival"
     asked, taken = info.get("packet_rate_asked"), info.get("packet_rate")
     want = taken if taken is not None else asked
-    if len(arrivals) < 3 or want is None:
-        return _tracker("packet_rate", False, f"{len(arrivals)} packets", "too few packets, or no rate known")
-    measured = (len(arrivals) - 1) / ((arrivals[-1] - arrivals[0]) / 1e9)
-    value = f"{measured:.1f} packets/s over {len(arrivals)} packets; expected {want:g}/s"
+    if len(times) < 3 or want is None or times[-1] <= times[0]:
+        return _tracker("packet_rate", False, f"{len(times)} packets", "too few packets, or no rate known")
+    measured = (len(times) - 1) / ((times[-1] - times[0]) / 1e9)
+    value = f"{measured:.1f} packets/s over {len(times)} packets ({clock}); expected {want:g}/s"
     if taken is None:
         value += f" (asked {asked}; the tracker did not take ES_SP_TcpDataPacketRate)"
     if float(t["rate_hz"]) < float(want):
