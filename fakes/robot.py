@@ -258,19 +258,21 @@ class SimRobot(SerialRobot):
     Options (besides the SerialRobot ones): ``time_scale`` (0.02), ``garbage_rate``,
     ``corrupt_rate``, ``fault_rate`` (all 0), ``clock_offset_s`` (the base's clock at the fake's start: how
     long it has been on; default seeded, 10-10 000 s), ``defects`` (a comma list of fakes/robot_defects.py's
-    protocol defects, e.g. ``t_us_32bit,no_watchdog``). The fake keeps running across
+    protocol defects, e.g. ``t_us_32bit,no_watchdog``), ``max_protocol`` (the newest version it speaks,
+    default 3). The fake keeps running across
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
     OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
-                                     "clock_offset_s", "defects", worlds.OPTION}
+                                     "clock_offset_s", "defects", "max_protocol", worlds.OPTION}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
         kwargs = {"time_scale": url.option("time_scale", 0.02, float),
                   "fault_rate": url.option("fault_rate", 0.0, float),
-                  "clock_offset_s": url.option("clock_offset_s", None, float)}
+                  "clock_offset_s": url.option("clock_offset_s", None, float),
+                  "max_protocol": url.option("max_protocol", rp.PROTOCOL_VERSION, int)}
         defects = [d for d in url.option("defects", "", str).split(",") if d]
         self.fake = (DefectiveBase(self.world, defects=defects, **kwargs) if defects
                      else FakeBase(self.world, **kwargs))

@@ -22,9 +22,10 @@ from daemon.ritad.server import Handler, Request
 from daemon.ritad.services import Services
 from drivers import robot_conformance_checks as cc
 from drivers import robot_conformance_motion as cm
+from drivers import robot_protocol as rp
 from drivers.base import DeviceError, DeviceLost, Robot
 from drivers.robot import SerialRobot
-from drivers.robot_conformance import rp_clock
+from drivers.robot_conformance import rp_clock, unreachable
 from drivers.robot_conformance_link import Check, Link
 from drivers.robot_port import open_error, open_port
 
@@ -37,7 +38,7 @@ KIT_SLICE_S = 0.005
 def kit_checks(link: Link, *, baudrate: int, allow_motion: bool, clock_s: float) -> list[Check]:
     """The kit's checks that a commissioning needs, in the kit's order; the first must reach the base."""
     results = [cc.check_stop_before_hello(link)]
-    if results[0].verdict == "fail":
+    if unreachable(results):
         return results
     versions, protocol, caps = cc.check_versions(link)
     polls = cc.poll_status(link, POLLS)
@@ -45,13 +46,20 @@ def kit_checks(link: Link, *, baudrate: int, allow_motion: bool, clock_s: float)
     if rp_clock(protocol, caps):
         results.append(cc.check_clock(cc.status_t_us(link, clock_s)))
     else:
-        results.append(Check("t_us", "fail", f"protocol {protocol} without CLOCK", "the host times the "
+        results.append(Check("t_us", "warn", f"protocol {protocol} without CLOCK", "the host times the "
                              "base by arrival (σ 6 ms): update the firmware to protocol 2 or 3"))
     if allow_motion:
-        results += [cm.check_watchdog(link, protocol, caps), *cm.check_stop_braking(link, protocol)]
+        results += cm.check_stop_braking(link, protocol)
     else:
         results += [Check(name, "skip", "moves the robot: run with --allow-motion")
-                    for name in ("watchdog", "hello_while_moving", "stop_braking")]
+                    for name in ("hello_while_moving", "stop_braking")]
+    if rp.CAP_WATCHDOG not in caps:  # the kit skips it; a robot in service needs it: seen without a motion
+        results.append(Check("watchdog", "fail", f"protocol {protocol} without WATCHDOG",
+                             "a crashed ritad cannot stop a move: update the firmware to protocol 3"))
+    elif allow_motion:
+        results.append(cm.check_watchdog(link, protocol, caps))
+    else:
+        results.append(Check("watchdog", "skip", "moves the robot: run with --allow-motion"))
     return results
 
 

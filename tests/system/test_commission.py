@@ -178,6 +178,14 @@ def test_a_base_without_a_host_watchdog_fails_watchdog(tmp_path: Path) -> None:
     assert by_name(result)["stop_braking"]["verdict"] == "pass"
 
 
+def test_a_version_2_base_fails_watchdog_without_a_motion(tmp_path: Path) -> None:
+    """A base without WATCHDOG (protocol 2): a crashed ritad could not stop its moves; seen from its VERSION."""
+    result, _ = commission(tmp_path, {"devices": "base"}, robot=f"{BASE}&max_protocol=2")
+    c = by_name(result)["watchdog"]
+    assert c["verdict"] == "fail" and c["value"] == "protocol 2 without WATCHDOG", c
+    assert by_name(result)["versions"]["verdict"] == "pass"  # a version-2 base is a conforming one
+
+
 def test_a_device_that_is_down_is_one_failed_check_naming_why() -> None:
     obs = {"devices": ["tracker"], "tracker": {"state": "FAULT", "reason": "connection refused",
                                                "error": "tracker is FAULT: connection refused"}}
