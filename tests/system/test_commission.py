@@ -179,7 +179,7 @@ def test_a_base_without_a_host_watchdog_fails_watchdog(tmp_path: Path) -> None:
 
 
 def test_a_version_2_base_fails_watchdog_without_a_motion(tmp_path: Path) -> None:
-    """A base without WATCHDOG (protocol 2): a crashed ritad could not stop its moves; seen from its VERSION."""
+    """A base without WATCHDOG (protocol 2): a crashed ritad could not stop its moves; its VERSION says so."""
     result, _ = commission(tmp_path, {"devices": "base"}, robot=f"{BASE}&max_protocol=2")
     c = by_name(result)["watchdog"]
     assert c["verdict"] == "fail" and c["value"] == "protocol 2 without WATCHDOG", c
