@@ -186,7 +186,7 @@ CHECKS = {"tracker": tracker_checks, "camera": camera_checks, "base": base_check
 def device_checks(name: str, d: dict[str, Any]) -> list[Check]:
     """One device's checks; a device that could not be measured is one failed check naming why."""
     if d.get("error"):
-        return [check(name, "reachable", "fail", d["error"], "fix this first: no other check of it ran")]
+        return [check(name, "measured", "fail", d["error"], "fix this first: no other check of it ran")]
     return list(CHECKS[name](d))
 
 

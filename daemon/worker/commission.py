@@ -76,13 +76,15 @@ def tracker_obs(ctx: JobContext) -> dict[str, Any]:
         time.sleep(SUB_SETTLE_S)
         started = ctx.call("tracker.stream.start", rate_hz=ctx.params.tracker_rate_hz)
         try:
+            # the rate it streams at: a rate above the tracker's max_data_rate is clamped (docs/emscon.md)
+            rate = ctx.call("tracker.status").get("rate_hz") or started["rate_hz"]
             packets = _records(sub, ctx.params.duration_s)
         finally:
             ctx.call("tracker.stream.stop")
     finally:
         sub.close()
     status = ctx.call("tracker.status")
-    return {"readback": readback, "rate_hz": float(started["rate_hz"]), "duration_s": ctx.params.duration_s,
+    return {"readback": readback, "rate_hz": float(rate), "duration_s": ctx.params.duration_s,
             "packets": packets, "clock": status.get("clock"), "counters": status.get("counters"),
             "stream_interrupted": status.get("stream_interrupted")}
 

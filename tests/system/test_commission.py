@@ -191,6 +191,6 @@ def test_a_device_that_is_down_is_one_failed_check_naming_why() -> None:
                                                "error": "tracker is FAULT: connection refused"}}
     result = compute_commission(obs)
     assert result["verdict"] == "fail" and result["checks"] == [
-        {"device": "tracker", "name": "reachable", "verdict": "fail",
+        {"device": "tracker", "name": "measured", "verdict": "fail",
          "value": "tracker is FAULT: connection refused",
          "detail": "fix this first: no other check of it ran"}]
