@@ -18,6 +18,7 @@ import numpy as np
 
 from calibration.frames import apply_H, inv_H
 from calibration.plate import NEST_NAMES
+from fakes import path_shapes
 from fakes.errors import ErrorModel
 from fakes.floor import HeightField, contact_tilt, plane_height, plate_on_floor
 
@@ -40,6 +41,7 @@ class Effects:
         self.model = e
         self.active = e.active
         self.settles = e.floor is not None or e.plate is not None
+        self._kinks: dict[float, float] = {}  # a kinked move's end offset -> the fraction where it kinks
         if e.tracker is not None:
             # per station: coefficients of the angular pattern (hz, vt) and the range offset
             self.sys_coef = world.rng("errors.tracker.systematic").normal(size=(3, _SYS_TERMS))
@@ -187,27 +189,49 @@ class Effects:
         r = self.model.robot
         return float(rng.normal(0.0, r.slip_sigma)) if r is not None and r.slip_sigma > 0 else 0.0
 
-    def bend(self, dist_mm: float, rng: np.random.Generator) -> tuple[float, float]:
-        """(lateral mm at the end, heading change in degrees) of a straight move that bends (``path_shape``).
+    def bend(self, dist_mm: float, rng: np.random.Generator, shape: str | None = None) -> tuple[float, float]:
+        """(lateral mm at the end, heading change in degrees) of a straight move that bends.
 
-        Both shapes end κd²/2 to the side; the arc turns the heading by κd, the S turns it back (0).
+        ``shape``: the robot's ``path_shape`` unless an experiment overrides it (SimConfig.path_shape).
+        Every shape's size comes from one curvature κ per move (fakes/path_shapes.py): the arc ends
+        κd²/2 to the side and turns the heading by κd, the S turns it back (0).
         """
         r = self.model.robot
         if r is None:
             return 0.0, 0.0
+        shape = shape or r.path_shape
         kappa = rng.normal(0.0, 2.0 * r.lateral_sigma_mm / r.lateral_ref_mm ** 2)
-        turn = 0.0 if r.path_shape == "s" else float(math.degrees(kappa * dist_mm))
-        return float(kappa * dist_mm ** 2 / 2.0), turn
+        if shape in ("arc", "s"):  # the first two shapes, as they always were (their draws unchanged)
+            turn = 0.0 if shape == "s" else float(math.degrees(kappa * dist_mm))
+            return float(kappa * dist_mm ** 2 / 2.0), turn
+        at = path_shapes.kink_at(shape, rng)
+        side, turn_rad = path_shapes.end(shape, kappa * dist_mm, at)
+        lateral = float(side * dist_mm)
+        if at is not None:  # the kink's point goes with the move, which bend_profile knows by its end offset
+            if len(self._kinks) >= 4096:  # the oldest moves are long done
+                del self._kinks[next(iter(self._kinks))]
+            self._kinks[lateral] = at
+        return lateral, float(math.degrees(turn_rad))
 
-    def bend_profile(self, f: Any, lateral_mm: float, dist_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    def bend_profile(self, f: Any, lateral_mm: float, dist_mm: float, shape: str | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
         """Along a bent move at fractions ``f``: the sideways offset from the chord (mm, left +, small angles)
         and the heading's departure from an even turn (rad), for a move ending ``lateral_mm`` to the side."""
         f = np.asarray(f, dtype=float)
         r = self.model.robot
-        if r is not None and r.path_shape == "s":  # curvature +2κ then −2κ: y = 2f², then 1 − 2(1 − f)²
+        shape = shape or (r.path_shape if r is not None else "arc")
+        if shape == "s":  # curvature +2κ then −2κ: y = 2f², then 1 − 2(1 − f)²
             y = np.where(f <= 0.5, 2.0 * f * f, 1.0 - 2.0 * (1.0 - f) ** 2) * lateral_mm
             return y - f * lateral_mm, 4.0 * lateral_mm / dist_mm * np.minimum(f, 1.0 - f)
-        return (f * f - f) * lateral_mm, np.zeros_like(f)  # one arc: y = f²
+        if shape == "arc":
+            return (f * f - f) * lateral_mm, np.zeros_like(f)  # one arc: y = f²
+        at = None
+        if shape in ("kink", "kink-end"):
+            if lateral_mm not in self._kinks:
+                raise ValueError(f"a {shape} move ending {lateral_mm!r} mm to the side was not drawn by "
+                                 "bend()")
+            at = self._kinks[lateral_mm]
+        return path_shapes.profile(shape, f, lateral_mm, dist_mm, at)
 
     def board_true(self, P_ref: np.ndarray) -> np.ndarray:
         """Where the printed board's nominal points (PCS) really are (scale and shear of the print)."""

@@ -15,13 +15,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from fakes.path_shapes import SHAPES
+
 #: sources quoted more than once
 AT_MPE = ("AT901 U_xyz MPE ±15 µm + 6 µm/m (Leica AT500 manual p. 39: published for the AT500, "
           "unverified for the AT901)")
 TYPICAL = "Leica: typical = ½ MPE (AT500 manual p. 39); we take the typical value as 1σ"
 ADM = "ADM MPE ±10 µm + 0.3 µm/m (AT500 manual p. 39)"
-#: RobotErrors.path_shape values
-PATH_SHAPES = ("arc", "s")
+#: RobotErrors.path_shape values (fakes/path_shapes.py)
+PATH_SHAPES = SHAPES
 CAL_44 = "assumed: 50 µm lateral path deviation between the heading positions 0.2 m apart"
 
 
@@ -74,7 +76,11 @@ class RobotErrors:
     lateral_sigma_mm: float = sourced(0.050, CAL_44)
     path_shape: str = sourced("arc", "assumption: each move bends on one arc ('arc'); 's' bends left then right "
                                      "(curvature ±2κ over the halves): the same lateral offset at the end and the "
-                                     "same chord-to-heading angle κd/2, but the heading turns back (envelope case)")
+                                     "same chord-to-heading angle κd/2, but the heading turns back "
+                                     "(envelope case); 'early', 'late' (the bend in the first or last 30 %), "
+                                     "'kink' (a heading step at a random point), 'kink-end' (in the last "
+                                     "10 %): envelope cases no larger than the arc in end offset or turn "
+                                     "(fakes/path_shapes.py)")
     lateral_ref_mm: float = sourced(200.0, CAL_44 + " (the move length the 50 µm refers to)")
     slip_sigma: float = sourced(0.002, "relative distance error per move from wheel slip; non-systematic odometry "
                                        "errors of 0.1–1 % of travel on smooth floors (Borenstein & Feng 1996, "

@@ -28,6 +28,7 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.frames import apply_H, inv_H
 from calibration.plate import NEST_NAMES, Plate
+from fakes.path_shapes import SHAPES
 from fakes.world import FloorMark, RobotPose, World
 
 
@@ -53,6 +54,9 @@ class SimConfig:
     pixel_format: str = "Mono8"  # rendered images: Mono8, or e.g. BayerRG8 (the colour sensor, fakes.colour)
     stream_points: int = 21  # tracker stream samples along each validation approach (error model only)
     imu_readings: int = 10  # inclinometer readings averaged at a standstill (1 s at 10 Hz)
+    # this experiment's path shape (fakes/path_shapes.py), None: the world's (RobotErrors.path_shape); another
+    # one is a robot whose path changed between experiments (after its weight was learned)
+    path_shape: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("sigma_t_mm", "mark_sigma_px", "pnp_sigma_px", "path_sigma_mm", "tilt_sigma_mrad",
@@ -60,6 +64,8 @@ class SimConfig:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"SimConfig.{name} must be a finite value >= 0, got {v}")
+        if self.path_shape is not None and self.path_shape not in SHAPES:
+            raise ValueError(f"SimConfig.path_shape={self.path_shape!r} (known: {', '.join(SHAPES)})")
         if self.move_mm <= 0 or self.directions < 1 or self.repetitions < 1:
             raise ValueError(f"SimConfig: move_mm={self.move_mm}, directions={self.directions}, "
                              f"repetitions={self.repetitions} must all be positive")
@@ -166,7 +172,7 @@ class Simulation:
         stop. Returns the settled pose and the true reflector centres at both stops.
         """
         w, d = self.world, self.cfg.move_mm
-        bend, turn = w.effects.bend(d, rng)
+        bend, turn = w.effects.bend(d, rng, self.cfg.path_shape)
         head = pose.heading_deg + turn
         a = math.radians(head - turn + math.degrees(math.atan2(bend, d)))  # the chord: bend/d off the start
         lateral = rng.normal(0.0, self.cfg.path_sigma_mm) if self.cfg.path_sigma_mm else 0.0
@@ -186,7 +192,7 @@ class Simulation:
         c = np.array([at.x_mm - prev.x_mm, at.y_mm - prev.y_mm])
         left = np.array([-c[1], c[0]]) / max(float(np.linalg.norm(c)), 1e-9)
         ts = np.linspace(0.0, 1.0, n)
-        side, dh = self.world.effects.bend_profile(ts, bend_mm, self.cfg.move_mm)
+        side, dh = self.world.effects.bend_profile(ts, bend_mm, self.cfg.move_mm, self.cfg.path_shape)
         out = []
         for t, s, h in zip(ts, side, dh):
             x, y = np.array([prev.x_mm, prev.y_mm]) + t * c + s * left
@@ -206,7 +212,8 @@ class Simulation:
         pose0 = w.settle(w.pose_with_target_in_view(heading_deg))
         a = math.radians(heading_deg)
         lateral = rng.normal(0.0, cfg.path_sigma_mm) if cfg.path_sigma_mm else 0.0
-        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"))  # (0, 0) without the error model
+        # (0, 0) without the error model
+        bend, turn = w.effects.bend(cfg.move_mm, self.rng(stream + "-bend"), cfg.path_shape)
         lateral += bend
         pose1 = w.settle(RobotPose(pose0.x_mm + cfg.move_mm * math.cos(a) - lateral * math.sin(a),
                                    pose0.y_mm + cfg.move_mm * math.sin(a) + lateral * math.cos(a),

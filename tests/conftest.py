@@ -17,6 +17,7 @@ installed()
 LONGEST_FIRST = (
     "tests/system/test_worker_e2e.py",
     "tests/system/test_readme.py",
+    "tests/system/test_extras.py",  # pip installs three clean venvs on a machine without its cache
     "tests/console/test_console_stop_acceptance.py",
     "tests/calibration/test_calibration_sim.py",
     "tests/drivers/test_fuzz_devices.py",

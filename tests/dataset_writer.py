@@ -47,9 +47,10 @@ def _apply(H: np.ndarray, p: Any) -> np.ndarray:
     return H[:3, :3] @ np.asarray(p, float) + H[:3, 3]
 
 
-def render(cam_H_ref: np.ndarray, ppmm: float = 40.0, supersample: int = 4, psf_px: float = 1.0) -> np.ndarray:
-    """8-bit image of the board seen by the pinhole camera K (no distortion), lens blur ``psf_px`` (σ)."""
-    b = BOARD
+def render(cam_H_ref: np.ndarray, ppmm: float = 40.0, supersample: int = 4, psf_px: float = 1.0,
+           b: dict[str, Any] = BOARD) -> np.ndarray:
+    """8-bit image of the board ``b`` seen by the pinhole camera K (no distortion), lens blur ``psf_px``
+    (σ)."""
     board = cv2.aruco.CharucoBoard((b["cols"], b["rows"]), b["square"], b["marker"],
                                    cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, b["dict"])))
     w_px, h_px = round(b["cols"] * b["square"] * ppmm), round(b["rows"] * b["square"] * ppmm)
@@ -211,3 +212,45 @@ def write_experiment(root: Path, calibration: dict[str, Any], rob_H_cam: np.ndar
              "obs": {"calibration": calibration, "kind": "dot", "mark_size_mm": 0.4, "stops": stops,
                      **({} if sigma_t_mm is None else {"sigma_t_mm": sigma_t_mm})}}
     (root / "state.json").write_text(json.dumps(state, indent=1))
+
+
+# --------------------------------------------------------------------------- intrinsics
+
+#: the hand-held board of docs/datasets.md, "Intrinsics board definition" (the values it shows)
+INTRINSICS_BOARD = {"schema": 1, "board_id": "RITA-INTRINSICS-1", "board_cols": 12, "board_rows": 9,
+                    "square_mm": 4.0, "marker_mm": 3.0, "aruco_dict": "DICT_4X4_100", "notes": ""}
+#: (tilt about the board's x, about its y, turn about the line of sight) in degrees, and where the board's
+#: centre appears (fraction of the image from its centre, x and y): tilted views fix the focal length
+#: (a board seen square-on leaves it coupled to the distance), views in the corners the distortion there
+VIEW_TILTS = ((0, 0, 0, 0.0, 0.0), (25, 0, 0, 0.0, 0.0), (-25, 0, 0, 0.0, 0.0), (0, 25, 0, 0.0, 0.0),
+              (0, -25, 0, 0.0, 0.0), (20, 20, 10, 0.0, 0.0), (-20, 20, -10, 0.0, 0.0),
+              (15, -20, 30, 0.0, 0.0), (0, 0, 0, -0.3, -0.3), (0, 0, 0, 0.3, -0.3), (0, 0, 0, -0.3, 0.3),
+              (0, 0, 0, 0.3, 0.3))
+
+
+def write_intrinsics(root: Path, distance_mm: float = 60.0) -> None:
+    """An intrinsics folder: the board seen by the camera K from ``distance_mm`` at each of VIEW_TILTS."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    bd = INTRINSICS_BOARD
+    b = {"cols": bd["board_cols"], "rows": bd["board_rows"], "square": bd["square_mm"],
+         "marker": bd["marker_mm"], "dict": bd["aruco_dict"]}
+    centre = np.array([b["cols"] * b["square"] / 2, b["rows"] * b["square"] / 2, 0.0])
+    views, entries = [], []
+    for i, (tx, ty, rz, fx, fy) in enumerate(VIEW_TILTS):
+        R = _rot("z", rz) @ _rot("y", ty) @ _rot("x", tx)  # camera axes in the board frame; z toward it
+        # the camera moved sideways so that the centre projects at (fx, fy) of the image's width and height
+        side = -distance_mm * (fx * SIZE[0] * R[:, 0] + fy * SIZE[1] * R[:, 1]) / K[0, 0]
+        ref_H_cam = _H(R, centre - distance_mm * R[:, 2] + side)
+        img = render(np.linalg.inv(ref_H_cam), ppmm=20.0, b=b)
+        name = f"view-{i:02d}"
+        cv2.imwrite(str(root / f"{name}.png"), img)
+        header = {"shape": list(img.shape), "dtype": "|u1"}
+        (root / f"{name}.json").write_text(json.dumps({"camera": header, "image_file": f"{name}.png"}))
+        key = f"view-{tx:+d}-{ty:+d}-{rz:+d}-{fx:+}-{fy:+}"
+        views.append({"image": f"{name}.png", "header": header, "key": key})
+        entries.append({"name": name, "json": f"{name}.json", "image": f"{name}.png"})
+    state = {"schema": 1, "procedure": "intrinsics", "obs": {"board": bd, "views": views, "skipped": []}}
+    (root / "state.json").write_text(json.dumps(state, indent=1))
+    (root / "dataset.json").write_text(json.dumps({"schema": 1, "kind": "procedure:intrinsics", "meta": {},
+                                                   "entries": entries}))

@@ -260,7 +260,11 @@ def cmd_cancel(c: Client, a: argparse.Namespace) -> int:
 
 
 def cmd_resume(c: Client, a: argparse.Namespace) -> int:
-    c.call("calib.resume", job=a.job_id)  # the daemon knows the procedure, also for a job of an earlier run
+    # the daemon knows the procedure, also for a job of an earlier run
+    r = c.call("calib.resume", job=a.job_id)
+    if getattr(a, "detach", False):  # as a procedure verb's --detach: posted, exit 0, follow it later
+        print_result(r, True) if a.json else print(f"job {a.job_id} resumed (`ritactl follow {a.job_id}`)")
+        return Exit.OK
     return follow(c, a.job_id, as_json=a.json)
 
 
@@ -279,6 +283,8 @@ def add_parsers(sub: Any) -> None:
                            ("resume", cmd_resume, "continue a failed or cancelled job from its last step")):
         p = sub.add_parser(name, help=what)
         p.add_argument("job_id", metavar="JOB", help="job id (`ritactl jobs` lists them)")
+        if name == "resume":
+            p.add_argument("--detach", action="store_true", help="resume the job and return (exit 0)")
         p.set_defaults(fn=fn)
     for verb, cmd, fn in (("cancel", "calib.cancel", cmd_cancel), ("answer", "calib.answer", cmd_answer)):
         p = sub.add_parser(verb, help=COMMANDS[cmd].help)

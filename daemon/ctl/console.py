@@ -6,7 +6,8 @@ from pathlib import Path
 from typing import Any
 
 from daemon.bus.client import Client
-from daemon.ctl.exitcodes import CtlError, Exit, missing_extra
+from daemon.ctl.exitcodes import CtlError, Exit
+from daemon.ctl.extras import CONSOLE, require
 
 
 def _port(text: str) -> int:
@@ -20,12 +21,8 @@ def _port(text: str) -> int:
 
 
 def cmd_console(c: Client, a: argparse.Namespace) -> int:
-    try:  # aiohttp is imported only when the server starts: look for it first
-        import aiohttp  # noqa: F401
-
-        from daemon.console.run import run
-    except ImportError as exc:  # the thin client without the console extra
-        raise missing_extra("ritactl console", "console", "aiohttp", exc) from None
+    require("ritactl console", CONSOLE)  # the thin client without the console extra: exit 5 naming it
+    from daemon.console.run import run
 
     if a.duration is not None and not 0 < a.duration < 1e7:
         raise CtlError(Exit.USAGE, "usage", f"console: --duration {a.duration:g} must be between 0 and 1e7 seconds")

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from daemon.bus.datasets import DatasetInvalid, Problem, validate_folder
-from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
+from daemon.ctl.exitcodes import CtlError, Exit, for_verdict
+from daemon.ctl.extras import LAPTOP, require
 from daemon.ctl.io import fail
 
 if TYPE_CHECKING:  # imported where used: ritactl runs without numpy and OpenCV
@@ -86,11 +87,11 @@ def _single_threaded_opencv() -> None:
 def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     """Re-run a procedure's computation offline from its dataset folder (needs numpy + OpenCV here)."""
     _single_threaded_opencv()
-    try:
-        from daemon.compute.recompute import CalibrationError, ComputationFailed  # fails here without OpenCV
-    except ImportError as exc:
-        e = missing_extra("ritactl recompute", "laptop", "numpy and OpenCV", exc)
+    try:  # every package of the extra, the plot's too, before anything is written
+        require("ritactl recompute", LAPTOP)
+    except CtlError as e:
         return fail(e.exit, e.code, e.args[0], a.json)
+    from daemon.compute.recompute import CalibrationError, ComputationFailed
     try:
         result, diff = _run(a)
         if a.out:
@@ -129,7 +130,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("folder", nargs="+", help="dataset folder(s): a procedure folder or a captures folder")
     p.set_defaults(fn=cmd_validate, offline=True)
     p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
-    p.add_argument("dataset")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="a procedure's dataset folder (its state.json), e.g. one `ritactl fetch` copied")
     p.add_argument("--out", metavar="DIR", help="write result.json, result.yaml (+ experiment report, plot) here")
     p.add_argument("--camera-model", metavar="FILE", help="camera_model.json to use instead of the stored one")
     p.add_argument("--plate", metavar="FILE", help="plate.json to use instead of the stored one")

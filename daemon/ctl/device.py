@@ -63,10 +63,24 @@ def motion_text(verb: str, r: dict[str, Any]) -> tuple[str, Exit]:
     return f"robot {verb} {how}{where}", Exit.OK
 
 
+def stop_text(r: dict[str, Any]) -> tuple[str, Exit]:
+    """``robot stop``: one line, whether the base confirmed the halt, the latch and the jobs it stopped."""
+    halted = "robot halted" if r.get("stopped") else f"robot NOT YET HALTED ({r.get('message', 'no answer')})"
+    jobs = r.get("jobs_stopped") or []
+    stopped = f"; {len(jobs)} job(s) stopped: {', '.join(jobs)}" if jobs else ""
+    return f"{halted}; latched: no motion until `ritactl robot release`{stopped}", Exit.OK
+
+
+def release_text(r: dict[str, Any]) -> tuple[str, Exit]:
+    """``robot release``: one line, and whether there was a latch to release."""
+    was = "released the STOP latch" if r.get("was_latched") else "nothing to release (no STOP latched)"
+    return f"{was}: motions are allowed (a stopped job continues with `ritactl resume JOB`)", Exit.OK
+
+
 #: results a generated subcommand shows in words (with --json: the result, same exit code)
 RESULT_TEXT: dict[str, Callable[[dict[str, Any]], tuple[str, Exit]]] = {
     "camera.detect": _detect_text, "robot.move": lambda r: motion_text("move", r),
-    "robot.turn": lambda r: motion_text("turn", r)}
+    "robot.turn": lambda r: motion_text("turn", r), "robot.stop": stop_text, "robot.release": release_text}
 
 
 def number_type(arg: Arg) -> Callable[[str], float]:

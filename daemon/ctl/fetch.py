@@ -1,5 +1,8 @@
 """``ritactl fetch``: copy datasets, reports, plots and results from the robot's data dir to here.
 
+Without a PATH it takes ``DEFAULT_PATHS`` only, never the daemon's housekeeping files (its lock,
+the stop latch, the worker's log); ``--quiet`` prints the summary line alone.
+
 The files are 0600 on the robot and the bus is the only channel, so this pulls them
 with ``files.list`` / ``files.read`` / ``files.hash`` (docs/protocol.md), in chunks.
 Each file goes to a hidden ``.NAME.part`` next to its target, is fsynced, checked
@@ -23,9 +26,14 @@ from typing import Any, Callable
 
 from daemon.bus.client import Client, ClientTimeout
 from daemon.ctl.exitcodes import Exit
+from daemon.ctl.io import fail
 from daemon.bus.protocol import CommandError
 from daemon.bus.storage import fsync_dir
 
+#: what a fetch without PATH takes: the datasets, the procedures' results and reports, the calibration
+#: (docs/datasets.md's data dir). The daemon's own files beside them (ritad.lock, stop_latch.json,
+#: worker.log) are its housekeeping, not results: only a PATH naming them copies them.
+DEFAULT_PATHS = ("datasets", "procedures", "calibration")
 CHUNK = 1 << 20  # bytes per files.read (the daemon's cap)
 ATTEMPTS = 2  # a file that changes while it is copied is copied once more, then reported
 
@@ -139,12 +147,25 @@ def fetch_file(c: Client, rel: str, size: int, dest: Path, chunk: int = CHUNK, t
     raise FetchError(f"{rel} kept changing on the robot while it was copied; try again later")
 
 
+def _list(c: Client, path: str, timeout: float, given: bool) -> dict[str, Any]:
+    """files.list of one path; a default folder the robot does not have yet (no job run) lists nothing."""
+    try:
+        return dict(c.call("files.list", timeout=timeout, path=path))
+    except CommandError as exc:
+        if given or exc.code != "not_found":
+            raise
+        return {"files": []}
+
+
 def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: float = 30.0,
-          tty: bool = False, say: Callable[[str], None] = print) -> dict[str, Any]:
-    """Copy every file under ``paths`` (all of the data dir when empty) into ``dest``."""
+          tty: bool = False, say: Callable[[str], None] = print, quiet: bool = False) -> dict[str, Any]:
+    """Copy every file under ``paths`` (DEFAULT_PATHS when empty) into ``dest``.
+
+    ``quiet``: no line per file.
+    """
     listing: dict[str, int] = {}
-    for path in paths or [""]:
-        r = c.call("files.list", timeout=timeout, path=path)
+    for path in paths or DEFAULT_PATHS:
+        r = _list(c, path, timeout, given=bool(paths))
         if r.get("truncated"):
             say(f"note: the robot listed only the first {len(r['files'])} files under {path or '.'!r}; "
                 f"fetch its sub-folders one by one")
@@ -163,7 +184,7 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
                 out.setdefault("changing" if isinstance(exc, FetchError) else "refused", []).append(rel)
                 continue
             out[how].append(rel)
-            if not tty:
+            if not tty and not quiet:
                 say(f"{how:8s} {rel} ({size} bytes)")
     finally:
         progress.end()
@@ -175,14 +196,14 @@ def fetch(c: Client, paths: list[str], dest: Path, chunk: int = CHUNK, timeout: 
 def cmd_fetch(c: Client, a: argparse.Namespace) -> int:
     dest = Path(a.to)
     try:
-        r = fetch(c, a.paths, dest, timeout=a.timeout or 30.0, tty=sys.stderr.isatty() and not a.json,
-                  say=(lambda _: None) if a.json else print)
+        r = fetch(c, a.paths, dest, timeout=a.timeout or 30.0,
+                  tty=sys.stderr.isatty() and not (a.json or a.quiet),
+                  say=(lambda _: None) if a.json else print, quiet=a.quiet)
     except KeyboardInterrupt:
         print("\ninterrupted: run the same `ritactl fetch` again to resume", file=sys.stderr)
         return Exit.INTERRUPTED
     except OSError as exc:
-        print(f"ritactl: cannot write under {dest}: {exc}", file=sys.stderr)
-        return Exit.BAD_INPUT
+        return fail(Exit.BAD_INPUT, "bad_input", f"cannot write under {dest}: {exc}", a.json)
     if a.json:
         print(json.dumps(r, indent=2))
     else:
@@ -200,10 +221,14 @@ def add_parser(sub: Any) -> None:
                                    "again after an interruption. Files already here with the same sha256 "
                                    "are skipped.")
     p.add_argument("paths", nargs="*", metavar="PATH",
-                   help="file or folder relative to the robot's data dir, e.g. datasets (default: everything)")
+                   help="file or folder relative to the robot's data dir, e.g. procedures/JOB or sim "
+                        f"(default: {', '.join(DEFAULT_PATHS)}: datasets, results and reports, not the "
+                        f"daemon's own files)")
     p.add_argument("--to", default="rita-data", metavar="DIR",
                    help="local folder to copy into, keeping the robot's layout (default: ./rita-data)")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no line per file: only the summary and failures")
     p.set_defaults(fn=cmd_fetch)
 
 
-__all__ = ["FetchError", "add_parser", "cmd_fetch", "fetch", "fetch_file", "local_target"]
+__all__ = ["DEFAULT_PATHS", "FetchError", "add_parser", "cmd_fetch", "fetch", "fetch_file", "local_target"]

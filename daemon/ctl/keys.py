@@ -106,10 +106,31 @@ def _err(msg: str, code: Exit) -> int:
     return int(code)
 
 
+def _init_dir(a: argparse.Namespace) -> Path:
+    """Where ``keys init`` writes: the folder every other verb reads keys from, chosen the same way.
+
+    --dir, else ritactl's --keys, else $RITA_KEYS, else ritactl.toml's keys_dir (--config's file),
+    else the config folder: the key made is the key ``ritactl --keys DIR status`` then uses.
+    """
+    from daemon.ctl.config import load_ctl_config
+
+    # --keys: ritactl's own option, absent when the keys parser is used alone
+    given = a.dir or getattr(a, "keys", None)
+    if given:
+        return Path(given).expanduser()
+    if os.environ.get(ENV_KEYS):
+        return default_keys_dir()
+    in_config = load_ctl_config(getattr(a, "config", None)).get("keys_dir")
+    return Path(in_config).expanduser() if in_config else default_keys_dir()
+
+
 def _init(a: argparse.Namespace) -> int:
     from daemon.bus.auth import create_keypair
 
-    d = Path(a.dir).expanduser() if a.dir else default_keys_dir()
+    try:
+        d = _init_dir(a)
+    except ValueError as exc:  # CtlConfigError: the config file named, and what is wrong in it
+        return _err(str(exc), Exit.BAD_INPUT)
     name = "server" if a.server else (a.name or DEFAULT_KEY)
     if not KEY_NAME.fullmatch(name):
         return _err(f"--name {name!r} is not a key name (letters, digits, . _ -)", Exit.USAGE)
@@ -211,22 +232,65 @@ def cmd_keys(c: Any, a: argparse.Namespace) -> int:
     return _local(a, Path(a.dir or DEFAULT_AUTH_DIR).expanduser())
 
 
+def _add_action(ksub: Any, action: str, what: str, description: str) -> argparse.ArgumentParser:
+    p: argparse.ArgumentParser = ksub.add_parser(action, help=what, description=description)
+    p.set_defaults(fn=cmd_keys, offline=True, action=action, file=None, name=None, role=None, server=False,
+                   force=False, parser_=p)
+    return p
+
+
+def _bus_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--bus", dest="offline", action="store_false",
+                   help="change the daemon's allow-list over the bus, with an admin key (--endpoint/--key), "
+                        "instead of the files on this computer")
+
+
 def add_parser(sub: Any) -> None:
+    """``keys init|allow|role|revoke|list``: one subcommand each, with its own --help and options."""
     from daemon.bus.command_table import ROLES
     from daemon.bus.roles import DEFAULT_ROLE
 
-    p = sub.add_parser("keys", help="CURVE keys: init | allow FILE [--role R] | role --name N --role R | "
-                                    "revoke --name N | list")
-    p.add_argument("action", choices=["init", "allow", "role", "revoke", "list"])
-    p.add_argument("file", nargs="?", help="allow: the client's public key file")
-    p.add_argument("--dir", help=f"keys folder (init; default {default_keys_dir()}) or allow-list "
-                                 f"(allow/role/revoke/list; default {DEFAULT_AUTH_DIR})")
-    p.add_argument("--name", help="init: key name; allow/role/revoke: the client's name in the allow-list")
-    p.add_argument("--role", choices=ROLES, help=f"allow (default {DEFAULT_ROLE}: may watch, not move) and "
-                                                 f"role: what the key may do")
-    p.add_argument("--bus", dest="offline", action="store_false",
-                   help="allow/role/revoke/list: change the daemon's allow-list over the bus, with an admin key "
-                        "(--endpoint/--key), instead of the files on this computer")
-    p.add_argument("--server", action="store_true", help="init: the robot's server key pair")
-    p.add_argument("--force", action="store_true", help="init: replace an existing key pair")
-    p.set_defaults(fn=cmd_keys, offline=True)
+    grp = sub.add_parser("keys", help="CURVE keys: init | allow FILE [--role R] | role --name N --role R | "
+                                      "revoke --name N | list")
+    grp.set_defaults(fn=None, parser_=grp)
+    ksub = grp.add_subparsers(title="keys verbs", metavar="ACTION")
+    allow_list = f"allow-list folder (default {DEFAULT_AUTH_DIR}; ignored with --bus)"
+    p = _add_action(ksub, "init", "make a CURVE key pair on this computer (offline)",
+                    "Make NAME.key (public, share it) and NAME.key_secret (mode 600) in the keys folder: "
+                    "--dir, else ritactl's --keys, else $RITA_KEYS, else ritactl.toml's keys_dir, else "
+                    f"{default_keys_dir()}.")
+    p.add_argument("--dir", metavar="DIR", help="keys folder (default: --keys, $RITA_KEYS, ritactl.toml's "
+                                                f"keys_dir, else {default_keys_dir()})")
+    p.add_argument("--name", metavar="NAME", help=f"key name (default {DEFAULT_KEY})")
+    p.add_argument("--server", action="store_true", help="the robot's server key pair (server.key)")
+    p.add_argument("--force", action="store_true", help="replace an existing key pair")
+    p = _add_action(ksub, "allow", "allow a client's public key, with a role",
+                    "Add a client's public key (NAME.key) to the robot's allow-list; it may connect from its "
+                    "next request, no restart.")
+    p.add_argument("file", metavar="FILE", help="the client's public key file (NAME.key, never the secret)")
+    p.add_argument("--name", metavar="NAME",
+                   help="the client's name in the allow-list (default: FILE's stem)")
+    p.add_argument("--role", choices=ROLES,
+                   help=f"what the key may do (default {DEFAULT_ROLE}: watch, not move)")
+    p.add_argument("--dir", metavar="DIR", help=allow_list)
+    _bus_option(p)
+    p = _add_action(ksub, "role", "change an allowed key's role (from its next request)",
+                    "Change the role of an allowed key, from its next request, without a restart.")
+    p.add_argument("--name", metavar="NAME", required=True, help="the client's name in the allow-list")
+    p.add_argument("--role", choices=ROLES, required=True, help="its new role")
+    p.add_argument("--dir", metavar="DIR", help=allow_list)
+    _bus_option(p)
+    p = _add_action(ksub, "revoke", "remove a key from the allow-list (refused from its next request)",
+                    "Remove a key from the allow-list: refused from its next request or connection, "
+                    "no restart.")
+    p.add_argument("--name", metavar="NAME", required=True, help="the client's name in the allow-list")
+    p.add_argument("--dir", metavar="DIR", help=allow_list)
+    _bus_option(p)
+    p = _add_action(ksub, "list", "the allowed keys: NAME ROLE PUBLIC-KEY",
+                    "List the allow-list's keys and roles.")
+    p.add_argument("--dir", metavar="DIR", help=allow_list)
+    _bus_option(p)
+
+
+__all__ = ["DEFAULT_AUTH_DIR", "DEFAULT_KEY", "KeyConfigError", "add_parser", "client_curve", "cmd_keys",
+           "resolve_connection"]

@@ -10,7 +10,7 @@ Examples::
     ritactl robot move MM --yes [--speed MM_S] | turn DEG --yes | stop | release | status
     ritactl camera capture --out frame.png | stream start | stream stop | status
     ritactl calibrate --reversal | experiment --mark X Y | measure-mark --mark X Y | results
-    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB
+    ritactl jobs | follow JOB | answer JOB TEXT | cancel JOB | resume JOB [--detach]
     ritactl validate FOLDER | recompute DATASET  # offline, on this computer
     ritactl plate survey FOLDER --plate DESIGN.json --out plate.json  # offline
     ritactl plate upload plate.json [--name NAME]  # to the robot's calibration folder (operator)
@@ -18,7 +18,9 @@ Examples::
                    [--max-size N] [--min-free N]
     ritactl replay FILE.mcap [--speed X|max] [--endpoint ipc:///PATH]  # republish it, for watch
     ritactl call COMMAND '{"arg": 1}'   # any bus command, JSON args
-    ritactl completion bash           # shell completion script
+    ritactl fetch [PATH ...] [--to DIR] [--quiet]  # datasets, results and reports from the robot
+    ritactl keys init | allow FILE | role | revoke | list   # CURVE keys (each with its --help)
+    ritactl completion bash|zsh|fish  # shell completion script
 
 The daemon is found at --endpoint, else $RITA_ENDPOINT, else ritactl.toml's endpoint, else
 ipc:///run/ritad/cmd; keys: --key/--keys/--config (docs/operations.md, Keys).
@@ -135,10 +137,19 @@ def _global_options(p: argparse.ArgumentParser, top: bool) -> None:
     p.add_argument("--json", action="store_true", help="JSON on stdout, errors too (docs/operations.md)", **keep)
 
 
+def _offline_only(p: argparse.ArgumentParser) -> bool:
+    """A verb that never talks to the daemon (validate, recompute, plate survey, keys init, completion)."""
+    return p.get_default("offline") is True and "--bus" not in p._option_string_actions
+
+
 def _add_globals_everywhere(p: argparse.ArgumentParser) -> None:
-    """Every verb accepts the global options after it too (``ritactl jobs --json``)."""
+    """Every verb accepts the global options after it too (``ritactl jobs --json``); an offline verb
+    only --json: it has no daemon to reach, so --endpoint and --timeout would mean nothing."""
     for child in {id(c): c for c in subparsers_of(p).values()}.values():
-        if not any(o in child._option_string_actions for o in GLOBAL_OPTIONS):
+        if _offline_only(child) and "--json" not in child._option_string_actions:
+            child.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                               help="JSON on stdout, errors too (docs/operations.md)")
+        elif not any(o in child._option_string_actions for o in GLOBAL_OPTIONS):
             _global_options(child, top=False)
         _add_globals_everywhere(child)
 

@@ -20,7 +20,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from daemon.ctl.exitcodes import Exit, for_verdict, missing_extra
+from daemon.ctl.exitcodes import CtlError, Exit, for_verdict
+from daemon.ctl.extras import LAPTOP, require
 from daemon.ctl.io import fail, say
 
 
@@ -52,12 +53,12 @@ def _show(plate: dict[str, Any], out: str) -> None:
 
 
 def cmd_survey(c: Any, a: argparse.Namespace) -> int:
-    try:
-        from daemon.bus.storage import atomic_write_json
-        from daemon.compute.survey import CalibrationError, survey_plate
-    except ImportError as exc:
-        e = missing_extra("ritactl plate survey", "laptop", "numpy and OpenCV", exc)
+    try:  # every package of the extra before anything is read or written
+        require("ritactl plate survey", LAPTOP)
+    except CtlError as e:
         return fail(e.exit, e.code, e.args[0], a.json)
+    from daemon.bus.storage import atomic_write_json
+    from daemon.compute.survey import CalibrationError, survey_plate
     if Path(a.out).resolve() == Path(a.plate).resolve():  # the design file is the survey's input: keep it
         return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file --plate {a.plate}: "
                                                  f"write the surveyed plate to another file", a.json)
@@ -103,7 +104,8 @@ def cmd_upload(c: Any, a: argparse.Namespace) -> int:
 
 
 def add_parsers(sub: Any) -> None:
-    grp = sub.add_parser("plate", help="plate definition tools (offline)")
+    grp = sub.add_parser("plate",
+                         help="plate definitions: survey (offline, on this computer), upload (to the robot)")
     grp.set_defaults(fn=None, parser_=grp)
     gsub = grp.add_subparsers(title="plate verbs", metavar="VERB")
     p = gsub.add_parser("survey", help="nest seats from photographs of the whole plate (offline, on this computer)",

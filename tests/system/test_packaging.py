@@ -36,7 +36,8 @@ def test_base_requirements_are_the_client_and_the_robot_extra_has_the_rest():
     assert names(project["dependencies"]) == set(CLIENT)
     extras = project["optional-dependencies"]
     assert HEAVY <= names(extras["robot"])
-    assert names(extras["laptop"]) == {"numpy", "opencv-python-headless"}  # no device packages on a laptop
+    # no device packages on a laptop; matplotlib draws the experiment's plot that `recompute --out` writes
+    assert names(extras["laptop"]) == {"numpy", "opencv-python-headless", "matplotlib"}
 
 
 def _closure(dist_names: list[str]) -> list[str]:

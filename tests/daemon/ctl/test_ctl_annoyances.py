@@ -57,10 +57,35 @@ def test_offline_verbs_without_numpy_or_opencv_name_the_laptop_extra(argv):
     assert "pip install 'rita[laptop]'" in res.stderr and "Traceback" not in res.stderr
 
 
+@pytest.fixture(scope="module")
+def experiment_dataset(tmp_path_factory) -> Path:
+    """An experiment folder from the independent writer (its calibration recomputed from its referencing)."""
+    import numpy as np
+
+    from daemon.compute.recompute import recompute
+    from tests.dataset_writer import write_experiment, write_referencing
+
+    tmp = tmp_path_factory.mktemp("datasets")
+    rob_H_cam = write_referencing(tmp / "ref")
+    write_experiment(tmp / "exp", recompute(tmp / "ref")[0], rob_H_cam, np.array([1500.0, 200.0, 3.0]))
+    return tmp / "exp"
+
+
+@pytest.mark.parametrize("blocked", ["matplotlib", "cv2"])
+def test_recompute_without_a_package_of_the_extra_writes_nothing(experiment_dataset, tmp_path, blocked):
+    """The laptop without the plot's matplotlib (issue 35): exit 5 naming the extra, before --out exists."""
+    out = tmp_path / "out"
+    res = python(without((blocked,), ["recompute", str(experiment_dataset), "--out", str(out)]))
+    assert res.returncode == Exit.BAD_INPUT, res.stderr
+    assert "pip install 'rita[laptop]'" in res.stderr and blocked in res.stderr
+    assert "Traceback" not in res.stderr
+    assert not out.exists()  # no partial report.md / report.csv / result.json
+
+
 def test_the_laptop_extra_computes_without_the_robots_device_packages():
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
     names = {r.split(">")[0].split("=")[0].strip().lower() for r in extras["laptop"]}
-    assert {"numpy", "opencv-python-headless"} <= names
+    assert {"numpy", "opencv-python-headless", "matplotlib"} <= names  # matplotlib: recompute --out's plot
     assert not names & {"harvesters", "genicam", "pyserial"}
     assert "rita[laptop]" in (ROOT / "docs" / "operations.md").read_text()
     assert "rita[laptop]" in (ROOT / "README.md").read_text()

@@ -194,3 +194,27 @@ def test_motion_text_says_how_the_motion_ended(reply, want):
     from daemon.ctl.device import motion_text
 
     assert motion_text("move", reply) == (want, Exit.OK)
+
+
+@pytest.mark.parametrize("command, reply, want", [
+    ("robot.stop", {"stopped": True, "latched": True, "jobs_stopped": []},
+     "robot halted; latched: no motion until `ritactl robot release`"),
+    ("robot.stop", {"stopped": False, "latched": True, "jobs_stopped": ["j1"],
+                    "message": "latched; the halt is sent as soon as the base answers"},
+     "robot NOT YET HALTED (latched; the halt is sent as soon as the base answers); latched: no motion until "
+     "`ritactl robot release`; 1 job(s) stopped: j1"),
+    ("robot.release", {"released": True, "was_latched": True},
+     "released the STOP latch: motions are allowed (a stopped job continues with `ritactl resume JOB`)"),
+    ("robot.release", {"released": True, "was_latched": False},
+     "nothing to release (no STOP latched): motions are allowed (a stopped job continues with "
+     "`ritactl resume JOB`)")])
+def test_stop_and_release_print_one_line_and_json_keeps_the_reply(command, reply, want, capsys):
+    """`ritactl robot stop/release` (issue 35, motion verbs): one line in words; --json: the reply."""
+    from daemon.ctl.device import cmd_device
+
+    client = types.SimpleNamespace(call_raw=lambda cmd, args, timeout: (dict(reply), []))
+    args = dict(json=False, timeout=None, command=command)
+    assert cmd_device(client, types.SimpleNamespace(**args)) == Exit.OK
+    assert capsys.readouterr().out == want + "\n"
+    assert cmd_device(client, types.SimpleNamespace(**{**args, "json": True})) == Exit.OK
+    assert json.loads(capsys.readouterr().out) == reply

@@ -135,21 +135,39 @@ def test_read_chunks_and_argument_checks(served) -> None:
         assert c.call("ping")["pong"]  # the daemon kept serving
 
 
-def test_fetch_copies_everything_then_skips(served, capsys) -> None:
+def test_fetch_copies_datasets_results_and_reports_then_skips(served, capsys) -> None:
     d, data, tmp = served
     dest = tmp / "laptop"
     ep = d.server.endpoints[0]
+    for own in ("worker.log", "stop_latch.json", "ritad.lock"):  # the daemon's housekeeping (issue 35)
+        (data / own).write_text("{}\n")
     assert ctl.main(["--endpoint", ep, "fetch", "--to", str(dest)]) == 0
-    for rel in ("datasets/run1/0000-a.png", "calibration/active.json", "empty.txt", "link_in"):
+    for rel in ("datasets/run1/0000-a.png", "calibration/active.json"):
         assert (dest / rel).read_bytes() == (data / rel).read_bytes(), rel
-    assert not (dest / "keys").exists() and not (dest / "link_out").exists()
+    taken = {p.relative_to(dest).parts[0] for p in dest.rglob("*") if p.is_file()}
+    assert taken == {"datasets", "calibration"}, taken  # not ritad.lock, stop_latch.json, worker.log, sim/
     assert not list(dest.rglob("*.part"))
     capsys.readouterr()
     assert ctl.main(["--endpoint", ep, "--json", "fetch", "--to", str(dest)]) == 0
     import json
 
     r = json.loads(capsys.readouterr().out)
-    assert r["fetched"] == [] and len(r["skipped"]) == 7 + 3 + 1 and r["errors"] == {}  # + sim/*.json + the station
+    # datasets/run1's three, calibration/'s two (active.json, the sim's tracker station)
+    assert r["fetched"] == [] and len(r["skipped"]) == 3 + 2 and r["errors"] == {}
+    assert ctl.main(["--endpoint", ep, "fetch", "report.md", "empty.txt", "--to", str(dest)]) == 0
+    for rel in ("report.md", "empty.txt"):  # a PATH names what it wants
+        assert (dest / rel).read_bytes() == (data / rel).read_bytes(), rel
+    capsys.readouterr()
+    assert ctl.main(["--endpoint", ep, "fetch", "--quiet", "--to", str(tmp / "quiet")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and out[0].startswith("5 fetched, 0 resumed"), out  # the summary alone
+
+
+def test_fetch_of_a_robot_without_procedures_yet(served, capsys) -> None:
+    d, data, tmp = served
+    assert not (data / "procedures").exists()  # a default folder that is not there yet lists nothing
+    assert ctl.main(["--endpoint", d.server.endpoints[0], "fetch", "-q", "--to", str(tmp / "l")]) == 0
+    assert ctl.main(["--endpoint", d.server.endpoints[0], "fetch", "procedures", "--to", str(tmp / "l")]) == 4
 
 
 def test_interrupted_fetch_resumes_where_it_stopped(served) -> None:
