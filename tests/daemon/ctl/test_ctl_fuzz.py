@@ -44,7 +44,8 @@ OWN_ERROR_TEXT = {"keys", "validate"}
 ENDED = ("fz-done", "fz-failed")
 # bus commands `call` may send: no motion, no long poll that would hold the reply
 # (robot.commission: the base's checks run for seconds, up to 600: its verb is fuzzed and always refused)
-CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox", "robot.commission"})
+CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox",
+                                   "robot.commission"})
 NUMBERS = ["0", "-1", "1", "200", "-200", "3.5", "1e3", "1e400", "-1e400", "nan", "inf", "-inf", "abc", "",
            "0x10", "1_000", "5e-324", "10001", "360", "-360.5", "1,5", " 7 "]
 TEXTS = ["", "x", "a b", "é€", "--", "-", "-x", "../../etc/passwd", "x" * 300, "{}", "null"]
