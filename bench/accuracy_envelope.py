@@ -27,7 +27,8 @@ DEFAULT = Compensation.parse(COMPENSATION.default)
 #: |error| / σ of a correct isotropic 2-D Gaussian σ (radial std): median, p95
 HONEST_RATIO = (0.833, 1.731)
 GOAL_KEYS = ("enclosing_mm", "pairwise_mm", "abs_rms_mm")
-#: the chord's heading error from the path deviation: 50 µm lateral over 0.2 m (docs/accuracy.md, "Error magnitudes")
+#: the chord's heading error from the path deviation: 50 µm lateral over 0.2 m
+#: (docs/accuracy.md, "Error magnitudes")
 HEADING_RAD = CHORD_HEADING_SIGMA_RAD
 #: the coverage table's columns: (heading, the per-stop σ key of fakes.accuracy.run)
 COVERAGE = (("10 µm, no heading term (as first stated)", "std_old_mm"), ("as stated", "std_mm"))
@@ -48,7 +49,8 @@ CASES = (
     _case("path deviation 35 µm (instead of 50) per 0.2 m", ("robot", "lateral_sigma_mm", 0.035)),
     _case("paper-fit+imu (mount eccentricity 0.18 mm)", profile="paper-fit+imu"),
     _case("straight drives (no path deviation)", ("robot", "lateral_sigma_mm", 0.0)),
-    Case("paper+imu", Compensation.parse("tilt,bias,mount"), name="the default without heading_fit (the chord)"),
+    Case("paper+imu", Compensation.parse("tilt,bias,mount"),
+         name="the default without heading_fit (the chord)"),
 )
 
 
@@ -100,7 +102,8 @@ def _mark(p: tuple[float, float]) -> str:
 
 
 def _cover_row(label: str, rows: list[dict[str, Any]]) -> str:
-    med = {k: float(np.median(np.concatenate([r[k] for r in rows]))) for k in ("sigma_t_mm", "std_old_mm", "std_mm")}
+    med = {k: float(np.median(np.concatenate([r[k] for r in rows])))
+           for k in ("sigma_t_mm", "std_old_mm", "std_mm")}
     return (f"| {label} | {med['sigma_t_mm'] * 1000:.1f} | {med['std_old_mm']:.3f} / {med['std_mm']:.3f} | "
             + " | ".join(_mark(coverage(rows, k)) for _, k in COVERAGE) + " |")
 
@@ -109,8 +112,9 @@ def envelope(seeds: list[int], cases: tuple[Case, ...] = CASES, jobs: int = 1) -
     """The goals table and the coverage table of ``cases`` (markdown; progress on stderr); ``jobs`` cases
     run at once in worker processes (each case's figures are the same either way: every run is seeded)."""
     g = GOALS_MM
-    goals = ["| Case | enclosing ≤ %.2f | pairwise ≤ %.2f | abs. RMS ≤ %.2f | goals at p95 | seeds meeting all |"
-             % (g["enclosing_mm"], g["pairwise_mm"], g["abs_rms_mm"]), "|---|---:|---:|---:|---|---:|"]
+    goals = ["| Case | enclosing ≤ %.2f | pairwise ≤ %.2f | abs. RMS ≤ %.2f | goals at p95 "
+             "| seeds meeting all |" % (g["enclosing_mm"], g["pairwise_mm"], g["abs_rms_mm"]),
+             "|---|---:|---:|---:|---|---:|"]
     cover = _cover_head()
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
@@ -127,5 +131,5 @@ def envelope(seeds: list[int], cases: tuple[Case, ...] = CASES, jobs: int = 1) -
     return "\n".join(goals) + "\n\n" + "\n".join(cover)
 
 
-__all__ = ["CASES", "COVERAGE", "DEFAULT", "HEADING_RAD", "HONEST_RATIO", "coverage", "envelope", "goal_cells",
-           "restated", "run_case"]
+__all__ = ["CASES", "COVERAGE", "DEFAULT", "HEADING_RAD", "HONEST_RATIO", "coverage", "envelope",
+           "goal_cells", "restated", "run_case"]

@@ -57,7 +57,8 @@ def budget_png(summary: dict[str, dict], goals: dict[str, float], paper: dict[st
         cv2.putText(img, label, (8, TOP + i * ROW_H + 16), FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for j, (key, title) in enumerate(PANELS):
         _panel(img, LABEL_W + j * PANEL_W, key, title, summary, goals.get(key), paper.get(key))
-    cv2.putText(img, "bar: median over seeds, whisker: p95; red: goal (paper+imu, default compensation, at p95); "
+    cv2.putText(img, "bar: median over seeds, whisker: p95; "
+                "red: goal (paper+imu, default compensation, at p95); "
                 "blue: the paper's glass plate", (8, h - 14), FONT, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
     ok, buf = cv2.imencode(".png", img)
     if not ok:

@@ -44,7 +44,8 @@ CASES = (Case("ideal"), Case("paper"), Case("paper", Compensation.parse("heading
          Case("paper+imu"), Case("paper+imu", Compensation.parse("tilt")),
          Case("paper+imu", Compensation.parse("tilt,heading_fit")), Case("paper+imu", DEFAULT),
          Case("paper+imu", ALL))
-HEAD = ("enclosing diameter", "pairwise cluster means", "abs. error RMS", "rob_H_cam t_xy", "rob_H_cam rotation [°]")
+HEAD = ("enclosing diameter", "pairwise cluster means", "abs. error RMS", "rob_H_cam t_xy",
+        "rob_H_cam rotation [°]")
 
 
 def seeds_of(n: int) -> list[int]:
@@ -89,8 +90,10 @@ def by_image_position(seeds: list[int], n_bins: int = 4) -> str:
         for seed in seeds:
             res = run(case, seed)
             wh = np.array(res["size"], float)
-            inside = np.all((res["uv"] >= 0) & (res["uv"] <= wh - 1), axis=1)  # the rest fell outside the image
-            r += list(np.linalg.norm(res["uv"][inside] - (wh - 1) / 2, axis=1) / np.linalg.norm(wh / 2))
+            # the rest fell outside the image
+            inside = np.all((res["uv"] >= 0) & (res["uv"] <= wh - 1), axis=1)
+            r += list(np.linalg.norm(res["uv"][inside] - (wh - 1) / 2, axis=1)
+                      / np.linalg.norm(wh / 2))
             e += list(res["err_mm"][inside])
         r_a, e_a = np.array(r), np.array(e)
         cells = []
@@ -109,7 +112,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="--envelope: cases run at once (processes)")
     ap.add_argument("--envelope", action="store_true", help="the default compensation's p95 goals and their "
                     "sensitivity envelope (use >= 20 seeds)")
-    ap.add_argument("--png", default=str(Path(__file__).resolve().parents[1] / "docs/img/accuracy-budget.png"))
+    ap.add_argument("--png",
+                    default=str(Path(__file__).resolve().parents[1] / "docs/img/accuracy-budget.png"))
     args = ap.parse_args()
     seeds = seeds_of(3 if args.quick else args.seeds)
     t0 = time.perf_counter()

@@ -46,8 +46,8 @@ def render_child(path: str) -> None:
     obs = sim.calibration()
     o = Simulation(world, replace(cfg, render=False)).validation().observations[0]
     mark_img = sim.renderer.render(o.abs_H_rob_true @ world.rob_H_cam, rng=np.random.default_rng(1))
-    np.savez(path, calib=obs.image, mark=mark_img, nests=obs.abs_P_nests, P0=obs.abs_P_rob0, P1=obs.abs_P_rob1,
-             prev=o.abs_P_prev, at=o.abs_P_at, uv_true=o.uv_true)
+    np.savez(path, calib=obs.image, mark=mark_img, nests=obs.abs_P_nests, P0=obs.abs_P_rob0,
+             P1=obs.abs_P_rob1, prev=o.abs_P_prev, at=o.abs_P_at, uv_true=o.uv_true)
 
 
 def rss_mb() -> float:
@@ -79,11 +79,13 @@ def full_size_timings() -> list[tuple[str, str, str]]:
     rows = [("Render 4024×3036 referencing + mark image (child process, excluded)", f"{t_render:.1f} s", "—"),
             ("Referencing from the 4024×3036 image (detect, PnP, SCS, nest fit, MC 200)", f"{t_ref:.2f} s",
              "≤ 2 s"),
-            ("  of which ChArUco detection + PnP alone (estimate_cam_H_ref, timed again)", f"{t_det:.2f} s", "—"),
+            ("  of which ChArUco detection + PnP alone (estimate_cam_H_ref, timed again)",
+             f"{t_det:.2f} s", "—"),
             ("  make_scs (timed again)", f"{t_scs * 1000:.0f} ms", "—"),
             ("  rob_H_cam error: t_xy / t_z / rotation",
              f"{err['t_xy_mm'] * 1000:.1f} µm / {err['t_z_mm'] * 1000:.1f} µm / {err['rot_deg']:.4f}°", "—"),
-            ("  corners / reprojection RMS / verdict", f"{res.n_corners} / {res.rms_px:.3f} px / {res.verdict}", "—")]
+            ("  corners / reprojection RMS / verdict",
+             f"{res.n_corners} / {res.rms_px:.3f} px / {res.verdict}", "—")]
     uv = data["uv_true"]
     try:
         import calibration.marks  # noqa: F401
@@ -93,7 +95,8 @@ def full_size_timings() -> list[tuple[str, str, str]]:
         for label, approx in (("whole image", None), ("window around a prior 15 px off", prior)):
             t0 = time.perf_counter()
             m = measure_image(data["mark"], scs, res.rob_H_scn, data["prev"], data["at"], kind="dot",
-                              approx_uv=approx, mark_size_mm=size_mm, cov_rob_H_scn=res.uncertainty.cov_rob_H_scn)
+                              approx_uv=approx, mark_size_mm=size_mm,
+                              cov_rob_H_scn=res.uncertainty.cov_rob_H_scn)
             t_mark = time.perf_counter() - t0
             rows.append((f"One mark measurement, 4024×3036, search {label} (locate + ACS + covariance)",
                          f"{t_mark * 1000:.0f} ms", "≤ 0.25 s"))
@@ -102,12 +105,13 @@ def full_size_timings() -> list[tuple[str, str, str]]:
         rows.append(("One mark measurement: calibration.marks not available", "—", "≤ 0.25 s"))
     t0 = time.perf_counter()
     for _ in range(20):
-        m = measure_mark(uv, scs, res.rob_H_scn, data["prev"], data["at"], cov_rob_H_scn=res.uncertainty.cov_rob_H_scn)
+        m = measure_mark(uv, scs, res.rob_H_scn, data["prev"], data["at"],
+                         cov_rob_H_scn=res.uncertainty.cov_rob_H_scn)
     t_geom = (time.perf_counter() - t0) / 20
     mark = np.array([world.params.marks[0].x_mm, world.params.marks[0].y_mm])
     rows.append(("Mark mapping only (image→ACS + covariance, mean of 20)", f"{t_geom * 1000:.1f} ms", "—"))
-    rows.append(("  mark error vs truth / predicted σ", f"{np.linalg.norm(m.abs_P[:2] - mark) * 1000:.1f} µm / "
-                 f"{m.std_mm * 1000:.1f} µm", "—"))
+    rows.append(("  mark error vs truth / predicted σ",
+                 f"{np.linalg.norm(m.abs_P[:2] - mark) * 1000:.1f} µm / {m.std_mm * 1000:.1f} µm", "—"))
     rows.append(("Peak RSS of this process (before referencing → after)", f"{rss0:.0f} → {rss_mb():.0f} MB",
                  "≤ 1 GB"))
     return rows
@@ -134,17 +138,20 @@ def protocol_stats(seeds: int) -> list[list[str]]:
                             cam_ref=obs.cam_ref, mc_samples=0)
             scs = make_scs(sim.model, res.cam_H_ref)
             val = sim.validation()
-            pts = np.array([measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at, roll_deg=o.roll_deg,
-                                         pitch_deg=o.pitch_deg).abs_P for o in val.observations])
+            pts = np.array([measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at,
+                                         roll_deg=o.roll_deg, pitch_deg=o.pitch_deg).abs_P
+                            for o in val.observations])
             v = np.array([o.abs_P_at - o.abs_P_prev for o in val.observations])
             m = experiment_metrics(pts, np.degrees(np.arctan2(v[:, 1], v[:, 0])))
             e = rob_H_cam_error(res.rob_H_cam, world.rob_H_cam)
-            rows.append([m.pairwise_mean_mm, m.enclosing_diameter_mm, max(c.max_from_mean_mm for c in m.clusters),
+            rows.append([m.pairwise_mean_mm, m.enclosing_diameter_mm,
+                         max(c.max_from_mean_mm for c in m.clusters),
                          float(np.linalg.norm(np.array(m.all.mean) - val.mark_abs[:2])), m.fit.b_norm_mm,
                          e["t_xy_mm"], e["rot_deg"]])
         a = np.array(rows)
         med, p95 = np.median(a, axis=0), np.percentile(a, 95, axis=0)
-        out.append([name] + [f"{x:.3f}/{y:.3f}" for x, y in zip(med[:-1], p95[:-1])] + [f"{med[-1]:.4f}/{p95[-1]:.4f}"])
+        out.append([name] + [f"{x:.3f}/{y:.3f}" for x, y in zip(med[:-1], p95[:-1])]
+                   + [f"{med[-1]:.4f}/{p95[-1]:.4f}"])
     return out
 
 
@@ -166,8 +173,8 @@ def main() -> None:
         print()
     t0 = time.perf_counter()
     stats = protocol_stats(args.seeds)
-    print(f"Simulation protocol, rendering-free (PnP on corners + 0.05 px, marks + 0.05 px), 8 directions × 5, "
-          f"{args.seeds} seeds, median/p95 in mm ({time.perf_counter() - t0:.1f} s):\n")
+    print(f"Simulation protocol, rendering-free (PnP on corners + 0.05 px, marks + 0.05 px), "
+          f"8 directions × 5, {args.seeds} seeds, median/p95 in mm ({time.perf_counter() - t0:.1f} s):\n")
     print("| Case | Pairwise mean of cluster means | Enclosing diameter, all | Max dev. in cluster | "
           "Grand-mean error | Fitted abs(b) | rob_H_cam t_xy | rob_H_cam rotation [°] |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")

@@ -11,7 +11,8 @@ CURVE on tcp, as a laptop connects. Three phases of ``--seconds`` each: (0) stre
 CURVE tcp) and a headless chromium page showing the live view at 5 fps, 1000 px wide.
 CPU is utime+stime from /proc over each phase (all threads). The rise attributed to the
 live view is B − A (``camera.preview``: a strided slice and a JPEG per shown frame, the
-command traffic, CURVE on ~130 kB pictures); B − 0 (stream plus console) is reported too. Page latency: acquisition
+command traffic, CURVE on ~130 kB pictures); B − 0 (stream plus console) is reported too.
+Page latency: acquisition
 (the frame header's ``host_time_ns``) to drawn on the canvas (``Date.now()`` in the page),
 same host clock.
 
@@ -59,7 +60,8 @@ def measure(seconds: float) -> dict[str, Any]:
             with console_session(args, tmp / "console") as (con, drv):
                 drv.execute_script("const s = document.getElementById('view-width'); s.value = '1000';"
                                    "s.dispatchEvent(new Event('change'));")
-                wait_for("frames drawn", lambda: drv.execute_script("return window.rita.framesDrawn") >= 5, 30)
+                wait_for("frames drawn",
+                         lambda: drv.execute_script("return window.rita.framesDrawn") >= 5, 30)
                 drv.execute_script("window.rita.latencies = []; window.rita.framesDrawn = 0;")
                 daemon, console = cpu_over([r.proc.pid, con.proc.pid], seconds)
                 lat = drv.execute_script("return window.rita.latencies")
@@ -82,15 +84,20 @@ def main() -> None:
     meta = m["meta"] or {}
     print(f"# bench_console\n\nMachine: {machine()}\n")
     print("| metric | value | goal | met |\n|---|---|---|---|")
-    print(f"| daemon CPU: stream off / stream on (5 fps, 4024×3036) / plus console live view, {a.seconds:g} s each "
+    print(f"| daemon CPU: stream off / stream on (5 fps, 4024×3036) / plus console live view, "
+          f"{a.seconds:g} s each "
           f"| {m['idle'] * 100:.1f} / {m['stream'] * 100:.1f} / {m['live'] * 100:.1f} % of a core | – | – |")
-    print(f"| daemon CPU rise from the live view (console pulling camera.preview over CURVE tcp) | {rise:+.1f} % of a core "
+    print(f"| daemon CPU rise from the live view (console pulling camera.preview over CURVE tcp) "
+          f"| {rise:+.1f} % of a core "
           f"| ≤ 5 % | {'yes' if rise <= 5 else 'NO'} |")
-    print(f"| daemon CPU rise, stream and live view together vs. stream off | {rise_idle:+.1f} % of a core | – | – |")
-    print(f"| console process CPU (5 fps, page {meta.get('out_w')}×{meta.get('out_h')} JPEG, 1:{meta.get('step')}) "
+    print(f"| daemon CPU rise, stream and live view together vs. stream off "
+          f"| {rise_idle:+.1f} % of a core | – | – |")
+    print(f"| console process CPU (5 fps, page {meta.get('out_w')}×{meta.get('out_h')} JPEG, "
+          f"1:{meta.get('step')}) "
           f"| {m['console'] * 100:.1f} % of a core | reported | – |")
     print(f"| frames drawn by the page | {m['page_fps']:.2f} /s (camera {m['camera_fps']:.2f} /s) | 5 | – |")
-    print(f"| latency acquisition → drawn in the page | p50 {pct(lat, 50):.0f} ms, p99 {pct(lat, 99):.0f} ms, "
+    print(f"| latency acquisition → drawn in the page "
+          f"| p50 {pct(lat, 50):.0f} ms, p99 {pct(lat, 99):.0f} ms, "
           f"max {max(lat, default=float('nan')):.0f} ms ({len(lat)} frames) | reported | – |")
 
 

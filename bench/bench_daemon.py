@@ -62,7 +62,8 @@ def main() -> None:
         time.sleep(3)  # let the sim devices connect so the daemon is in its steady state
         for cmd in ("ping", "status"):
             rt = round_trips(ep, cmd=cmd)
-            print(f"| `{cmd}` round trip, ipc, n={len(rt)} | p50 {pct(rt, 50):.3f} ms, p99 {pct(rt, 99):.3f} ms "
+            print(f"| `{cmd}` round trip, ipc, n={len(rt)} "
+                  f"| p50 {pct(rt, 50):.3f} ms, p99 {pct(rt, 99):.3f} ms "
                   f"| p99 ≤ 5 ms |")
     finally:
         r.stop()

@@ -42,8 +42,8 @@ def main() -> int:
     v = timed(lambda: validate_folder(root), 5)
     p = timed(lambda: png_info(root / "run0.png"), 5)
     r = timed(lambda: recompute(root), 3)
-    cli = timed(lambda: subprocess.run([sys.executable, "-m", "daemon.ctl.main", "validate", str(root)], cwd=ROOT,
-                                       check=True, capture_output=True), 3)
+    cli = timed(lambda: subprocess.run([sys.executable, "-m", "daemon.ctl.main", "validate", str(root)],
+                                       cwd=ROOT, check=True, capture_output=True), 3)
     med = statistics.median
     print(machine())
     print(f"\nreferencing folder, one {FULL[0]}×{FULL[1]} 8-bit PNG ({png_mb:.1f} MiB)\n")

@@ -37,7 +37,8 @@ def main() -> None:
     try:
         with Client(ep, timeout=30) as c:
             for what, path, total in (("one 200 MB file", "datasets/big", SIZES_MB[0] * 1e6),
-                                      (f"{SMALL_FILES} files of 100 kB", "datasets/small", SMALL_FILES * 1e5)):
+                                      (f"{SMALL_FILES} files of 100 kB", "datasets/small",
+                                       SMALL_FILES * 1e5)):
                 dest = tmp / "laptop"
                 t = time.perf_counter()
                 fetch(c, [path], dest, say=lambda _: None)

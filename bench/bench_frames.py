@@ -26,8 +26,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import (cpu_seconds, finish, machine, pct, ritad_toml, serve_subscriber, spawn,  # noqa: E402
-                          start_ritad, vm_kib)
+from bench.common import (  # noqa: E402
+    cpu_seconds, finish, machine, pct, ritad_toml, serve_subscriber, spawn, start_ritad, vm_kib)
 from daemon.bus.client import Client  # noqa: E402
 
 # --------------------------------------------------------------------------- subscriber process
@@ -94,7 +94,8 @@ def subscriber_main(endpoint: str, hwm: int, stalled: bool, linger_s: float = 1.
 
     stats = FrameStats()
     serve_subscriber(Subscriber(endpoint, ["camera.frame"], hwm=hwm),
-                     lambda f, rx: stats.add(unpack(f[1].buffer), f[2].buffer, rx), stats.result, stalled, linger_s)
+                     lambda f, rx: stats.add(unpack(f[1].buffer), f[2].buffer, rx),
+                     stats.result, stalled, linger_s)
 
 
 # --------------------------------------------------------------------------- daemon side
@@ -132,7 +133,8 @@ def run(fps: float, seconds: float) -> dict[str, Any]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="length of each measured run")
-    ap.add_argument("--max-fps", type=float, default=200.0, help="camera rate asked for in the throughput run")
+    ap.add_argument("--max-fps", type=float, default=200.0,
+                    help="camera rate asked for in the throughput run")
     ap.add_argument("--sub", metavar="ENDPOINT", help="(internal) run as frame subscriber")
     ap.add_argument("--hwm", type=int, default=0)
     ap.add_argument("--stalled", action="store_true")
@@ -155,7 +157,8 @@ def main() -> None:
     print(f"| latency acquisition → subscriber at 10 fps | p50 {slow['lat_p50_ms']:.1f} ms, "
           f"p99 {slow['lat_p99_ms']:.1f} ms (max {slow['lat_max_ms']:.1f}) | p99 ≤ 30 ms | "
           f"{'yes' if slow['lat_p99_ms'] <= 30 else 'NO'} |")
-    print(f"| of which publish → subscriber (zmq ipc transport) at 10 fps | p50 {slow['pub_lat_p50_ms']:.1f} ms, "
+    print(f"| of which publish → subscriber (zmq ipc transport) at 10 fps "
+          f"| p50 {slow['pub_lat_p50_ms']:.1f} ms, "
           f"p99 {slow['pub_lat_p99_ms']:.1f} ms | – | – |")
     print(f"| latency acquisition → subscriber at {fast['fps']:.0f} fps | p50 {fast['lat_p50_ms']:.1f} ms, "
           f"p99 {fast['lat_p99_ms']:.1f} ms | – | – |")

@@ -46,13 +46,15 @@ def one_case(size: tuple[int, int], k3: float, seed: int) -> dict:
             "pp_full_px": float(np.hypot(err[2], err[3]) * p.full_size[0] / size[0]),
             "max_z": max(abs(v) for v in z.values()), "worst": max(z, key=lambda n: abs(z[n])),
             "k3_fitted": report["k3"]["fitted"], "F": report["k3"]["F"], "rms_px": report["rms_px"],
-            "verdict_findings": report["findings"] + report["warnings"], "render_s": t1 - t0, "calib_s": t2 - t1}
+            "verdict_findings": report["findings"] + report["warnings"],
+            "render_s": t1 - t0, "calib_s": t2 - t1}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="full", help="full, reduced or WxH (default full)")
-    ap.add_argument("--k3", type=float, action="append", help="true k3 of the lens (repeatable; default 0 and -0.01)")
+    ap.add_argument("--k3", type=float, action="append",
+                    help="true k3 of the lens (repeatable; default 0 and -0.01)")
     ap.add_argument("--seeds", type=int, default=1, help="seeds per k3 (default 1)")
     a = ap.parse_args()
     p = WorldParams()
@@ -64,7 +66,8 @@ def main() -> None:
     for k3 in a.k3 or [0.0, -0.01]:
         for seed in range(1, a.seeds + 1):
             r = one_case(size, k3, seed)
-            print(f"| {k3:g} | {seed} | {r['df_pct']:.4f} | {r['pp_full_px']:.2f} | {r['max_z']:.2f} ({r['worst']}) "
+            print(f"| {k3:g} | {seed} | {r['df_pct']:.4f} | {r['pp_full_px']:.2f} "
+                  f"| {r['max_z']:.2f} ({r['worst']}) "
                   f"| {r['k3_fitted']} ({r['F']:.1f}) | {r['rms_px']:.3f} | {len(r['verdict_findings'])} | "
                   f"{r['render_s']:.0f} | {r['calib_s']:.1f} |", flush=True)
 

@@ -163,7 +163,8 @@ def measure(seconds: float, scale: float) -> dict[str, Any]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="length of the counted window")
-    ap.add_argument("--time-scale", type=float, default=1.0, help="simulated robot's wall time per robot second")
+    ap.add_argument("--time-scale", type=float, default=1.0,
+                    help="simulated robot's wall time per robot second")
     a = ap.parse_args()
     m = measure(a.seconds, a.time_scale)
     per_min = 60.0 / m["elapsed"]
@@ -176,9 +177,11 @@ def main() -> None:
     print("| figure | value |\n|---|---|")
     print(f"| **INFO lines per minute** (goal ≤ 60) | **{info * per_min:.1f}** |")
     print(f"| WARNING+ lines per minute | {warn * per_min:.1f} |")
-    print(f"| DEBUG lines per minute (not written at the default level, INFO) | {m['levels']['DEBUG'] * per_min:.1f} |")
+    print(f"| DEBUG lines per minute (not written at the default level, INFO) "
+          f"| {m['levels']['DEBUG'] * per_min:.1f} |")
+    busiest = sorted(m['calls'].items(), key=lambda kv: -kv[1])
     print(f"| page's bus calls per minute | {sum(m['calls'].values()) * per_min:.0f} "
-          f"({', '.join(f'{k} {v * per_min:.0f}' for k, v in sorted(m['calls'].items(), key=lambda kv: -kv[1]))}) |")
+          f"({', '.join(f'{k} {v * per_min:.0f}' for k, v in busiest)}) |")
     print("\nINFO+ lines by source (per minute): " + ", ".join(
         f"{k} {v * per_min:.1f}" for k, v in m["sources"].most_common(12)))
 

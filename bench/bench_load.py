@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_frames import FrameStats  # noqa: E402
 from bench.bench_tracker_daemon import TelemetryStats, lock_and_stream  # noqa: E402
-from bench.common import (cpu_seconds, finish, machine, pct, pick, ritad_toml, spawn, start_ritad,  # noqa: E402
-                          vm_kib)
+from bench.common import (  # noqa: E402
+    cpu_seconds, finish, machine, pct, pick, ritad_toml, spawn, start_ritad, vm_kib)
 from daemon.bus.client import Client  # noqa: E402
 from daemon.bus.protocol import CommandError  # noqa: E402
 
@@ -164,12 +164,14 @@ def report(r: dict[str, Any], duration: float) -> None:
     print(f"| drops, worker (ipc, all telemetry) | {w['sock_seq_gaps']} telemetry messages of "
           f"{w['messages']:,} | – | – |")
     print(f"| drops, viewer (tcp, frames) | {v['seq_gaps']} frames (+{v['dropped_before_socket']} before the "
-          f"socket) of {v['frames']}; latency p50 {v['lat_p50_ms']:.1f} / p99 {v['lat_p99_ms']:.1f} ms | – | – |")
+          f"socket) of {v['frames']}; "
+          f"latency p50 {v['lat_p50_ms']:.1f} / p99 {v['lat_p99_ms']:.1f} ms | – | – |")
     st, sf = s["telemetry"], s["frames"]
     # what it missed: messages the worker (all telemetry) and frames the viewer received that it never got
     print(f"| drops, stalled client (tcp, reads nothing until the streams stop) | telemetry: got "
           f"{st['messages']:,} of {w['messages']:,}; frames: got {sf['frames']} of {v['frames']} | "
-          f"only the stalled client loses | {'yes' if not w['sock_seq_gaps'] and not v['seq_gaps'] else 'NO'} |")
+          f"only the stalled client loses "
+          f"| {'yes' if not w['sock_seq_gaps'] and not v['seq_gaps'] else 'NO'} |")
     h = r["health"]
     print(f"| daemon-side drop counters | telemetry {h['telemetry']['dropped'] or 0}, frames "
           f"{h['frames']['dropped']} | – | – |")

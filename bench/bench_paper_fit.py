@@ -42,7 +42,8 @@ def columns_of(rows: list[dict[str, Any]]) -> list[float | tuple[float, float]]:
 
     return [med(lambda m: m.pairwise_mean_mm), med(lambda m: m.centroid_mean_mm),
             med(lambda m: m.enclosing_diameter_mm),
-            (med(lambda m: min(c.radius_mm for c in m.clusters)), med(lambda m: max(c.radius_mm for c in m.clusters))),
+            (med(lambda m: min(c.radius_mm for c in m.clusters)),
+             med(lambda m: max(c.radius_mm for c in m.clusters))),
             (med(lambda m: min(c.max_from_mean_mm for c in m.clusters)),
              med(lambda m: max(c.max_from_mean_mm for c in m.clusters))),
             med(lambda m: m.all.max_from_mean_mm), med(lambda m: m.all.mean_from_mean_mm)]
@@ -60,11 +61,12 @@ def paper_row() -> list[Any]:
 
 def recomputed() -> None:
     p = paper_table.columns()
-    print(f"mean over the 28 pairs of cluster means: {p['pairwise_mm']:.3f} mm; mean distance to their centroid: "
-          f"{p['centroid_mm']:.3f} mm; stated in the paper: {paper_table.STATED_PAIRWISE_MM} mm (matches neither)")
+    print(f"mean over the 28 pairs of cluster means: {p['pairwise_mm']:.3f} mm; "
+          f"mean distance to their centroid: {p['centroid_mm']:.3f} mm; "
+          f"stated in the paper: {paper_table.STATED_PAIRWISE_MM} mm (matches neither)")
     fits = p["bias_fit_rms_mm"]
-    print(f"M_k = M + R(ψ_k)·b fitted to the means leaves {fits[1]:.3f} mm rms (ψ as tabled), {fits[-1]:.3f} mm "
-          "(ψ negated)\n")
+    print(f"M_k = M + R(ψ_k)·b fitted to the means leaves {fits[1]:.3f} mm rms (ψ as tabled), "
+          f"{fits[-1]:.3f} mm (ψ negated)\n")
 
 
 def compare(seeds: list[int]) -> None:
@@ -84,7 +86,8 @@ def fit(seeds: list[int], grid: list[float]) -> float:
         med.append(float(np.median([r["pairwise_mm"] for r in rows])))
         print(f"| {v:.3f} | {med[-1]:.3f} |", flush=True)
     if not (min(med) <= target <= max(med)):
-        raise SystemExit(f"the grid {grid} does not bracket the table's pairwise {target:.3f} mm: widen --grid")
+        raise SystemExit(f"the grid {grid} does not bracket the table's pairwise {target:.3f} mm: "
+                         f"widen --grid")
     order = np.argsort(med)
     return float(np.interp(target, np.array(med)[order], np.array(grid)[order]))
 

@@ -66,7 +66,8 @@ def tracker_session(seconds: int, rng: random.Random) -> list[Message]:
 
 def frames(count: int, shape: tuple[int, int], rng: random.Random) -> list[Message]:
     t0 = 1_764_000_000_000_000_000
-    return [[b"camera.frame", pack({"v": 1, "seq": i + 1, "dropped": 0, "frame_id": i + 1, "pixel_format": "Mono8",
+    return [[b"camera.frame", pack({"v": 1, "seq": i + 1, "dropped": 0, "frame_id": i + 1,
+                                    "pixel_format": "Mono8",
                                     "shape": list(shape), "dtype": "|u1", "exposure_us": 2000.0,
                                     "t_ns": t0 + i * 200_000_000 - 7_000_000, "t_sigma_ns": 300_000,
                                     "device_time_ns": None, "host_time_ns": t0 + i * 200_000_000,
@@ -121,7 +122,8 @@ def main() -> None:
     a = ap.parse_args()
     rng = random.Random(21)
     loads = [(f"tracker 1 kHz + robot.state, {a.seconds} s", tracker_session(a.seconds, rng), a.seconds),
-             (f"frames 640×480 Mono8, {a.seconds} s at 5 fps", frames(a.seconds * 5, (480, 640), rng), a.seconds),
+             (f"frames 640×480 Mono8, {a.seconds} s at 5 fps", frames(a.seconds * 5, (480, 640), rng),
+              a.seconds),
              ("frames 4024×3036 Mono8 (12.2 MP), 20", frames(20, (3036, 4024), rng), 4.0)]
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -132,12 +134,13 @@ def main() -> None:
                 for ff in ("jpeg", "png"):
                     rows.append(measure(name, msgs, session_s, "none", a.repeat, Path(d), ff))
     print(machine())
-    print("\n| workload | compression | bus MB in | file MB | recorder MB/s | plain write MB/s | ratio (goal ≥ 0.8) "
-          "| messages/s | × the session's rate |")
+    print("\n| workload | compression | bus MB in | file MB | recorder MB/s | plain write MB/s "
+          "| ratio (goal ≥ 0.8) | messages/s | × the session's rate |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['workload']} | {r['compression']} | {r['in_mb']:.1f} | {r['file_mb']:.1f} | {r['rec_mbs']:.0f} "
-              f"| {r['plain_mbs']:.0f} | {r['ratio']:.2f} | {r['msg_per_s']:,.0f} | {r['real_time']:,.0f} |")
+        print(f"| {r['workload']} | {r['compression']} | {r['in_mb']:.1f} | {r['file_mb']:.1f} "
+              f"| {r['rec_mbs']:.0f} | {r['plain_mbs']:.0f} | {r['ratio']:.2f} | {r['msg_per_s']:,.0f} "
+              f"| {r['real_time']:,.0f} |")
 
 
 if __name__ == "__main__":

@@ -76,7 +76,8 @@ def dataset(rebuild: bool) -> Path:
 
 
 def run(args: list[str]) -> tuple[float, float]:
-    """(wall s, CPU s: user + system) of one fresh interpreter running ``args``; stops the bench on a failure."""
+    """(wall s, CPU s: user + system) of one fresh interpreter running ``args``; stops the bench on
+    a failure."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     t0 = time.perf_counter()
     p = subprocess.Popen([sys.executable, *args], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
@@ -106,20 +107,24 @@ def modules(folder: Path) -> Path:
     return out
 
 
-#: one recompute profiled in a fresh process, after the imports a ritactl run has done, threads as ritactl sets them
+#: one recompute profiled in a fresh process, after the imports a ritactl run has done, threads as
+#: ritactl sets them
 PROFILE = ("import cProfile, os, pstats, sys, time\nfrom pathlib import Path\n"
-           "os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\nos.environ.setdefault('OPENCV_FOR_THREADS_NUM', '1')\n"
+           "os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n"
+           "os.environ.setdefault('OPENCV_FOR_THREADS_NUM', '1')\n"
            "import daemon.ctl.main\n"
            "from daemon.compute.recompute import recompute\n"
-           "prof = cProfile.Profile()\nt0 = time.perf_counter()\nprof.enable()\nrecompute(Path(sys.argv[1]))\n"
-           "prof.disable()\nprint(f'recompute under cProfile, fresh process: {time.perf_counter() - t0:.3f} s')\n"
+           "prof = cProfile.Profile()\nt0 = time.perf_counter()\nprof.enable()\n"
+           "recompute(Path(sys.argv[1]))\n"
+           "prof.disable()\n"
+           "print(f'recompute under cProfile, fresh process: {time.perf_counter() - t0:.3f} s')\n"
            "pstats.Stats(prof).sort_stats('tottime').print_stats(15)\n")
 
 
 def profile(folder: Path) -> str:
     """The top 15 functions by own time of one recompute (cProfile) in a fresh process."""
-    out = subprocess.run([sys.executable, "-c", PROFILE, str(folder)], cwd=ROOT, capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True).stdout
+    out = subprocess.run([sys.executable, "-c", PROFILE, str(folder)], cwd=ROOT, capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True).stdout
     head, _, table = out.partition("   ncalls")
     return head.splitlines()[0] + "\n\n   ncalls" + table.rstrip()
 

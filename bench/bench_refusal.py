@@ -43,7 +43,8 @@ def main(n: int = 50) -> None:
     for name in ("alice", "mallory"):
         create_keypair(base / "laptop", name)
     (base / "data" / "authorized_keys").mkdir(parents=True)
-    (base / "data" / "authorized_keys" / "alice.key").write_bytes((base / "laptop" / "alice.key").read_bytes())
+    (base / "data" / "authorized_keys" / "alice.key").write_bytes(
+        (base / "laptop" / "alice.key").read_bytes())
     server = load_public(base / "data" / "keys" / "server.key")
     keys = {}
     for name in ("alice", "mallory"):
@@ -55,7 +56,8 @@ def main(n: int = 50) -> None:
     ep = r.endpoint
     try:
         time.sleep(2)
-        print("| client, fresh connection each time | first answer or refusal | refused | goal |\n|---|---|---|---|")
+        print("| client, fresh connection each time | first answer or refusal | refused | goal |\n"
+              "|---|---|---|---|")
         for label, curve, goal in (("allowed key (ping answered)", keys["alice"], "–"),
                                    ("unknown key", keys["mallory"], "≤ 1 s"),
                                    ("no keys (plaintext)", None, "≤ 1 s"),

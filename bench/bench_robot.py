@@ -80,7 +80,8 @@ def bench_round_trips(n: int) -> list[tuple[str, str]]:
             reopen.append(time.perf_counter() - t)
         rows += [(f"port vanished → DeviceLost, p50/p95 (n={len(lost)})",
                   f"{pct(lost, 50) * 1e3:.3f} / {pct(lost, 95) * 1e3:.3f} ms"),
-                 ("reopen on a new pty, p50/p95 (n=10)", f"{pct(reopen, 50) * 1e3:.2f} / {pct(reopen, 95) * 1e3:.2f} ms")]
+                 ("reopen on a new pty, p50/p95 (n=10)",
+                  f"{pct(reopen, 50) * 1e3:.2f} / {pct(reopen, 95) * 1e3:.2f} ms")]
     finally:
         robot.shutdown()
     return rows

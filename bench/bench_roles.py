@@ -47,7 +47,8 @@ def main(n: int = 3000) -> None:
     roles.write_entry(auth, "vic", load_public(public), "viewer")
     pub, sec = load_keypair(base / "laptop" / "vic.key_secret")
     curve = {"public": pub, "secret": sec, "server": load_public(base / "data" / "keys" / "server.key")}
-    r = start_ritad(ritad_toml(ipc_dir=None, tcp=True, devices=NO_DEVICES, curve=True), tmp=base)  # data: base/data
+    # data: base/data
+    r = start_ritad(ritad_toml(ipc_dir=None, tcp=True, devices=NO_DEVICES, curve=True), tmp=base)
     ep = r.endpoint
     print("| allowed keys | command | round trip, one open connection | goal |\n|---|---|---|---|")
     try:
@@ -63,7 +64,8 @@ def main(n: int = 3000) -> None:
                 for cmd in ("ping", "robot.release") if target in (1, 1000) else ("ping",):
                     t = round_trips(c, cmd, n)
                     what = "`robot.release` (forbidden: viewer)" if cmd != "ping" else "`ping`"
-                    print(f"| {target} | {what}, n={n} | p50 {pct(t, 50):.3f} ms, p99 {pct(t, 99):.3f} ms, max {max(t):.1f} ms | "
+                    print(f"| {target} | {what}, n={n} "
+                          f"| p50 {pct(t, 50):.3f} ms, p99 {pct(t, 99):.3f} ms, max {max(t):.1f} ms | "
                           f"p99 ≤ 5 ms |")
     finally:
         r.stop()

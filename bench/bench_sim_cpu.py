@@ -70,7 +70,8 @@ def main() -> None:
     print(machine())
     print("\n| ritad --sim | figure |\n|---|---|")
     print(f"| CPU, devices idle ({a.seconds:g} s) | {m['idle'] * 100:.1f} % of a core |")
-    print(f"| CPU, base driving ({a.seconds:g} s, {int(m['moves'])} moves) | {m['moving'] * 100:.1f} % of a core |")
+    print(f"| CPU, base driving ({a.seconds:g} s, {int(m['moves'])} moves) "
+          f"| {m['moving'] * 100:.1f} % of a core |")
     print(f"| `robot.status` round trip p50 / p95 (n={a.status}) | {m['status_p50'] * 1e3:.2f} / "
           f"{m['status_p95'] * 1e3:.2f} ms |")
 

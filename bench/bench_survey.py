@@ -53,14 +53,16 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=2400)
     a = ap.parse_args()
     print(f"plate survey, {a.views} photographs at {a.width}x{a.width * 2 // 3}; {machine()}\n")
-    print("| seed | error µm (r, g, b) | max abs(err)/σ | 3-D 1σ µm (r, g, b) | render s CPU | survey s CPU |")
+    print("| seed | error µm (r, g, b) | max abs(err)/σ | 3-D 1σ µm (r, g, b) "
+          "| render s CPU | survey s CPU |")
     print("|---|---|---|---|---|---|")
     worst = 0.0
     for seed in (int(s) for s in a.seeds.split(",")):
         err, ratio, sig, tr, ts = one(seed, a.views, a.width)
         worst = max(worst, max(err))
         fmt = ", ".join
-        print(f"| {seed} | {fmt(f'{e:.1f}' for e in err)} | {max(ratio):.2f} | {fmt(f'{s:.1f}' for s in sig)} | "
+        print(f"| {seed} | {fmt(f'{e:.1f}' for e in err)} | {max(ratio):.2f} "
+              f"| {fmt(f'{s:.1f}' for s in sig)} | "
               f"{tr:.1f} | {ts:.1f} |", flush=True)
     print(f"\nworst seat error {worst:.1f} µm (goal ≤ 50)")
     return 0

@@ -91,7 +91,8 @@ class TelemetryStats:
         span = self.last_rec_rx - self.first_rec_rx
         lat = self.latency_ms
         return {"messages": self.messages, "topics": self.topics, "sock_seq_gaps": self.sock_seq_gaps,
-                "records": self.records, "rec_seq_first": self.rec_seq_first, "rec_seq_end": self.rec_seq_next,
+                "records": self.records, "rec_seq_first": self.rec_seq_first,
+                "rec_seq_end": self.rec_seq_next,
                 "rec_seq_missing": self.rec_seq_missing, "dev_missing": self.dev_missing,
                 "record_span_s": span, "records_per_s": (self.records / span) if span > 0 else 0.0,
                 "latency_p50_ms": pct(lat, 50), "latency_p99_ms": pct(lat, 99)}
@@ -173,7 +174,8 @@ def main() -> None:
               f"publisher dropped {flood['telemetry_dropped']} msgs) | ≥ 20,000 | {'yes' if ok else 'NO'} |")
     print(f"| results lost at 1 kHz over {rt['record_span_s']:.0f} s ({a.packet_rate} packets/s) | "
           f"{lost} of {rt['adapter_points']:,} decoded (subscriber got {rt['records']:,}; seq gaps "
-          f"{rt['rec_seq_missing']}, device-time gaps {rt['dev_missing']}) | 0 | {'yes' if lost == 0 else 'NO'} |")
+          f"{rt['rec_seq_missing']}, device-time gaps {rt['dev_missing']}) "
+          f"| 0 | {'yes' if lost == 0 else 'NO'} |")
     print(f"| latency decode → subscriber at 1 kHz | p50 {rt['latency_p50_ms']:.2f} ms, "
           f"p99 {rt['latency_p99_ms']:.2f} ms | – | – |")
 

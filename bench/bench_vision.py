@@ -86,7 +86,8 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
     plate = world.plate()
     estimate_cam_H_ref(img, model, plate)  # warm the board/detector caches
     t_fast, pose = _timed(lambda: estimate_cam_H_ref(img, model, plate), repeats)
-    t_ocv, _ = _timed(lambda: pose_from_corners(*detect_corners(img, plate, fast=False), model, plate), repeats)
+    t_ocv, _ = _timed(lambda: pose_from_corners(*detect_corners(img, plate, fast=False), model, plate),
+                      repeats)
     t_scs, scs = _timed(lambda: make_scs(model, pose.cam_H_ref), repeats)
     from daemon.ritad.detect import _downscaled
 
@@ -137,7 +138,8 @@ def marks_group(size: tuple[int, int], repeats: int, q: mp.Queue) -> None:
                                                          float(rng.uniform(-180, 180))))
             truth = model.project(apply_H(inv_H(world.abs_H_cam()), [mark.x_mm, mark.y_mm, 0.0])[None])[0]
             size_px = mark.size_mm * model.f / world.abs_H_cam()[2, 3]
-            if not (4 * size_px < truth[0] < size[0] - 4 * size_px and 4 * size_px < truth[1] < size[1] - 4 * size_px):
+            if not (4 * size_px < truth[0] < size[0] - 4 * size_px
+                    and 4 * size_px < truth[1] < size[1] - 4 * size_px):
                 continue
             placed += 1
             img = renderer.render(rng=rng)
@@ -185,7 +187,8 @@ def _render_and_pose_rows(repeats: int) -> list[tuple[str, str, str]]:
         rows += [("estimate_cam_H_ref 4024×3036 (detection + IPPE + LM)", f"{r['fast']:.2f} s",
                   f"{r['n']} corners, ambiguity {r['ratio']:.0f}, peak RSS {r['rss']:.0f} MB"),
                  ("  same with OpenCV's marker identification", f"{r['opencv']:.2f} s", ""),
-                 ("  cam_H_ref vs truth 4024×3036", f"{r['rot']:.5f}°", f"footprint error {r['foot']:.2f} µm"),
+                 ("  cam_H_ref vs truth 4024×3036", f"{r['rot']:.5f}°",
+                  f"footprint error {r['foot']:.2f} µm"),
                  *[(f"live detection (camera.detect), search width {w or 'full'}", f"{t:.2f} s",
                     f"{n} corners") for w, (t, n) in r["live"].items()],
                  ("make_scs", f"{r['scs'] * 1000:.1f} ms", ""),
@@ -208,7 +211,8 @@ def main() -> None:
         m = r[kind]
         ms = {k: (statistics.median(m[k]) * 1000, pct(m[k], 95) * 1000) for k in ("c2f", "full")}
         rows += [(f"whole-image {kind} search 4024×3036, coarse to fine (n={len(m['c2f'])})",
-                  f"{ms['c2f'][0]:.1f} ms", f"p95 {ms['c2f'][1]:.1f} ms; goal ≤ 60 ms; mark {m['size_px']:.0f} px"),
+                  f"{ms['c2f'][0]:.1f} ms",
+                  f"p95 {ms['c2f'][1]:.1f} ms; goal ≤ 60 ms; mark {m['size_px']:.0f} px"),
                  (f"  same at full resolution (n={len(m['full'])})", f"{ms['full'][0]:.1f} ms",
                   f"p95 {ms['full'][1]:.1f} ms"),
                  (f"  coarse to fine vs full resolution, {kind}", f"{m['diff']:.4f} px max",

@@ -131,7 +131,8 @@ def write_referencing_folder(root: Path, size: tuple[int, int] = FULL, seed: int
         return {"abs_xyz": [float(v) for v in p]}
     header = {"shape": [size[1], size[0]], "dtype": "|u1"}
     state = {"schema": 1, "job": "bench", "procedure": "referencing",
-             "obs": {"plate": world.plate().to_dict(), "camera_model": sim.model.to_dict(), "sigma_t_mm": 0.010,
+             "obs": {"plate": world.plate().to_dict(), "camera_model": sim.model.to_dict(),
+                     "sigma_t_mm": 0.010,
                      "nests": {n: point(p) for n, p in zip(("red", "green", "blue"), obs.abs_P_nests)},
                      "runs": [{"tag": "run0", "image": "run0.png", "header": header,
                                "P0": point(obs.abs_P_rob0), "P1": point(obs.abs_P_rob1)}]}}

@@ -227,16 +227,23 @@ class ExperimentMetrics:
         lines += [f"*{k}*: {v}  " for k, v in self.summary()]
         return "\n".join(lines) + "\n"
 
+    #: the columns of :meth:`to_csv` (docs/datasets.md, "Experiment report")
+    CSV_COLUMNS = ("direction", "n", "mean_x_mm", "mean_y_mm", "max_from_mean_mm", "mean_from_mean_mm",
+                   "radius_mm", "heading_min_deg", "heading_max_deg")
+
     def to_csv(self) -> str:
-        """The table as CSV, then a blank line and metric,value rows."""
+        """The table as one tidy CSV: a header row, a row per direction and the ``All`` row, one number a
+        cell in full precision (the All row has no heading range: empty cells)."""
         import csv
 
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerows(self.rows())
-        w.writerow([])
-        w.writerow(["metric", "value"])
-        w.writerows(self.summary())
+        w.writerow(self.CSV_COLUMNS)
+        for c in [*self.clusters, self.all]:
+            rng = c.angle_range_deg if c is not self.all and c.angle_range_deg is not None else ["", ""]
+            w.writerow([c.name, c.n, *(repr(float(v)) for v in (*c.mean[:2], c.max_from_mean_mm,
+                                                                 c.mean_from_mean_mm, c.radius_mm)),
+                        *(v if v == "" else repr(float(v)) for v in rng)])
         return buf.getvalue()
 
 

@@ -5,8 +5,9 @@ Width/Height/OffsetX/OffsetY, ExposureTime, Gain,
 AcquisitionFrameRateEnable/AcquisitionFrameRate, TriggerSelector/TriggerMode/
 TriggerSource, PtpEnable with PtpSlaveOnly, then chunk data and the GigE transport (packet size,
 throughput limit, packet resend, stream buffers; :mod:`drivers.genicam_transport`,
-whose :func:`~drivers.genicam_transport.apply_all` runs the whole sequence). Pixel format comes first because it changes the ranges
-of the geometry features; geometry comes before exposure and frame rate because
+whose :func:`~drivers.genicam_transport.apply_all` runs the whole sequence). Pixel format comes
+first because it changes the ranges of the geometry features; geometry comes before exposure and
+frame rate because
 the maximum frame rate depends on the region of interest.
 
 Rules (the daemon is master, the camera is told what to be):

@@ -45,7 +45,8 @@ PTP_OFFSET_NODES = ("PtpOffsetFromMaster", "GevIEEE1588OffsetFromMaster")
 PTP_POLL_S = 1.0
 #: link statistic -> data-stream counters that may hold it (GenTL SFNC names first, then vendors')
 LINK_STATS = {
-    "resend_requests": ("StreamResendRequestCount", "StreamPacketResendRequestCount", "GevResendRequestCount"),
+    "resend_requests": ("StreamResendRequestCount", "StreamPacketResendRequestCount",
+                        "GevResendRequestCount"),
     "lost_packets": ("StreamLostPacketCount", "StreamMissedPacketCount", "GevFailedPacketCount"),
     "incomplete_frames": ("StreamIncompleteFrameCount",),
     "lost_frames": ("StreamLostFrameCount",),
@@ -105,7 +106,8 @@ def _packet_size(w: SettingsWriter, stream: SettingsWriter, want: int | str) -> 
         lo, hi, inc = int(node.min), int(node.max), max(1, int(node.inc))
         best = lo + (hi - lo) // inc * inc
         w.warn(f"packet_size='auto': the GenTL stream offers no StreamAutoNegotiatePacketSize; using the "
-               f"camera's maximum {name}={best} (every NIC and switch on the path must pass it: jumbo frames)")
+               f"camera's maximum {name}={best} "
+               "(every NIC and switch on the path must pass it: jumbo frames)")
         w.write(name, best)
         return
     if isinstance(want, bool) or not isinstance(want, int):
@@ -168,7 +170,8 @@ def _buffers(w: SettingsWriter, stream: SettingsWriter, want: int, set_buffers: 
     node_min = stream.read("StreamAnnounceBufferMinimum")
     lo = max(min_buffers, int(node_min) if isinstance(node_min, (int, float)) else 1)
     if want < lo:
-        stream.warn(f"stream_buffers={want} is below the GenTL producer's minimum of {lo} buffers; using {lo}")
+        stream.warn(f"stream_buffers={want} is below the GenTL producer's minimum of {lo} buffers; "
+                    f"using {lo}")
         want = lo
     stream.applied["StreamBufferCount"] = set_buffers(want)
 

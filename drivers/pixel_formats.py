@@ -169,7 +169,8 @@ def encode(image: np.ndarray, pixel_format: str, padding_x: int = 0) -> bytes:
     want = (fmt.channels,) if fmt.channels > 1 else ()
     if img.ndim != 2 + len(want) or img.shape[2:] != want or img.dtype != fmt.dtype:
         shape = f"(h, w, {fmt.channels})" if want else "(h, w)"
-        raise ValueError(f"{fmt.name} needs a {fmt.dtype} image of shape {shape}, got {img.dtype} {img.shape}")
+        raise ValueError(f"{fmt.name} needs a {fmt.dtype} image of shape {shape}, "
+                         f"got {img.dtype} {img.shape}")
     _check_size(fmt, img.shape[1], img.shape[0], padding_x)
     if fmt.bits == 12 and img.size and int(img.max()) > 4095:
         raise ValueError(f"{fmt.name}: value {int(img.max())} does not fit in 12 bits")

@@ -182,7 +182,8 @@ class SerialRobot(RobotLine, Robot):
         if self._version["protocol"] not in rp.PROTOCOL_VERSIONS or self._version["protocol"] > self.protocol:
             self.close()
             raise DeviceError(f"robot base speaks protocol {self._version['protocol']}, "
-                              f"driver speaks {'/'.join(map(str, rp.PROTOCOL_VERSIONS))}", code="robot_version")
+                              f"driver speaks {'/'.join(map(str, rp.PROTOCOL_VERSIONS))}",
+                              code="robot_version")
         if self._version["protocol"] < 2:  # what a version-1 base may say of clock and streams is not ours
             self._version["capabilities"] = [c for c in self._version["capabilities"] if c == rp.CAP_INCL]
         if self._watchdog_s is None:
@@ -313,7 +314,8 @@ class SerialRobot(RobotLine, Robot):
         seq = self._moving_seq if self._moving_seq and self._moving_seq > 0 else None
         self._moving_seq = None
         self.counters["recovered_events"] += 1
-        payload: dict[str, Any] = {"event": "DONE", "seq": seq, "host_time_ns": time.time_ns(), "recovered": True}
+        payload: dict[str, Any] = {"event": "DONE", "seq": seq, "host_time_ns": time.time_ns(),
+                                   "recovered": True}
         if state.state == "FAULT":
             payload.update(event="FAULT", reason=state.fault, text="event lost; state read from STATUS")
         else:

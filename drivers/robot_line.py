@@ -163,8 +163,8 @@ class RobotLine:
                         self.counters["naks"] += 1
                         reason = msg.fields[1] if len(msg.fields) > 1 else "?"
                         text = msg.fields[2] if len(msg.fields) > 2 else ""
-                        raise DeviceError(f"robot base refused {line.decode().strip()}: {reason} {text}".strip(),
-                                          code=f"robot_{reason.lower()}")
+                        refused = f"robot base refused {line.decode().strip()}: {reason} {text}"
+                        raise DeviceError(refused.strip(), code=f"robot_{reason.lower()}")
                     elif msg.kind != expect:
                         self.counters["unexpected"] += 1
                     else:

@@ -106,7 +106,8 @@ class Message:
     def field(self, index: int, name: str) -> str:
         """Field ``index`` (0 = first after the kind); a missing one raises ProtocolError."""
         if index >= len(self.fields):
-            raise ProtocolError("syntax", f"{self.kind}: missing field {index + 1} ({name}) in {self.body()!r}")
+            raise ProtocolError("syntax",
+                                f"{self.kind}: missing field {index + 1} ({name}) in {self.body()!r}")
         return self.fields[index]
 
     def number(self, index: int, name: str) -> float:
@@ -156,7 +157,8 @@ class StateSample:
 
     @classmethod
     def decode(cls, msg: Message) -> "StateSample":
-        return cls(device_us(msg, 0), msg.number(1, "x_mm"), msg.number(2, "y_mm"), msg.number(3, "heading_deg"),
+        return cls(device_us(msg, 0),
+                   msg.number(1, "x_mm"), msg.number(2, "y_mm"), msg.number(3, "heading_deg"),
                    msg.number(4, "v_left_mm_s"), msg.number(5, "v_right_mm_s"))
 
 

@@ -112,7 +112,8 @@ class StreamBatcher:
                 continue
             topic, fields = TOPICS[kind]
             columns = list(zip(*rows))
-            payload: dict[str, Any] = {"n": len(rows), "t_us": list(columns[0]), "host_time_ns": list(columns[1])}
+            payload: dict[str, Any] = {"n": len(rows), "t_us": list(columns[0]),
+                                       "host_time_ns": list(columns[1])}
             payload.update({name: list(col) for name, col in zip(fields, columns[2:])})
             self._rows[kind] = []
             self.emit(topic, payload)

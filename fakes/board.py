@@ -84,7 +84,8 @@ class HeldBoard:
         out = np.full_like(alb, np.float32(BENCH))  # the robot is on its stand: the bench is behind the board
         if not on.any():
             return out
-        tex = _prefiltered(self.board, self.texture, _footprint_texels(x, float(t @ n) / max(abs(float(n[2])), 1e-6)))
+        dist_mm = float(t @ n) / max(abs(float(n[2])), 1e-6)  # along the optical axis to the board
+        tex = _prefiltered(self.board, self.texture, _footprint_texels(x, dist_mm))
         th, tw = tex.shape
         # texel k's centre sits at (k + 0.5)/PPMM − MARGIN_MM: square edges fall on texel boundaries
         mx = np.clip((qx + MARGIN_MM) * PPMM - 0.5, -4, tw + 4).astype(np.float32)
@@ -136,8 +137,8 @@ def _texture(board: Board) -> np.ndarray:
         if tex is None:
             ppsq = board.square_mm * PPMM
             if abs(ppsq - round(ppsq)) > 1e-9:
-                raise ValueError(f"board {board.board_id!r}: square_mm={board.square_mm} is not a whole number "
-                                 f"of texels at {PPMM} texels/mm")
+                raise ValueError(f"board {board.board_id!r}: square_mm={board.square_mm} "
+                                 f"is not a whole number of texels at {PPMM} texels/mm")
             bw, bh = board.board_size_mm()
             m = round(MARGIN_MM * PPMM)
             tex = make_board(board).generateImage((round(bw * PPMM) + 2 * m, round(bh * PPMM) + 2 * m),

@@ -58,7 +58,8 @@ class CameraClock:
     def from_url(cls, url: DeviceURL, rng: np.random.Generator) -> "CameraClock":
         ptp = url.option("ptp", "none")
         if ptp != "none" and ptp not in PTP_STATES:
-            raise ValueError(f"camera URL {url.raw!r}: ptp={ptp!r} is not none or one of {', '.join(PTP_STATES)}")
+            raise ValueError(f"camera URL {url.raw!r}: ptp={ptp!r} is not none or one of "
+                             f"{', '.join(PTP_STATES)}")
         latency = url.option("latency_ms", 0.0, float)
         if not 0.0 <= latency < math.inf:
             raise ValueError(f"camera URL {url.raw!r}: latency_ms={latency} must be >= 0")

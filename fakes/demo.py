@@ -103,7 +103,8 @@ def run_intrinsics(c: Client, out: Path) -> int:
     (out / "camera_model.json").write_text(json.dumps(model))  # the second part takes it to another floor
     std = model.get("std") or {}
     K = model["K"]
-    print(f"  {len(r['_prompts'])} prompts answered; verdict {r['verdict']}; f = {K[0][0]:.2f} ± {std.get('fx', 0):.2f} px,"
+    print(f"  {len(r['_prompts'])} prompts answered; verdict {r['verdict']}; "
+          f"f = {K[0][0]:.2f} ± {std.get('fx', 0):.2f} px,"
           f" centre ({K[0][2]:.2f}, {K[1][2]:.2f}) px at {model['size'][0]}×{model['size'][1]}")
     print_goals(intrinsics_goals(score_camera_model(model, c.call("sim.truth"))))
     return 0
@@ -131,8 +132,8 @@ def run_referencing(c: Client, out: Path, endpoint: str, plate: Path, robot_trk:
 
     files = operator_files(c, out)
     say("referencing with instrument reversal (robot on the plate; tracker finds the nests)")
-    rc = ritactl(endpoint, "calibrate", "--reversal", "--plate", str(plate), "--nests-approx", str(files["nests"]),
-                 "--robot-approx", *(str(v) for v in robot_trk))
+    rc = ritactl(endpoint, "calibrate", "--reversal", "--plate", str(plate),
+                 "--nests-approx", str(files["nests"]), "--robot-approx", *(str(v) for v in robot_trk))
     if rc:
         return rc
     active = c.call("calib.results")["active"]
@@ -146,8 +147,9 @@ def run_calibration(c: Client, out: Path, endpoint: str, robot_trk: list[float])
     same camera and plate on a realistic floor (fakes/demo_floor.py): referencing and experiment."""
     from fakes.demo_floor import run_realistic_floor
 
-    print("\n  (sim.truth is read by the simulated operator's eye to point the tracker, and to score the results"
-          " printed as 'vs ground truth'; it never enters the product's calculations)")
+    print("\n  (sim.truth is read by the simulated operator's eye to point the tracker, "
+          "and to score the results printed as 'vs ground truth'; "
+          "it never enters the product's calculations)")
     rc = run_intrinsics(c, out)
     plate = None if rc else run_survey(c, out, endpoint)
     if plate is None:

@@ -15,8 +15,11 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from daemon.bus.client import Client
-from daemon.bus.figures import Goal, counted, counted_from, goal_cell, verdict
+from daemon.bus.figures import Goal, goal_cell, verdict, worse_lines
+from daemon.compute.report_shifts import compensation_effects, left_out_metrics
 from fakes.accuracy import GOALS_MM, PAPER_MM
 from fakes.launch import start_ritad
 from fakes.operator import lock_on_robot, rough_mark
@@ -30,16 +33,12 @@ ROWS = (("enclosing diameter [mm]", "enclosing"),
         ("mean pairwise distance of cluster means [mm]", "pairwise"),
         ("absolute error RMS vs truth [mm]", "abs_rms"), ("grand mean vs truth [mm]", "grand_mean"))
 
-#: why the enclosing diameter can grow when the other figures shrink (docs/accuracy.md, "Through ritad and
-#: the worker"): tilt, bias and mount move a direction's marks together; the bends scatter them within one
-WITHIN = ("tilt, bias and mount move each direction's marks together (they close the gaps between "
-          "directions); the enclosing diameter also holds the scatter within a direction from the bent "
-          "drives, which only heading_fit corrects")
 
-
-def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict[str, Any]) -> list[str]:
+def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict[str, Any],
+                  left_out: dict[str, dict[str, float]] | None = None) -> list[str]:
     """The paper's figures without and with the compensations, each goal met or MISSED for both columns, and
-    a line for every figure the compensations made worse, with its reason."""
+    a line for every figure the compensations made worse, naming the compensation that did (``left_out``:
+    per compensation the figures with it left out alone) or the possible reasons."""
     applied = "+".join(k for k, n in (comp.get("applied") or {}).items() if n) or "none"
     out = [f"| paper profile + inclinometer, 8 × 5 | the paper | without compensation | with {applied} "
            "| goal |",
@@ -49,25 +48,21 @@ def summary_lines(without: dict[str, float], with_: dict[str, float], comp: dict
         goal = f"{goal_cell(with_[k], GOALS[k])} (without: {verdict(GOALS[k].met(without[k]))})" \
             if k in GOALS else ""
         out.append(f"| {label} | {paper} | {without[k]:.3f} | {with_[k]:.3f} | {goal} |")
-    bends_left = comp.get("applied", {}).get("heading_fit", 0) < comp.get("stops", 0)
     for label, k in ROWS:
-        if round(with_[k], 3) > round(without[k], 3):  # worse as printed: the table shows it
-            why = [WITHIN] if k == "enclosing" and bends_left else []
-            why += not_applied(comp) or ["every requested compensation was applied at every stop: this run "
-                                         "does not show why"]
-            out.append(f"WORSE with the compensations: {label.split(' [')[0]} {without[k]:.3f} → "
-                       f"{with_[k]:.3f} mm (+{with_[k] - without[k]:.3f} mm), because:")
-            out += [f"  - {w}" for w in why]
+        left = {name: figures[k] for name, figures in (left_out or {}).items()}
+        out += worse_lines(label.split(" [")[0], without[k], with_[k], comp, k == "enclosing", left)
     return out
 
 
-def not_applied(comp: dict[str, Any]) -> list[str]:
-    """Each requested compensation some stops skipped: at how many stops it applied, why not (counted)."""
-    stops, out = comp.get("stops", 0), []
-    for name, why in (comp.get("skipped") or {}).items():
-        counts = (comp.get("skipped_stops") or {}).get(name)
-        reasons = counted_from(counts) if counts else counted(why)
-        out.append(f"{name} applied at {comp['applied'].get(name, 0)} of {stops} stops: {'; '.join(reasons)}")
+def left_out_scores(result: dict[str, Any], truth_mark: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per compensation the stops applied: the scored figures with it left out alone (each mark minus its
+    shift, daemon/compute/report_shifts.py, as the report names the one that made a figure worse)."""
+    effects = compensation_effects(result, result["dataset"])
+    out = {}
+    for name, metrics in left_out_metrics(result, effects).items():
+        marks = [{"abs_xyz": (np.asarray(m["abs_xyz"][:2]) - s.get(name, (0.0, 0.0))).tolist()}
+                 for m, s in zip(result["marks"], effects.shifts)]
+        out[name] = score_experiment({"marks": marks, "metrics": metrics}, truth_mark)
     return out
 
 
@@ -108,15 +103,15 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
     print("  " + plain["table_markdown"].replace("\n", "\n  "))
     print()
     scored = (score_experiment(plain, truth_marks[0]), score_experiment(result, truth_marks[0]))
-    for line in summary_lines(*scored, result.get("compensation") or {}):
+    left_out = left_out_scores(result, truth_marks[0])
+    for line in summary_lines(*scored, result.get("compensation") or {}, left_out):
         print(f"  {line}")
     report = out / "report"
     report.mkdir(exist_ok=True)
-    for f in ("report.md", "report.csv", "clusters.png"):
-        src = Path(result["dataset"]) / f
-        if src.exists():
-            (report / f).write_bytes(src.read_bytes())
-    print(f"\n  report files (with the compensations): {report}/report.md, report.csv, clusters.png")
+    files = [f for f in result.get("files") or [] if (Path(result["dataset"]) / f).exists()]
+    for f in files:
+        (report / f).write_bytes((Path(result["dataset"]) / f).read_bytes())
+    print(f"\n  report files (with the compensations) in {report}: {', '.join(files)}")
     return 0
 
 

@@ -28,7 +28,8 @@ class HeightField:
     def __init__(self, rng: np.random.Generator, rms_mm: float, correlation_mm: float,
                  slope: tuple[float, float] = (0.0, 0.0)) -> None:
         if not (rms_mm >= 0 and correlation_mm > 0):
-            raise ValueError(f"height field: rms_mm={rms_mm!r} must be >= 0, correlation_mm={correlation_mm!r} > 0")
+            raise ValueError(f"height field: rms_mm={rms_mm!r} must be >= 0, "
+                             f"correlation_mm={correlation_mm!r} > 0")
         self.k = rng.normal(0.0, 1.0 / correlation_mm, (N_WAVES, 2))
         self.phase = rng.uniform(0.0, 2.0 * math.pi, N_WAVES)
         self.amp = rms_mm * math.sqrt(2.0 / N_WAVES)

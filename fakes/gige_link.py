@@ -111,7 +111,8 @@ def sim_transport(s: Any, path_mtu: int, warnings: list[str]) -> tuple[LinkSetti
     if s.packet_size == "auto":
         link.packet_size = min(hi, path_mtu) // 4 * 4
     elif s.packet_size is not None:
-        if isinstance(s.packet_size, bool) or not isinstance(s.packet_size, int) or not lo <= s.packet_size <= hi:
+        if (isinstance(s.packet_size, bool) or not isinstance(s.packet_size, int)
+                or not lo <= s.packet_size <= hi):
             raise DeviceError(f"GevSCPSPacketSize={s.packet_size!r} is outside the camera's range {lo}..{hi}",
                               code="bad_setting")
         link.packet_size = s.packet_size

@@ -67,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     if r.get("failed"):
         print(f"intrinsics failed: {r.get('error')}", file=sys.stderr)
         return 2
-    print(f"intrinsics verdict={r['verdict']} ({len(r['_prompts'])} prompts answered by the simulated operator)")
+    print(f"intrinsics verdict={r['verdict']} "
+          f"({len(r['_prompts'])} prompts answered by the simulated operator)")
     for m in r.get("messages", []):
         print(f"  - {m}")
     return {"ok": 0, "warn": 1}.get(r["verdict"], 2)

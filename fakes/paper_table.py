@@ -37,7 +37,8 @@ ENCLOSING_MM = 0.747
 def recomputed() -> ExperimentMetrics:
     """calibration/metrics.py on the eight cluster means (one point per direction)."""
     c = list(CLUSTERS.values())
-    return experiment_metrics(np.array([[v[1], v[2]] for v in c]), np.array([v[0] for v in c]), list(CLUSTERS))
+    return experiment_metrics(np.array([[v[1], v[2]] for v in c]), np.array([v[0] for v in c]),
+                              list(CLUSTERS))
 
 
 def columns() -> dict[str, Any]:
@@ -46,7 +47,8 @@ def columns() -> dict[str, Any]:
     v = np.array([c[3:] for c in CLUSTERS.values()])
     signs = {s: fit_bias(np.array([[c[1], c[2]] for c in CLUSTERS.values()]),
                          s * np.array([c[0] for c in CLUSTERS.values()])).rms_mm for s in (1, -1)}
-    return {"pairwise_mm": m.pairwise_mean_mm, "centroid_mm": m.centroid_mean_mm, "enclosing_mm": ENCLOSING_MM,
+    return {"pairwise_mm": m.pairwise_mean_mm, "centroid_mm": m.centroid_mean_mm,
+            "enclosing_mm": ENCLOSING_MM,
             "radius_range_mm": (float(v[:, 2].min()), float(v[:, 2].max())),
             "max_from_mean_range_mm": (float(v[:, 0].min()), float(v[:, 0].max())),
             "all_max_from_mean_mm": ALL_ROW[0], "all_mean_from_mean_mm": ALL_ROW[1],

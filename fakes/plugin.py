@@ -29,15 +29,15 @@ COMMANDS: tuple[Command, ...] = (
             "operator", motion="moves", result="{x_mm, y_mm, heading_deg}", args=(
                 Arg("heading_deg", "float", "robot heading", unit="°", lo=-360, hi=360,
                     default_text="plate yaw + 60"),)),
-    Command("sim.hold_board", "simulated world only: the operator holds the calibration board under the camera "
-            "(pose in the camera frame), or takes it away", "operator",
+    Command("sim.hold_board", "simulated world only: the operator holds the calibration board under "
+            "the camera (pose in the camera frame), or takes it away", "operator",
             result="{held, board_id, cam_H_board}", args=(
-                Arg("z_mm", "float", "board centre's depth along the optical axis", unit="mm", lo=0, lo_open=True,
-                    default_text="the board is taken away"),
+                Arg("z_mm", "float", "board centre's depth along the optical axis", unit="mm", lo=0,
+                    lo_open=True, default_text="the board is taken away"),
                 Arg("x_mm", "float", "board centre, camera x (image right)", unit="mm", default=0.0),
                 Arg("y_mm", "float", "board centre, camera y (image down)", unit="mm", default=0.0),
-                Arg("tilt_x_deg", "float", "tilt about the image x axis (+: top edge towards the camera)", unit="°",
-                    default=0.0, lo=-80, hi=80),
+                Arg("tilt_x_deg", "float", "tilt about the image x axis (+: top edge towards the camera)",
+                    unit="°", default=0.0, lo=-80, hi=80),
                 Arg("tilt_y_deg", "float", "tilt about the image y axis (+: right edge towards the camera)",
                     unit="°", default=0.0, lo=-80, hi=80),
                 Arg("rot_deg", "float", "turn in the image plane (+: clockwise in the image)", unit="°",
@@ -52,7 +52,8 @@ COMMANDS: tuple[Command, ...] = (
 )
 
 #: the [sim] section: key -> (type, default)
-SECTION: dict[str, tuple[type, Any]] = {"seed": (int, 1), "tracker_sigma_mm": (float, 0.010), "profile": (str, "ideal")}
+SECTION: dict[str, tuple[type, Any]] = {"seed": (int, 1), "tracker_sigma_mm": (float, 0.010),
+                                        "profile": (str, "ideal")}
 
 
 def _typed(key: str, value: Any, kind: type, where: str) -> Any:
@@ -75,7 +76,8 @@ class SimSession:
         if DeviceURL.parse(urls["tracker"]).scheme == SCHEME:  # the simulated tracker stands in this world
             atomic_write_json(Path(data_dir) / STATION_FILE,
                               {"abs_H_trk": self.world.abs_H_trk.tolist(),
-                               "source": f"simulated world (seed {section['seed']}, profile {section['profile']})"})
+                               "source": f"simulated world (seed {section['seed']}, "
+                                         f"profile {section['profile']})"})
 
     def urls(self, urls: dict[str, str]) -> dict[str, str]:
         """Every ``sim:`` URL names this world (others unchanged)."""
@@ -99,8 +101,8 @@ class SimSession:
         def truth(req: Any) -> Any:
             out = w.truth()
             size = s.device_info("camera").get("size") or list(w.params.reduced_size)
-            out["camera_model"] = {"K": w.camera_matrix(tuple(size)).tolist(), "dist": w.dist_coeffs().tolist(),
-                                   "size": list(size)}
+            out["camera_model"] = {"K": w.camera_matrix(tuple(size)).tolist(),
+                                   "dist": w.dist_coeffs().tolist(), "size": list(size)}
             out["plate"] = w.plate().to_dict()
             return out
 
@@ -112,7 +114,8 @@ class SimSession:
             return {"x_mm": pose.x_mm, "y_mm": pose.y_mm, "heading_deg": pose.heading_deg}
 
         def hold_board(req: Any) -> Any:
-            """The operator holds the intrinsics board under the camera (an operator's hands on the real robot)."""
+            """The operator holds the intrinsics board under the camera (an operator's hands on the
+            real robot)."""
             try:
                 return w.hold_board(**req.args)
             except ValueError as exc:
@@ -130,8 +133,8 @@ class SimSession:
 
             return s.storage.submit(run)
 
-        return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate, "sim.hold_board": hold_board,
-                "sim.survey_images": survey_images}
+        return {"sim.truth": truth, "sim.place_robot_on_plate": place_robot_on_plate,
+                "sim.hold_board": hold_board, "sim.survey_images": survey_images}
 
 
 class SimPlugin:

@@ -53,7 +53,8 @@ def _paper_imu(p: WorldParams) -> WorldParams:
 
 
 def _fitted(q: WorldParams) -> WorldParams:
-    reflector = replace(q.errors.reflector or ReflectorErrors(), mount_eccentricity_mm=PAPER_FIT_ECCENTRICITY_MM)
+    reflector = replace(q.errors.reflector or ReflectorErrors(),
+                        mount_eccentricity_mm=PAPER_FIT_ECCENTRICITY_MM)
     return q.with_(errors=replace(q.errors, reflector=reflector))
 
 

@@ -336,7 +336,8 @@ class Renderer:
             r = np.hypot(qx[near] - seat[0], qy[near] - seat[1])
             ring = _coverage(r - NEST_RING_MM[1], wd)
             hole = _coverage(r - NEST_RING_MM[0], wd)
-            alb[near] = alb[near] * (1 - ring) + self._ring_albedo(name) * (ring - hole) + NEST_HOLE_GREY * hole
+            alb[near] = (alb[near] * (1 - ring) + self._ring_albedo(name) * (ring - hole)
+                         + NEST_HOLE_GREY * hole)
         return alb
 
     def _ring_albedo(self, name: str) -> float:
@@ -370,6 +371,7 @@ class Renderer:
                 inner = (WHITE + DARK) / 2 - (WHITE - DARK) / 2 * sx * sy
                 cov = (_coverage(np.abs(dx) - mark.size_mm, wd) * _coverage(np.abs(dy) - mark.size_mm, wd))
             else:
-                raise ValueError(f"mark {mark.name!r}: unknown kind {mark.kind!r} (expected 'dot' or 'cross')")
+                raise ValueError(f"mark {mark.name!r}: unknown kind {mark.kind!r} "
+                                 f"(expected 'dot' or 'cross')")
             alb[near] = alb[near] * (1 - cov) + inner * cov
         return alb.astype(np.float32)

@@ -90,8 +90,10 @@ class FakeBase:
         offset = seeded_offset_s(world.rng("robot.clock")) if clock_offset_s is None else clock_offset_s
         self.base_clock = BaseClock(clock(), offset, clock_drift_ppm)
         incl_rng = world.rng("robot.incl.stream")  # its own: STATUS readings stay as they were
-        self.streams = SampleStreams(self.base_clock, (lambda r, p: world.effects.inclinometer(r, p, incl_rng))
-                                     if world.params.base_has_inclinometer else None, time_scale, incl_rate_hz)
+        self.streams = SampleStreams(self.base_clock,
+                                     (lambda r, p: world.effects.inclinometer(r, p, incl_rng))
+                                     if world.params.base_has_inclinometer else None,
+                                     time_scale, incl_rate_hz)
         self.counters = {"rx_lines": 0, "garbage": 0, "bad_checksum": 0, "naks": 0, "duplicates": 0,
                          "lost_booting": 0}
         self.boot = boot or Boot()  # silent while it boots, its banner after (fakes/robot_boot.py)
@@ -256,7 +258,8 @@ class FakeBase:
 
     def _move(self, seq: int, msg: rp.Message) -> None:
         dist, speed = msg.number(1, "distance_mm"), msg.number(2, "speed_mm_s")
-        start = self._accepted(seq, msg, dist, speed, rp.MAX_DISTANCE_MM, (rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S), "d")
+        start = self._accepted(seq, msg, dist, speed, rp.MAX_DISTANCE_MM,
+                               (rp.MIN_SPEED_MM_S, rp.MAX_SPEED_MM_S), "d")
         if start is None:
             return
         p, fx = self.world.params, self.world.effects
@@ -307,7 +310,8 @@ class FakeBase:
     # ------------------------------------------------------------------ motion
 
     def tick(self) -> None:
-        """Advance the motion in progress to the current time and queue the samples due (the server calls it)."""
+        """Advance the motion in progress to the current time and queue the samples due (the server
+        calls it)."""
         with self._lock:
             if (banner := self.boot.banner_due(self.clock())) is not None:
                 self._out.append(banner)
@@ -324,7 +328,8 @@ class FakeBase:
             if when:
                 reboot(self, self.clock())
 
-    def state_at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
+    def state_at(self, t: float
+                 ) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
         """Odometry, wheel speeds and true tilt at clock time ``t`` (the STATE/INCL samples' source)."""
         return motion_state(self, t)
 
@@ -384,7 +389,8 @@ class FakeBase:
         roll, pitch = self._tilt_rng.standard_normal(2) * p.floor_tilt_sigma_mrad * 1e-3
         # settle adds the surface's tilt under the wheels to the random settling tilt
         self.world.set_robot(self.world.settle(replace(pose, heading_deg=wrap_deg(pose.heading_deg),
-                                                       roll_rad=float(roll), pitch_rad=float(pitch), z_mm=None)))
+                                                       roll_rad=float(roll), pitch_rad=float(pitch),
+                                                       z_mm=None)))
         self.odometry = (ox, oy, wrap_deg(oh))
         self.travelled_mm += f * m.path
         self._last_motion = (m, self.clock())  # pose_at answers for it up to this tick

@@ -42,7 +42,8 @@ def unit_interval(name: str, value: float) -> float:
     return value
 
 
-def motion_state(base: Any, t: float) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
+def motion_state(base: Any, t: float
+                 ) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
     """Odometry (x, y, heading), wheel speeds (mm/s of simulated time) and true tilt (rad) of a
     ``FakeBase`` at clock time ``t``: from the motion under way then (its velocity profile), else
     the standstill. The caller holds the base's lock."""

@@ -60,7 +60,8 @@ class BaseClock:
 class StateSource(Protocol):
     """What the streams read from the base: the state at a clock time (the base's lock held)."""
 
-    def state_at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
+    def state_at(self, t: float
+                 ) -> tuple[tuple[float, float, float], tuple[float, float], tuple[float, float]]:
         """(odometry x, y, heading; wheel speeds left, right; true roll, pitch in rad) at clock time ``t``."""
         ...
 
@@ -109,7 +110,8 @@ class SampleStreams:
         while self._next_state <= d_now:
             d, self._next_state = self._next_state, self._next_state + period
             (x, y, h), (vl, vr), _ = source.state_at(self.clock.true_time(d))
-            out.append((d, rp.StateSample(int(round(d * 1e6)), x, y, math.remainder(h, 360.0), vl, vr).encode()))
+            sample = rp.StateSample(int(round(d * 1e6)), x, y, math.remainder(h, 360.0), vl, vr)
+            out.append((d, sample.encode()))
             self.counters["state_samples"] += 1
         if self._next_incl is not None and self.inclinometer is not None:
             self._next_incl = self._skip(self._next_incl, d_now, self.incl_period_s)

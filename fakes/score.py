@@ -28,7 +28,8 @@ def score_camera_model(model: dict[str, Any], truth: dict[str, Any]) -> dict[str
 
 
 def true_seats(truth: dict[str, Any]) -> dict[str, np.ndarray]:
-    """Nest seats in PCS from the truth: SMR centres (ACS) → PCS, + δ along PCS z (plate.json's convention)."""
+    """Nest seats in PCS from the truth: SMR centres (ACS) → PCS, + δ along PCS z (plate.json's
+    convention)."""
     ref_H_abs = np.linalg.inv(np.asarray(truth["abs_H_ref"], float))
     delta = truth["plate"]["smr_offset_mm"]
     return {n: ref_H_abs[:3, :3] @ np.asarray(P, float) + ref_H_abs[:3, 3] + [0, 0, delta]
@@ -51,4 +52,5 @@ def score_experiment(result: dict[str, Any], mark: dict[str, Any]) -> dict[str, 
             "grand_mean": float(np.hypot(*d.mean(axis=0)))}
 
 
-__all__ = ["FULL_WIDTH_PX", "score_camera_model", "score_experiment", "score_nests", "score_rob_H_cam", "true_seats"]
+__all__ = ["FULL_WIDTH_PX", "score_camera_model", "score_experiment", "score_nests", "score_rob_H_cam",
+           "true_seats"]

@@ -19,8 +19,8 @@ nests: a coloured ring (red, green, blue; inner/outer radius 9/14 mm, the radii 
 fakes/render.py) around a dark seat, centred on the *true* seats (the plate
 definition's nests may be biased). Beyond the plate the floor is a flat grey.
 Imaging: box filter, Gaussian PSF, vignetting, black/white levels and shot + read
-noise per channel with the ranges of the robot camera's (docs/accuracy.md, "The nominal world"); no Bayer mosaic (a DSLR
-delivers demosaiced RGB), no chromatic aberration, depth of field or JPEG.
+noise per channel with the ranges of the robot camera's (docs/accuracy.md, "The nominal world");
+no Bayer mosaic (a DSLR delivers demosaiced RGB), no chromatic aberration, depth of field or JPEG.
 """
 from __future__ import annotations
 
@@ -142,7 +142,8 @@ class SurveyRenderer:
         img = board.generateImage((round(w_mm * ppmm), round(h_mm * ppmm)), marginSize=0, borderBits=1)
         if out_ppmm != ppmm:
             # uint8 averaging rounds to 1/255: the main target is only scenery in these views
-            img = cv2.resize(img, (round(w_mm * out_ppmm), round(h_mm * out_ppmm)), interpolation=cv2.INTER_AREA)
+            img = cv2.resize(img, (round(w_mm * out_ppmm), round(h_mm * out_ppmm)),
+                             interpolation=cv2.INTER_AREA)
         return (DARK + (WHITE - DARK) / 255.0 * img.astype(np.float32)).astype(np.float32)
 
     def _rays(self) -> tuple[np.ndarray, np.ndarray]:
@@ -245,7 +246,8 @@ def render_views(world: World, n: int = 8, size: tuple[int, int] = (2400, 1600),
     return [r.render(H, rng) for H in poses], poses
 
 
-def install(world: World, data_dir: str | Path, n: int = 8, size: tuple[int, int] = (2400, 1600)) -> list[Path]:
+def install(world: World, data_dir: str | Path, n: int = 8,
+            size: tuple[int, int] = (2400, 1600)) -> list[Path]:
     """Write ``n`` survey photographs as PNG into ``data_dir/sim/survey/`` (atomically); their paths."""
     from daemon.bus.storage import atomic_write_bytes
 

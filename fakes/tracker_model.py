@@ -155,8 +155,10 @@ class TrackerModel:
             return self.world.effects.tracker_measure(pos, self.rng)
         return pos + self.rng.normal(0.0, self.sigma_mm, 3)
 
-    def measure_records(self, n: int, t0_s: float, dt_s: float, origin_s: float | None = None) -> np.ndarray | None:
-        """``n`` continuous records, the first at time ``t0_s`` (s since server start at monotonic ``origin_s``).
+    def measure_records(self, n: int, t0_s: float, dt_s: float,
+                        origin_s: float | None = None) -> np.ndarray | None:
+        """``n`` continuous records, the first at time ``t0_s`` (s since server start at monotonic
+        ``origin_s``).
 
         With ``origin_s``, the robot's reflector is measured where the robot was at each
         record's time (``World.robot_at``), so a stream taken while it drives follows its path.

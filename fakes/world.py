@@ -161,7 +161,8 @@ class World:
         self.robot = self.settle(self.robot)
         #: recent (monotonic time, pose) of the robot, so a tracker stream sees it where it was when
         #: each record was taken, not where it is when the packet goes out (the base moves between)
-        self.robot_track: deque[tuple[float, RobotPose]] = deque([(time.monotonic(), self.robot)], maxlen=2000)
+        self.robot_track: deque[tuple[float, RobotPose]] = deque([(time.monotonic(), self.robot)],
+                                                                 maxlen=2000)
         #: the base's pose as a function of time during a motion (fakes/robot_base.py ``FakeBase.pose_at``),
         #: asked first by robot_at: the track only holds the poses the base set when it was ticked
         self.pose_source: Callable[[float], RobotPose | None] | None = None

@@ -94,6 +94,9 @@ def operator_views(drv, c, data: Path, out: Path) -> None:
     time.sleep(1.0)  # the plot reads the dataset's result.json
     drv.execute_script("document.getElementById('result-plot').scrollIntoView({block: 'end'})")
     drv.save_screenshot(str(out / "console-experiment.png"))
+    drv.execute_script("document.getElementById('live-panel').scrollIntoView({block: 'end'})")
+    time.sleep(1.0)  # the plots redraw twice a second
+    drv.save_screenshot(str(out / "console-plots.png"))  # the experiment's last minute: pose, wheels, tracker
     survey_view(drv, c, data, out)
 
 

@@ -1,4 +1,5 @@
-"""A bus argument or procedure parameter: its type, range, unit, default and CLI shape, and the one value check.
+"""A bus argument or procedure parameter: its type, range, unit, default and CLI shape, and the
+one value check.
 
 :class:`Arg` is shared by the command table (daemon/bus/command_table.py) and the procedures'
 parameters (daemon/bus/procedures.py, ``Param`` extends it): one check (:meth:`Arg.checked`)
@@ -61,8 +62,9 @@ class Arg:
         return self.type + (f" ({self.unit})" if self.unit else "")
 
     def checked(self, value: Any, noun: str = "argument") -> Any:
-        """``value`` checked (type, finiteness, range, choices; ints become floats for float args): the one
-        check of the command table and of the procedures' parameters (``Param``); :class:`BadValue` says why."""
+        """``value`` checked (type, finiteness, range, choices; ints become floats for float args):
+        the one check of the command table and of the procedures' parameters (``Param``);
+        :class:`BadValue` says why."""
         name = f"{noun} {self.name!r}"
         if not _is_of_type(value, self.type):
             raise BadValue(f"{name} must be {self.kind_text()}: {_TYPE_WORDS[self.type]}, got {value!r:.80}")
@@ -82,8 +84,8 @@ class BadValue(ValueError):
     """Why a value does not fit its :class:`Arg`; the caller adds the command or procedure."""
 
 
-_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,), "str": (str,),
-                                          "map": (dict,), "any": (object,)}
+_PY_TYPES: dict[str, tuple[type, ...]] = {"float": (float, int), "int": (int,), "bool": (bool,),
+                                          "str": (str,), "map": (dict,), "any": (object,)}
 
 
 def _is_of_type(value: Any, type_name: str) -> bool:

@@ -267,7 +267,8 @@ class HandshakeWatch(threading.Thread):
         elif kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
             self._failed = "zap"  # the key ring has logged it, with the key
         elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
-            self._failed = "plaintext" if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH else f"{value:#x}"
+            mismatch = value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
+            self._failed = "plaintext" if mismatch else f"{value:#x}"
         elif kind == zmq.EVENT_DISCONNECTED:
             peer, failed = self._handshaking.pop(value, None), self._failed
             self._failed = None
@@ -276,8 +277,9 @@ class HandshakeWatch(threading.Thread):
             elif failed not in (None, "zap"):
                 self.refusals.refused("unauthenticated", peer or UNKNOWN_PEER, f"broken handshake ({failed})")
             elif failed is None and peer is not None:
-                self.refusals.refused("unauthenticated", peer, "hung up before completing the CURVE handshake "
-                                                               "(no keys, or the wrong server key)")
+                self.refusals.refused("unauthenticated", peer,
+                                      "hung up before completing the CURVE handshake "
+                                      "(no keys, or the wrong server key)")
         return True
 
 
@@ -289,8 +291,8 @@ class Security:
         cred_file = Path(cred) / CREDENTIAL_NAME if cred else None
         secret_file = cred_file if cred_file and cred_file.exists() else keys_dir / "server.key_secret"
         if not secret_file.exists():
-            raise FileNotFoundError(f"CURVE is on but there is no server key at {secret_file}: create one with "
-                                    f"`ritactl keys init --server --dir {keys_dir}`")
+            raise FileNotFoundError(f"CURVE is on but there is no server key at {secret_file}: "
+                                    f"create one with `ritactl keys init --server --dir {keys_dir}`")
         self.public, self.secret = load_keypair(secret_file)
         self.refusals = RefusalLog()
         self.keyring = KeyRing(authorized_dir, self.refusals)

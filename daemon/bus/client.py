@@ -124,19 +124,22 @@ class Client:
         while self._monitor.poll(0, zmq.POLLIN):
             event = parse_monitor_message(self._monitor.recv_multipart())
             if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
-                return ClientRefused(f"refused: key {self.key_id} is not allowed by the daemon at {self.endpoint} "
-                                     f"(on the robot: `ritactl keys allow FILE.key --name NAME --role operator`, "
+                return ClientRefused(f"refused: key {self.key_id} is not allowed by the daemon "
+                                     f"at {self.endpoint} (on the robot: "
+                                     f"`ritactl keys allow FILE.key --name NAME --role operator`, "
                                      f"or --role viewer to watch only)")
             mismatch = event["value"] == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
             if mismatch and self.curve:
                 return ClientRefused(f"refused: the daemon at {self.endpoint} does not use CURVE, but this "
                                      f"client does (key {self.key_id})")
             if not self.curve:  # a mismatch, or a CURVE server hanging up on our plaintext greeting
-                return ClientRefused(f"refused: the daemon at {self.endpoint} requires CURVE keys and this client "
-                                     f"has none (`ritactl keys init`, then --key NAME; docs/operations.md, Keys)")
+                return ClientRefused(f"refused: the daemon at {self.endpoint} requires CURVE keys "
+                                     f"and this client has none "
+                                     f"(`ritactl keys init`, then --key NAME; docs/operations.md, Keys)")
             if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
-                return ClientRefused(f"refused: the daemon at {self.endpoint} dropped the CURVE handshake (key "
-                                     f"{self.key_id}): is the server key the robot's current server.key?")
+                return ClientRefused(f"refused: the daemon at {self.endpoint} dropped the CURVE handshake "
+                                     f"(key {self.key_id}): "
+                                     f"is the server key the robot's current server.key?")
         return None
 
     def _no_answer(self, cmd: str, wait: float) -> ClientTimeout:
@@ -144,16 +147,17 @@ class Client:
             return ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r} within {wait:g} s "
                                  f"(is the daemon running? set --endpoint or ${ENV_ENDPOINT})")
         key = self.key_id or "none: plaintext"
-        return ClientTimeout(f"no answer: the daemon is down, or it refused this key ({key}); nothing from ritad "
-                             f"at {self.endpoint} to {cmd!r} within {wait:g} s (check --endpoint or "
-                             f"${ENV_ENDPOINT})")
+        return ClientTimeout(f"no answer: the daemon is down, or it refused this key ({key}); "
+                             f"nothing from ritad at {self.endpoint} to {cmd!r} within {wait:g} s "
+                             f"(check --endpoint or ${ENV_ENDPOINT})")
 
     def _check_socket(self, cmd: str) -> None:
         path = self.endpoint.removeprefix("ipc://")
         if self.endpoint.startswith("ipc://") and not path.startswith("@") and not os.path.exists(path):
-            raise ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r}: its socket file {path} does "
-                                f"not exist (is the daemon running? `systemctl status ritad`; another daemon: set "
-                                f"--endpoint or ${ENV_ENDPOINT})", code="no_answer")
+            raise ClientTimeout(f"no answer from ritad at {self.endpoint} to {cmd!r}: "
+                                f"its socket file {path} does not exist "
+                                f"(is the daemon running? `systemctl status ritad`; "
+                                f"another daemon: set --endpoint or ${ENV_ENDPOINT})", code="no_answer")
 
     def call_raw(self, cmd: str, args: dict[str, Any] | None = None,
                  timeout: float | None = None) -> tuple[Any, list[zmq.Frame]]:
@@ -232,7 +236,8 @@ class Client:
             if time.monotonic() >= end:
                 states = {k: v.get("state") for k, v in devs.items()} or "no answer"
                 extra = f", worker {last.get('worker')}" if worker else ""
-                raise ClientTimeout(f"devices not READY within {timeout:g} s at {self.endpoint}: {states}{extra}")
+                raise ClientTimeout(f"devices not READY within {timeout:g} s at {self.endpoint}: "
+                                    f"{states}{extra}")
             time.sleep(poll)
 
     def hello(self) -> dict[str, Any]:

@@ -196,10 +196,11 @@ def _fit_lower(bins: deque[list[int]], prior_latency_ns: float, prior_drift: flo
     slope = _slope_sigma(xs, res)
     if slope is None or slope[0] > prior_drift:  # the window cannot tell the drift yet
         a = min(ys)
-        return _Line(x0, y0, a, 0.0, _envelope_sigma([y - a for y in ys], prior_latency_ns), prior_drift, centre,
-                     False)
+        envelope = _envelope_sigma([y - a for y in ys], prior_latency_ns)
+        return _Line(x0, y0, a, 0.0, envelope, prior_drift, centre, False)
     half_span = max(xs[-1] - centre, centre - xs[0], 1.0)
-    return _Line(x0, y0, a, b, _envelope_sigma(res, prior_latency_ns), slope[0], centre, True, slope[1] / half_span)
+    return _Line(x0, y0, a, b, _envelope_sigma(res, prior_latency_ns), slope[0], centre, True,
+                 slope[1] / half_span)
 
 
 class ClockMap:

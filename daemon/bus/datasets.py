@@ -106,7 +106,8 @@ def check_schema(doc: Any, name: str, file: str) -> list[Problem]:
         parts = list(err.absolute_path)
         if err.validator == "required":
             out += [Problem(file, _json_path([*parts, key]), "missing (required)")
-                    for key in err.validator_value if isinstance(err.instance, dict) and key not in err.instance]
+                    for key in err.validator_value
+                    if isinstance(err.instance, dict) and key not in err.instance]
         else:
             out.append(Problem(file, _json_path(parts), _reason(err)))
     return sorted(set(out), key=lambda p: (p.path, p.message))
@@ -148,7 +149,8 @@ def rigid_problem(H: list[list[float]]) -> str | None:
             dot = sum(R[k][i] * R[k][j] for k in range(3))
             if abs(dot - (1.0 if i == j else 0.0)) > ROTATION_TOLERANCE:
                 return "rotation part is not orthonormal (RᵀR ≠ I)"
-    det = (R[0][0] * (R[1][1] * R[2][2] - R[1][2] * R[2][1]) - R[0][1] * (R[1][0] * R[2][2] - R[1][2] * R[2][0])
+    det = (R[0][0] * (R[1][1] * R[2][2] - R[1][2] * R[2][1])
+           - R[0][1] * (R[1][0] * R[2][2] - R[1][2] * R[2][0])
            + R[0][2] * (R[1][0] * R[2][1] - R[1][1] * R[2][0]))
     return None if det > 0 else "rotation part is a reflection (det < 0)"
 
@@ -166,8 +168,8 @@ def _point_problem(d: dict[str, Any], H: list[list[float]] | None) -> str | None
     err = math.dist(want, abs_xyz)
     if err <= XYZ_TOLERANCE_MM:
         return None
-    return (f"abs_xyz {abs_xyz} differs from abs_H_trk·(x, y, z) = {[round(v, 6) for v in want]} by {err:.6g} mm "
-            f"(limit {XYZ_TOLERANCE_MM:g} mm)")
+    return (f"abs_xyz {abs_xyz} differs from abs_H_trk·(x, y, z) = {[round(v, 6) for v in want]} "
+            f"by {err:.6g} mm (limit {XYZ_TOLERANCE_MM:g} mm)")
 
 
 def check_values(doc: Any, file: str, abs_H_trk: Any = None) -> list[Problem]:
@@ -264,11 +266,12 @@ class _Images:
             shape, dtype = header["shape"], header.get("dtype")
             want = [h, w] if ch == 1 else [h, w, ch]
             if shape != want or (isinstance(dtype, str) and _DEPTH.get(dtype, depth) != depth):
-                self.problems.append(Problem(where, path, f"image {file} is {want} at {depth} bit but its header "
-                                                          f"says shape {shape}, dtype {header.get('dtype')}"))
+                self.problems.append(Problem(
+                    where, path, f"image {file} is {want} at {depth} bit but its header "
+                                 f"says shape {shape}, dtype {header.get('dtype')}"))
         if isinstance(size_wh, list) and len(size_wh) == 2 and size_wh != [w, h]:
-            self.problems.append(Problem(where, path, f"image {file} is {w}x{h} px but the camera model size is "
-                                                      f"{size_wh}"))
+            self.problems.append(Problem(
+                where, path, f"image {file} is {w}x{h} px but the camera model size is {size_wh}"))
 
     def _check_format(self, file: str, where: str, path: str, header: Any, got: tuple[int, int],
                       procedure: bool) -> None:
@@ -278,11 +281,13 @@ class _Images:
             return
         want = STORED_AS.get(fmt)
         if want is None and procedure:
-            self.problems.append(Problem(where, path, f"image {file}: pixel format {fmt!r} is not one the "
-                                                      f"computation reads ({', '.join(STORED_AS)})"))
+            self.problems.append(Problem(
+                where, path, f"image {file}: pixel format {fmt!r} is not one the "
+                             f"computation reads ({', '.join(STORED_AS)})"))
         elif want is not None and want != got:
-            self.problems.append(Problem(where, path, f"image {file} has {got[0]} channel(s) at {got[1]} bit but "
-                                                      f"pixel format {fmt} is stored with {want[0]} at {want[1]}"))
+            self.problems.append(Problem(
+                where, path, f"image {file} has {got[0]} channel(s) at {got[1]} bit but "
+                             f"pixel format {fmt} is stored with {want[0]} at {want[1]}"))
 
 
 def _obs_images(obs: dict[str, Any]) -> Iterator[tuple[tuple[Any, ...], Any, Any]]:
@@ -312,7 +317,8 @@ def _model_problems(model: Any, file: str, parts: tuple[Any, ...]) -> list[Probl
     if K is None:
         return []
     if K[0][0] <= 0 or K[1][1] <= 0 or K[2] != [0, 0, 1]:
-        return [Problem(file, _json_path((*parts, "K")), f"needs fx > 0, fy > 0 and a last row [0, 0, 1], got {K}")]
+        return [Problem(file, _json_path((*parts, "K")),
+                        f"needs fx > 0, fy > 0 and a last row [0, 0, 1], got {K}")]
     return []
 
 
@@ -345,8 +351,8 @@ def _check_state(state: Any, images: _Images, problems: list[Problem]) -> None:
         problems += _model_problems(scs.get("model"), "state.json", ("obs", "calibration", "scs", "model"))
     # the images of a referencing are taken by obs.camera_model, those of a mark by the calibration's
     proc = BY_NAME.get(str(state.get("procedure")))  # one whose own input is the camera model (referencing)
-    model = obs.get("camera_model") if proc is not None and proc.inputs.get("camera_model") == "camera_model" else \
-        (scs.get("model") if isinstance(scs, dict) else None)
+    own_model = proc is not None and proc.inputs.get("camera_model") == "camera_model"
+    model = obs.get("camera_model") if own_model else (scs.get("model") if isinstance(scs, dict) else None)
     size = model.get("size") if isinstance(model, dict) else None
     for parts, file, header in _obs_images(obs):
         images.check(file, "state.json", _json_path(parts), header, size, grey=True)
@@ -359,7 +365,8 @@ def _check_manifest(root: Path, manifest: Any, images: _Images, problems: list[P
     problems += check_values(manifest, "dataset.json")
     entries = manifest.get("entries") if isinstance(manifest, dict) else None
     for i, e in enumerate(entries if isinstance(entries, list) else []):
-        if not isinstance(e, dict) or not isinstance(e.get("json"), str) or "/" in e["json"] or "\\" in e["json"]:
+        if (not isinstance(e, dict) or not isinstance(e.get("json"), str)
+                or "/" in e["json"] or "\\" in e["json"]):
             continue
         side = _load_json(root, e["json"], problems)
         if side is not None:
@@ -405,5 +412,5 @@ def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     return out + (_model_problems(doc, file, ()) if name == "camera_model" else [])
 
 
-__all__ = ["DatasetInvalid", "Problem", "check_file", "check_schema", "check_values", "png_info", "schema_text",
-           "validate_folder"]
+__all__ = ["DatasetInvalid", "Problem", "check_file", "check_schema", "check_values", "png_info",
+           "schema_text", "validate_folder"]

@@ -15,12 +15,15 @@ def _chunk(tag: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
 
-def png_bytes(pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8, level: int = 6) -> bytes:
-    """PNG of ``height`` rows of ``width`` × ``channels`` samples (16-bit samples big-endian, as PNG stores them)."""
+def png_bytes(pixels: bytes, width: int, height: int, channels: int = 1, bit_depth: int = 8,
+              level: int = 6) -> bytes:
+    """PNG of ``height`` rows of ``width`` × ``channels`` samples (16-bit samples big-endian, as
+    PNG stores them)."""
     colour = {1: 0, 3: 2, 4: 6}[channels]
     stride = width * channels * bit_depth // 8
     raw = b"".join(b"\x00" + pixels[y * stride:(y + 1) * stride] for y in range(height))
-    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, bit_depth, colour, 0, 0, 0))
+    header = struct.pack(">IIBBBBB", width, height, bit_depth, colour, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", header)
             + _chunk(b"IDAT", zlib.compress(raw, level)) + _chunk(b"IEND", b""))
 
 

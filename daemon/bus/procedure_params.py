@@ -52,7 +52,8 @@ class Param(Arg):
         if self.type == "vec":
             if not isinstance(value, list) or len(value) != self.length:
                 raise BadValue(f"{name} must be {self.length} numbers ({self.unit}), got {value!r:.80}")
-            number = Arg(self.name, "float", self.help, unit=self.unit, lo=self.lo, hi=self.hi, lo_open=self.lo_open)
+            number = Arg(self.name, "float", self.help, unit=self.unit, lo=self.lo, hi=self.hi,
+                         lo_open=self.lo_open)
             return [number.checked(c, noun) for c in value]
         if self.type == "file":
             if paths and isinstance(value, str) and value.strip():
@@ -72,8 +73,9 @@ def xyz_map(name: str, v: Any) -> dict[str, list[float]]:
         raise BadValue(f"{name} must be a JSON object {{name: [x, y, z]}}, got {v!r:.80}")
     out = {}
     for key, xyz in v.items():
-        if not (isinstance(xyz, list) and len(xyz) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool)
-                                                                and math.isfinite(c) for c in xyz)):
+        point = isinstance(xyz, list) and len(xyz) == 3 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in xyz)
+        if not point:
             raise BadValue(f"{name}: {key!r} must be [x, y, z] (3 numbers), got {xyz!r:.80}")
         out[str(key)] = [float(c) for c in xyz]
     return out
@@ -85,28 +87,35 @@ DISTANCE = Param("distance_mm", _FLOAT, "straight drive of each approach (refere
 SPEED = Param("speed_mm_s", _FLOAT, "drive speed of the procedure's motions", unit="mm/s", default=100.0,
               lo=0, lo_open=True)
 # no default: the computation states its own (referencing 10 µm; marks the tracker's MPE at its distance)
-SIGMA_T = Param("sigma_t_mm", _FLOAT, "tracker 1σ per coordinate (referencing: nest-fit limit and uncertainty; "
+SIGMA_T = Param("sigma_t_mm", _FLOAT,
+                "tracker 1σ per coordinate (referencing: nest-fit limit and uncertainty; "
                 "marks: their stated σ)", unit="mm", lo=0, lo_open=True,
-                default_text="referencing 0.01; marks: ½ the tracker's MPE at its distance (docs/accuracy.md)")
+                default_text="referencing 0.01; "
+                             "marks: ½ the tracker's MPE at its distance (docs/accuracy.md)")
 KIND = Param("kind", "str", "mark shape", default="dot", choices=("dot", "cross"))
-MARK_XY = Param("mark_xy", "vec", "approximate mark position, ACS x and y", unit="mm", default=REQUIRED, length=2,
-                aliases=("--mark",))
+MARK_XY = Param("mark_xy", "vec", "approximate mark position, ACS x and y", unit="mm", default=REQUIRED,
+                length=2, aliases=("--mark",))
 MARK_SIZE = Param("mark_size_mm", _FLOAT, "mark size: dot radius or cross half-size", unit="mm", lo=0,
                   lo_open=True, default_text="0.4 for a dot, 0.6 for a cross", default_of=KIND.name,
                   default_by=(("dot", 0.4), ("cross", 0.6)))
-IMU_READINGS = Param("imu_readings", "int", "inclinometer readings averaged at each standstill (the tilt compensation)",
+IMU_READINGS = Param("imu_readings", "int",
+                     "inclinometer readings averaged at each standstill (the tilt compensation)",
                      default=10, lo=1, hi=1000)
-IMU_INTERVAL = Param("imu_interval_s", _FLOAT, "time between those readings: the inclinometer's output period "
+IMU_INTERVAL = Param("imu_interval_s", _FLOAT,
+                     "time between those readings: the inclinometer's output period "
                      "(closer readings repeat one sample)", unit="s", default=0.1, lo=0, hi=10)
-COMPENSATION = Param("compensation", "str", "compensations: all, none, or a comma list of names (docs/accuracy.md, "
+COMPENSATION = Param("compensation", "str",
+                     "compensations: all, none, or a comma list of names (docs/accuracy.md, "
                      "\"Compensations\")", default="tilt,heading_fit,bias,mount")
-APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT, "speed of the recorded final move of each approach (more "
+APPROACH_SPEED = Param("approach_speed_mm_s", _FLOAT,
+                       "speed of the recorded final move of each approach (more "
                        "stream points and inclinometer samples along it)", unit="mm/s", lo=0, lo_open=True,
                        default_text="speed_mm_s", default_of=SPEED.name)
-STREAM_RATE = Param("stream_rate_hz", _FLOAT, "tracker stream rate on the final approach (heading_fit)", unit="Hz",
-                    lo=0, hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz); 0: none")
-CALIBRATION = Param("calibration", "file", "calibration result to measure with", installed="calibration/active.json",
-                    default_text="the active calibration")
+STREAM_RATE = Param("stream_rate_hz", _FLOAT, "tracker stream rate on the final approach (heading_fit)",
+                    unit="Hz", lo=0, hi=1000,
+                    default_text="the tracker's configured rate ([tracker] stream_rate_hz); 0: none")
+CALIBRATION = Param("calibration", "file", "calibration result to measure with",
+                    installed="calibration/active.json", default_text="the active calibration")
 
 
 class ParamError(CommandError):
@@ -119,5 +128,6 @@ class ParamError(CommandError):
         self.fields = fields or ((field,) if field else ())
 
 
-__all__ = ["APPROACH_SPEED", "CALIBRATION", "COMPENSATION", "DISTANCE", "IMU_INTERVAL", "IMU_READINGS", "KIND",
-           "MARK_SIZE", "MARK_XY", "SIGMA_T", "SPEED", "STREAM_RATE", "Param", "ParamError", "xyz_map"]
+__all__ = ["APPROACH_SPEED", "CALIBRATION", "COMPENSATION", "DISTANCE", "IMU_INTERVAL", "IMU_READINGS",
+           "KIND", "MARK_SIZE", "MARK_XY", "SIGMA_T", "SPEED", "STREAM_RATE", "Param", "ParamError",
+           "xyz_map"]

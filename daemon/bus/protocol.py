@@ -78,7 +78,8 @@ def parse_request(data: bytes | memoryview) -> dict[str, Any]:
     try:
         msg = unpack(data)
     except Exception as exc:  # msgpack raises several types for garbage
-        raise ProtocolError(ErrorCode.BAD_REQUEST, f"request is not valid msgpack ({type(exc).__name__})") from None
+        raise ProtocolError(ErrorCode.BAD_REQUEST,
+                            f"request is not valid msgpack ({type(exc).__name__})") from None
     if not isinstance(msg, dict):
         raise ProtocolError(ErrorCode.BAD_REQUEST, f"request must be a msgpack map, got {type(msg).__name__}")
     v = msg.get("v", SCHEMA_VERSION)

@@ -22,7 +22,8 @@ class StationError(ValueError):
 
 
 def _det3(r: list[list[float]]) -> float:
-    return (r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+    return (r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
             + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]))
 
 
@@ -30,11 +31,13 @@ def checked(m: Any, where: str) -> list[list[float]]:
     """``m`` as a 4×4 rigid transform with det(R) = +1, else :class:`StationError` naming ``where``."""
     if not (isinstance(m, list) and len(m) == 4 and all(isinstance(r, list) and len(r) == 4 for r in m)):
         raise StationError(f"{where}: abs_H_trk must be a 4x4 matrix (list of 4 rows of 4), got {m!r}")
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for r in m for v in r):
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+               for r in m for v in r):
         raise StationError(f"{where}: abs_H_trk must hold finite numbers")
     h = [[float(v) for v in r] for r in m]
     rot = [r[:3] for r in h[:3]]
-    gram = max(abs(sum(rot[k][i] * rot[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+    gram = max(abs(sum(rot[k][i] * rot[k][j] for k in range(3)) - (i == j))
+               for i in range(3) for j in range(3))
     if h[3] != [0.0, 0.0, 0.0, 1.0] or gram > _RIGID_TOL or abs(_det3(rot) - 1.0) > _RIGID_TOL:
         raise StationError(f"{where}: abs_H_trk is not a rigid transform with det(R) = +1 "
                            f"(|RᵀR − I| = {gram:.2g}, det R = {_det3(rot):.6f}, last row {h[3]})")

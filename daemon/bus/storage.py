@@ -36,8 +36,8 @@ def atomic_write_bytes(path: Path, data: bytes | memoryview, mode: int | None = 
     """Write ``data`` to ``path`` atomically: temp file beside it, fsync, rename, fsync the folder.
 
     The project's one atomic write: every program, the simulator and the benchmarks use it
-    (calibration/ writes no files). The file is private (0600, from mkstemp) unless ``mode`` says otherwise, e.g. 0644 for
-    a public key that root writes and the daemon's user must read.
+    (calibration/ writes no files). The file is private (0600, from mkstemp) unless ``mode`` says
+    otherwise, e.g. 0644 for a public key that root writes and the daemon's user must read.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -123,7 +123,8 @@ class Dataset:
             root = Path(parent) / f"{stamp}-{safe_name(kind)}-{n}"
         return cls(root, kind, meta)
 
-    def add_entry(self, name: str, meta: dict[str, Any], image: Any = None, image_format: str = ".png") -> Path:
+    def add_entry(self, name: str, meta: dict[str, Any], image: Any = None,
+                  image_format: str = ".png") -> Path:
         """Store one capture: image file (if any) + JSON sidecar; update the manifest last."""
         name = safe_name(name)
         entry: dict[str, Any] = {"name": name, "json": f"{name}.json"}
@@ -197,5 +198,6 @@ def read_results(data_dir: Path) -> dict[str, Any]:
             history.append({"file": str(p), "error": f"unreadable: {exc}"})
             continue
         history.append({"file": str(p), "job": r.get("job"), "procedure": r.get("procedure"),
-                        "verdict": r.get("verdict"), "created": r.get("created"), "dataset": r.get("dataset")})
+                        "verdict": r.get("verdict"), "created": r.get("created"),
+                        "dataset": r.get("dataset")})
     return {"active": active, "history": history}

@@ -41,22 +41,44 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
     atomic_write_text(path, fs.releaseAndGetString())
 
 
-def _experiment_report(root: Path, result: dict[str, Any]) -> None:
-    atomic_write_text(root / "report.md", result["table_markdown"])
-    atomic_write_text(root / "report.csv", result["table_csv"])
-    from daemon.compute.report import plot_clusters
+#: an experiment's report files (docs/datasets.md, "Experiment report")
+REPORT_FILES = ["report.md", "report.csv", "report_metrics.csv", "report_stops.csv", "clusters.png"]
 
-    atomic_write_bytes(root / "clusters.png", plot_clusters(result))
+
+def _experiment_report(root: Path, result: dict[str, Any]) -> None:
+    from daemon.compute.report import plot_clusters
+    from daemon.compute.report_header import header_markdown
+    from daemon.compute.report_shifts import compensation_effects, left_out_metrics, plain_metrics
+    from daemon.compute.report_tables import metrics_csv, stops_csv
+
+    files = ("\n## Files\n\n- `report.csv`: the table above, one row per direction and All\n"
+             "- `report_metrics.csv`: one row per figure, with its goal met or MISSED\n"
+             "- `report_stops.csv`: one row per stop: heading, mark, σ and its parts, each compensation and "
+             "how far it moved the mark\n"
+             "- `clusters.png`: the stops relative to their mean, with this header\n")
+    # every file made before the first is written: a failing plot (no matplotlib) leaves no partial report
+    table = "\n## The paper's table\n\n" + result["table_markdown"]
+    effects = compensation_effects(result, result.get("dataset") or root)
+    plain = plain_metrics(result, effects)
+    compared = {"why": effects.why, "plain": plain,
+                "left_out": left_out_metrics(result, effects) if plain else {}}
+    texts = {"report.md": header_markdown(result, compared) + table + files,
+             "report.csv": result["table_csv"], "report_metrics.csv": metrics_csv(result, plain),
+             "report_stops.csv": stops_csv(result, effects.shifts)}
+    png = plot_clusters(result, compared)
+    for name, text in texts.items():
+        atomic_write_text(root / name, text)
+    atomic_write_bytes(root / "clusters.png", png)
 
 
 #: a procedure's files besides result.json/.yaml: (their names, the writer)
 EXTRA_FILES: Hooks[Callable[[Path, dict[str, Any]], None]] = Hooks("result files", optional=True)
 EXTRA_FILES.on(EXPERIMENT)(_experiment_report)
-_NAMES = {EXPERIMENT.name: ["report.md", "report.csv", "clusters.png"]}
+_NAMES = {EXPERIMENT.name: REPORT_FILES}
 
 
 def write_result_files(root: Path, result: dict[str, Any], dataset: Path | str | None = None) -> dict[str, Any]:
-    """result.json, result.yaml and the procedure's own files (an experiment: report.md/.csv, clusters.png).
+    """result.json, result.yaml and the procedure's own files (an experiment: :data:`REPORT_FILES`).
 
     The same files for a live run and for ``ritactl recompute --out``; returns the
     result as written (with ``created``, ``dataset`` and, with own files, ``files``).

@@ -19,6 +19,7 @@ from typing import Any, Callable
 from daemon.bus.client import Client, ClientTimeout, Subscriber
 from daemon.bus.protocol import CommandError
 from daemon.bus.names import Topic
+from daemon.console.series import Series
 
 #: topics whose every message matters to the page (prompts, results, motion ends), not just the last
 EVENT_TOPICS = (Topic.CALIB_PROMPT, Topic.CALIB_RESULT, Topic.ROBOT_EVENT, Topic.TRACKER_EVENT, Topic.LOG)
@@ -42,6 +43,7 @@ class Bridge:
         self.latest: dict[str, dict[str, Any]] = {}   # topic -> {seq, t_ns, data}
         self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENT_RING)
         self.event_no = 0
+        self.series = Series()   # the plotted values, kept with their history for every tab
         self.link = {"bus": "connecting", "error": ""}
         self.role = "unknown"
         self.hello: dict[str, Any] = {}
@@ -116,6 +118,7 @@ class Bridge:
                 self.link = {"bus": "up", "error": ""}
             topic, body, _ = msg
             entry = {"seq": body.get("seq"), "t_ns": body.get("t_ns"), "data": body.get("data")}
+            self.series.add(topic, entry["t_ns"], entry["data"], time.time() * 1000.0)
             with self._lock:
                 self.latest[topic] = entry
                 if topic in EVENT_TOPICS or topic in LATCH_EVENT_TOPICS or topic.startswith("calib."):

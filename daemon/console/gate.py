@@ -62,12 +62,14 @@ class Gate:
     async def middleware(self, request: web.Request,
                          handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> Any:
         if _hostname(request.host) not in self.hosts or not self._origin_ok(request.headers.get("Origin")):
-            return web.Response(status=403, text="forbidden: this console answers only pages it served itself "
-                                                 "(Host/Origin not allowed; ritactl console --allow-host NAME adds one)")
+            return web.Response(status=403,
+                                text="forbidden: this console answers only pages it served itself "
+                                     "(Host/Origin not allowed; ritactl console --allow-host NAME adds one)")
         ok, from_query = self._token_ok(request)
         if not ok:
-            return web.Response(status=401, text="this console needs its token: open the URL `ritactl console` "
-                                                 "printed (http://127.0.0.1:PORT/?token=...)")
+            return web.Response(status=401,
+                                text="this console needs its token: open the URL `ritactl console` "
+                                     "printed (http://127.0.0.1:PORT/?token=...)")
         response = await handler(request)
         if from_query and not response.prepared:
             response.set_cookie(COOKIE, self.token, httponly=True, samesite="Strict", path="/")

@@ -1,4 +1,5 @@
-"""Start the console: bus bridge first (a dead daemon or refused key fails before any port opens), then HTTP."""
+"""Start the console: bus bridge first (a dead daemon or refused key fails before any port opens),
+then HTTP."""
 from __future__ import annotations
 
 import asyncio

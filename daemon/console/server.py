@@ -33,6 +33,7 @@ from daemon.bus.storage import atomic_write_bytes
 from daemon.console.bridge import Bridge, ClientTimeout
 from daemon.console.gate import Gate, new_token
 from daemon.console.jobs import start_job
+from daemon.console.series import SERIES
 from daemon.console.survey import Survey, read_plate_file
 from daemon.bus.png_write import frame_png
 
@@ -75,6 +76,7 @@ class Tab:
         self.sent_at = 0.0
         self.preview_error = ""
         self.survey_version = -1  # the survey state this tab has
+        self.series_no = 0  # the last plotted point this tab has (daemon/console/series.py)
 
 
 class Console:
@@ -120,7 +122,8 @@ class Console:
         return {"console": __version__, "role": b.role, "roles": list(ROLES), "procedures": list(PROCEDURES),
                 "procedure_params": procedure_schema(), "procedure_info": procedure_info(),
                 "commands": {n: COMMANDS[n].role for n in PAGE_COMMANDS}, "daemon": b.hello,
-                "frames_sent": self.frames_sent, "tabs": len(self.tabs)}
+                "frames_sent": self.frames_sent, "tabs": len(self.tabs),
+                "series": {name: [list(v) for v in values] for name, values in SERIES.items()}}
 
     async def listing(self, request: web.Request) -> web.Response:
         """A data-dir folder (a dataset) as a page of download links (files.list)."""
@@ -277,7 +280,11 @@ class Console:
             events = self.bridge.events_since(tab.event_no)
             if events:
                 tab.event_no = events[-1]["no"]
-            msg = {"type": "state", "topics": topics, "events": events, "link": self.bridge.link,
+            series = self.bridge.series.since(tab.series_no)
+            if series:
+                tab.series_no = series[-1]["no"]
+            msg = {"type": "state", "topics": topics, "events": events, "series": series,
+                   "link": self.bridge.link,
                    "console": {"frames_sent": self.frames_sent, "tabs": len(self.tabs),
                                "preview_error": tab.preview_error}}
             if tab.survey_version != self.survey.state["version"]:  # only when it changed: a report is large

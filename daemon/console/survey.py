@@ -33,15 +33,17 @@ def _path(value: Any, what: str) -> Path:
 
 
 def read_plate_file(value: Any) -> dict[str, Any]:
-    """A plate definition on this laptop (the survey's output or any plate.json), for ``calib.plate.upload``."""
+    """A plate definition on this laptop (the survey's output or any plate.json), for
+    ``calib.plate.upload``."""
     path = _path(value, "the plate file")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise CommandError(ErrorCode.BAD_ARGS, f"plate upload: cannot read {path}: {type(exc).__name__}: {exc}") from None
+        raise CommandError(ErrorCode.BAD_ARGS,
+                           f"plate upload: cannot read {path}: {type(exc).__name__}: {exc}") from None
     if not isinstance(doc, dict):
-        raise CommandError(ErrorCode.BAD_ARGS, f"plate upload: {path} holds a {type(doc).__name__}, not a plate "
-                                               f"definition (a JSON object)")
+        raise CommandError(ErrorCode.BAD_ARGS, f"plate upload: {path} holds a {type(doc).__name__}, "
+                                               f"not a plate definition (a JSON object)")
     return doc
 
 
@@ -71,7 +73,8 @@ class Survey:
             *SURVEY_ARGV, str(folder), "--plate", str(plate), "--out", str(out),
             stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
         self._set(state="running", folder=str(folder), plate=str(plate), out=str(out), percent=0.0,
-                  step="starting", started=time.time(), message="", result=None, exit=None, cancelled=False, error="", took_s=None)
+                  step="starting", started=time.time(), message="", result=None, exit=None, cancelled=False,
+                  error="", took_s=None)
         self._watcher = asyncio.create_task(self._watch(self._proc))
         return {"started": True, "folder": str(folder), "out": str(out)}
 
@@ -120,7 +123,8 @@ def _summary(plate: dict[str, Any]) -> dict[str, Any]:
     return {"verdict": rep.get("verdict"), "message": rep.get("message"),
             "nests": {c: {k: n.get(k) for k in ("ref_P_nst_mm", "sigma_mm", "views")}
                       for c, n in rep.get("nests", {}).items()},
-            "views": [{k: v.get(k) for k in ("image", "corners", "corner_rms_px", "ring_residual_px", "rings_missing")}
+            "views": [{k: v.get(k)
+                       for k in ("image", "corners", "corner_rms_px", "ring_residual_px", "rings_missing")}
                       for v in rep.get("views", [])],
             "skipped": rep.get("skipped", {}), "sigma_corner_px": rep.get("sigma_corner_px"),
             "sigma_ring_px": rep.get("sigma_ring_px")}

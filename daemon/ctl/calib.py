@@ -22,7 +22,7 @@ from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
 from daemon.ctl.exitcodes import Exit, for_verdict
 from daemon.bus.protocol import CommandError, ErrorCode
-from daemon.bus.figures import counted, counted_from
+from daemon.bus.figures import counted, counted_from, experiment_goal_lines
 
 POLL_S = 1.0  # how often follow re-reads calib.jobs, which catches results telemetry did not bring
 
@@ -167,6 +167,8 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
         print_checks(d["checks"])
     elif d.get("table_markdown"):
         print("\n" + d["table_markdown"])
+    for line in experiment_goal_lines(d.get("metrics")):  # each goal met or MISSED, never a bare figure
+        print(f"  {line}")
     comp = d.get("compensation")
     if comp:  # which compensations took effect, and why not
         done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"

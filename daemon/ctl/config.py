@@ -59,7 +59,8 @@ def _endpoint(v: Any) -> str:
 
 def _key(v: Any) -> str:
     if not isinstance(v, str) or not KEY_NAME.fullmatch(v):
-        raise ValueError("must be a key name (letters, digits, . _ -), as given to `ritactl keys init --name`")
+        raise ValueError("must be a key name (letters, digits, . _ -), "
+                         "as given to `ritactl keys init --name`")
     return v
 
 
@@ -79,7 +80,8 @@ KEYS = {"endpoint": _endpoint, "key": _key, "keys_dir": _path, "server_key": _pa
 
 
 def load_ctl_config(path: str | Path | None = None) -> dict[str, Any]:
-    """The checked settings of the config file (only the keys it sets); ``{}`` when the default file is missing.
+    """The checked settings of the config file (only the keys it sets); ``{}`` when the default
+    file is missing.
 
     Raises CtlConfigError naming the file and the bad key, or the file when it cannot
     be read or parsed.

@@ -13,7 +13,8 @@ class Exit(enum.IntEnum):
     OK = 0            # done; a procedure's verdict is "ok"
     WARN = 1          # a procedure finished with verdict "warn"
     FAIL = 2          # verdict "fail", a failed/cancelled/stopped job, or a calibration error
-    NO_ANSWER = 3     # no reply: the daemon is down (its ipc socket file is missing), unreachable, or refused this key
+    NO_ANSWER = 3     # no reply: the daemon is down (its ipc socket file is missing), unreachable,
+    #                   or refused this key
     REFUSED = 4       # the daemon answered with an error (bad_args, device fault, forbidden, ...)
     BAD_INPUT = 5     # a local file or dataset is missing or invalid (validate found problems), or a package
     #                   the verb needs is not installed (the message names the extra)
@@ -46,8 +47,8 @@ def bad_input(message: str) -> CtlError:
 def missing_extra(what: str, extra: str, packages: str, exc: ImportError) -> CtlError:
     """A verb that needs packages this install lacks (exit 5): the message names the extra to install."""
     missing = f"{exc.name} is not installed" if exc.name else str(exc)
-    return CtlError(Exit.BAD_INPUT, "missing_package", f"{what} needs {packages} on this computer ({missing}): "
-                                                       f"pip install 'rita[{extra}]'")
+    return CtlError(Exit.BAD_INPUT, "missing_package",
+                    f"{what} needs {packages} on this computer ({missing}): pip install 'rita[{extra}]'")
 
 
 __all__ = ["CtlError", "Exit", "bad_input", "for_verdict", "missing_extra"]

@@ -1,8 +1,8 @@
 """``ritactl record``: ritad's telemetry (and frames) to an MCAP file, the way rosbag2 records a session.
 
 It subscribes as ``ritactl watch`` does (same endpoint discovery through ``hello``, same CURVE
-keys) and writes each message as it arrives (daemon/ctl/recorder.py; layout: daemon/ctl/mcapfile.py). The file is
-written under a hidden ``.NAME.partial`` beside the target and renamed into place once the
+keys) and writes each message as it arrives (daemon/ctl/recorder.py; layout: daemon/ctl/mcapfile.py).
+The file is written under a hidden ``.NAME.partial`` beside the target and renamed into place once the
 MCAP summary is written, so a reader never sees a truncated recording under the real name.
 Ctrl-C and ``--duration`` end it the same way; a progress line shows the size and duration. An
 error mid-recording (a full disk, a bug) never throws away what was written: the file is finished
@@ -51,7 +51,8 @@ def parse_frames(words: list[str] | None) -> int:
         return 0
     if len(words) == 2 and words[0] == "every" and words[1].isdigit() and int(words[1]) >= 1:
         return int(words[1])
-    raise CtlError(Exit.USAGE, "usage", f"--frames must be 'off' or 'every N' with N >= 1, got {' '.join(words)!r}")
+    raise CtlError(Exit.USAGE, "usage",
+                   f"--frames must be 'off' or 'every N' with N >= 1, got {' '.join(words)!r}")
 
 
 def check_out(out: Path, force: bool) -> Path:
@@ -124,7 +125,8 @@ def _record_loop(subs: list[tuple[Subscriber, int]], rec: Recorder, a: argparse.
         for s, every in subs:  # a few frames a turn: telemetry and the clock get their turn between
             if s.sock in ready:
                 _drain(s, rec, every, end, stop, FRAME_BATCH if every else 2000)
-        screen.status(progress_line(path, time.monotonic() - start, rec.stream.tell(), rec.counts, len(subs) > 1),
+        elapsed = time.monotonic() - start
+        screen.status(progress_line(path, elapsed, rec.stream.tell(), rec.counts, len(subs) > 1),
                       time.monotonic())
     # what arrived before the stop belongs to the recording: the queues as they are, within a
     # bounded time (a stream that keeps coming must not hold the end up)
@@ -271,8 +273,8 @@ def _keep_partial(rec: Recorder, f: IO[bytes], tmp: Path, out: Path, exc: BaseEx
         f.flush()
         os.fsync(f.fileno())
     except Exception as again:
-        state = (f"NOT finished ({type(again).__name__}: {again}); the messages in its complete chunks can be "
-                 f"recovered with mcap's recover tool")
+        state = (f"NOT finished ({type(again).__name__}: {again}); "
+                 f"the messages in its complete chunks can be recovered with mcap's recover tool")
     try:
         f.close()  # now: a buffer that cannot be flushed must not raise again at the end of ``with``
     except OSError:
@@ -309,8 +311,9 @@ def _report(out: Path, seconds: float, cnt: Counts, frames: bool, as_json: bool,
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("record", help="record telemetry (and frames) to an MCAP file (Foxglove opens it)",
-                       description="Record ritad's telemetry, and frames with --frames, to an MCAP file until "
-                                   "Ctrl-C or --duration. The file appears under its name only once complete.")
+                       description="Record ritad's telemetry, and frames with --frames, to an MCAP file "
+                                   "until Ctrl-C or --duration. "
+                                   "The file appears under its name only once complete.")
     p.add_argument("--out", required=True, metavar="FILE.mcap", help="the file to write")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--frames", nargs="+", metavar="every N|off", default=["off"],
@@ -327,5 +330,5 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(fn=cmd_record)
 
 
-__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "sim_metadata", "check_out", "cmd_record", "parse_frames",
-           "partial_name", "progress_line"]
+__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "sim_metadata", "check_out", "cmd_record",
+           "parse_frames", "partial_name", "progress_line"]

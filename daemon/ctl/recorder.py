@@ -52,7 +52,8 @@ def image_encoder(frames_format: str) -> Callable[[dict[str, Any], Any], bytes]:
         image = np.frombuffer(pixels, dtype=str(header["dtype"])).reshape(header["shape"])
         ok, data = cv2.imencode(ext, image)
         if not ok:
-            raise fmt.UnsupportedFrame(f"OpenCV could not encode a {header.get('pixel_format')} frame as {ext}")
+            raise fmt.UnsupportedFrame(f"OpenCV could not encode a {header.get('pixel_format')} frame "
+                                       f"as {ext}")
         return fmt.compressed_image(header, data.tobytes(), frames_format)
     return encode
 
@@ -71,7 +72,8 @@ class Recorder:
                            f"pip install --upgrade rita") from None
         self.encode_image = image_encoder(frames_format)
         self.frames_format = frames_format
-        kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
+        kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE}[compression]
         self.stream = stream
         self.writer = Writer(stream, compression=kind)
         self.writer.start(profile=fmt.PROFILE, library=f"ritactl {__version__}")
@@ -102,7 +104,8 @@ class Recorder:
         return ch
 
     def _fox_channel(self, channel: str, name: str) -> int:
-        """A channel of Foxglove's well-known ``foxglove.<name>`` in JSON, with Foxglove's published schema."""
+        """A channel of Foxglove's well-known ``foxglove.<name>`` in JSON, with Foxglove's
+        published schema."""
         ch = self.channels.get(channel)
         return ch if ch is not None else self._register(channel, f"foxglove.{name}", "jsonschema",
                                                         schema_bytes(name), "json")

@@ -3,7 +3,8 @@
 It binds the three bus endpoints a client expects (docs/protocol.md): a command socket that
 answers ``hello`` (which names the other two), ``ping``, ``state`` (the Clone snapshot, as of the
 replay's position) and ``status`` (the last ``daemon.health`` replayed); every other
-command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not driven. Telemetry goes out on a PUB socket in the bus's own format
+command is refused with ``forbidden``, as a viewer's would be: a replay can be watched, not
+driven. Telemetry goes out on a PUB socket in the bus's own format
 (``[topic, msgpack {v, seq, t_ns, data}]`` with the message's log time, its sample's time, as t_ns,
 and the replay's own seq, one counter across topics as ritad's: the file's sequences count each
 channel's messages), frames on a frame socket. Channels are named ``/robot/state`` for the bus's
@@ -33,8 +34,8 @@ from typing import IO, Any, Iterator
 import zmq
 
 from daemon import __version__
-from daemon.bus.protocol import SCHEMA_VERSION, ErrorCode, ProtocolError, error_reply, ok_reply, pack, parse_request, \
-    telemetry
+from daemon.bus.protocol import (SCHEMA_VERSION, ErrorCode, ProtocolError, error_reply, ok_reply, pack,
+                                 parse_request, telemetry)
 from daemon.ctl import foxglove as fox
 from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit, bad_input
@@ -58,12 +59,13 @@ def _check_free(path: Path) -> None:
         return  # nothing listening (a stale file from an earlier replay): ours to reuse
     finally:
         probe.close()
-    raise CtlError(Exit.USAGE, "usage", f"bad replay endpoint ipc://{path}: something is listening there (a running "
-                                        f"ritad?); choose another path")
+    raise CtlError(Exit.USAGE, "usage", f"bad replay endpoint ipc://{path}: something is listening there "
+                                        f"(a running ritad?); choose another path")
 
 
 def endpoints(cmd: str) -> tuple[str, str, str]:
-    """Command, telemetry and frame endpoints: ipc siblings of the command socket, or tcp ports of the system's."""
+    """Command, telemetry and frame endpoints: ipc siblings of the command socket, or tcp ports of
+    the system's."""
     if cmd.startswith("ipc://"):
         path = Path(cmd.removeprefix("ipc://"))
         if not path.parent.is_dir():
@@ -107,9 +109,11 @@ class ReplayServer:
         return str(s.getsockopt_string(zmq.LAST_ENDPOINT))
 
     def hello(self) -> dict[str, Any]:
-        return {"name": "ritactl replay", "version": __version__, "schema": SCHEMA_VERSION, "pid": os.getpid(),
-                "sim": False, "replay": self.source, "endpoints": [self.endpoint(self.router)],
-                "telemetry_endpoints": [self.endpoint(self.pub)], "frame_endpoints": [self.endpoint(self.frames)]}
+        return {"name": "ritactl replay", "version": __version__, "schema": SCHEMA_VERSION,
+                "pid": os.getpid(), "sim": False, "replay": self.source,
+                "endpoints": [self.endpoint(self.router)],
+                "telemetry_endpoints": [self.endpoint(self.pub)],
+                "frame_endpoints": [self.endpoint(self.frames)]}
 
     def state(self) -> dict[str, Any]:
         health = self.latest.get("daemon.health", {}).get("data") or {}
@@ -164,8 +168,9 @@ class ReplayServer:
             req = parse_request(body)
             req_id = req["id"]
             if req["cmd"] not in ANSWERED:
-                raise ProtocolError(ErrorCode.FORBIDDEN, f"{req['cmd']!r}: this is a replay of {self.source}; "
-                                                         f"it answers only {', '.join(ANSWERED)}")
+                raise ProtocolError(ErrorCode.FORBIDDEN,
+                                    f"{req['cmd']!r}: this is a replay of {self.source}; "
+                                    f"it answers only {', '.join(ANSWERED)}")
             reply = ok_reply(req_id, self._answer(req["cmd"]))
         except ProtocolError as exc:
             reply = error_reply(req_id, exc.code, str(exc))
@@ -328,15 +333,17 @@ def cmd_replay(_: None, a: argparse.Namespace) -> int:
 
 
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("replay", help="republish an MCAP recording on a local bus endpoint (for watch, console)",
-                       description="Republish a `ritactl record` file as if ritad were live: point `ritactl "
-                                   "--endpoint ENDPOINT watch` or the console at it. 127.0.0.1 or ipc only.")
+    p = sub.add_parser("replay",
+                       help="republish an MCAP recording on a local bus endpoint (for watch, console)",
+                       description="Republish a `ritactl record` file as if ritad were live: "
+                                   "point `ritactl --endpoint ENDPOINT watch` or the console at it. "
+                                   "127.0.0.1 or ipc only.")
     p.add_argument("file", metavar="FILE.mcap", help="the recording")
     p.add_argument("--speed", type=_speed, default=1.0, metavar="X|max",
                    help="X times the recorded pace, or max: as fast as possible (default 1)")
     p.add_argument("--endpoint", default=argparse.SUPPRESS, metavar="ENDPOINT",
-                   help=f"command endpoint to serve, ipc:///PATH or tcp://127.0.0.1:PORT; telemetry and frames "
-                        f"are bound beside it (default {default_endpoint()})")
+                   help=f"command endpoint to serve, ipc:///PATH or tcp://127.0.0.1:PORT; "
+                        f"telemetry and frames are bound beside it (default {default_endpoint()})")
     p.add_argument("--no-wait", action="store_true", help="start at once instead of waiting for a subscriber")
     p.add_argument("--linger", type=_linger, default=1.0, metavar="S",
                    help="keep answering for S seconds after the last message (default 1)")
@@ -344,5 +351,5 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(fn=cmd_replay, offline=True)
 
 
-__all__ = ["ANSWERED", "DERIVED", "ReplayServer", "add_parser", "cmd_replay", "default_endpoint", "endpoints", "messages",
-           "play"]
+__all__ = ["ANSWERED", "DERIVED", "ReplayServer", "add_parser", "cmd_replay", "default_endpoint", "endpoints",
+           "messages", "play"]

@@ -120,7 +120,8 @@ class LiveStatus:
                     f"{_fmt(self.link.get('lost_packets'), 'd')} packets lost, "
                     f"{_fmt(self.link.get('resend_requests'), 'd')} resends")
         stop = " STOP LATCHED" if self.latch.get("latched") else ""
-        parts = [f"tracker {dev.get('tracker', '?')} {self.lock} {trk}", f"robot {dev.get('robot', '?')}{stop} {rob}",
+        parts = [f"tracker {dev.get('tracker', '?')} {self.lock} {trk}",
+                 f"robot {dev.get('robot', '?')}{stop} {rob}",
                  f"camera {dev.get('camera', '?')} {cam}"]
         if self.job:
             j = self.job
@@ -160,7 +161,8 @@ class Screen:
             self.out.write("\n")
 
 
-def _snapshot(c: Client, status: LiveStatus, echo: Callable[[str, dict[str, Any]], None] | None = None) -> int:
+def _snapshot(c: Client, status: LiveStatus,
+              echo: Callable[[str, dict[str, Any]], None] | None = None) -> int:
     """Seed the status from the daemon's Clone snapshot; returns its seq (drop updates up to it).
 
     ``echo`` gets each topic's latest message first (``--json``: the current state, then updates).
@@ -248,7 +250,8 @@ def watch_frames(c: Client, a: argparse.Namespace, out: TextIO | None = None) ->
         acc["n"] += 1
         acc["lat"].append((time.time_ns() - h["host_time_ns"]) / 1e6)
         if a.json:
-            out.write(json.dumps({"topic": "camera.frame", **h, "latency_ms": acc["lat"][-1]}, default=str) + "\n")
+            line = json.dumps({"topic": "camera.frame", **h, "latency_ms": acc["lat"][-1]}, default=str)
+            out.write(line + "\n")
 
     def on_tick(now: float) -> None:
         if now < acc["tick"]:
@@ -273,9 +276,11 @@ def cmd_watch(c: Client, a: argparse.Namespace) -> int:
 
 
 def add_parser(sub: Any) -> None:
-    w = sub.add_parser("watch", help="live status: tracker point and lock, robot pose, camera fps, job progress",
+    w = sub.add_parser("watch",
+                       help="live status: tracker point and lock, robot pose, camera fps, job progress",
                        description="A compact live status (redrawn in place on a terminal, one line per "
-                                   "change otherwise). Ctrl-C ends it. --json prints every message instead.")
+                                   "change otherwise). Ctrl-C ends it. "
+                                   "--json prints every message instead.")
     w.add_argument("--frames", action="store_true", help="watch the image stream: frame rate, gaps, latency")
     w.add_argument("--topic", action="append", metavar="PREFIX",
                    help="only telemetry topics starting with PREFIX (repeatable; e.g. calib.)")

@@ -25,8 +25,8 @@ from daemon.worker.job import JobContext, StepFailed
 MIN_VIEW_CORNERS = 20
 #: presentations of one view before the step fails (a resume asks MAX_TRIES more times)
 MAX_TRIES = 5
-SETUP = ("put the robot on its calibration stand (camera free, nothing within 100 mm below the lens) and have "
-         "the calibration board ready; answer 'ok'")
+SETUP = ("put the robot on its calibration stand (camera free, nothing within 100 mm below the lens) "
+         "and have the calibration board ready; answer 'ok'")
 
 
 def _board(ctx: JobContext) -> Board:
@@ -46,29 +46,33 @@ def _present(ctx: JobContext, name: str, spec: ViewSpec, board: Board, label: st
     reason = ""
     for _ in range(MAX_TRIES):
         tries = int(ctx.state.get(f"{name}.tries", 0))  # over every run of the job: names never repeat
-        answer = ctx.ask(f"{label} [view {spec.key}]: {reason}{spec.instruction()}. Answer 'ok' when the board "
-                         f"is steady, or 'skip' to leave this view out", ["ok", "skip"])
+        answer = ctx.ask(f"{label} [view {spec.key}]: {reason}{spec.instruction()}. "
+                         f"Answer 'ok' when the board is steady, or 'skip' to leave this view out",
+                         ["ok", "skip"])
         if answer == "skip":
             return None
         ctx.state[f"{name}.tries"] = tries + 1
         file, header, pixels = ctx.capture_image(name if tries == 0 else f"{name}-try{tries + 1}")
-        ids, uv = detect_board_corners(to_grey(pixels, header.get("pixel_format")), board)  # Bayer: demosaiced
-        again = (same_as(ids, uv, [p[:2] for p in previous], pixels.shape[1]) if len(ids) >= MIN_VIEW_CORNERS
-                 else None)
+        grey = to_grey(pixels, header.get("pixel_format"))  # Bayer: demosaiced
+        ids, uv = detect_board_corners(grey, board)
+        again = (same_as(ids, uv, [p[:2] for p in previous], pixels.shape[1])
+                 if len(ids) >= MIN_VIEW_CORNERS else None)
         if len(ids) < MIN_VIEW_CORNERS:
-            reason = (f"{file} shows only {len(ids)} board corners (need {MIN_VIEW_CORNERS}): bring the whole "
-                      f"board into view and try again. ")
+            reason = (f"{file} shows only {len(ids)} board corners (need {MIN_VIEW_CORNERS}): "
+                      f"bring the whole board into view and try again. ")
         elif again is not None:
-            reason = (f"{file} repeats the view accepted as {previous[again][2]} (it adds nothing): change the "
-                      f"tilt as described and try again. ")
+            reason = (f"{file} repeats the view accepted as {previous[again][2]} (it adds nothing): "
+                      f"change the tilt as described and try again. ")
         elif spec.key in CORNERS and not reaches_corner(uv, (pixels.shape[1], pixels.shape[0]), spec.key):
-            reason = (f"in {file} the board does not reach the image's {spec.key} corner (the lens distortion "
-                      f"is largest there): move it further into that corner and try again. ")
+            reason = (f"in {file} the board does not reach the image's {spec.key} corner "
+                      f"(the lens distortion is largest there): "
+                      f"move it further into that corner and try again. ")
         else:
             return {"image": file, "header": header, "key": spec.key, "n_corners": int(len(ids)),
                     "ids": ids.tolist(), "uv": np.round(uv, 3).tolist()}
         ctx.checkpoint()
-    raise StepFailed(f"no usable image in {MAX_TRIES} tries (last: {reason.strip()}); `ritactl resume` asks again")
+    raise StepFailed(f"no usable image in {MAX_TRIES} tries (last: {reason.strip()}); "
+                     f"`ritactl resume` asks again")
 
 
 def guided_intrinsics(ctx: JobContext) -> None:

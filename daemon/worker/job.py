@@ -63,7 +63,8 @@ class JobContext:
         self.step = "start"  # the step in progress, named in a failure message
         self._params: Resolved | None = None
         self.dataset = Dataset(self.root, kind=f"procedure:{self.procedure}",
-                               meta={"job": self.job_id, "params": self.state["params"], "software": __version__})
+                               meta={"job": self.job_id, "params": self.state["params"],
+                                     "software": __version__})
         self.checkpoint()
 
     # ------------------------------------------------------------------ state
@@ -130,7 +131,8 @@ class JobContext:
     def progress(self, step: str, percent: float, waiting_for: str = "", **extra: Any) -> None:
         self.step = step
         log.info("[%s] %5.1f%% %s %s", self.job_id, percent, step, waiting_for)
-        self.report("progress", {"step": step, "percent": round(percent, 1), "waiting_for": waiting_for, **extra})
+        self.report("progress", {"step": step, "percent": round(percent, 1), "waiting_for": waiting_for,
+                                 **extra})
 
     def check_cancel(self) -> None:
         """Before every bus call: a STOP or a cancel posted for this job ends it here."""

@@ -1,4 +1,5 @@
-"""The worker's results on the robot: the result files (daemon/compute/files.py), the active calibration and history."""
+"""The worker's results on the robot: the result files (daemon/compute/files.py), the active
+calibration and history."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,7 +11,8 @@ from daemon.worker.job import JobContext
 
 
 def save_result(root: Path, data_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
-    """Write the result files into the dataset and keep the history copy (daemon/worker/finish.py does the rest)."""
+    """Write the result files into the dataset and keep the history copy (daemon/worker/finish.py
+    does the rest)."""
     result = write_result_files(root, result)
     atomic_write_json(calibration_dir(data_dir) / "history" / f"{result['job']}.json", result)
     return result
@@ -38,8 +40,9 @@ def install_camera_model(ctx: JobContext, result: dict[str, Any], answer_within_
     if verdict == "warn":
         findings = "; ".join(result.get("messages") or []) or "see the report"
         try:
-            answer = ctx.ask(f"the camera model has verdict warn ({findings}). Install it as the robot's camera "
-                             f"model for later jobs?", ["install", "skip"], timeout_s=answer_within_s)
+            answer = ctx.ask(f"the camera model has verdict warn ({findings}). "
+                             f"Install it as the robot's camera model for later jobs?",
+                             ["install", "skip"], timeout_s=answer_within_s)
         except TimeoutError:
             answer = "no answer"
         if answer != "install":

@@ -73,7 +73,8 @@ def _host_times(msgs: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray | No
     clocks = [_device_ns(m) for m in msgs]
     devs = [d for d in clocks if d is not None]
     if len(devs) < len(clocks):
-        return np.concatenate([np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]), None
+        per_message = [np.full(int(m["n"]), int(m["host_time_ns"]), dtype=np.int64) for m in msgs]
+        return np.concatenate(per_message), None
     cm = ClockMap(bin_s=CLOCK_BIN_S, resolution_ns=DEVICE_RESOLUTION_NS)
     for last, rx in sorted((int(d[-1]), int(m["host_time_ns"])) for m, d in zip(msgs, devs)):
         cm.add(last, rx)  # in the device's order: a clock going back would read as a restart
@@ -129,7 +130,8 @@ def _collect_incl(sub: Subscriber, t_end_ns: int, wait_s: float) -> list[dict[st
     return msgs
 
 
-def _incl_tilt(msgs: list[dict[str, Any]], t: np.ndarray, t0: int, t1: int) -> tuple[list[list[float]], int] | None:
+def _incl_tilt(msgs: list[dict[str, Any]], t: np.ndarray, t0: int, t1: int
+               ) -> tuple[list[list[float]], int] | None:
     """The inclinometer's samples interpolated to the record times ``t`` (host ns): (n × 2 roll,
     pitch; the samples within the move [t0, t1]); None when they do not cover every record, or leave
     a hole longer than ``INCL_REACH_NS`` around one."""
@@ -178,7 +180,8 @@ def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, 
                         ) -> tuple[list[tuple[int, float, float]], dict[str, Any]]:
     """Start the move, poll robot.status until the base is idle: the tilt samples (host ns, roll, pitch)
     and the last status (the odometry where the move ended)."""
-    ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True, wait=False)
+    ctx.call("robot.move", timeout=60, distance_mm=distance_mm, speed_mm_s=speed_mm_s, confirm=True,
+             wait=False)
     samples: list[tuple[int, float, float]] = []
     end = time.monotonic() + timeout_s
     while True:
@@ -190,7 +193,17 @@ def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, 
         if st.get("state") == "IDLE":
             return samples, st
         if time.monotonic() > end:
-            raise CommandError(ErrorCode.TIMEOUT, f"robot still moving {timeout_s:.0f} s after the approach started")
+            raise CommandError(ErrorCode.TIMEOUT,
+                               f"robot still moving {timeout_s:.0f} s after the approach started")
+
+
+def _status_before(ctx: JobContext) -> tuple[dict[str, Any] | None, list[str]]:
+    """The odometry before the move (how far it went, if cut short) and the base's streams."""
+    try:
+        start = ctx.call("robot.status", timeout=30)
+        return start, start.get("streams") or []
+    except CommandError:  # not knowing the base's streams only means polling its status for the tilt
+        return None, []
 
 
 def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_trk: Any,
@@ -205,12 +218,7 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
     first sample taken while moving; without it the points at the start would get a
     mid-move tilt.
     """
-    start: dict[str, Any] | None = None  # the odometry before the move: how far it went, if cut short
-    try:
-        start = ctx.call("robot.status", timeout=30)
-        streams = start.get("streams") or []
-    except CommandError:  # not knowing the base's streams only means polling its status for the tilt
-        streams = []
+    start, streams = _status_before(ctx)
     sub = ctx.client.subscriber(["tracker.point"])
     esub = ctx.client.subscriber(["robot.event"])  # the move's DONE: was all of it executed?
     isub = ctx.client.subscriber([TILT_FROM_INCL]) if TILT_FROM_INCL in streams else None
@@ -218,7 +226,8 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
     try:
         time.sleep(SUB_SETTLE_S)
         try:
-            started = ctx.call("tracker.stream.start", timeout=30, **({} if rate_hz is None else {"rate_hz": rate_hz}))
+            rate = {} if rate_hz is None else {"rate_hz": rate_hz}
+            started = ctx.call("tracker.stream.start", timeout=30, **rate)
         except CommandError as exc:  # the stream only serves heading_fit: the approach goes on without it
             return None, f"the tracker's stream did not start ({exc.args[0]})"
         t0 = time.time_ns()
@@ -238,7 +247,8 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
         esub.close()
         if isub is not None:
             isub.close()
-    confirm_done(ctx, "move", distance_mm, start, done, last)  # cut short, it is not the approach's final move
+    # cut short, it is not the approach's final move
+    confirm_done(ctx, "move", distance_mm, start, done, last)
     P, t, sigma = _abs_points(msgs, np.asarray(abs_H_trk, float))
     keep = np.flatnonzero((t >= t0) & (t <= t1))
     idx = keep[_thin(len(keep), MAX_STREAM_POINTS)]

@@ -223,7 +223,8 @@ class EmsconClient:
                   want: str) -> list[Packet]:
         if self._waiting is not None:
             raise DeviceError(f"emScon: {enum_name(ES_Command, command)} issued while "
-                              f"{enum_name(ES_Command, self._waiting)} is still in flight", code="tracker_busy")
+                              f"{enum_name(ES_Command, self._waiting)} is still in flight",
+                              code="tracker_busy")
         data = encode_request(command, **params)
         wait = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + wait

@@ -269,7 +269,8 @@ def decode(buf: bytes, direction: str) -> Packet:
         if n != 16:
             raise _bad(f"ErrorResponse: lPacketSize {n}, expected 16")
         _, _, cmd, status = _PREFIX4.unpack_from(buf)
-        return Packet("error", dtype, command=as_enum(ES_Command, cmd), status=as_enum(ES_ResultStatus, status))
+        return Packet("error", dtype, command=as_enum(ES_Command, cmd),
+                      status=as_enum(ES_ResultStatus, status))
     if dtype == ES_DataType.SystemStatusChange:
         if n != 12:
             raise _bad(f"SystemStatusChange: lPacketSize {n}, expected 12")
@@ -319,7 +320,8 @@ def _decode_answer(buf: bytes, dtype: int) -> Packet:
     s = _RT[cmd]
     cmd = ES_Command(cmd)
     if n == s.size:
-        return Packet("answer", dtype, command=cmd, status=status, values=_unpack(s, COMMANDS[cmd][1], buf, 4))
+        return Packet("answer", dtype, command=cmd, status=status,
+                      values=_unpack(s, COMMANDS[cmd][1], buf, 4))
     if n == 16 and status != 0:  # a failed answer may be just the prefix (CPP-H reads only that)
         return Packet("answer", dtype, command=cmd, status=status)
     raise _bad(f"{cmd.name} answer (status {int(status)}): lPacketSize {n}, expected {s.size}")

@@ -23,7 +23,8 @@ def markdown_table() -> str:
         if not cls.__doc__:
             raise ValueError(f"{cls.__name__} has no docstring: say what it is for, it is the table's cell")
         values = ", ".join(f"{int(m)} `{m.name}`" for m in cls)
-        rows.append(f"| `{cls.__name__}` | {cls.__doc__} | {values} |")
+        what = " ".join(cls.__doc__.split())  # a docstring wrapped over lines is one table cell
+        rows.append(f"| `{cls.__name__}` | {what} | {values} |")
     return "\n".join(rows) + "\n"
 
 

@@ -97,7 +97,8 @@ class ES_Command(IntEnum):
 
 
 class ES_ResultStatus(IntEnum):
-    """A command's result; a refused command is the bus error `tracker_<name>`, also `tracker.event` `status_name`"""
+    """A command's result; a refused command is the bus error `tracker_<name>`,
+    also `tracker.event` `status_name`"""
     AllOK = 0
     ServerBusy = 1
     NotImplemented = 2

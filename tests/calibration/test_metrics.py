@@ -111,8 +111,11 @@ def test_table_figures_and_renderers():
     assert "| **All** |" in md and "| downleft |" in md and "cluster means, over pairs" in md
     assert f"{m.pairwise_mean_mm:.3f}" in md
     csv = m.to_csv()
-    assert csv.splitlines()[0].startswith("Direction,Mean X [mm]")
+    assert csv.splitlines()[0] == ",".join(m.CSV_COLUMNS)
     assert len([ln for ln in csv.splitlines() if ln.startswith(("up,", "All,"))]) == 2
+    assert len(csv.splitlines()) == 1 + len(m.clusters) + 1  # one table: no blank line, no metric rows under it
+    up = next(ln for ln in csv.splitlines() if ln.startswith("up,")).split(",")
+    assert float(up[2]) == m.clusters[0].mean[0]  # in full precision, not the table's 3 decimals
     assert m.to_dict()["enclosing_diameter_mm"] == m.enclosing_diameter_mm
 
 

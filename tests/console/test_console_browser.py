@@ -117,19 +117,33 @@ def test_camera_panel_shows_a_frame(page, robot):
     assert "frame" in text(page, "cam-info") and "exposure" in text(page, "cam-info")
 
 
-def test_at_1366x768_stop_the_live_view_and_the_procedure_controls_need_no_scrolling(page):
+#: where the page's key elements are at the window's size, scrolled to the top: each inside the viewport
+IN_VIEW = """const r = (e) => e.getBoundingClientRect(), inside = (e) => { const b = r(e);
+        return b.top >= 0 && b.left >= 0 && b.bottom <= innerHeight && b.right <= innerWidth
+            && b.width > 0; };
+    const byId = (id) => document.getElementById(id), cam = r(byId('cam')), panel = r(byId('camera-panel'));
+    const ids = ['stop', 'latch', 'pose-head', 'robot-state', 'robot-pose', 'proc', 'proc-start'];
+    return {...Object.fromEntries(ids.map((id) => [id, inside(byId(id))])),
+            header_state: inside(document.querySelector('#robot-head [data-robot-state]')),
+            cam_top: cam.top < innerHeight - 200, cam_wide: cam.width >= panel.width - 40,
+            no_hscroll: document.documentElement.scrollWidth <= innerWidth, height: innerHeight};"""
+
+
+def test_at_1366x768_stop_latch_robot_state_and_pose_the_live_view_and_the_procedures_need_no_scrolling(page):
+    """Issue 35: the Robot panel was below the fold. STOP, the latch, the robot's state and pose in sight."""
+    wait_for("the pose shown", lambda: text(page, "pose-head") not in ("", "–"), 10)
+    wait_for("the latch's state shown", lambda: "latch" in text(page, "latch").lower(), 10)
     page.set_window_size(1366, 768)
     try:
         js(page, "window.scrollTo(0, 0)")
-        out = js(page, """const r = (id) => document.getElementById(id).getBoundingClientRect(), inside = (b) =>
-            b.top >= 0 && b.left >= 0 && b.bottom <= innerHeight && b.right <= innerWidth && b.width > 0;
-            const cam = r('cam'), panel = r('camera-panel');
-            return {stop: inside(r('stop')), start: inside(r('proc-start')), proc: inside(r('proc')),
-                    cam_top: cam.top < innerHeight - 200, cam_wide: cam.width >= panel.width - 40,
-                    no_hscroll: document.documentElement.scrollWidth <= innerWidth};""")
+        out = js(page, IN_VIEW)
     finally:
         page.set_window_size(1400, 1100)
+    height = out.pop("height")
+    assert height >= 500, f"the browser's viewport at 1366x768 is only {height} px: not a laptop's window"
     assert all(out.values()), out
+    assert text(page, "robot-pose") == text(page, "pose-head")  # one pose, one text
+    assert "ago" in text(page, "pose-head-age")
 
 
 def test_tracker_panel_shows_locked_after_aim_and_find(page, robot):
@@ -401,7 +415,98 @@ def test_stop_works_with_the_confirmation_dialog_open(page, robot, how):
     assert (after["x_mm"], after["y_mm"]) == (idle["x_mm"], idle["y_mm"]), (idle, after)
     click(page, "release")
     wait_for("released", lambda: not c.call("state")["latch"]["latched"], 5)
-    wait_for("the banner gone", lambda: not page.find_element("id", "latch").is_displayed(), 5)
+    wait_for("the latch shown released", lambda: text(page, "latch") == "STOP not latched", 5)
+
+
+def series(page, name: str, since_ms: float = 0.0) -> list[dict]:
+    """The points of one live series the page holds (live.js): [{t, v}], t on this computer's clock (ms),
+    those sampled from ``since_ms`` on."""
+    script = f"return window.rita.series[{name!r}].filter((p) => p.t >= arguments[0])"
+    return page.execute_script(script, since_ms)
+
+
+#: pixels of a line colour (#1565c0, the first line of each live plot) in a live plot's canvas
+LINE_PIXELS = """const cv = document.querySelector('#' + arguments[0] + ' canvas'), ctx = cv.getContext('2d');
+    const d = ctx.getImageData(0, 0, cv.width, cv.height).data;
+    let n = 0;
+    for (let i = 0; i < d.length; i += 4) {
+        const near = (k, c) => Math.abs(d[i + k] - c) < 40;
+        if (near(0, 0x15) && near(1, 0x65) && near(2, 0xc0)) n++;
+    }
+    return n;"""
+
+
+def test_live_plots_follow_a_move_and_the_tracker_with_an_age_on_every_value(page, robot):
+    """Pose, wheel speeds and the tracker's distance plotted from what the console kept, each with its
+    age; the stream's last point, once the stream stops, says how old it is instead of standing as current."""
+    from fakes.operator import lock_on_robot
+
+    c: Client = robot["client"]
+    if c.call("state")["latch"]["latched"]:
+        c.call("robot.release")
+    start, t0 = c.call("robot.status"), js(page, "return Date.now()")
+    # 200 mm at 2 mm/s: 100 s of the base's time, 2 s of wall time at the fake base's time_scale 0.02
+    c.call("robot.move", distance_mm=200.0, speed_mm_s=2.0, confirm=True, wait=True, timeout=hang_s(30))
+    end = c.call("robot.status")
+
+    def at_the_end() -> bool:
+        p = series(page, "pose")
+        return bool(p) and float(np.hypot(p[-1]["v"][0] - end["x_mm"], p[-1]["v"][1] - end["y_mm"])) < 1.0
+    wait_for("the page's pose at the move's end", at_the_end, 10)
+    pose = series(page, "pose", t0)
+    travel = max(float(np.hypot(p["v"][0] - start["x_mm"], p["v"][1] - start["y_mm"])) for p in pose)
+    assert travel > 190, f"the pose series shows {travel:.0f} mm of a 200 mm move"
+    wheels = [p["v"] for p in series(page, "wheels", t0) if None not in p["v"]]
+    top = [max(v[i] for v in wheels) for i in (0, 1)]  # straight ahead at 2 mm/s: both wheels at 2 mm/s
+    assert all(abs(v - 2.0) < 0.2 for v in top), top
+    lock_on_robot(c)  # the operator's hands: the reflector on the robot, so the tracker can stream
+    t1 = js(page, "return Date.now()")  # earlier streams (referencing's) measured other places
+    c.call("tracker.stream.start", rate_hz=100.0)
+    try:
+        wait_for("tracker distances on the page", lambda: len(series(page, "tracker", t1)) >= 10, 10)
+        wait_for("the stream's point shown with its age",
+                 lambda: "ago" in text(page, "tracker-point-age") and "stream" in text(page, "tracker-point"),
+                 5)
+    finally:
+        c.call("tracker.stream.stop")
+    xyz = c.call("tracker.measure")
+    d = series(page, "tracker", t1)[-1]["v"][0]
+    assert abs(d - float(np.linalg.norm([xyz["x"], xyz["y"], xyz["z"]]))) < 5.0  # the reflector stands still
+    for plot in ("live-x", "live-y", "live-heading", "live-wheels", "live-tracker"):
+        wait_for(f"{plot} drawn with its line", lambda: page.execute_script(LINE_PIXELS, plot) > 5, 5)
+        caption = js(page, f"return document.querySelector('#{plot} figcaption').textContent")
+        assert "ago" in caption and ("mm" in caption or "°" in caption), caption
+    # the stream has stopped: its last point grows old on the page, marked so, not frozen as if current
+    wait_for("the stopped stream's point marked old",
+             lambda: "old" in page.find_element("id", "tracker-point-age").get_attribute("class"), 10)
+
+
+#: for each panel scrolled into view at its end: its bottom against the message bar's top (px)
+CLEAR_OF_BAR = """const bar = document.getElementById('toast-bar');
+    return [...document.querySelectorAll('main section')].filter((s) => !s.hidden).map((s) => {
+        s.scrollIntoView({block: 'end'});
+        return [s.id, s.getBoundingClientRect().bottom, bar.getBoundingClientRect().top]; });"""
+
+
+def test_a_message_never_covers_the_page_and_the_drift_plots_time_ticks_differ(page):
+    """Issue 35: toasts covered the history table, the drift plot's x axis read the same five times."""
+    js(page, "toast('a message long enough to have covered a table row: ' + 'x'.repeat(200))")
+    page.set_window_size(1366, 768)
+    try:
+        for panel, bottom, bar_top in js(page, CLEAR_OF_BAR):
+            assert bottom <= bar_top + 0.5, f"{panel} ends at {bottom} px, under the bar at {bar_top} px"
+        js(page, "window.scrollTo(0, document.documentElement.scrollHeight)")
+        last = js(page, "return document.getElementById('history').getBoundingClientRect().bottom")
+        assert last <= js(page, "return document.getElementById('toast-bar').getBoundingClientRect().top")
+    finally:
+        page.set_window_size(1400, 1100)
+    spans = {"20 s": 20, "3 min": 180, "5 h": 5 * 3600, "3 days": 3 * 86400, "40 days": 40 * 86400}
+    for what, span in spans.items():
+        script = "const t = timeTicks(1.8e9, 1.8e9 + arguments[0]); return t.ticks.map(t.fmt);"
+        labels = page.execute_script(script, span)
+        assert len(labels) >= 2 and len(set(labels)) == len(labels), (what, labels)
+    drift = wait_for("the drift plot drawn", lambda: js(page, "return window.rita.driftTicks"), 10)
+    assert len(drift["x"]) >= 2 and len(set(drift["x"])) == len(drift["x"]), drift
 
 
 def test_a_page_that_never_asks_gets_one_frame_but_all_telemetry(session, robot):
@@ -491,7 +596,7 @@ def test_viewer_key_page_has_no_enabled_control(page, robot):
         drv.find_element("id", "stop").click()
         idle = _stopped(c)
         assert "vic (viewer)" in c.call("state")["latch"]["by"]
-        wait_for("the latch shown", lambda: drv.find_element("id", "latch").is_displayed(), 5)
+        wait_for("the latch shown", lambda: "STOPPED (latched by" in text(drv, "latch"), 5)
         assert not drv.find_element("id", "release").is_enabled()  # a viewer may stop, not release
         after = c.call("robot.status")
         assert (after["x_mm"], after["y_mm"]) == (idle["x_mm"], idle["y_mm"]), "the robot moved after STOP"
@@ -513,9 +618,10 @@ def test_reload_shows_the_latest_result_with_working_links_and_stale_marks_need_
     assert results and all("/files//" not in h and "/list//" not in h for h in results), results
     for h in results:
         assert urllib.request.urlopen(con.at(h.split("/", 3)[3]), timeout=30).status == 200, h
-    wait_for("results listed", lambda: page.find_element("id", "history").find_elements("tag name", "a"), 20)
-    hrefs = [a.get_attribute("href") for a in page.find_element("id", "history").find_elements("tag name", "a")]
-    hrefs += [a.get_attribute("href") for a in page.find_element("id", "calib-active").find_elements("tag name", "a")]
+    # one read of the history's and the active calibration's links: the history may be redrawn between two
+    links = ("return document.querySelector('#history a') && "
+             "[...document.querySelectorAll('#history a, #calib-active a')].map(a => a.href)")
+    hrefs = wait_for("results listed", lambda: js(page, links), 20)
     assert hrefs and all("/files//" not in h and "/list//" not in h for h in hrefs), hrefs
     for h in hrefs[:6]:
         path = h.split("/", 3)[3]

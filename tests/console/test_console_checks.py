@@ -24,7 +24,7 @@ CHECKS = [
      "detail": "needs the PTP lock"},
 ]
 
-ROWS = """return [...document.querySelectorAll('#result-table table.checks tbody tr')].map(r => ({
+ROWS = """return [...document.querySelectorAll('#commission-report table.checks tbody tr')].map(r => ({
     check: r.dataset.check, verdict: r.dataset.verdict, cells: [...r.cells].map(c => c.textContent)}))"""
 
 
@@ -50,7 +50,9 @@ def test_a_commissioning_result_shows_its_table_of_checks(robot):
         assert [r["verdict"] for r in rows] == [c["verdict"] for c in CHECKS]
         assert [r["cells"] for r in rows] == [
             [c["verdict"].upper(), c["device"], c["name"], c["value"], c["detail"]] for c in CHECKS]
-        summary = drv.execute_script("return document.querySelector('#result-table p').textContent")
+        summary = drv.execute_script("return document.querySelector('#commission-report p').textContent")
         assert summary == "1 passed, 1 failed, 1 warned, 1 skipped"
+        assert drv.execute_script("return document.getElementById('commission-panel').hidden") is False
+        assert drv.execute_script("return document.getElementById('result-table').textContent") == ""
         assert drv.execute_script("return document.querySelectorAll('[data-xss]').length") == 0
         assert drv.execute_script("return window.__xss") is None

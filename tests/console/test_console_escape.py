@@ -6,8 +6,9 @@ in through every source the page shows: data-dir file names (the finding: a file
 prompt, result and error (reported as the worker reports them), and, through the page's own
 WebSocket handler as the console forwards them, the daemon's health (device names, states,
 reasons), the base's state and fault, the latch's who and why, motion events, the plate survey's
-report (nest and photograph names) and the procedure form's parameter table. The payload both
-breaks out of a quoted attribute and opens an element whose error handler sets ``window.__xss``;
+report (nest and photograph names), the live series' points and the procedure form's parameter
+table. The payload both breaks out of a quoted attribute and opens an element whose error handler
+sets ``window.__xss``;
 the page must hold no element or attribute of it, and the handler must not have run, while a
 canary put in as markup on purpose does run.
 """
@@ -85,6 +86,9 @@ def crafted_state() -> dict:
             "console": {"frames_sent": P, "tabs": P, "preview_error": P},
             "topics": {"daemon.health": topic(health), "robot.state": topic({"state": P, "fault": P}),
                        "robot.latch": topic({"latched": True, "by": P, "reason": P, "since_ns": 1})},
+            "series": [{"no": 10 ** 6, "s": P, "t": 1, "v": [P]},
+                       {"no": 10 ** 6 + 1, "s": "pose", "t": P, "v": [P]},
+                       {"no": 10 ** 6 + 2, "s": "tracker", "t": 1.8e12, "v": [P]}],
             "events": [{"no": 10 ** 6, "topic": "robot.event",
                         "data": {"event": P, "result": P, "reason": P}}]}
 

@@ -132,7 +132,8 @@ def test_console_checks_the_page_and_reads_the_chosen_files_on_the_robot(tmp_pat
     assert r["good"]["ok"], r["good"]
     assert len(jobs) == 1 and jobs[0]["job"] == r["good"]["result"]["job"]  # the refused ones posted nothing
     params = jobs[0]["params"]
-    assert params["plate"] == json.loads((data / "sim" / "plate.json").read_text())  # the file's object, as ritactl
+    # the file's object, as ritactl
+    assert params["plate"] == json.loads((data / "sim" / "plate.json").read_text())
     assert params["nests_approx_trk"] == json.loads((data / "sim" / "nests.json").read_text())
     # ritad stores them resolved: every parameter, the defaults applied (the installed camera model: None)
     assert params["reversal"] is True and set(params) == {p.name for p in REFERENCING.params}
@@ -146,7 +147,8 @@ def test_survey_from_the_console_reports_a_bad_folder_and_empty_fields_and_cance
 
     async def cancel(ws: Any) -> tuple[dict, dict, dict]:
         """A survey that takes long (a stand-in child that prints one progress line and sleeps) cancelled."""
-        slow = "import sys, time; print('[ 12.5%] read a.png (1/8)', file=sys.stderr, flush=True); time.sleep(60)"
+        slow = ("import sys, time; print('[ 12.5%] read a.png (1/8)', file=sys.stderr, flush=True); "
+                "time.sleep(60)")
         monkeypatch.setattr("daemon.console.survey.SURVEY_ARGV", (sys.executable, "-c", slow))
         args = {"op": "survey", "action": "start", "folder": str(tmp_path), "plate": str(design),
                 "out": str(tmp_path / "plate.json")}

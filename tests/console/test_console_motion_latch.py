@@ -139,7 +139,7 @@ def test_a_page_that_has_not_yet_seen_the_latch_checks_the_daemon_at_the_click(p
     assert "latched" in outcome, outcome
     assert motions_sent(page) == []
     wait_for("the latch shown once the state arrives",
-             lambda: page.find_element("id", "latch").is_displayed(), 5)
+             lambda: "STOPPED (latched by" in page.find_element("id", "latch").text, 5)
     assert pose(c) == before
 
 

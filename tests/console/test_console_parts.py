@@ -96,7 +96,8 @@ def _detect_when_streaming(c, args: dict, timeout: float = 20.0) -> dict:
 
 
 def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
-    """camera.detect on the robot standing on the plate: the product's detector, the installer's plate file."""
+    """camera.detect on the robot standing on the plate: the product's detector, the installer's
+    plate file."""
     from daemon.bus.protocol import CommandError
     from tests.ritad_up import ritad_in_process
 
@@ -115,19 +116,23 @@ def test_camera_detect_finds_the_plate_corners_in_sensor_pixels(tmp_path):
             dot = c.call("camera.detect", target="dot")
         finally:
             c.call("camera.stream.stop")
-    assert (full["full_w"], full["full_h"], full["searched_w"]) == (1000, 750, 1000) and half["searched_w"] == 500
+    assert (full["full_w"], full["full_h"], full["searched_w"]) == (1000, 750, 1000)
+    assert half["searched_w"] == 500
     assert full["found"] and full["n"] > 30 and len(full["uv"]) == len(full["ids"]) == full["n"]
     uv = np.array(full["uv"])
-    assert (uv[:, 0] >= 0).all() and (uv[:, 0] < 1000).all() and (uv[:, 1] >= 0).all() and (uv[:, 1] < 750).all()
+    assert (uv[:, 0] >= 0).all() and (uv[:, 0] < 1000).all()
+    assert (uv[:, 1] >= 0).all() and (uv[:, 1] < 750).all()
     # corners seen at both sizes are the same points in sensor pixels (the half-size search is coarser)
     common = {i: p for i, p in zip(half["ids"], half["uv"])}
     d = [np.hypot(*(np.array(p) - common[i])) for i, p in zip(full["ids"], full["uv"]) if i in common]
     assert len(d) > 10 and np.median(d) < 1.5, (len(d), np.median(d) if d else None)
-    assert "found" in dot and dot["target"] == "dot"  # no mark under the camera on the plate: found or not, no error
+    # no mark under the camera on the plate: found or not, no error
+    assert "found" in dot and dot["target"] == "dot"
 
 
 def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_path):
-    """Directly on the handler: a second request while one runs is busy; a downscaled search answers sensor px."""
+    """Directly on the handler: a second request while one runs is busy; a downscaled search
+    answers sensor px."""
     from calibration.target import detect_corners, make_board
     from daemon.bus.protocol import CommandError
     from daemon.ritad.detect import Detections
@@ -137,7 +142,8 @@ def test_camera_detect_runs_one_at_a_time_and_scales_back_to_sensor_pixels(tmp_p
 
     plate = World().plate()  # the design the simulated installer hands over
     (tmp_path / "plate.json").write_text(json.dumps(plate.to_dict()))
-    img = make_board(plate).generateImage((2000, 1500), marginSize=0)[300:750, 400:1000].copy()  # a camera-sized part
+    # a camera-sized part
+    img = make_board(plate).generateImage((2000, 1500), marginSize=0)[300:750, 400:1000].copy()
     det = Detections(lambda: Frame(img, 7, "sim", "Mono8"), tmp_path)
 
     def req(**a):

@@ -1,4 +1,5 @@
-"""The console when ritad dies and comes back: stale values greyed with their age, then live again by themselves.
+"""The console when ritad dies and comes back: stale values greyed with their age, then live again
+by themselves.
 
 Its own ritad (no worker: nothing here runs a procedure), one console, one browser; ritad is
 killed and started again on the same ipc endpoints while the page stays open.
@@ -27,7 +28,8 @@ def test_values_turn_stale_when_ritad_dies_and_live_again_when_it_returns(tmp_pa
     try:
         with console_session(["--endpoint", ritad.endpoint], tmp_path / "console") as (_, drv):
             text = lambda i: drv.find_element("id", i).text  # noqa: E731
-            wait_for("fresh values", lambda: text("robot-state") == "IDLE" and not any(_stale(drv).values()), 20)
+            wait_for("fresh values",
+                     lambda: text("robot-state") == "IDLE" and not any(_stale(drv).values()), 20)
             assert "alive true" in text("daemon-health")
             ritad.kill()
             ages = wait_for("every panel stale", lambda: all((s := _stale(drv)).values()) and s, 15)
@@ -42,6 +44,7 @@ def test_values_turn_stale_when_ritad_dies_and_live_again_when_it_returns(tmp_pa
             with ritad.client(timeout=30) as c:
                 c.call("camera.stream.start")
                 drawn = drv.execute_script("return window.rita.framesDrawn")
-                wait_for("the live view resumed", lambda: drv.execute_script("return window.rita.framesDrawn") > drawn, 20)
+                wait_for("the live view resumed",
+                         lambda: drv.execute_script("return window.rita.framesDrawn") > drawn, 20)
     finally:
         ritad.stop()

@@ -37,7 +37,8 @@ def robot(tmp_path_factory):
             p = lock_on_robot(c)
             params = {"plate": json.loads((sim / "plate.json").read_text()),
                       "nests_approx_trk": json.loads((sim / "nests.json").read_text()),
-                      "robot_approx_trk": [p["x"], p["y"], p["z"]], "camera_model": c.call("sim.truth")["camera_model"]}
+                      "robot_approx_trk": [p["x"], p["y"], p["z"]],
+                      "camera_model": c.call("sim.truth")["camera_model"]}
             job = c.call("calib.start", procedure="referencing", params=params)["job"]
             assert wait_end(c, job)["state"] == "done"
             yield {"ritad": r, "laptop": laptop, "tmp": tmp, "client": c}

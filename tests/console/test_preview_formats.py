@@ -14,7 +14,8 @@ def frame(pixels: np.ndarray, fmt: str) -> Frame:
     return Frame(pixels=pixels, frame_id=1, camera_serial="S", pixel_format=fmt)
 
 
-@pytest.mark.parametrize("fmt, level, shown", [("Mono8", 200, 200), ("Mono12p", 3200, 200), ("Mono16", 51200, 200)])
+@pytest.mark.parametrize("fmt, level, shown",
+                         [("Mono8", 200, 200), ("Mono12p", 3200, 200), ("Mono16", 51200, 200)])
 def test_live_view_shows_the_exposure_of_each_depth(fmt, level, shown):
     img = np.full((8, 10), level, np.uint8 if fmt == "Mono8" else np.uint16)
     out = display_grey(frame(img, fmt))

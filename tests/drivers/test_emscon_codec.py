@@ -103,7 +103,8 @@ def test_result_layouts() -> None:
 
 
 def test_generic_packets_are_little_endian() -> None:
-    assert encode_error(Cmd.FindReflector, ES_ResultStatus.ModuleTimedOut) == struct.pack("<iiii", 16, 1, 63, 41)
+    assert (encode_error(Cmd.FindReflector, ES_ResultStatus.ModuleTimedOut)
+            == struct.pack("<iiii", 16, 1, 63, 41))
     assert encode_status_change(ES_SystemStatusChange.MeasStatus_Ready) == struct.pack("<iii", 12, 8, 27)
     assert encode_request(Cmd.FindReflector, approx_distance=1.5) == struct.pack("<iiid", 20, 0, 63, 1.5)
     assert encode_answer(Cmd.Initialize, ES_ResultStatus.ServerBusy) == struct.pack("<iiii", 16, 0, 7, 1)

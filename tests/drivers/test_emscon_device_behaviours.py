@@ -136,7 +136,8 @@ def test_a_refused_restart_waits_for_the_next_lock_instead_of_retrying_every_pum
     assert _pump_until(t, lambda: t.status()["stream_interrupted"])
     t.server.faults.fail[Cmd.StartMeasurement] = 10014  # SystemNotReadyForMeasurement
     t.server.restore_beam("green")
-    assert _pump_until(t, lambda: any(e["event"] == "stream_resume_failed" for e in sink.topic("tracker.event")))
+    assert _pump_until(t, lambda: any(e["event"] == "stream_resume_failed"
+                                      for e in sink.topic("tracker.event")))
     for _ in range(5):
         t.pump(0.02)
     failed = [e for e in sink.topic("tracker.event") if e["event"] == "stream_resume_failed"]

@@ -37,7 +37,8 @@ def test_every_enum_is_a_row_with_every_value() -> None:
     for cls in defined:
         row = next(line for line in table.splitlines() if line.startswith(f"| `{cls.__name__}` |"))
         assert all(f"{int(m)} `{m.name}`" in row for m in cls)
-    assert "39 `TrackerNotInitialized`" in table  # the status behind the bus error tracker_TrackerNotInitialized
+    # the status behind the bus error tracker_TrackerNotInitialized
+    assert "39 `TrackerNotInitialized`" in table
 
 
 def test_an_enum_without_a_docstring_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -64,7 +64,8 @@ def valid_packet(draw: st.DrawFn) -> tuple[bytes, int, int]:
         status = draw(st.sampled_from([0, 0, 0, 10004]))
         return encode_result(kind, status, rec), n, int(status != 0)
     if kind == "single":
-        return encode_result(draw(st.sampled_from(["single", "single2"])), draw(st.sampled_from([0, 3]))), 0, 1
+        return (encode_result(draw(st.sampled_from(["single", "single2"])), draw(st.sampled_from([0, 3]))),
+                0, 1)
     return encode_result(draw(st.sampled_from(["reflector_pos", "nivel"]))), 0, 1
 
 
@@ -182,7 +183,8 @@ def test_emscon_streams_into_the_adapter() -> None:
 # ---------------------------------------------------------------------------- robot lines
 
 REPLY_KINDS, EVENT_KINDS = rp.REPLIES, rp.EVENTS
-field_text = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters="$*,"), max_size=12)
+field_text = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters="$*,"),
+                     max_size=12)
 upper_word = st.text(st.characters(min_codepoint=ord("A"), max_codepoint=ord("Z")), min_size=1, max_size=8)
 finite = st.floats(-1e6, 1e6).map(rp.num)
 
@@ -195,8 +197,8 @@ def frame(body: str, bad_checksum: int = 0) -> bytes:
 @st.composite
 def robot_line(draw: st.DrawFn) -> tuple[bytes, str | None]:
     """One line and the driver counter it must land in (None: ignored blank line)."""
-    how = draw(st.sampled_from(["noise", "checksum", "syntax", "badseq", "stale", "unknown", "event", "badevent",
-                                "overlong", "blank"]))
+    how = draw(st.sampled_from(["noise", "checksum", "syntax", "badseq", "stale", "unknown", "event",
+                                "badevent", "overlong", "blank"]))
     fields = draw(st.lists(field_text, max_size=5))
     seq = str(draw(st.integers(5000, rp.SEQ_MAX)))  # the driver's own seqs stay far below
     if how == "noise":
@@ -217,7 +219,8 @@ def robot_line(draw: st.DrawFn) -> tuple[bytes, str | None]:
         return frame(",".join([kind, *fields])), "unexpected"
     if how == "event":
         if draw(st.booleans()):
-            body = ",".join(["DONE", seq, draw(field_text), draw(finite), draw(finite), draw(finite), *fields])
+            body = ",".join(["DONE", seq, draw(field_text), draw(finite), draw(finite), draw(finite),
+                             *fields])
         else:
             body = ",".join(["FAULT", draw(st.sampled_from([seq, ""])), draw(field_text), *fields])
         return frame(body), "events"
@@ -233,7 +236,8 @@ def robot_line(draw: st.DrawFn) -> tuple[bytes, str | None]:
 COUNTED = ("garbage", "bad_checksum", "syntax", "stale", "unexpected", "events", "overflows")
 
 
-def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int], after: dict[str, int]) -> None:
+def expect_counts(lines: list[tuple[bytes, str | None]], before: dict[str, int],
+                  after: dict[str, int]) -> None:
     want = {k: sum(1 for _, c in lines if c == k) for k in COUNTED}
     got = {k: after[k] - before[k] for k in COUNTED}
     overlong = sum(1 for _, c in lines if c == "overlong")

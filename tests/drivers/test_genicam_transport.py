@@ -46,7 +46,8 @@ class Rig:
 
     def apply(self, s: CameraSettings) -> bool:
         w = SettingsWriter(self.cam, self.warnings.append, self.applied)
-        st = SettingsWriter(self.stream, self.warnings.append, self.applied, owner="the GenTL producer's stream")
+        st = SettingsWriter(self.stream, self.warnings.append, self.applied,
+                            owner="the GenTL producer's stream")
         return apply_all(w, st, s, self.set_buffers)
 
     @property
@@ -99,8 +100,9 @@ def test_a_chunk_the_camera_lacks_is_a_warning_naming_it() -> None:
     cam.nodes["ChunkSelector"].symbolics = ("Timestamp", "Width")
     rig = Rig(cam)
     rig.apply(CameraSettings(chunks=True))
-    assert rig.warnings == ["camera has no ChunkSelector 'ExposureTime'; the ExposureTime chunk is not enabled",
-                            "camera has no ChunkSelector 'Gain'; the Gain chunk is not enabled"]
+    assert rig.warnings == [
+        "camera has no ChunkSelector 'ExposureTime'; the ExposureTime chunk is not enabled",
+        "camera has no ChunkSelector 'Gain'; the Gain chunk is not enabled"]
     assert read_chunks(SettingsWriter(cam, rig.warnings.append)) == {"chunk_timestamp_ns": 1_000_000_123}
 
 
@@ -184,8 +186,10 @@ def test_stream_buffers_below_the_producers_minimum_are_raised_to_it_with_a_warn
     rig = Rig(stream=stream_node_map(without=("StreamAnnounceBufferMinimum",)))
     w = SettingsWriter(rig.cam, rig.warnings.append, rig.applied)
     st = SettingsWriter(rig.stream, rig.warnings.append, rig.applied, owner="the GenTL producer's stream")
-    apply_all(w, st, CameraSettings(stream_buffers=1), rig.set_buffers, min_buffers=4)  # harvesters' own minimum
-    assert rig.buffers == 4 and "stream_buffers=1 is below the GenTL producer's minimum of 4" in rig.warnings[0]
+    # harvesters' own minimum
+    apply_all(w, st, CameraSettings(stream_buffers=1), rig.set_buffers, min_buffers=4)
+    assert rig.buffers == 4
+    assert "stream_buffers=1 is below the GenTL producer's minimum of 4" in rig.warnings[0]
     rig = Rig(stream=stream_node_map(buffer_minimum=3))
     rig.apply(CameraSettings(stream_buffers=3))
     assert rig.buffers == 3 and rig.warnings == []
@@ -219,12 +223,14 @@ def test_link_statistics_from_the_stream_else_the_adapters_counts() -> None:
     assert stats["resend_requests"] is None and stats["source"]["resend_requests"] is None
 
 
-def test_ptp_state_follows_the_cameras_clock_and_is_polled_at_most_once_a_second(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ptp_state_follows_the_cameras_clock_and_is_polled_at_most_once_a_second(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     clock = CameraClock(np.random.default_rng(0), ptp_state="Listening", now_ns=lambda: 1_800_000_000 * 10**9)
     rig = Rig(cam=camera_node_map(clock=clock))
     w = SettingsWriter(rig.cam, rig.warnings.append)
     rig.apply(CameraSettings(ptp=True, chunks=True))
-    assert ptp_status(w) == {"available": True, "enabled": True, "status": "Listening", "offset_from_master_ns": None}
+    assert ptp_status(w) == {"available": True, "enabled": True, "status": "Listening",
+                             "offset_from_master_ns": None}
     assert read_chunks(w)["chunk_timestamp_ns"] == clock.device_ns(clock.now_ns())  # its own clock, not PTP's
     t = [100.0]
     monkeypatch.setattr(genicam_transport.time, "monotonic", lambda: t[0])
@@ -235,7 +241,8 @@ def test_ptp_state_follows_the_cameras_clock_and_is_polled_at_most_once_a_second
     t[0] += genicam_transport.PTP_POLL_S
     state = watch.poll(lambda: w)
     assert state["status"] == "Slave" and abs(state["offset_from_master_ns"]) <= 300
-    assert read_chunks(w)["chunk_timestamp_ns"] - clock.now_ns() - 37 * 10**9 == state["offset_from_master_ns"]
+    assert (read_chunks(w)["chunk_timestamp_ns"] - clock.now_ns() - 37 * 10**9
+            == state["offset_from_master_ns"])
 
 
 def test_link_rate_is_the_line_rate_or_the_throughput_limit() -> None:

@@ -371,7 +371,8 @@ def test_viky_reports_ptp_unavailable_and_missing_transport_nodes(cam: GenICamCa
                                  packet_resend=True, stream_buffers=6, chunks=False))
     warnings = cam.status()["warnings"]
     assert "camera has no GevSCPSPacketSize; packet_size=9000 not applied" in warnings
-    assert "camera has no DeviceLinkThroughputLimit; throughput_limit_bytes_s=100000000 not applied" in warnings
+    assert ("camera has no DeviceLinkThroughputLimit; throughput_limit_bytes_s=100000000 not applied"
+            in warnings)
     assert ("the GenTL producer's stream has no StreamPacketResendEnable; StreamPacketResendEnable=True "
             "not applied") in warnings
     assert cam.status()["applied"]["StreamBufferCount"] == 6

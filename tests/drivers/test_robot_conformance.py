@@ -52,7 +52,8 @@ def run(server: PtyServer, allow_motion: bool) -> dict[str, Check]:
     )
     try:
         results = rc.run_checks(
-            Link(port, HANG_S), baudrate=115200, allow_motion=allow_motion, polls=20, clock_s=0.5, stream_s=0.5
+            Link(port, HANG_S), baudrate=115200, allow_motion=allow_motion, polls=20, clock_s=0.5,
+            stream_s=0.5
         )
     finally:
         port.close()

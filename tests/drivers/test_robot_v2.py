@@ -24,7 +24,8 @@ pytestmark = pytest.mark.timeout(30)
 def test_state_incl_and_clocked_status_round_trip() -> None:
     s = rp.StateSample(123_456_789_012, 1234.5678, -0.25, -179.5, 99.5, -100.0)
     line = s.encode()
-    assert line == b"$STATE,123456789012,1234.5678,-0.25,-179.5,99.5,-100*" + rp.checksum(line[1:-5]).encode() + b"\r\n"
+    assert line == (b"$STATE,123456789012,1234.5678,-0.25,-179.5,99.5,-100*"
+                    + rp.checksum(line[1:-5]).encode() + b"\r\n")
     assert rp.StateSample.decode(rp.decode(line)) == s
     i = rp.InclSample(7, 0.012345, -1.5)
     assert rp.InclSample.decode(rp.decode(i.encode())) == i
@@ -40,7 +41,8 @@ def test_state_incl_and_clocked_status_round_trip() -> None:
             (rp.StateSample if msg.kind == "STATE" else rp.InclSample).decode(msg)
         assert exc.value.kind == "syntax"
     assert rp.state_rate_error(0) is None and rp.state_rate_error(100) is None
-    assert "rate_hz=0.5" in (rp.state_rate_error(0.5) or "") and "rate_hz=101" in (rp.state_rate_error(101) or "")
+    assert "rate_hz=0.5" in (rp.state_rate_error(0.5) or "")
+    assert "rate_hz=101" in (rp.state_rate_error(101) or "")
     assert rp.capabilities("INCL+CLOCK+STATE") == ["INCL", "CLOCK", "STATE"] and rp.capabilities("") == []
 
 
@@ -63,7 +65,8 @@ def served() -> Iterator[Any]:
 
 
 def _base(max_protocol: int = 2, time_scale: float = 0.0) -> FakeBase:
-    return FakeBase(World(WorldParams(base_has_inclinometer=True)), time_scale=time_scale, max_protocol=max_protocol)
+    return FakeBase(World(WorldParams(base_has_inclinometer=True)), time_scale=time_scale,
+                    max_protocol=max_protocol)
 
 
 def test_v2_host_with_a_v1_base_falls_back(served: Any) -> None:
@@ -83,7 +86,8 @@ def test_v2_host_with_a_v1_base_falls_back(served: Any) -> None:
 def test_v2_host_with_a_base_that_answers_version_1(served: Any) -> None:
     base = _base(max_protocol=1)
     hello = base._hello
-    base._hello = lambda seq, msg: hello(seq, rp.Message("HELLO", (str(seq), "1")))  # type: ignore[method-assign]
+    base._hello = (  # type: ignore[method-assign]
+        lambda seq, msg: hello(seq, rp.Message("HELLO", (str(seq), "1"))))
     robot, _ = served(base)
     assert robot.info()["protocol"] == 1 and base.counters["naks"] == 0 and robot.streams() == []
     assert robot.status().t_us is None
@@ -114,7 +118,8 @@ def test_v2_host_with_a_v2_base_streams_samples(served: Any) -> None:
     t_us = [t for p in odo for t in p["t_us"]]
     assert len(t_us) >= 10 and t_us == sorted(t_us)
     x = [v for p in odo for v in p["x_mm"]]
-    assert x[-1] == 200.0 and x == sorted(x) and any(0 < v < 200 for v in x), x  # along the move, at its times
+    # along the move, at its times
+    assert x[-1] == 200.0 and x == sorted(x) and any(0 < v < 200 for v in x), x
     # INCL at the inclinometer's 10 Hz of simulated time: every 2 ms of the base's clock here
     ti = [t for p in incl for t in p["t_us"]]
     assert len(ti) >= 50 and all(d == 2000 for d in (b - a for a, b in zip(ti, ti[1:])) if d < 4000)
@@ -152,7 +157,8 @@ def test_state_command_range_and_v1_sessions() -> None:
 def test_url_options_accept_the_new_ones_and_refuse_typos() -> None:
     r = SerialRobot(DeviceURL.parse("serial:///dev/ttyUSB0?protocol=1&stream_hz=20"))
     assert (r.protocol, r.stream_hz) == (1, 20.0)
-    for query, fragment in (("stream_hzz=5", "stream_hzz"), ("stream_hz=500", "stream_hz"), ("protocol=4", "protocol")):
+    for query, fragment in (("stream_hzz=5", "stream_hzz"), ("stream_hz=500", "stream_hz"),
+                            ("protocol=4", "protocol")):
         with pytest.raises(ValueError, match=fragment):
             SerialRobot.check_url(DeviceURL.parse(f"serial:///dev/ttyUSB0?{query}")) if "hzz" in query else \
                 SerialRobot(DeviceURL.parse(f"serial:///dev/ttyUSB0?{query}"))

@@ -52,5 +52,6 @@ def test_an_adapter_declaring_no_options_refuses_any() -> None:
         def close(self) -> None: ...
 
     Bare(DeviceURL.parse("x://h"))
-    with pytest.raises(ValueError, match=r"thing URL 'x://h\?a=1&b=2': unknown options 'a', 'b' \(known: none\)"):
+    with pytest.raises(ValueError,
+                       match=r"thing URL 'x://h\?a=1&b=2': unknown options 'a', 'b' \(known: none\)"):
         Bare(DeviceURL.parse("x://h?a=1&b=2"))

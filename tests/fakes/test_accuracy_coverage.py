@@ -19,8 +19,8 @@ def test_stated_sigma_is_the_products_and_the_old_one_restates_to_it():
     world = World(profiles.apply("paper", WorldParams(seed=3)))
     sim = Simulation(world, SimConfig(seed=3, pnp_sigma_px=0.05, directions=2, repetitions=1))
     obs = sim.calibration()
-    res = reference(sim.model, sim.plate, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1, cam_ref=obs.cam_ref,
-                    mc_samples=50)
+    res = reference(sim.model, sim.plate, obs.abs_P_nests, obs.abs_P_rob0, obs.abs_P_rob1,
+                    cam_ref=obs.cam_ref, mc_samples=50)
     scs, cov = make_scs(sim.model, res.cam_H_ref), res.uncertainty.cov_rob_H_scn
     val = sim.validation()
     trk = world.abs_H_trk[:3, 3]
@@ -40,7 +40,8 @@ def test_stated_sigma_is_the_products_and_the_old_one_restates_to_it():
     np.testing.assert_allclose(restated(row), old, rtol=1e-9)
     # the old σ restated with the new tracker σ and the chord's heading term is the new one (the lever arm
     # from the robot frame's xy: the robot stands upright in this world's stops without a tilt compensation)
-    np.testing.assert_allclose(restated(row, sigma_t_mm=row["sigma_t_mm"], heading_rad=CHORD_HEADING_SIGMA_RAD),
+    np.testing.assert_allclose(restated(row, sigma_t_mm=row["sigma_t_mm"],
+                                        heading_rad=CHORD_HEADING_SIGMA_RAD),
                                row["std_mm"], rtol=1e-6)
     assert row["lever_mm"] == pytest.approx(np.hypot(200.0, 50.0), abs=10.0)  # the camera footprint's offset
     assert np.all(row["std_mm"] > 2 * row["std_old_mm"]) and len(pts) == 2

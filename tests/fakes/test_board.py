@@ -31,7 +31,8 @@ def test_board_corners_render_where_the_true_model_projects_them(scene, pose) ->
     ids, uv = detect_board_corners(img, board)
     assert len(ids) >= 60
     obj = np.asarray(make_board(board).getChessboardCorners(), float)[ids]
-    truth = world_camera_model(world, SIZE).project(apply_H(np.array(held["cam_H_board"]), obj))  # scoring only
+    # scoring only
+    truth = world_camera_model(world, SIZE).project(apply_H(np.array(held["cam_H_board"]), obj))
     d = uv - truth
     # no offset (a wrong pose or texel convention would shift every corner alike); the scatter is
     # the corner refiner's on ~30 px squares of a wide-angle lens; it shrinks faster than the pixel
@@ -86,6 +87,7 @@ def test_square_edges_are_not_snapped_to_the_sub_sample_grid(scene, pose) -> Non
         world.hold_board()
     ids, uv = detect_board_corners(img, board)
     obj = np.asarray(make_board(board).getChessboardCorners(), float)[ids]
-    d = uv - world_camera_model(world, SIZE).project(apply_H(np.array(held["cam_H_board"]), obj))  # scoring only
+    # scoring only
+    d = uv - world_camera_model(world, SIZE).project(apply_H(np.array(held["cam_H_board"]), obj))
     assert len(ids) == 88
     assert np.sqrt((d ** 2).sum(axis=1).mean()) < 0.1 and np.abs(d).max() < 0.15, d

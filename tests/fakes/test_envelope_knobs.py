@@ -54,7 +54,8 @@ def test_s_path_ends_as_far_to_the_side_but_turns_back():
     f = np.linspace(0.0, 1.0, 2001)
     side, dh = s.effects.bend_profile(f, lat_s, 200.0)
     assert side[0] == pytest.approx(0.0, abs=1e-15) and side[-1] == pytest.approx(0.0, abs=1e-12)
-    np.testing.assert_allclose(side, -side[::-1], atol=1e-12)  # left of the chord on one half, right on the other
+    # left of the chord on one half, right on the other
+    np.testing.assert_allclose(side, -side[::-1], atol=1e-12)
     # the heading along the path is the slope of the path: d(side)/ds = heading − chord angle
     slope = np.gradient(side, f * 200.0)
     np.testing.assert_allclose(slope[1:-1], (dh - lat_s / 200.0)[1:-1], atol=abs(lat_s) * 1e-3)

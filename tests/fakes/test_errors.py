@@ -48,7 +48,8 @@ def test_tracker_noise_is_spherical_and_its_systematic_part_grows_with_distance(
         assert abs(radial.mean()) < 4 * k * t.range_a_mm / math.sqrt(N)  # the random part is unbiased
         assert radial.std() == pytest.approx(k * t.range_a_mm, rel=0.05)  # range σ (ADM) ...
         # ... and two transverse axes of σ_t each, independent of the distance
-        assert np.sqrt((transverse ** 2).sum(axis=1).mean() / 2) == pytest.approx(k * t.transverse_a_mm, rel=0.05)
+        assert np.sqrt((transverse ** 2).sum(axis=1).mean() / 2) == pytest.approx(k * t.transverse_a_mm,
+                                                                                 rel=0.05)
     # the station's systematic part: the same direction at 4x the distance, 4x the error
     np.testing.assert_allclose(sys_len[8000.0], 4 * sys_len[2000.0], rtol=1e-9, atol=1e-12)
     # and it differs between directions (a pattern, not a constant shift)
@@ -193,7 +194,8 @@ def test_paper_truth_carries_the_error_draws_and_the_mark_height():
     truth = profiles.world("paper+imu", seed=2).truth()
     assert set(truth["errors"]["magnitudes"]) == set(GROUPS)
     assert all("z_mm" in m for m in truth["marks"])
-    assert len(truth["robot_reflector_abs"]) == 3 and set(truth["nests_seated_abs"]) == {"red", "green", "blue"}
+    assert len(truth["robot_reflector_abs"]) == 3
+    assert set(truth["nests_seated_abs"]) == {"red", "green", "blue"}
 
 
 def test_every_magnitude_has_a_source_in_the_docs_table():
@@ -201,4 +203,5 @@ def test_every_magnitude_has_a_source_in_the_docs_table():
 
     table = sources_table()
     doc = (Path(__file__).resolve().parents[2] / "docs" / "accuracy.md").read_text(encoding="utf-8")
-    assert table in doc, "docs/accuracy.md 'Simulated error sources' is stale: paste fakes.errors.sources_table()"
+    assert table in doc, ("docs/accuracy.md 'Simulated error sources' is stale: "
+                          "paste fakes.errors.sources_table()")

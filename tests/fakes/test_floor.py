@@ -72,12 +72,15 @@ def test_tilt_from_the_wheel_contacts_follows_the_floor_statistics():
         rng = np.random.default_rng(s)
         for _ in range(50):
             h = rng.uniform(-180, 180)
-            p = w.settle(RobotPose(START[0] + rng.uniform(-3000, 3000), START[1] + rng.uniform(1000, 4000), h))
+            p = w.settle(RobotPose(START[0] + rng.uniform(-3000, 3000), START[1] + rng.uniform(1000, 4000),
+                                   h))
             a = math.radians(h)
-            rolls.append(p.roll_rad - (-math.sin(a) * slope[0] + math.cos(a) * slope[1]))  # minus the slope's part
+            # minus the slope's part
+            rolls.append(p.roll_rad - (-math.sin(a) * slope[0] + math.cos(a) * slope[1]))
     rolls = np.array(rolls)
     sigma_h = f.rms_slope_mrad * 1e-3 * f.correlation_mm
-    expect = sigma_h * math.sqrt(2 * (1 - math.exp(-r.wheel_track_mm ** 2 / (2 * f.correlation_mm ** 2)))) / r.wheel_track_mm
+    expect = (sigma_h * math.sqrt(2 * (1 - math.exp(-r.wheel_track_mm ** 2 / (2 * f.correlation_mm ** 2))))
+              / r.wheel_track_mm)
     assert abs(rolls.mean()) < 4 * expect / math.sqrt(40)
     assert rolls.std() == pytest.approx(expect, rel=0.15)
 

@@ -121,7 +121,8 @@ def test_nest_rings_at_true_seats(renderer: Renderer) -> None:
     c = np.rint(renderer.model.K[:2, 2]).astype(int)
     hole = img[c[1], c[0]]
     ring = img[c[1], c[0] + int(11.5 * px_per_mm)]
-    plate = img[c[1], c[0] + int(16.5 * px_per_mm)] if c[0] + int(16.5 * px_per_mm) < img.shape[1] else img[5, 5]
+    plate = (img[c[1], c[0] + int(16.5 * px_per_mm)] if c[0] + int(16.5 * px_per_mm) < img.shape[1]
+             else img[5, 5])
     assert hole < ring < plate - 20, (hole, ring, plate)
 
 

@@ -100,4 +100,5 @@ def test_every_nest_has_a_ring_colour() -> None:
     from fakes.render import NEST_GREY
 
     assert set(RING_RGB) == set(NEST_GREY)
-    assert all(max(rgb) == rgb[i] for i, rgb in zip((0, 1, 2), (RING_RGB[n] for n in ("red", "green", "blue"))))
+    assert all(max(rgb) == rgb[i]
+               for i, rgb in zip((0, 1, 2), (RING_RGB[n] for n in ("red", "green", "blue"))))

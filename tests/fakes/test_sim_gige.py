@@ -79,7 +79,8 @@ def test_sim_auto_packet_size_is_what_the_path_passes_and_bad_values_are_named()
     cam.configure(CameraSettings(throughput_limit_bytes_s=500_000_000))
     assert cam.status()["warnings"] == ["DeviceLinkThroughputLimit=500000000 is outside the camera's range "
                                         "31250000..125000000; using 125000000"]
-    with pytest.raises(DeviceError, match=r"GevSCPSPacketSize=20000 is outside the camera's range 576\.\.9000"):
+    with pytest.raises(DeviceError,
+                       match=r"GevSCPSPacketSize=20000 is outside the camera's range 576\.\.9000"):
         cam.configure(CameraSettings(packet_size=20000))
     with pytest.raises(ValueError, match="packet_loss=2.0"):
         make("packet_loss=2")

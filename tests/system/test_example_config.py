@@ -55,8 +55,8 @@ def example(tmp_path_factory):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("CREDENTIALS_DIRECTORY", None)
     log = open(tmp / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
-                            env=env, stdout=subprocess.PIPE, stderr=log, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=log, text=True)
     line = proc.stdout.readline()
     assert line.startswith("ritad ready"), (line, (tmp / "ritad.log").read_text()[-3000:])
     tcp = next(e for e in line.split(": ", 1)[1].split() if e.startswith("tcp://"))
@@ -89,7 +89,8 @@ def test_keyless_tcp_client_cannot_move_the_robot(example):
 def test_example_config_completes_a_referencing_job(example):
     c, tmp = example["c"], example["tmp"]
     board = json.loads(operator_files(c, tmp)["board"].read_text())
-    assert run_intrinsics(c, {"board": board}, seed=1, timeout=300)["verdict"] == "ok"  # installs the camera model
+    # installs the camera model
+    assert run_intrinsics(c, {"board": board}, seed=1, timeout=300)["verdict"] == "ok"
     result = run_job(c, "referencing", referencing_params(c, tmp), timeout=400)
     assert result["verdict"] in ("ok", "warn"), result
     assert c.call("calib.results")["active"]["job"] == result["job"]
@@ -100,7 +101,9 @@ def test_example_config_refuses_plaintext_tcp(tmp_path):
     """The same file with CURVE off does not start: tcp without CURVE is a config error (exit 2)."""
     text = example_copy(tmp_path).replace("curve = true", "curve = false")
     (tmp_path / "plain.toml").write_text(text)
-    res = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "plain.toml")], cwd=ROOT,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
+    res = subprocess.run([sys.executable, "-m", "daemon.ritad.main",
+                          "--config", str(tmp_path / "plain.toml")],
+                         cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
+                         text=True, timeout=60)
     assert res.returncode == 2 and "daemon.command_endpoints" in res.stderr and "without CURVE" in res.stderr
     assert not (tmp_path / "rt").exists()

@@ -17,7 +17,8 @@ def face_lines(source: str) -> list[int]:
     re-export) or a module ``__getattr__`` (a lazy one). Code the package defines itself is not one."""
     bad = []
     for node in ast.walk(ast.parse(source)):
-        ours = isinstance(node, ast.ImportFrom) and (node.level > 0 or (node.module or "").split(".")[0] in TOPS)
+        ours = isinstance(node, ast.ImportFrom) and (node.level > 0
+                                                     or (node.module or "").split(".")[0] in TOPS)
         ours |= isinstance(node, ast.Import) and any(a.name.split(".")[0] in TOPS for a in node.names)
         lazy = isinstance(node, ast.FunctionDef) and node.name == "__getattr__"
         if ours or lazy:
@@ -36,7 +37,8 @@ def test_packages_have_no_faces():
 
 
 def test_a_face_is_caught():
-    assert face_lines('"""Doc."""\n\n__version__ = "1"\nimport json\n\ndef schema():\n    return json\n') == []
+    assert face_lines('"""Doc."""\n\n__version__ = "1"\nimport json\n\n'
+                      'def schema():\n    return json\n') == []
     assert face_lines('"""Doc."""\nfrom daemon.bus.client import Client\n__all__ = ["Client"]\n') == [2]
     assert face_lines("from .client import Client\nimport drivers.base\n") == [1, 2]
     assert face_lines("def __getattr__(name):\n    return name\n") == [1]

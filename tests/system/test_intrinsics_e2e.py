@@ -48,7 +48,8 @@ class Operator:
                 return "ok"
             if self.views == 5:  # three views accepted: the operator cancels (a resume goes on from there)
                 job = next(j["job"] for j in c.call("calib.jobs")["jobs"]
-                           if j["procedure"] == "intrinsics" and j["state"] not in ("done", "failed", "cancelled"))
+                           if j["procedure"] == "intrinsics"
+                           and j["state"] not in ("done", "failed", "cancelled"))
                 c.call("calib.cancel", job=job)
                 return None
         return answer_intrinsics_prompt(c, question, rng)
@@ -64,7 +65,8 @@ def test_guided_intrinsics_meets_the_acceptance_line(daemon):
     retry = [q for q in first["_prompts"] if "shows only 0 board corners" in q]
     assert len(retry) == 1 and "[view flat]" in retry[0], first["_prompts"]
     state = json.loads((data / "procedures" / job / "state.json").read_text())
-    kept = {v["image"]: (data / "procedures" / job / v["image"]).stat().st_mtime for v in state["obs"]["views"]}
+    kept = {v["image"]: (data / "procedures" / job / v["image"]).stat().st_mtime
+            for v in state["obs"]["views"]}
     assert len(kept) == 3, kept
 
     r = run_intrinsics(c, {}, seed=3, timeout=200, job=job)  # resume: only the missing views are asked for

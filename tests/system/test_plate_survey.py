@@ -45,8 +45,8 @@ def fetched(tmp_path_factory) -> tuple[Path, dict]:
 def surveyed(fetched, tmp_path_factory) -> tuple[int, dict]:
     laptop, _ = fetched
     out = tmp_path_factory.mktemp("out") / "plate.json"
-    code = ritactl(["plate", "survey", str(laptop / "sim" / "survey"), "--plate", str(laptop / "sim" / "plate.json"),
-                    "--out", str(out)])
+    code = ritactl(["plate", "survey", str(laptop / "sim" / "survey"),
+                    "--plate", str(laptop / "sim" / "plate.json"), "--out", str(out)])
     return code, json.loads(out.read_text())
 
 
@@ -54,7 +54,8 @@ def _true_seats(truth: dict) -> dict[str, np.ndarray]:
     """Seats in PCS from the scoring truth: SMR centres (ACS) → PCS, + δ along PCS z."""
     ref_H_abs = np.linalg.inv(np.array(truth["abs_H_ref"]))
     delta = truth["plate"]["smr_offset_mm"]
-    return {n: ref_H_abs[:3, :3] @ np.array(P) + ref_H_abs[:3, 3] + [0, 0, delta] for n, P in truth["nests_abs"].items()}
+    return {n: ref_H_abs[:3, :3] @ np.array(P) + ref_H_abs[:3, 3] + [0, 0, delta]
+            for n, P in truth["nests_abs"].items()}
 
 
 def test_cli_survey_meets_acceptance(fetched, surveyed) -> None:
@@ -88,14 +89,16 @@ def test_surveyed_plate_file_is_valid_and_old_files_load(surveyed) -> None:
 
 def _photos(fetched, count: int) -> dict[str, np.ndarray]:
     folder = fetched[0] / "sim" / "survey"
-    return {p.name: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted(folder.glob("*.png"))[:count]}
+    return {p.name: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB)
+            for p in sorted(folder.glob("*.png"))[:count]}
 
 
 def test_design_nests_do_not_enter_the_survey(fetched) -> None:
     """A design whose nests are 0.3 mm off surveys to the same seats: only the patches are used."""
     laptop, _ = fetched
     design = json.loads((laptop / "sim" / "plate.json").read_text())
-    moved = {**design, "nests_ref_nst": {n: (np.array(P) + 0.3).tolist() for n, P in design["nests_ref_nst"].items()}}
+    moved = {**design, "nests_ref_nst": {n: (np.array(P) + 0.3).tolist()
+                                         for n, P in design["nests_ref_nst"].items()}}
     photos = _photos(fetched, 3)
     a = run_survey(photos, Plate.from_dict(design)).plate.nests_ref_nst
     b = run_survey(photos, Plate.from_dict(moved)).plate.nests_ref_nst
@@ -129,7 +132,8 @@ def test_ring_missing_in_every_photograph_names_the_colour(tmp_path: Path, fetch
     def no_blue(im: np.ndarray) -> np.ndarray:  # the blue ring painted over in plate grey
         im = im.copy()
         blue = (im[..., 2].astype(int) - np.maximum(im[..., 0], im[..., 1]).astype(int)) > 25
-        im[cv2.dilate(blue.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0] = np.median(im.reshape(-1, 3), axis=0)
+        im[cv2.dilate(blue.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0] = np.median(im.reshape(-1, 3),
+                                                                                         axis=0)
         return im
 
     code, err = _run(tmp_path, fetched, {n: no_blue(im) for n, im in _photos(fetched, 3).items()}, capsys)

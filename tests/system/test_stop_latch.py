@@ -113,7 +113,8 @@ def check_stopped_then_resume(c: Client, job: str) -> None:
     assert code_of(c, "calib.resume", job=job) == "stopped"  # not before the latch is cleared
     assert code_of(c, "calib.start", procedure="experiment", params={"mark_xy": [0, 0]}) == "stopped"
     assert c.call("robot.release") == {"released": True, "was_latched": True}
-    wait_for(lambda: code_of(c, "calib.resume", job=job) == "ok", 30, "resume accepted after release", poll=0.5)
+    wait_for(lambda: code_of(c, "calib.resume", job=job) == "ok", 30, "resume accepted after release",
+             poll=0.5)
     end = wait_end(c, job)
     assert end["state"] == "done", (end["error"], end["result"])
 
@@ -133,7 +134,8 @@ def test_ritactl_robot_stop_latches_the_same_way(rig):
         def call(self, cmd: str) -> dict[str, Any]:
             assert cmd == "robot.stop"
             assert ctl.main(["--endpoint", r.endpoint, "robot", "stop"]) == 0
-            return {"latched": True, "jobs_stopped": [j for j, v in _jobs(c).items() if v["state"] == "stopped"]}
+            return {"latched": True,
+                    "jobs_stopped": [j for j, v in _jobs(c).items() if v["state"] == "stopped"]}
 
     job = stop_mid_move(c, Ritactl(), random.Random(7))
     assert ctl.main(["--endpoint", r.endpoint, "robot", "release"]) == 0

@@ -81,12 +81,14 @@ def test_credential_and_binary_paths_agree_between_unit_and_docs():
     ops = OPS.read_text()
     mentioned = set(re.findall(r"LoadCredential=([^`\s]+)", ops))
     assert mentioned == {cred}, mentioned  # every mention in the docs is the unit's line
-    assert f"keys init --server --dir {Path(source).parent}" in ops  # the documented key is where systemd looks
+    # the documented key is where systemd looks
+    assert f"keys init --server --dir {Path(source).parent}" in ops
     exec_start = unit_value("ExecStart").split()[0]
     venv_bin = str(Path(exec_start).parent)
     install = ops.split("## Install", 1)[1].split("\n## ", 1)[0]
     assert f"python3 -m venv {Path(venv_bin).parent}" in install
-    assert re.search(rf"ln -sf {re.escape(venv_bin)}/ritad {re.escape(venv_bin)}/ritactl /usr/local/bin/", install)
+    assert re.search(rf"ln -sf {re.escape(venv_bin)}/ritad {re.escape(venv_bin)}/ritactl /usr/local/bin/",
+                     install)
 
 
 def test_config_errors_are_not_restarted():

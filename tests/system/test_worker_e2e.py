@@ -147,8 +147,11 @@ def test_referencing_then_experiment_meet_the_nominal_thresholds(daemon):
     assert m["pairwise_mean_mm"] < 0.09, m["pairwise_mean_mm"]
     grand = np.mean([p["abs_xyz"][:2] for p in stored["marks"]], axis=0)
     assert np.hypot(*(grand - [mark["x_mm"], mark["y_mm"]])) < 0.07
-    for name in ("report.md", "report.csv", "clusters.png"):
+    for name in ("report.md", "report.csv", "report_metrics.csv", "report_stops.csv", "clusters.png"):
         assert Path(exp["dataset"], name).stat().st_size > 100
+    report = Path(exp["dataset"], "report.md").read_text()  # the live report: header, goals, shifts given
+    assert f"- **job**: {exp['job']}" in report and "NOT in report_stops.csv" not in report
+    assert sum(ln.endswith((": met", ": **MISSED**")) for ln in report.splitlines()) == 2
 
     # offline recompute from the stored datasets reproduces the stored results
     for dataset in (ref["dataset"], exp["dataset"]):

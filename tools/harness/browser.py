@@ -73,9 +73,9 @@ class ConsoleProcess:
         self.log = tmp / "console.log"
         with open(self.log, "ab") as log:
             more = ["--token", token] if token else []
-            self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", *args, "console", "--port", str(port),
-                                          "--captures", str(tmp / "captures"), *more], cwd=ROOT, env=env,
-                                         stdout=subprocess.PIPE, stderr=log, text=True)
+            self.proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", *args, "console",
+                                          "--port", str(port), "--captures", str(tmp / "captures"), *more],
+                                         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=log, text=True)
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
         line = self.proc.stdout.readline() if ready else ""
         if "http://" not in line:
@@ -140,7 +140,8 @@ def console_session(args: list[str], tmp: Path) -> Iterator[tuple[ConsoleProcess
     try:
         drv = browser()
         drv.get(con.url)
-        wait_for("the page knows its role", lambda: drv.execute_script("return window.rita.role") != "unknown", 20)
+        wait_for("the page knows its role",
+                 lambda: drv.execute_script("return window.rita.role") != "unknown", 20)
         yield con, drv
     finally:
         if drv is not None:

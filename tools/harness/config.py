@@ -12,8 +12,8 @@ from typing import Mapping
 #: every device simulated (the fakes' world)
 SIM_DEVICES: dict[str, str] = {"camera": "sim:", "tracker": "sim:", "robot": "sim:"}
 #: devices that never connect: the bus alone (security, refusals)
-NO_DEVICES: dict[str, str] = {"camera": "genicam:///nonexistent/producer.cti", "tracker": "emscon://127.0.0.1:1",
-                              "robot": "loop://"}
+NO_DEVICES: dict[str, str] = {"camera": "genicam:///nonexistent/producer.cti",
+                              "tracker": "emscon://127.0.0.1:1", "robot": "loop://"}
 #: the three ipc sockets' names in ``ipc_dir``
 IPC_NAMES = {"command": "cmd", "telemetry": "telemetry", "frame": "frames"}
 
@@ -25,7 +25,8 @@ def ritad_toml(*, ipc_dir: str | Path | None = "@TMP@/rt", tcp: bool = False, da
     data in ``data``; ``devices`` replace entries of :data:`SIM_DEVICES`; ``seed`` the simulated world's."""
     lines = ["[daemon]"]
     for kind, name in IPC_NAMES.items():
-        eps = ([f"ipc://{ipc_dir}/{name}"] if ipc_dir is not None else []) + (["tcp://127.0.0.1:0"] if tcp else [])
+        eps = (([f"ipc://{ipc_dir}/{name}"] if ipc_dir is not None else [])
+               + (["tcp://127.0.0.1:0"] if tcp else []))
         lines.append(f"{kind}_endpoints = {json.dumps(eps)}")  # a JSON list of plain strings is TOML
     lines += [f'data_dir = "{data}"', f"start_worker = {str(worker).lower()}"]
     if log_level:
@@ -34,7 +35,8 @@ def ritad_toml(*, ipc_dir: str | Path | None = "@TMP@/rt", tcp: bool = False, da
     if seed is not None:
         lines += ["[sim]", f"seed = {seed}"]
     if curve or insecure_tcp:
-        lines += ["[security]", *(["curve = true"] if curve else []), *(["insecure_tcp = true"] if insecure_tcp else [])]
+        lines += ["[security]", *(["curve = true"] if curve else []),
+                  *(["insecure_tcp = true"] if insecure_tcp else [])]
     return "\n".join(lines) + "\n"
 
 

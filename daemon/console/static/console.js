@@ -97,6 +97,7 @@ function applyRole() {
   gateMotions();   // robot.js: Move…/Turn… and the dialog's Move only when no latch and no driving job
 }
 function onHello(m) {
+  S.seriesSpec = m.series || {};   // live.js: the plotted series' names and units
   S.role = m.role; S.commands = m.commands; S.procedures = m.procedures; S.procParams = m.procedure_params; S.procInfo = m.procedure_info || {};
   const sel = $("proc");
   if (!sel.options.length) { for (const p of m.procedures) sel.add(new Option(p, p)); renderProcForm(); }
@@ -113,6 +114,7 @@ function onState(m) {
   if (t["robot.state"]) showRobot(t["robot.state"].data);
   if (t["tracker.point"]) showPoint(t["tracker.point"].data, t["tracker.point"].t_ns);
   if (t["robot.latch"]) showLatch(t["robot.latch"].data);   // robot.js: the one latch state
+  addSeries(m.series);   // live.js: the plotted points this page has not had, and the pose they end on
   for (const e of m.events) onEvent(e);
   renderRobotState();   // robot.js: the Robot and Daemon panels' one robot state
   if (m.survey) showSurvey(m.survey);   // survey.js: sent when it changed
@@ -141,9 +143,10 @@ function showHealth(h) {   // built as elements: device names, states and reason
 }
 function showRobot(r) {
   S.robotBase = r;   // its state: robotSummary (robot.js), with the device's and the latch's
-  $("robot-pose").textContent = `x ${fmt(r.x_mm, 1)} mm, y ${fmt(r.y_mm, 1)} mm, heading ${fmt(r.heading_deg, 2)}°`;
+  // its pose: live.js showPose, from the newest pose point (odometry, or this status from a base without)
   $("robot-tilt").textContent = r.roll_deg === null ? "no inclinometer" : `roll ${fmt(r.roll_deg)}°, pitch ${fmt(r.pitch_deg)}°`;
   $("robot-battery").textContent = `${fmt(r.battery_v, 1)} V`;
+  stamp("robot-status-age", Date.now());   // live.js: the status as this page received it
 }
 function stopNow() { act("robot.stop", {}, 10).then(() => toast("robot stopped and latched")).catch(() => {}); }
 function closeDialogs() {  // Esc: each open dialog's Cancel
@@ -157,8 +160,12 @@ function onKey(ev) {  // capture phase: before a focused button or field sees th
   else if (ev.key === "Escape" && ev.type === "keydown") closeDialogs();
 }
 function showPoint(p, tNs) {
-  const i = (p.n || 1) - 1;
-  if (p.x && p.x.length) $("tracker-point").textContent = `${fmt(p.x[i])}, ${fmt(p.y[i])}, ${fmt(p.z[i])} mm (stream)`;
+  const i = (p.n || 1) - 1, sampled = Array.isArray(p.t_ns) ? p.t_ns[i] : p.host_time_ns;
+  if (p.x && p.x.length) {   // its age: since the page got it, plus how old it was when published
+    $("tracker-point").textContent = `${fmt(p.x[i])}, ${fmt(p.y[i])}, ${fmt(p.z[i])} mm (stream)`;
+    const lag = Number.isFinite(sampled) && sampled <= tNs ? (tNs - sampled) / 1e6 : 0;
+    stamp("tracker-point-age", Date.now() - lag);
+  }
   const now = tNs / 1e9;
   if (S.lastPointT) $("tracker-rate").textContent = `${fmt((p.n || 1) / Math.max(1e-3, now - S.lastPointT), 0)} points/s`;
   S.lastPointT = now;
@@ -210,6 +217,7 @@ async function drawFrame(meta, blob) {
     const cv = $("cam"), ctx = cv.getContext("2d");
     if (cv.width !== bmp.width || cv.height !== bmp.height) { cv.width = bmp.width; cv.height = bmp.height; }
     ctx.drawImage(bmp, 0, 0);
+    cv.classList.remove("empty");   // a picture: the canvas takes the panel's width at the frame's aspect
     if ($("crosshair").checked) {
       ctx.strokeStyle = "#ff1744"; ctx.lineWidth = 1; ctx.beginPath();
       const cx = ((meta.full_w / 2 - meta.x) / meta.step), cy = ((meta.full_h / 2 - meta.y) / meta.step);
@@ -265,7 +273,10 @@ function bind() {
   $("tracker-measure").onclick = () => act("tracker.measure").then((p) => {
     const sd = Array.isArray(p.std) ? Math.hypot(...p.std) : p.std;   // per-axis 1σ: their length
     $("tracker-point").textContent = `${fmt(p.x)}, ${fmt(p.y)}, ${fmt(p.z)} mm (measure, σ ${fmt(sd, 4)} mm)`;
-    $("tracker-env").textContent = `${fmt(p.temperature_c, 1)} °C, ${fmt(p.pressure_mbar, 1)} mbar, ${fmt(p.humidity_rh, 0)} % RH`;
+    $("tracker-env").textContent = `${fmt(p.temperature_c, 1)} °C, ${fmt(p.pressure_mbar, 1)} mbar, ` +
+      `${fmt(p.humidity_rh, 0)} % RH`;
+    stamp("tracker-point-age", Date.now());
+    stamp("tracker-env-age", Date.now());
   }).catch(() => {});
   $("proc-start").onclick = startJob;
   $("proc-cancel").onclick = () => S.job && act("calib.cancel", { job: S.job.job }).then(refreshJobs).catch(() => {});

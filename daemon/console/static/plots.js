@@ -9,9 +9,26 @@ function niceTicks(lo, hi, n = 5) {   // round tick values covering [lo, hi]: st
   return { ticks: out, digits: Math.max(0, -Math.floor(Math.log10(step))) };
 }
 
-// o: {title, xlabel, ylabel, equal (same mm per pixel on both axes), xfmt (tick text)}; returns data -> pixel
+// Ticks for a time axis (s since the epoch, UTC): a step from seconds to weeks whose labels show that
+// step's resolution, so two ticks never read the same ("MM-DD HH:MM" five times over one minute did).
+const TIME_STEPS_S = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200,
+                      86400, 172800, 604800, 1209600, 2592000];
+function timeTicks(lo, hi, n = 5) {
+  const raw = Math.max(hi - lo, 1) / n, step = TIME_STEPS_S.find((s) => s >= raw) || raw;
+  const iso = (v) => new Date(v * 1000).toISOString();
+  const fmt = step < 60 ? (v) => iso(v).slice(11, 19)                   // HH:MM:SS
+    : step < 86400 ? (v) => iso(v).slice(5, 16).replace("T", " ")       // MM-DD HH:MM
+      : (v) => iso(v).slice(0, 10);                                     // YYYY-MM-DD
+  const ticks = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9; v += step) ticks.push(v);
+  return { ticks, fmt };
+}
+
+// o: {title, xlabel, ylabel, equal (same mm per pixel on both axes), xfmt (tick text),
+//     xtime (the x values are UTC seconds: timeTicks), pad ([left, right, top, bottom] margins in px)};
+// returns data -> pixel
 function axes(ctx, w, h, xs, ys, o) {
-  const L = 62, R = 14, T = 26, B = 40, pw = w - L - R, ph = h - T - B;
+  const [L, R, T, B] = o.pad || [62, 14, 26, 40], pw = w - L - R, ph = h - T - B;
   let x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
   if (x1 === x0) { x0 -= 1; x1 += 1; }
   if (y1 === y0) { y0 -= 1; y1 += 1; }
@@ -26,7 +43,9 @@ function axes(ctx, w, h, xs, ys, o) {
   ctx.clearRect(0, 0, w, h); ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
   ctx.strokeStyle = "#999"; ctx.lineWidth = 1; ctx.strokeRect(L, T, pw, ph);
   ctx.font = "11px sans-serif"; ctx.fillStyle = "#333";
-  const xt = niceTicks(x0, x1), yt = niceTicks(y0, y1), xfmt = o.xfmt || ((v) => v.toFixed(xt.digits));
+  const xt = o.xtime ? timeTicks(x0, x1) : niceTicks(x0, x1), yt = niceTicks(y0, y1);
+  const xfmt = o.xtime ? xt.fmt : o.xfmt || ((v) => v.toFixed(xt.digits));
+  S.lastTicks = { x: xt.ticks.map(xfmt), y: yt.ticks.map((v) => v.toFixed(yt.digits)) };   // tests read them
   ctx.textAlign = "center"; ctx.textBaseline = "top";
   for (const v of xt.ticks) {
     const [X] = to(v, y0);
@@ -42,7 +61,7 @@ function axes(ctx, w, h, xs, ys, o) {
     ctx.fillText(v.toFixed(yt.digits), L - 6, Y);
   }
   ctx.textAlign = "left"; ctx.textBaseline = "alphabetic"; ctx.font = "12px sans-serif";
-  ctx.fillText(o.title || "", L, T - 9);
+  if (o.title) ctx.fillText(o.title, L, T - 9);
   ctx.textAlign = "center"; ctx.fillText(o.xlabel || "", L + pw / 2, h - 4);
   ctx.save(); ctx.translate(12, T + ph / 2); ctx.rotate(-Math.PI / 2); ctx.fillText(o.ylabel || "", 0, 0); ctx.restore();
   ctx.textAlign = "left";

@@ -55,11 +55,15 @@ function noteLatch(l) {   // every latch message, latest value or event: a new e
 function showLatch(l) {   // the latched STOP, plainly: who, since when; Release for an operator
   S.latch = l;
   noteLatch(l);
-  $("latch").hidden = !l.latched;
   $("release").hidden = !l.latched;
+  $("latch").classList.toggle("latched", !!l.latched);   // always shown: released is a state too
   if (l.latched) {
     const since = l.since_ns ? new Date(l.since_ns / 1e6).toLocaleTimeString() : "?";
-    $("latch").textContent = `STOPPED (latched by ${l.by} at ${since}): no motion until Release`;
+    $("latch").textContent = `STOPPED (latched by ${l.by} at ${since})`;
+    $("latch").title = `no motion until Release${l.reason ? `; reason: ${l.reason}` : ""}`;
+  } else {
+    $("latch").textContent = "STOP not latched";
+    $("latch").title = "the latched STOP: while it holds, ritad refuses every motion";
   }
   renderRobotState();
   applyRole();

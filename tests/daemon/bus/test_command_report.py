@@ -28,7 +28,8 @@ class Rig:
         self.moves: list[Future] = []
         handlers = {"ping": lambda r: {"pong": True}, "robot.move": self._move,
                     "robot.stop": lambda r: {"stopped": True},
-                    "tracker.find": lambda r: (_ for _ in ()).throw(CommandError("tracker_NotLocked", "no target")),
+                    "tracker.find":
+                        lambda r: (_ for _ in ()).throw(CommandError("tracker_NotLocked", "no target")),
                     "keys.allow": lambda r: {}, "calib.plate.upload": lambda r: {"saved": True}}
         self.srv = CommandServer(self.ctx, [f"ipc://{tmp}/cmd"], handlers, max_message_bytes=1 << 20,
                                  plain_role="operator", on_command=hook)
@@ -66,7 +67,8 @@ def test_each_non_polled_command_is_reported_with_its_reply_and_times(reported) 
     assert COMMANDS["ping"].polled and not COMMANDS["robot.move"].polled
     t0 = time.time_ns()
     assert rig.client.call("ping")["pong"]
-    assert rig.client.call("robot.move", distance_mm=10.0, confirm=True)["done"]  # answered at the motion's end
+    # answered at the motion's end
+    assert rig.client.call("robot.move", distance_mm=10.0, confirm=True)["done"]
     with pytest.raises(CommandError):
         rig.client.call("tracker.find")
     with pytest.raises(CommandError) as refused:
@@ -81,7 +83,8 @@ def test_each_non_polled_command_is_reported_with_its_reply_and_times(reported) 
     assert (find["ok"], find["code"], find["message"]) == (False, "tracker_NotLocked", "no target")
     assert allow["ok"] is False and allow["code"] == refused.value.code == ErrorCode.FORBIDDEN
     assert upload["ok"] is True and upload["args"] is None  # too large to repeat on telemetry
-    assert all(r["recv_ns"] <= r["reply_ns"] for r in got) and len({r["id"] for r in got}) == 4  # the request ids
+    assert all(r["recv_ns"] <= r["reply_ns"] for r in got)
+    assert len({r["id"] for r in got}) == 4  # the request ids
 
 
 def test_a_failing_report_never_fails_the_command(tmp_path: Path, caplog) -> None:

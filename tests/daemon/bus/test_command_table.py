@@ -27,7 +27,8 @@ def bad(cmd: str, **args) -> str:
 
 def test_defaults_are_filled_and_ints_become_floats():
     args = validate("robot.move", {"distance_mm": 100})
-    assert args == {"distance_mm": 100.0, "speed_mm_s": 50.0, "confirm": False, "wait": True, "timeout_s": None}
+    assert args == {"distance_mm": 100.0, "speed_mm_s": 50.0, "confirm": False, "wait": True,
+                    "timeout_s": None}
     assert isinstance(args["distance_mm"], float)
     assert validate("files.read", {"path": "a"}) == {"path": "a", "offset": 0, "length": 1 << 20}
     assert validate("tracker.find", {"approx_distance_mm": None}) == {"approx_distance_mm": None}
@@ -121,7 +122,8 @@ def test_motion_times_out_and_a_refused_start_fails_at_once():
     refused = MotionWaiters(FakeRobot(CommandError("robot_busy", "busy")))
     with pytest.raises(CommandError, match="busy"):
         refused.start(lambda r: None, wait=True, timeout=10).result(timeout=1)
-    assert MotionWaiters(FakeRobot()).start(lambda r: None, wait=False, timeout=1).result(1) == {"started": True}
+    started = MotionWaiters(FakeRobot()).start(lambda r: None, wait=False, timeout=1)
+    assert started.result(1) == {"started": True}
 
 
 # ---------------------------------------------------------------------------- worker process

@@ -36,7 +36,8 @@ def secured(tmp_path_factory):
     (data / "authorized_keys" / "alice.key").write_bytes((keys / "alice.key").read_bytes())
     (tmp / "ritad.toml").write_text(curve_config(tmp))
     log = open(tmp / "ritad.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp / "ritad.toml")],
+                            cwd=ROOT,
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=log,
                             text=True)
     line = proc.stdout.readline()
@@ -44,7 +45,8 @@ def secured(tmp_path_factory):
     eps = line.split(": ", 1)[1].split()
     tcp = next(e for e in eps if e.startswith("tcp://"))
     server = load_public(data / "keys" / "server.key")
-    yield {"tcp": tcp, "ipc": ipc_command(tmp), "keys": keys, "server": server, "data": data, "log": tmp / "ritad.log"}
+    yield {"tcp": tcp, "ipc": ipc_command(tmp), "keys": keys, "server": server, "data": data,
+           "log": tmp / "ritad.log"}
     proc.send_signal(signal.SIGTERM)
     proc.wait(10)
 
@@ -64,7 +66,8 @@ def test_allowed_key_works_and_is_logged(secured):
     with Client(secured["tcp"], timeout=5, curve=alice) as c:
         assert c.call("ping")["pong"] is True
         assert "help" in c.call("help")["commands"]
-        with pytest.raises(CommandError):  # alice is a viewer: reads log at DEBUG, a refused motion at WARNING
+        # alice is a viewer: reads log at DEBUG, a refused motion at WARNING
+        with pytest.raises(CommandError):
             c.call("robot.move", distance_mm=1.0, confirm=True)
     wait_for_log(secured["log"], alice["public"].decode(), 30)  # audit trail: the key id of who asked
 
@@ -79,7 +82,8 @@ def test_unknown_key_is_refused_and_logged(secured):
     assert str(e.value).startswith("refused: key mallory is not allowed by the daemon")
     assert "--role operator" in str(e.value)  # the hint is the whole command to run on the robot
     assert isinstance(e.value, ClientTimeout)  # existing handlers map it to exit 3
-    log = wait_for_log(secured["log"], f"refused CURVE key {mallory['public'].decode()} client from 127.0.0.1")
+    log = wait_for_log(secured["log"],
+                       f"refused CURVE key {mallory['public'].decode()} client from 127.0.0.1")
     assert "unknown key" in log
 
 
@@ -118,7 +122,8 @@ def test_refusal_log_counts_repeats(caplog):
     lines = [rec.getMessage() for rec in caplog.records]
     assert lines == ["refused plaintext client from 10.0.0.7:4000: needs CURVE",
                      "refused plaintext client from 10.0.0.8:4000: needs CURVE",
-                     "refused plaintext client from 10.0.0.7:4100: needs CURVE (4 more attempt(s) in the last 0.2 s)"]
+                     "refused plaintext client from 10.0.0.7:4100: needs CURVE "
+                     "(4 more attempt(s) in the last 0.2 s)"]
     assert r.count == 7
 
 
@@ -131,7 +136,8 @@ def test_silent_refusal_times_out_with_the_key_id():
         pub, sec = zmq.curve_keypair()
         srv, _ = zmq.curve_keypair()
         endpoint = "tcp://127.0.0.1:%d" % silent.getsockname()[1]
-        with Client(endpoint, timeout=0.5, curve={"public": pub, "secret": sec, "server": srv}, key_id="bob") as c:
+        with Client(endpoint, timeout=0.5, curve={"public": pub, "secret": sec, "server": srv},
+                    key_id="bob") as c:
             with pytest.raises(ClientTimeout) as e:
                 c.call("ping")
         assert not isinstance(e.value, ClientRefused)
@@ -165,9 +171,9 @@ def test_revocation_without_restart(secured):
     with Client(secured["tcp"], timeout=1.0, curve=alice) as c:
         with pytest.raises(ClientTimeout):
             c.call("ping")
-    r = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "keys", "allow", str(secured["keys"] / "alice.key"),
-                        "--name", "alice", "--dir", str(allowed.parent)], cwd=ROOT, capture_output=True, text=True,
-                       timeout=60)
+    r = subprocess.run([sys.executable, "-m", "daemon.ctl.main", "keys", "allow",
+                        str(secured["keys"] / "alice.key"), "--name", "alice", "--dir", str(allowed.parent)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     with Client(secured["tcp"], timeout=5, curve=alice) as c:
         assert c.call("ping")["pong"] is True
@@ -195,8 +201,9 @@ def test_telemetry_over_curve(secured):
 
 def test_missing_server_key_is_a_clear_error(tmp_path):
     (tmp_path / "ritad.toml").write_text(curve_config(tmp_path))
-    r = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")], cwd=ROOT,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=60)
+    r = subprocess.run([sys.executable, "-m", "daemon.ritad.main", "--config", str(tmp_path / "ritad.toml")],
+                       cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                       timeout=60)
     assert r.returncode == 1 and "ritactl keys init --server" in r.stderr
 
 
@@ -210,12 +217,14 @@ def test_key_selected_by_name_end_to_end(secured, tmp_path):
                        text=True, timeout=60)
     assert r.returncode == 0 and "--key bob" in r.stdout, r
     (laptop / "server.key").write_bytes((secured["data"] / "keys" / "server.key").read_bytes())
-    (laptop / "ritactl.toml").write_text(f'endpoint = "{secured["tcp"]}"\nkey = "bob"\nkeys_dir = "{laptop}"\n')
+    (laptop / "ritactl.toml").write_text(f'endpoint = "{secured["tcp"]}"\n'
+                                         f'key = "bob"\nkeys_dir = "{laptop}"\n')
     conn = resolve_connection(config_path=laptop / "ritactl.toml")
     with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:
         with pytest.raises(ClientRefused, match=r"refused: key bob \("):  # not allowed yet
             c.call("ping")
-    r = subprocess.run([*ctl, "allow", str(laptop / "bob.key"), "--dir", str(secured["data"] / "authorized_keys")],
+    r = subprocess.run([*ctl, "allow", str(laptop / "bob.key"),
+                        "--dir", str(secured["data"] / "authorized_keys")],
                        cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     with Client(conn["endpoint"], timeout=5, curve=(conn["curve"], conn["key_id"])) as c:

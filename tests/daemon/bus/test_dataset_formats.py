@@ -43,7 +43,8 @@ def test_pixel_format_must_match_the_png(tmp_path):
     messages = [str(p) for p in validate_folder(tmp_path / "ref")]
     assert ("dataset.json: $.entries[0].image: image run0.png has 1 channel(s) at 8 bit but pixel format "
             "BayerRG12p is stored with 1 at 16") in messages, messages
-    assert any("state.json: $.obs.runs[0].image: image run0.png: pixel format 'YUV422_8' is not one the computation reads"
+    assert any("state.json: $.obs.runs[0].image: image run0.png: "
+               "pixel format 'YUV422_8' is not one the computation reads"
                in m for m in messages), messages
 
 

@@ -202,10 +202,51 @@ def test_experiment_marks_within_1um_and_out_writes_report_and_plot(written, cal
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     errors = [np.hypot(*(np.array(m["abs_xyz"][:2]) - mark[:2])) for m in result["marks"]]
     assert len(errors) == 4 and max(errors) < 1e-3, errors
-    assert result["files"] == ["report.md", "report.csv", "clusters.png"]
-    assert (tmp_path / "out" / "report.md").read_text() == result["table_markdown"]
+    assert result["files"] == ["report.md", "report.csv", "report_metrics.csv", "report_stops.csv", "clusters.png"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert result["table_markdown"] in report and f"- **job**: {result['job']}" in report
+    assert (tmp_path / "out" / "report.csv").read_text() == result["table_csv"]
     assert (tmp_path / "out" / "clusters.png").read_bytes().startswith(b"\x89PNG")
     assert check_file(result, "result", "result.json") == []
+
+
+def test_the_report_gives_each_compensations_move_per_stop(written, calibration, tmp_path):
+    """report_stops.csv: the bias moved each mark by −R(ψ)·b (it removes the calibration's b, turned into
+    ACS), what report_shifts.py gets from the stored pixel positions; tilt, not recorded here, moved nothing."""
+    import csv
+
+    b = np.array([0.012, -0.020])
+    write_experiment(tmp_path / "exp", {**calibration, "robot_bias_mm": b.tolist()}, written[1],
+                     np.array([1500.0, 200.0, 3.0]), headings=(0.0, 90.0, 180.0), reps=1)
+    assert ctl.main(["recompute", str(tmp_path / "exp"), "--out", str(tmp_path / "out")]) in (0, 1)
+    assert "NOT in report_stops.csv" not in (tmp_path / "out" / "report.md").read_text()
+    rows = list(csv.DictReader((tmp_path / "out" / "report_stops.csv").open(encoding="utf-8")))
+    assert len(rows) == 3
+    for r in rows:
+        psi = np.radians(float(r["heading_deg"]))
+        expect = -np.array([[np.cos(psi), -np.sin(psi)], [np.sin(psi), np.cos(psi)]]) @ b
+        got = [float(r["shift_bias_x_mm"]), float(r["shift_bias_y_mm"])]
+        assert r["bias"] == "applied" and np.allclose(got, expect, atol=2e-5), (got, expect)
+        assert r["tilt"] == "skipped" and r["shift_tilt_x_mm"] == ""
+    # without compensation: the figures ritactl recompute --compensation none gives; the bias (wrong for this
+    # data, which has none) made them worse, and the report names it (left out alone, the figure recovers)
+    from daemon.compute.recompute import recompute
+
+    plain = recompute(tmp_path / "exp", compensation="none")[0]["metrics"]
+    figures = {r["metric"]: r for r in csv.DictReader((tmp_path / "out" / "report_metrics.csv").open())}
+    assert float(figures["pairwise_mean_without_compensation"]["value"]) == pytest.approx(
+        plain["pairwise_mean_mm"], abs=1e-9)
+    md = (tmp_path / "out" / "report.md").read_text()
+    shown = f"{plain['pairwise_mean_mm']:.3f}"
+    assert f"mean pairwise distance of cluster means without compensation {shown} mm" in md
+    worse = [ln for ln in md.splitlines() if "WORSE with the compensations: mean pairwise distance" in ln]
+    assert len(worse) == 1 and worse[0].endswith("; bias made it worse"), worse
+    shutil.rmtree(tmp_path / "out")  # a recompute with another calibration: no shifts, and the report says why
+    (tmp_path / "cal.json").write_text(json.dumps(calibration))
+    assert ctl.main(["recompute", str(tmp_path / "exp"), "--calibration", str(tmp_path / "cal.json"), "--out",
+                     str(tmp_path / "out")]) in (0, 1)
+    assert "NOT in report_stops.csv: recomputed with another calibration" in \
+        (tmp_path / "out" / "report.md").read_text()
 
 
 def test_mark_uncertainty_uses_the_datasets_tracker_sigma(written, calibration, tmp_path):

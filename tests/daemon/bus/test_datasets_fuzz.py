@@ -57,8 +57,8 @@ def mutate_json(doc, rng: random.Random):
         parent[last + "_"] = parent.pop(last)
     elif op == "shape":
         v = parent[last]
-        parent[last] = (v[:-1] if v and rng.random() < 0.5 else [*v, v[0] if v else 0]) if isinstance(v, list) \
-            else [v]
+        parent[last] = ((v[:-1] if v and rng.random() < 0.5 else [*v, v[0] if v else 0])
+                        if isinstance(v, list) else [v])
     else:
         parent[last] = rng.choice([float("nan"), float("inf"), -float("inf")])
     return doc, f"{op} at {list(path)}"
@@ -78,7 +78,8 @@ def mutate_png(data: bytes, rng: random.Random) -> tuple[bytes | None, str]:
     if op == "delete":
         return None, op
     if op == "resize":
-        return cv2.imencode(".png", np.zeros((rng.randint(1, 50), rng.randint(1, 50)), np.uint8))[1].tobytes(), op
+        blank = np.zeros((rng.randint(1, 50), rng.randint(1, 50)), np.uint8)
+        return cv2.imencode(".png", blank)[1].tobytes(), op
     return bytes(rng.randrange(256) for _ in range(rng.randint(1, 200))), op
 
 
@@ -99,7 +100,8 @@ def test_validate_never_raises_and_reports_every_mutation(good, tmp_path, capsys
     exit_codes: dict[tuple[bytes, bytes], int] = {}
     for i in range(N_MUTATIONS):
         rng = random.Random(i)
-        target = rng.choices(["state.json", "dataset.json", "run0.json", "run0.png", "text"], [6, 1, 1, 2, 1])[0]
+        target = rng.choices(["state.json", "dataset.json", "run0.json", "run0.png", "text"],
+                             [6, 1, 1, 2, 1])[0]
         if target == "run0.png":
             data, what = mutate_png(originals["run0.png"], rng)
             if data is None:
@@ -139,12 +141,14 @@ def test_non_finite_numbers_are_reported_where_they_are(good, tmp_path):
     state = json.loads((root / "state.json").read_text())
     state["obs"]["sigma_t_mm"] = math.inf
     (root / "state.json").write_text(json.dumps(state))
-    assert any(p.path == "$.obs.sigma_t_mm" and "not a finite number" in p.message for p in validate_folder(root))
+    assert any(p.path == "$.obs.sigma_t_mm" and "not a finite number" in p.message
+               for p in validate_folder(root))
 
 
 def _png(width: int, height: int, idat: bytes) -> bytes:
     def chunk(tag: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + tag + body + struct.pack(">I", zlib.crc32(tag + body) & 0xFFFFFFFF)
+        return (struct.pack(">I", len(body)) + tag + body
+                + struct.pack(">I", zlib.crc32(tag + body) & 0xFFFFFFFF))
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
             + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
 
@@ -162,5 +166,6 @@ def test_hostile_files_give_problems_not_crashes(good, tmp_path):
     assert "nested more than 64 levels" in problems["result.json"]
     assert "nested more than 64 levels" in problems["run0.json"] or "not valid JSON" in problems["run0.json"]
     assert "implausible size" in problems["state.json"]
-    (root / "run0.png").write_bytes(_png(1280, 960, zlib.compress(bytes(50 * 10 ** 6))))  # inflates far too big
+    # inflates far too big
+    (root / "run0.png").write_bytes(_png(1280, 960, zlib.compress(bytes(50 * 10 ** 6))))
     assert any("a 1280x960 image needs" in p.message for p in validate_folder(root))

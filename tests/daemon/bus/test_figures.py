@@ -53,3 +53,15 @@ def test_reasons_that_differ_only_in_numbers_are_one_reason_with_ranges():
     # another count of numbers is another reason
     two = ["fitted at 6 stops", "fitted at 6 of 8 stops"]
     assert counted(two) == two
+
+
+def test_a_worse_figure_names_the_compensation_that_made_it_worse():
+    from daemon.bus.figures import worse_lines
+
+    comp = {"requested": ["tilt", "bias"], "stops": 8, "applied": {"tilt": 8, "bias": 8}, "skipped": {}}
+    lines = worse_lines("enclosing diameter", 0.216, 0.237, comp, True, {"tilt": 0.250, "bias": 0.210})
+    assert lines == ["WORSE with the compensations: enclosing diameter 0.216 → 0.237 mm (+0.021 mm); bias made "
+                     "it worse", "  - each left out alone: without tilt 0.250 mm, without bias 0.210 mm"]
+    none = worse_lines("enclosing diameter", 0.216, 0.237, comp, True, {"tilt": 0.240, "bias": 0.237})
+    assert none[0].endswith("; no one compensation alone did") and "  - possible reasons:" in none
+    assert worse_lines("enclosing diameter", 0.216, 0.2164, comp) == []  # not worse as printed

@@ -45,7 +45,8 @@ def test_a_procedure_name_is_a_literal_in_the_declarations_only():
 
 def test_the_schemas_procedure_lists_are_the_generated_ones():
     """Each schema's procedure lists, its state statuses and its per-procedure dispatch are what the
-    declarations give; every procedure's obs and result have their hand-written definition the dispatch points to."""
+    declarations give; every procedure's obs and result have their hand-written definition the
+    dispatch points to."""
     for file in schema_lists.rules():
         text = (schema_lists.SCHEMAS / file).read_text(encoding="utf-8")
         regenerate = "python -m daemon.bus.schema_lists --write"
@@ -97,10 +98,12 @@ def test_ritad_refuses_a_bad_and_an_unknown_parameter_naming_both():
 
 def test_todays_flags_stay_as_aliases():
     parser = ctl.build_parser()
-    a = parser.parse_args(["experiment", "--mark", "1", "2", "--reps", "3", "--psi0", "10", "--distance", "150"])
+    a = parser.parse_args(["experiment", "--mark", "1", "2", "--reps", "3", "--psi0", "10",
+                           "--distance", "150"])
     assert params_of(EXPERIMENT, a) == {"mark_xy": [1.0, 2.0], "repetitions": 3, "psi0_deg": 10.0,
                                         "distance_mm": 150.0}
-    b = parser.parse_args(["experiment", "--mark-xy", "1", "2", "--repetitions", "3", "--approach-speed-mm-s", "5"])
+    b = parser.parse_args(["experiment", "--mark-xy", "1", "2", "--repetitions", "3",
+                           "--approach-speed-mm-s", "5"])
     assert params_of(EXPERIMENT, b) == {"mark_xy": [1.0, 2.0], "repetitions": 3, "approach_speed_mm_s": 5.0}
     c = parser.parse_args(["calibrate", "--robot-approx", "1", "2", "3", "--reversal"])
     assert c.pp_robot_approx_trk == [1.0, 2.0, 3.0] and c.pp_reversal is True
@@ -131,8 +134,8 @@ def test_adding_a_parameter_is_one_line_in_the_declaration(monkeypatch):
     sub = argparse.ArgumentParser().add_subparsers()
     add_procedure_parsers(sub, argparse.ArgumentParser(add_help=False), lambda c, a, n, p: 0)
     a = sub.choices["experiment"].parse_args(["--mark", "1", "2", "--settle-s", "2"])
-    assert params_of(grown, a)["settle_s"] == 2.0                                           # ritactl
-    assert [f["name"] for f in procedures.schema()["experiment"]][-1] == "settle_s"         # the console's form
+    assert params_of(grown, a)["settle_s"] == 2.0  # ritactl
+    assert [f["name"] for f in procedures.schema()["experiment"]][-1] == "settle_s"  # the console's form
     assert check_params("experiment", {"mark_xy": [0, 0], "settle_s": 1})["settle_s"] == 1.0  # ritad
     with pytest.raises(ParamError, match="'settle_s': 11 is outside"):
         check_params("experiment", {"mark_xy": [0, 0], "settle_s": 11})

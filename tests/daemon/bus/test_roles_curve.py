@@ -81,14 +81,16 @@ def test_viewer_watches_but_may_not_move_start_jobs_or_capture(robot):
         finally:
             sub.close()
             frames.close()
-        for cmd, args, need in (("robot.move", MOVE, "operator"), ("calib.start", {"procedure": "referencing"},
-                                                                    "operator"), ("capture", {}, "operator"),
+        for cmd, args, need in (("robot.move", MOVE, "operator"),
+                                ("calib.start", {"procedure": "referencing"}, "operator"),
+                                ("capture", {}, "operator"),
                                 ("keys.list", {}, "admin")):
             assert code_of(c, cmd, **args) == ("forbidden", f"{cmd} needs role {need}; key vic is viewer")
 
 
 def test_a_viewer_stops_the_robot_and_only_an_operator_releases_it(robot, caplog):
-    """Stopping is never forbidden: the viewer's STOP halts a moving base and latches, logged with its name."""
+    """Stopping is never forbidden: the viewer's STOP halts a moving base and latches, logged with its
+    name."""
     caplog.set_level(logging.INFO, logger="daemon.ritad")
     with client(robot, "vic") as vic, client(robot, "ole") as ole:
         ole.call("robot.move", distance_mm=300.0, speed_mm_s=2.0, confirm=True, wait=False)  # 150 s of motion
@@ -139,8 +141,10 @@ def test_admin_manages_keys_and_changes_apply_to_open_connections(robot):
     with client(robot, "ada") as admin, client(robot, "rex") as rex:
         assert {k["name"]: k["role"] for k in admin.call("keys.list")["keys"]}["rex"] == "operator"
         rex.call("robot.stop")
-        admin.call("keys.role", name="rex", role="viewer")  # no restart: rex's open connection is a viewer now
-        assert code_of(rex, "robot.release") == ("forbidden", "robot.release needs role operator; key rex is viewer")
+        # no restart: rex's open connection is a viewer now
+        admin.call("keys.role", name="rex", role="viewer")
+        assert code_of(rex, "robot.release") == ("forbidden",
+                                                 "robot.release needs role operator; key rex is viewer")
         assert code_of(rex, "robot.stop") == ("ok", "")  # stopping is never forbidden
         admin.call("robot.release")
         assert rex.call("status")["devices"]
@@ -191,6 +195,7 @@ def test_ritactl_keys_on_the_robot_files(tmp_path, capsys):
     assert ritactl(["keys", "list", "--dir", str(auth)]) == Exit.OK
     assert capsys.readouterr().out.splitlines()[-1].split()[:2] == ["bob", "admin"]
     assert ritactl(["keys", "role", "--name", "bob", "--dir", str(auth)]) == Exit.USAGE
-    assert ritactl(["keys", "role", "--name", "carol", "--role", "admin", "--dir", str(auth)]) == Exit.BAD_INPUT
+    assert ritactl(["keys", "role", "--name", "carol", "--role", "admin",
+                    "--dir", str(auth)]) == Exit.BAD_INPUT
     assert "no key named 'carol'" in capsys.readouterr().err
     assert ritactl(["keys", "allow", str(public), "--role", "root", "--dir", str(auth)]) == Exit.USAGE

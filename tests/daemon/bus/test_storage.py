@@ -30,7 +30,8 @@ def test_atomic_write_fsyncs_the_file_and_its_folder(tmp_path, monkeypatch):
     """The data and the rename are both durable: the file's fd, then the folder's, are fsynced."""
     synced: list[str] = []
     real_fsync = os.fsync
-    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real_fsync(fd)))
+    monkeypatch.setattr(os, "fsync",
+                        lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real_fsync(fd)))
     p = tmp_path / "x.bin"
     storage.atomic_write_bytes(p, b"new")
     assert p.read_bytes() == b"new"

@@ -24,7 +24,8 @@ def test_unreachable_daemon_is_a_clear_error(tmp_path):
 
 def test_usage_errors(capsys):
     for argv in (["tracker", "aim", "1", "2"], ["robot", "move"], ["tracker", "stream", "go"],
-                 ["robot", "move", "abc"], ["robot", "turn", "400", "--yes"], ["tracker", "aim", "1", "2", "nan"]):
+                 ["robot", "move", "abc"], ["robot", "turn", "400", "--yes"],
+                 ["tracker", "aim", "1", "2", "nan"]):
         assert ctl.main(argv) == 64, argv
         err = capsys.readouterr().err
         assert "usage: ritactl" in err and "Traceback" not in err
@@ -45,7 +46,8 @@ def test_ritactl_status_against_a_daemon_loads_no_numpy_or_opencv(tmp_path):
     """The laptop's most used verb, end to end: numpy and OpenCV blocked, it still answers (exit 0)."""
     from tests.ctl_sim import sim_daemon
 
-    code = ("import sys\nfor m in ('numpy', 'cv2', 'harvesters', 'serial'): sys.modules[m] = None  # import fails\n"
+    code = ("import sys\n"
+            "for m in ('numpy', 'cv2', 'harvesters', 'serial'): sys.modules[m] = None  # import fails\n"
             "from daemon.ctl.main import main\nsys.exit(main(sys.argv[1:]))")
     with sim_daemon(tmp_path) as d:
         res = subprocess.run([sys.executable, "-c", code, "--endpoint", d.server.endpoints[0], "status"],

@@ -1,4 +1,5 @@
-"""``ritactl camera detect`` (camera.detect through the command table's cli words) against a simulated ritad."""
+"""``ritactl camera detect`` (camera.detect through the command table's cli words) against a
+simulated ritad."""
 from __future__ import annotations
 
 import json
@@ -15,7 +16,8 @@ from tests.ritad_up import ritad_in_process
 def test_camera_detect_prints_the_corner_count_and_json_and_fails_clearly(tmp_path, capsys):
     with ritad_in_process(tmp_path, camera="sim:?size=1000x750&noise=0&fps=10") as (d, c):
         ep = ["--endpoint", d.server.endpoints[0]]
-        assert ritactl([*ep, "camera", "detect", "--plate-file", "sim/plate.json"]) == 4  # no stream yet: refused
+        # no stream yet: refused
+        assert ritactl([*ep, "camera", "detect", "--plate-file", "sim/plate.json"]) == 4
         err = capsys.readouterr().err
         assert "camera.stream.start first" in err and "Traceback" not in err
         c.call("sim.place_robot_on_plate")

@@ -72,7 +72,8 @@ def test_status_of_a_ready_daemon_is_0(endpoint, capsys):
 def test_follow_an_ended_job_returns_at_once(endpoint, c, capsys, end, data, want, shown):
     job = post_job(c)
     report(c, job, end, data)
-    report(c, job, "progress", {"step": "done", "percent": 100})  # a late word from the worker changes nothing
+    # a late word from the worker changes nothing
+    report(c, job, "progress", {"step": "done", "percent": 100})
     code, waits = follow(endpoint, job)
     assert code == want and waits == 0  # from the job's record, without waiting for news on the bus
     assert shown in capsys.readouterr().out
@@ -163,8 +164,8 @@ class Ritactl:
                 self.proc.send_signal(signal.SIGABRT)  # faulthandler: where ritactl was, for the message
                 time.sleep(1.0)
             assert time.monotonic() < end and self.proc.poll() is None, \
-                f"waiting for {what!r}: exit {self.proc.returncode}\n--- stdout\n{self.text['out']}\n--- stderr\n" \
-                f"{self.text['err']}"
+                f"waiting for {what!r}: exit {self.proc.returncode}\n" \
+                f"--- stdout\n{self.text['out']}\n--- stderr\n{self.text['err']}"
             if poke:
                 poke()
             time.sleep(0.2)
@@ -172,7 +173,8 @@ class Ritactl:
 
 @pytest.mark.parametrize("keys, stopped", [("y\n", True), ("\n", False), (None, True), ("", False)])
 def test_ctrl_c_during_a_motion_procedure_asks_to_stop_the_robot(endpoint, c, keys, stopped):
-    """y: the latched stop (the job stopped too); Enter or EOF: detach with the hint; a second Ctrl-C: stop."""
+    """y: the latched stop (the job stopped too); Enter or EOF: detach with the hint; a second
+    Ctrl-C: stop."""
     job = post_job(c, "referencing")
     f = Ritactl(endpoint, "follow", job)
     try:
@@ -192,7 +194,8 @@ def test_ctrl_c_during_a_motion_procedure_asks_to_stop_the_robot(endpoint, c, ke
         assert "Traceback" not in f.text["err"] + f.text["out"]
         inbox = c.call("calib.inbox", job=job, timeout_s=0)
         if stopped:
-            assert "robot stopped and latched" in f.text["out"], f.text  # (a queued job just leaves the queue)
+            # (a queued job just leaves the queue)
+            assert "robot stopped and latched" in f.text["out"], f.text
             assert c.call("state")["latch"]["latched"]
             assert {j["job"]: j for j in c.call("calib.jobs")["jobs"]}[job]["state"] == "stopped"
         else:
@@ -207,7 +210,8 @@ def test_ctrl_c_during_a_motion_procedure_asks_to_stop_the_robot(endpoint, c, ke
 
 def test_closed_pipe_after_a_daemon_answer(endpoint):
     """`ritactl robot status | head -0`."""
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint, "robot", "status"],
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.ctl.main", "--endpoint", endpoint,
+                             "robot", "status"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()
     _, err = proc.communicate(timeout=60)

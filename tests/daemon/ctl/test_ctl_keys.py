@@ -76,13 +76,15 @@ def test_readable_secret_is_refused(tmp_path):
 
 
 def test_keys_allow_names_a_missing_file(tmp_path, capsys):
-    assert keys(["allow", str(tmp_path / "nonexistent.key"), "--dir", str(tmp_path / "auth")]) == Exit.BAD_INPUT
+    assert keys(["allow", str(tmp_path / "nonexistent.key"),
+                 "--dir", str(tmp_path / "auth")]) == Exit.BAD_INPUT
     assert f"{tmp_path / 'nonexistent.key'} does not exist" in capsys.readouterr().err
     (tmp_path / "junk.key").write_text("hello")
     assert keys(["allow", str(tmp_path / "junk.key"), "--dir", str(tmp_path / "auth")]) == Exit.BAD_INPUT
     assert "not a CURVE public key file" in capsys.readouterr().err
     keys(["init", "--name", "bob", "--dir", str(tmp_path / "k")])
-    assert keys(["allow", str(tmp_path / "k" / "bob.key_secret"), "--dir", str(tmp_path / "auth")]) == Exit.BAD_INPUT
+    assert keys(["allow", str(tmp_path / "k" / "bob.key_secret"),
+                 "--dir", str(tmp_path / "auth")]) == Exit.BAD_INPUT
     assert "secret" in capsys.readouterr().err and not (tmp_path / "auth" / "bob.key").exists()
     assert keys(["allow", str(tmp_path / "k" / "bob.key"), "--dir", str(tmp_path / "auth")]) == 0
     assert stat.S_IMODE((tmp_path / "k" / "bob.key_secret").stat().st_mode) == 0o600
@@ -102,8 +104,10 @@ def test_config_file(tmp_path, monkeypatch):
     monkeypatch.setenv("RITA_CONFIG", str(tmp_path / "missing.toml"))
     with pytest.raises(CtlConfigError, match="missing.toml does not exist"):
         load_ctl_config()
-    for text, named in (('endpint = "tcp://a:1"', "'endpint'"), ('endpoint = "robot:5555"', "endpoint = 'robot:5555'"),
-                        ("key = 3", "key = 3"), ('key = "a/b"', "key = 'a/b'"), ("timeout = -1", "timeout = -1"),
+    for text, named in (('endpint = "tcp://a:1"', "'endpint'"),
+                        ('endpoint = "robot:5555"', "endpoint = 'robot:5555'"),
+                        ("key = 3", "key = 3"), ('key = "a/b"', "key = 'a/b'"),
+                        ("timeout = -1", "timeout = -1"),
                         ("endpoint = [", "not valid TOML")):
         f.write_text(text)
         with pytest.raises(CtlConfigError) as e:

@@ -41,7 +41,8 @@ def foxglove_refusal(schema: dict[str, Any], path: str = "") -> str | None:
                 nested = foxglove_refusal(item, where)
                 if nested:
                     return nested
-            elif item.get("type") not in _SCALARS or (item.get("type") == "string" and "contentEncoding" in item):
+            elif (item.get("type") not in _SCALARS
+                  or (item.get("type") == "string" and "contentEncoding" in item)):
                 return f"Unsupported type {item.get('type')!r} for array item {where}"
         elif kind not in _SCALARS or field.get("contentEncoding", "base64") != "base64":
             return f"Unsupported type {kind!r} for {where}"

@@ -45,7 +45,8 @@ def _procedure(c, data: Path) -> None:
 
 def test_recording_during_a_procedure_has_every_record_frames_and_the_motions(tmp_path: Path) -> None:
     out = tmp_path / "proc.mcap"
-    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30, camera=SMALL_CAMERA + "&fps=10") as (d, c):
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", timeout=30,
+                          camera=SMALL_CAMERA + "&fps=10") as (d, c):
         lock_on_robot(c)
         c.call("tracker.stream.start", rate_hz=1000.0)
         c.call("camera.stream.start")
@@ -94,5 +95,6 @@ def test_recording_during_a_procedure_has_every_record_frames_and_the_motions(tm
     for r, sch, m in commands:  # the nulls are left out (the schema types them), the rest is there
         assert r["ok"] is True and "code" not in r and r["role"] == "operator" and "key" not in r
         assert r["recv_ns"] <= r["reply_ns"] and m.log_time >= r["reply_ns"]  # published after the reply
-        assert sch.encoding == "jsonschema" and json.loads(sch.data)["properties"] == fmt.COMMAND_SCHEMA["properties"]
+        assert sch.encoding == "jsonschema"
+        assert json.loads(sch.data)["properties"] == fmt.COMMAND_SCHEMA["properties"]
         assert set(fmt.restore_nulls(r, fmt.COMMAND_SCHEMA)) == set(fmt.COMMAND_SCHEMA["properties"]) | {"id"}

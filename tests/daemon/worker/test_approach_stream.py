@@ -1,4 +1,5 @@
-"""The compensations' inputs on the real path: a paper+imu approach move records the tracker stream and the tilt.
+"""The compensations' inputs on the real path: a paper+imu approach move records the tracker
+stream and the tilt.
 
 ritad in-process with the fakes of the ``paper+imu`` profile; the worker's Navigator drives
 one short recorded straight move (what ``nav.approach`` ends with) through the bus.

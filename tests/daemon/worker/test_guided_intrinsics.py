@@ -84,7 +84,8 @@ def test_a_bad_board_file_is_refused_before_the_operator_starts(tmp_path) -> Non
         intrinsics(ctx)
     ctx = Ctx(tmp_path, [], [])
     ctx.params = INTRINSICS.resolve({})
-    with pytest.raises(ValueError, match="board.json does not exist: pass the board you hold with --board FILE"):
+    with pytest.raises(ValueError,
+                       match="board.json does not exist: pass the board you hold with --board FILE"):
         intrinsics(ctx)
     assert ctx.questions == []
 

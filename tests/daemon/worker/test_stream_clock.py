@@ -21,7 +21,8 @@ def _packets(seconds: float, seed: int = 1) -> tuple[list[dict], np.ndarray]:
         t = [(i * 10 + k + 1) * 1e-3 for k in range(10)]  # true host s of each record
         dev_us = [round(1e6 * (1000.0 + x * (1 - 50e-6))) for x in t]
         msgs.append({"n": 10, "x": [float(i * 10 + k) for k in range(10)], "y": [0.0] * 10, "z": [0.0] * 10,
-                     "status": [0] * 10, "device_time": [[u // 10**6 for u in dev_us], [u % 10**6 for u in dev_us]],
+                     "status": [0] * 10,
+                     "device_time": [[u // 10**6 for u in dev_us], [u % 10**6 for u in dev_us]],
                      "host_time_ns": HOST0 + round((t[-1] + min(rng.expovariate(1e3), 5e-3)) * 1e9)})
         truth += [HOST0 + x * 1e9 for x in t]
     rng.shuffle(msgs)  # a subscriber may see packets in any order: the device clock orders them
@@ -68,7 +69,8 @@ def test_a_late_packet_from_before_the_move_end_does_not_end_the_collection():
     late = msgs[44]
     late["host_time_ns"] += 150_000_000
     before = [m for m in msgs if m["host_time_ns"] < late["host_time_ns"]]
-    after = sorted((m for m in msgs if m["host_time_ns"] > late["host_time_ns"]), key=lambda m: m["host_time_ns"])
+    after = sorted((m for m in msgs if m["host_time_ns"] > late["host_time_ns"]),
+                   key=lambda m: m["host_time_ns"])
     got: list[dict] = []
     _collect_until(_Sub(before + [late] + after), got, HOST0 + 500_000_000, wait_s=1.0)
     assert got[-1] is not late, "the collection ended on a packet sent before the move's end"
@@ -77,7 +79,8 @@ def test_a_late_packet_from_before_the_move_end_does_not_end_the_collection():
 
 
 def test_incl_samples_with_a_hole_are_not_bridged():
-    """A reconnect mid-move stops the base's samples for a while: the tilt is not a straight line across it."""
+    """A reconnect mid-move stops the base's samples for a while: the tilt is not a straight line
+    across it."""
     from daemon.worker.stream import INCL_REACH_NS, _incl_tilt
 
     def batch(ts):

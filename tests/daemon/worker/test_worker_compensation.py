@@ -78,7 +78,8 @@ def test_imu_offset_is_the_plate_reading_minus_the_plate_tilt(ref, tmp_path):
     s["obs"]["runs"][0]["imu0"] = dict(TILT)
     res = compute_referencing(s["obs"], lambda f: __import__("cv2").imread(str(root / f), 0))
     roll, pitch = tilt_of_pose(np.array(res["runs"][0]["abs_H_rob"]))
-    assert res["imu_offset_deg"] == pytest.approx([TILT["roll_deg"] - roll, TILT["pitch_deg"] - pitch], abs=1e-12)
+    assert res["imu_offset_deg"] == pytest.approx([TILT["roll_deg"] - roll, TILT["pitch_deg"] - pitch],
+                                                  abs=1e-12)
     assert check_file(res, "result", "result.json") == []
 
 
@@ -90,15 +91,16 @@ def test_none_all_and_skips_on_a_level_robot(exp):
     both = recompute(exp, compensation="tilt,heading_fit")[0]
     # the calibration holds no weight an experiment learned: the chord, with the reason at each stop
     assert both["compensation"]["applied"] == {"tilt": 4, "heading_fit": 0}
-    assert both["compensation"]["skipped"] == {"heading_fit": sorted(["no tracker stream was recorded along the "
-                                                                      "approach", NOT_LEARNED.why])}
+    assert both["compensation"]["skipped"] == {
+        "heading_fit": sorted(["no tracker stream was recorded along the approach", NOT_LEARNED.why])}
     assert both["compensation"]["skipped_stops"] == {
         "heading_fit": {NOT_LEARNED.why: 3, "no tracker stream was recorded along the approach": 1}}
     assert both["heading_weight"]["applied"] is False and ">= 8" in both["heading_weight"]["why"]
     assert np.abs(_errors(both)).max() < 1e-3  # level robot, offset removed, straight path: nothing changes
     full = recompute(exp)[0]  # the default: all
     assert full["compensation"]["applied"]["bias"] == 4
-    for m, e in zip(full["marks"], _errors(full)):  # b is removed in the robot frame: it turns with the heading
+    # b is removed in the robot frame: it turns with the heading
+    for m, e in zip(full["marks"], _errors(full)):
         psi = math.radians(m["heading_deg"])
         assert e == pytest.approx([-0.5 * math.cos(psi), -0.5 * math.sin(psi)], abs=1e-3)
     assert check_file(full, "result", "result.json") == []
@@ -110,7 +112,8 @@ def test_a_tilt_reading_moves_the_mark_by_the_reflector_height(exp, tmp_path):
     import shutil
 
     shutil.copytree(exp, folder)
-    _edit(folder, lambda s: [st["imu_at"].update(pitch_deg=TILT["pitch_deg"] + 0.1) for st in s["obs"]["stops"]])
+    _edit(folder, lambda s: [st["imu_at"].update(pitch_deg=TILT["pitch_deg"] + 0.1)
+                             for st in s["obs"]["stops"]])
     none = _errors(recompute(folder, compensation="none")[0])
     tilt = _errors(recompute(folder, compensation="tilt")[0])
     moved = np.linalg.norm(tilt - none, axis=1)
@@ -150,7 +153,8 @@ def test_stored_bias_round_trip(ref, tmp_path):
     assert active["robot_bias_mm"] == pytest.approx(first["metrics"]["fit"]["b"])
     assert np.hypot(*active["robot_bias_mm"]) == pytest.approx(0.5, abs=2e-3)
     assert active["robot_bias"]["job"] == "exp-1"
-    assert (data / "calibration" / "history" / "bias" / "cal-1.bias-exp-1.json").exists()  # beside the history
+    # beside the history
+    assert (data / "calibration" / "history" / "bias" / "cal-1.bias-exp-1.json").exists()
     assert check_file(active, "result", "active.json") == []
     write_experiment(tmp_path / "e2", active, truth, MARK, headings=HEADINGS, reps=1)
     second = recompute(tmp_path / "e2")[0]
@@ -182,7 +186,8 @@ def test_stored_bias_round_trip(ref, tmp_path):
     # a b no calibration can have is refused before anything is written
     bad = {**second, "job": "exp-3", "calibration_job": "cal-1", "heading_weight": None,
            "metrics": {**second["metrics"], "fit": {**second["metrics"]["fit"], "b": [7.0, 0.0]}}}
-    assert "NOT stored" in store_bias(data, bad) and "7.500 mm" in store_bias(data, bad)  # 7 fitted + 0.5 applied
+    # 7 fitted + 0.5 applied
+    assert "NOT stored" in store_bias(data, bad) and "7.500 mm" in store_bias(data, bad)
     assert json.loads((data / "calibration" / "active.json").read_text())["robot_bias_mm"] == b
 
 
@@ -192,7 +197,8 @@ def test_a_bias_the_data_contradict_is_not_stored():
 
     result = {"job": "e1", "metrics": {"fit": {"b": [0.05, 0.0], "rms_mm": 0.08}},
               "compensation": {"requested": [], "applied": {}, "stops": 8},
-              "checks": {"bias_model": {"ok": False, "message": "the cluster means do not follow M + R(ψ)·b: ..."}}}
+              "checks": {"bias_model": {"ok": False,
+                                        "message": "the cluster means do not follow M + R(ψ)·b: ..."}}}
     with pytest.raises(ValueError, match="do not follow"):
         biased_calibration({"job": "c1"}, result)
     result["checks"]["bias_model"] = {"ok": True}
@@ -200,9 +206,10 @@ def test_a_bias_the_data_contradict_is_not_stored():
 
 
 def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp, tmp_path):
-    """A calibration whose reversal showed the mount 80 µm toward the tracker and 30 µm left of it: with `mount`
-    each mark moves by minus that offset turned to its stop's line of sight, and its σ names the estimate's share;
-    an offset not shown is not subtracted but stated in σ; a stop without abs_H_trk says why it cannot apply it."""
+    """A calibration whose reversal showed the mount 80 µm toward the tracker and 30 µm left of it:
+    with `mount` each mark moves by minus that offset turned to its stop's line of sight, and its σ
+    names the estimate's share; an offset not shown is not subtracted but stated in σ; a stop
+    without abs_H_trk says why it cannot apply it."""
     import shutil
 
     from calibration.mount import MountOffset, los_R
@@ -216,7 +223,8 @@ def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp
     assert validate_folder(folder) == []
     without = recompute(folder, compensation="tilt")[0]
     res = recompute(folder, compensation="tilt,mount")[0]
-    assert res["compensation"]["applied"]["mount"] == len(HEADINGS) and check_file(res, "result", "result.json") == []
+    assert res["compensation"]["applied"]["mount"] == len(HEADINGS)
+    assert check_file(res, "result", "result.json") == []
     assert res["compensation"]["reflector_mount_los_mm"] == pytest.approx([0.08, 0.03])
     stops = _state(folder)["obs"]["stops"]
     for m0, m1, st in zip(without["marks"], res["marks"], stops):
@@ -225,20 +233,23 @@ def test_the_reflector_mount_offset_moves_every_mark_along_its_line_of_sight(exp
         # each tracker point turned to its own line of sight: the chord turns the mark by < 1 µm here
         assert np.subtract(m1["abs_xyz"], m0["abs_xyz"])[:2] == pytest.approx(expect[:2], abs=1e-3)
         assert m1["sigma"]["parts_mm"]["mount"] == pytest.approx(math.sqrt(2e-4), rel=1e-6)
-    _edit(folder, lambda s: s["obs"]["calibration"].update(reflector_mount={**shown, "significant": False,
-                                                                                "why": "not shown by the data"}))
+    _edit(folder, lambda s: s["obs"]["calibration"].update(
+        reflector_mount={**shown, "significant": False, "why": "not shown by the data"}))
     quiet = recompute(folder, compensation="tilt,mount")[0]
     assert quiet["compensation"]["skipped"] == {"mount": ["not shown by the data"]}
     assert _errors(quiet) == pytest.approx(_errors(without), abs=1e-9)
-    assert quiet["marks"][0]["sigma"]["parts_mm"]["mount"] == pytest.approx(math.sqrt(2e-4 + 0.08 ** 2 + 0.03 ** 2))
+    assert quiet["marks"][0]["sigma"]["parts_mm"]["mount"] == pytest.approx(
+        math.sqrt(2e-4 + 0.08 ** 2 + 0.03 ** 2))
     _edit(folder, lambda s: [st["P_at"].pop("abs_H_trk") for st in s["obs"]["stops"]])
     blind = recompute(folder, compensation="mount")[0]
     assert "abs_H_trk" in blind["compensation"]["skipped"]["mount"][0]
     # a record the schema passes but no offset can be read from (a zero covariance) skips the compensation,
     # naming it; the marks are still measured
-    _edit(folder, lambda s: s["obs"]["calibration"].update(reflector_mount={**shown, "cov_los_mm2": [[0, 0], [0, 0]]}))
+    _edit(folder, lambda s: s["obs"]["calibration"].update(
+        reflector_mount={**shown, "cov_los_mm2": [[0, 0], [0, 0]]}))
     bad = recompute(folder, compensation="tilt,mount")[0]
-    assert "reflector_mount" in bad["compensation"]["skipped"]["mount"][0] and len(bad["marks"]) == len(HEADINGS)
+    assert "reflector_mount" in bad["compensation"]["skipped"]["mount"][0]
+    assert len(bad["marks"]) == len(HEADINGS)
 
 
 def test_the_experiments_heading_weight_is_stored_with_the_bias_and_read_back(ref, tmp_path):
