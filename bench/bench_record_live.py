@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import machine  # noqa: E402
 from daemon.bus.client import Client  # noqa: E402
 from daemon.ritad import config  # noqa: E402
-from daemon.ritad.main import Daemon  # noqa: E402
+from daemon.ritad.daemon import Daemon  # noqa: E402
 
 COUNT = """
 import sys, time
@@ -73,7 +73,7 @@ def measure(fps: int, seconds: float, tmp: Path) -> dict[str, float]:
         c.close()
         d.stop_event.set()
         d.stop()
-        for r in d.runners.values():
+        for r in (rig.runner for rig in d.rigs):
             if hasattr(r.device, "shutdown"):
                 r.device.shutdown()
     return {"fps": fps, "alone": alone, "beside": beside, "ratio": beside / alone if alone else 0.0,

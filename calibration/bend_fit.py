@@ -35,6 +35,8 @@ LACK_OF_FIT_Z = 3.5
 HAUSMAN_Z = 2.5
 #: names of the shapes by degree (2: one arc, 3: an S-curve or a partial arc)
 SHAPES = {2: "arc", 3: "s-curve", 4: "higher-order", 5: "higher-order"}
+#: the share of the move at its end whose residuals show what the fitted path misses there (a kink)
+END_FRACTION = 0.2
 #: the least lateral noise a stream point is credited with (an interferometer's resolution, not a real
 #: tracker's noise): it keeps noise-free synthetic paths from calling rounding a shape
 STREAM_SIGMA_FLOOR_MM = 0.0005
@@ -51,6 +53,10 @@ class BendFit:
     stream_sigma_mm: float  # the stream's lateral noise, from second differences of neighbouring points
     significant: bool
     why: str  # why the chord was kept ("" when the fit is used)
+    #: the end slope the fitted path misses near the stop (rad): the fitted end slope against a line through
+    #: the stream's last :data:`END_FRACTION` of the move, beyond that line's noise (a kink there); 0 when
+    #: none is seen
+    end_lack_of_fit_rad: float = 0.0
 
 
 def _frame(points: object, abs_P_prev: object, abs_P_at: object) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -110,6 +116,22 @@ def _end_slope(x: np.ndarray, e: np.ndarray, deg: int, sig_s: float, anchor_sigm
     return float(d @ theta), float(d @ cov @ d)
 
 
+def _end_lack_of_fit(x: np.ndarray, e: np.ndarray, slope: float, var: float, sig_s: float, L: float) -> float:
+    """How far the fitted end ``slope`` (variance ``var``) is from what the stream's last :data:`END_FRACTION`
+    of the move shows by itself (a line through those points: a kink or a late bend leaves the end straight,
+    where a polynomial over the whole move over- or undershoots). Only a difference beyond
+    :data:`SIGNIFICANCE` of its noise counts (the line's slope sits mid-window, which on a smooth bend differs
+    a little from the end's); then √(d² − var_d), an unbiased estimate of the squared slope missed (rad), else
+    0."""
+    end = x >= 1.0 - END_FRACTION
+    if np.count_nonzero(end) < MIN_FIT_POINTS:
+        return 0.0
+    s = x[end] * L - float(np.mean(x[end] * L))  # mm along the move, centred
+    line = float(s @ (e[end] - np.mean(e[end]))) / float(s @ s)  # the end's own slope
+    d2, var_d = (slope - line) ** 2, sig_s ** 2 / float(s @ s) + var
+    return float(np.sqrt(d2 - var_d)) if d2 > SIGNIFICANCE ** 2 * var_d else 0.0
+
+
 def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_mm: float = 0.010,
              significance: float = SIGNIFICANCE, min_degree: int = 2) -> BendFit:
     """The end tangent from the stream and the anchors, weighted by their noise; see the module's docstring.
@@ -126,15 +148,19 @@ def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_
     x, e, u, n, L = _frame(points, abs_P_prev, abs_P_at)
     deg, sig_s = _shape(x, e, min_degree)
     shape = SHAPES.get(deg, "other")
-    if deg == 0:
-        return BendFit(np.array([u[0], u[1], 0.0]), 0.0, np.inf, shape, sig_s, False,
+    if deg == 0:  # the richest model's slope still says how far the chord may be off (the stop's own scale)
+        top = min(MAX_DEGREE, len(x) - 2)
+        slope, var = _end_slope(x, e, top, sig_s, anchor_sigma_mm, L) if top >= 2 else (0.0, np.inf)
+        return BendFit(np.array([u[0], u[1], 0.0]), slope, float(np.sqrt(var)), shape, sig_s, False,
                        f"the path along the move has a shape the fit does not model (no polynomial up to degree "
                        f"{MAX_DEGREE} leaves only the stream's noise of {sig_s * 1000:.1f} µm): the chord is used")
     slope, var = _end_slope(x, e, deg, sig_s, anchor_sigma_mm, L)
     for more in (1, 2):  # the slope must not hinge on the model: richer models must agree (a Hausman test)
         slope2, var2 = _end_slope(x, e, deg + more, sig_s, anchor_sigma_mm, L)
         if abs(slope2 - slope) > HAUSMAN_Z * np.sqrt(max(var2 - var, 1e-18)):
-            return BendFit(np.array([u[0], u[1], 0.0]), slope, np.sqrt(var), "other", sig_s, False,
+            # its σ holds the models' disagreement: how far the chord may be off is not better known
+            return BendFit(np.array([u[0], u[1], 0.0]), slope, float(np.sqrt(var + (slope2 - slope) ** 2)),
+                           "other", sig_s, False,
                            f"the end slope depends on the path's model ({slope * 1e6:.0f} µrad as {shape}, "
                            f"{slope2 * 1e6:.0f} µrad with {more} degree(s) more): a shape the fit does not "
                            f"model; the chord is used")
@@ -147,7 +173,8 @@ def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_
         f"{anchor_sigma_mm * 1000:.1f} µm): the chord is used")
     t = u + slope * n if significant else u
     t = t / np.linalg.norm(t)
-    return BendFit(np.array([t[0], t[1], 0.0]), slope, sigma, shape, sig_s, significant, why)
+    return BendFit(np.array([t[0], t[1], 0.0]), slope, sigma, shape, sig_s, significant, why,
+                   _end_lack_of_fit(x, e, slope, var, sig_s, L))
 
 
 def fit_heading(points: Any, abs_P_prev: Any, abs_P_at: Any, anchor_sigma_mm: float = 0.010) -> np.ndarray:
@@ -169,5 +196,19 @@ def fit_heading_sigma(fit_sigma_rad: float, anchor_sigma_mm: float, length_mm: f
     return float(np.sqrt(max(fit_sigma_rad ** 2 - chord_var, 0.0)))
 
 
-__all__ = ["BendFit", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE", "bend_fit", "fit_heading",
+def chord_sigma(fit: BendFit, anchor_sigma_mm: float, length_mm: float) -> float:
+    """The chord's heading σ at a stop that keeps it, from the stop's own fit (0 when the fit states none).
+
+    The chord is off the end tangent by the true end slope, known as the fitted one ± its σ, and by what the
+    fit misses at the end: the expected squared error is slope² + σ² + missed² (less the anchors' part, which
+    measure_mark carries through the two tracker points). A caller keeps the a-priori σ where this is smaller:
+    a turn near the stop whose trace across the stream is below its noise (250 µrad over the last 20 mm: 5 µm)
+    is invisible to the fit but not to the chord.
+    """
+    own = float(np.sqrt(fit.slope_rad ** 2 + fit.sigma_rad ** 2 + fit.end_lack_of_fit_rad ** 2))
+    return fit_heading_sigma(own, anchor_sigma_mm, length_mm) if np.isfinite(own) else 0.0
+
+
+__all__ = ["BendFit", "END_FRACTION", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE",
+           "bend_fit", "chord_sigma", "fit_heading",
            "fit_heading_sigma"]

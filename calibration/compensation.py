@@ -17,8 +17,8 @@ applied. None of them changes the paper's equations; they change their inputs:
   slope when the stop's own bend is significant).
 
 Each result also says how well its heading is known beyond the two tracker points
-(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`): the chord's
-250 µrad from the path deviation, or the fit's own σ when the fit was applied.
+(``Applied.sigma_heading_rad``, for :func:`calibration.measure.measure_mark`; from what:
+``heading_sigma_basis``).
 * **mount** — the reflector mount's eccentricity, measured by the referencing's reversal
   (calibration/mount.py): fixed relative to the line of sight to the tracker, so the same in
   ACS at every heading; subtracted from the stop's tracker points when the data showed it.
@@ -39,7 +39,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from calibration.bend_fit import MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, fit_heading, fit_heading_sigma
+from calibration.bend_fit import (MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, chord_sigma, fit_heading,
+                                  fit_heading_sigma)
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.heading_weight import MODELS, HeadingWeight, weighted_slope
@@ -207,6 +208,9 @@ class Applied:
     #: the heading's 1σ beyond the two tracker points (rad) and where it comes from ("chord", "heading_fit")
     sigma_heading_rad: float = CHORD_HEADING_SIGMA_RAD
     heading_source: str = "chord"
+    #: what it rests on: "a_priori" (the chord's 250 µrad path deviation), "stop_fit" (the chord, from the
+    #: stop's own fit), "fit" (the fit's σ), "weight" (the weight's σ); the last three with the end's misfit
+    heading_sigma_basis: str = "a_priori"
     #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
     cov_mount_xy_mm2: np.ndarray | None = None
     #: heading_fit asked for: the chord's equivalent previous point and, per bend model whose fit succeeded
@@ -296,22 +300,33 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
     out.fits = {m: (prev_at(f.slope_rad), f.slope_rad, f.sigma_rad) for m, f in fits.items() if f.shape != "other"}
     fit = fits[weight.model if weight is not None else "lowest"]
     if weight is not None:
-        if not weight.applied or fit.shape == "other":
-            out.skipped["heading_fit"] = weight.why if not weight.applied else fit.why
-            return
         slope, sigma, why = weighted_slope(weight, fit.slope_rad)
+        why = weight.why if not weight.applied else (fit.why if fit.shape == "other" else why)
         if why:
-            out.skipped["heading_fit"] = why
+            _chord_kept(out, fit, why, anchor_sigma_mm, length)
             return
-        out.abs_P_prev, out.sigma_heading_rad = prev_at(slope), sigma
+        # the population's σ, and what this stop's fitted path misses at its end (a kink there)
+        out.abs_P_prev = prev_at(slope)
+        out.sigma_heading_rad = float(np.hypot(sigma, fit.end_lack_of_fit_rad))
+        out.heading_sigma_basis = "weight"
     elif not fit.significant:
-        out.skipped["heading_fit"] = fit.why
+        _chord_kept(out, fit, fit.why, anchor_sigma_mm, length)
         return
     else:
         out.abs_P_prev = P_at - sign * length * fit.direction
-        out.sigma_heading_rad = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
+        sigma = fit_heading_sigma(fit.sigma_rad, anchor_sigma_mm, length)
+        out.sigma_heading_rad = float(np.hypot(sigma, fit.end_lack_of_fit_rad))
+        out.heading_sigma_basis = "fit"
     out.applied.append("heading_fit")
     out.heading_source = "heading_fit"
+
+
+def _chord_kept(out: Applied, fit: Any, why: str, anchor_sigma_mm: float, length: float) -> None:
+    """The chord kept at a fitted stop: its heading σ raised to its fit's own (bend_fit.chord_sigma)."""
+    out.skipped["heading_fit"] = why
+    own = chord_sigma(fit, anchor_sigma_mm, length)
+    if own > out.sigma_heading_rad:
+        out.sigma_heading_rad, out.heading_sigma_basis = own, "stop_fit"
 
 
 def _lean_change_um(stop: Stop, height: float) -> tuple[float, float] | None:
@@ -337,7 +352,7 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
     (else the stop unchanged and the reason in ``skipped``), and the covariance the offset leaves."""
     if mount is None:
         if comp.mount:
-            skipped["mount"] = "the calibration holds no reflector mount offset (reference with --reversal)"
+            skipped["mount"] = "the calibration holds no reflector mount offset"
         return stop, None
     if abs_t_trk is None:
         if comp.mount:

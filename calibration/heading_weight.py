@@ -27,12 +27,13 @@ w·(1 − w)·S² (at least w times the fits' stated σ), plus the weight's own 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from calibration.measure import robot_pose_at
+from calibration.weight_cv import cross_validate, design, with_weight
 
 #: the weight is applied only beyond this many standard errors above 0
 SIGNIFICANCE = 3.0
@@ -65,6 +66,11 @@ class HeadingWeight:
     #: the robot-frame bias (RCS x, y, mm) fitted jointly with the weight, the weight as stored (0 when not
     #: applied): the b that goes with it, beyond the bias the experiment's marks already had removed
     b_mm: tuple[float, float] | None = None
+    #: what it was learned under (calibration/weight_check.py ``learning_conditions``): None when not recorded
+    conditions: dict[str, Any] | None = None
+    #: the leave-one-direction-out comparison that chose between the chord and the weight
+    #: (calibration/weight_cv.py): None when not made
+    cv: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
@@ -84,7 +90,8 @@ class HeadingWeight:
                     float(d["slope_rms_rad"]), float(d["sigma_heading_rad"]), bool(d["applied"]), str(d["why"]),
                     str(d.get("model", "lowest")), math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
                     math.inf if d.get("slope_limit_rad") is None else float(d["slope_limit_rad"]),
-                    None if b is None else (float(b[0]), float(b[1])))
+                    None if b is None else (float(b[0]), float(b[1])), _record(d.get("conditions")),
+                    _record(d.get("cv")))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: not a heading weight record ({exc!r})") from None
         if w.model not in MODELS:
@@ -96,22 +103,17 @@ class HeadingWeight:
         return w
 
 
+def _record(d: Any) -> dict[str, Any] | None:
+    """A stored sub-record (conditions, cv) as a dict, None when absent; a TypeError when it is no object."""
+    if d is None or isinstance(d, dict):
+        return d
+    raise TypeError(f"expected an object or null, got {type(d).__name__}")
+
+
 #: what a calibration without a learned weight gives: the chord (a single stop cannot show which heading is better)
 NOT_LEARNED = HeadingWeight(0.0, 0.0, math.inf, 0, 0.0, 0.0, False,
                             "the calibration holds no learned weight for the bend fit (an 8-direction experiment "
                             "with heading_fit learns it and stores it with the bias): the chord is used")
-
-
-def _design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k), −Δ (the weight's)."""
-    psi = np.radians(headings_deg)
-    c, s = np.cos(psi), np.sin(psi)
-    A = np.zeros((2 * len(psi), 5))
-    A[0::2, 0], A[1::2, 1] = 1.0, 1.0
-    A[0::2, 2], A[0::2, 3] = c, -s
-    A[1::2, 2], A[1::2, 3] = s, c
-    A[:, 4] = -delta.reshape(-1)
-    return A
 
 
 def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
@@ -133,28 +135,37 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return theta, bread @ (g.T @ g) @ bread * n / max(n - p, 1)
 
 
-def _with_weight(A: np.ndarray, y: np.ndarray, w: float) -> np.ndarray | None:
-    """(M_x, M_y, b_x, b_y, w): M + R(ψ)·b fitted with the weight fixed at ``w`` (None: headings too few)."""
-    B = A[:, :4]
-    if np.linalg.cond(B) > 1e6:
-        return None
-    return np.append(np.linalg.lstsq(B, y - w * A[:, 4], rcond=None)[0], w)
+def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> float:
+    """The weight's variance from leaving one direction out at a time (the jackknife over directions; 0 when
+    it cannot be made): a direction's stops share its floor and path, so its errors do not average within it
+    and the sandwich over stops understates the spread between experiments."""
+    if groups is None:
+        return 0.0
+    names = list(dict.fromkeys(groups.tolist()))
+    if len(names) < 5:
+        return 0.0
+    rows = np.repeat(groups, 2)
+    ws = [np.linalg.lstsq(A[rows != g], y[rows != g], rcond=None)[0][4] for g in names]
+    G = len(ws)
+    return float((G - 1) / G * np.sum((np.asarray(ws) - np.mean(ws)) ** 2))
 
 
 def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | None:
     """The robot-frame bias b fitted with the weight fixed at ``w`` (None: headings too few)."""
-    theta = _with_weight(A, y, w)
+    theta = with_weight(A, y, w)
     return None if theta is None else (float(theta[2]), float(theta[3]))
 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
-                         fit_sigmas_rad: Any = None, model: str = "lowest") -> HeadingWeight:
+                         fit_sigmas_rad: Any = None, model: str = "lowest",
+                         groups: Any = None) -> HeadingWeight:
     """The weight of the fitted slope from an experiment's stops; see the module's docstring.
 
     ``chord_xy`` (N, 2): each stop's mark with the chord's heading; ``fit_xy`` (N, 2): with the full
     fitted slope, NaN where no bend was fitted (the stop then helps fix M and b only);
     ``headings_deg`` (N,): the stops' headings; ``slopes_rad`` (N,): the fitted end slopes (NaN: none);
-    ``fit_sigmas_rad`` (N,): the fits' stated σ, a floor under the heading σ left (w near 1).
+    ``fit_sigmas_rad`` (N,): the fits' stated σ, a floor under the heading σ left (w near 1);
+    ``groups`` (N,): each stop's direction; with ≥ 5 the weight's σ is at least the jackknife's over them.
     """
     P = np.asarray(chord_xy, dtype=float).reshape(-1, 2)
     F = np.asarray(fit_xy, dtype=float).reshape(-1, 2)
@@ -168,7 +179,7 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     fitted &= np.abs(np.nan_to_num(slopes)) <= limit  # as later jobs will: such a slope keeps the chord
     n = int(np.count_nonzero(fitted))
     S = float(np.sqrt(np.mean(slopes[fitted] ** 2))) if n else 0.0
-    A, y = _design(psi, np.where(fitted[:, None], F - P, 0.0)), P.reshape(-1)
+    A, y = design(psi, np.where(fitted[:, None], F - P, 0.0)), P.reshape(-1)
 
     def chord(w_fit: float, sigma: float, why: str) -> HeadingWeight:
         return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model, math.nan,
@@ -176,16 +187,18 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
-    if np.linalg.cond(A) > 1e6:  # as fit_bias; then its four columns (_with_weight) are at most as ill-conditioned
+    # as fit_bias; then its four columns (with_weight) are at most as ill-conditioned
+    if np.linalg.cond(A) > 1e6:
         return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark and "
                                     "the robot-frame bias")
     theta, cov = _solve(A, y)
-    w_fit, sigma = float(theta[4]), float(np.sqrt(cov[4, 4]))
+    g = None if groups is None else np.asarray(groups).reshape(-1)
+    w_fit, sigma = float(theta[4]), float(np.sqrt(max(cov[4, 4], _jackknife_var(A, y, g))))
     if not w_fit > SIGNIFICANCE * sigma:
         return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than the "
                                    f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ)")
     w = min(w_fit, 1.0)
-    fixed = _with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
+    fixed = with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
     assert fixed is not None
     b = (float(fixed[2]), float(fixed[3]))
     rms = float(np.sqrt(np.mean((y - A @ fixed) ** 2) * 2.0))
@@ -216,17 +229,52 @@ def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
     return chord, {m: (at(P), slope, sigma) for m, (P, slope, sigma) in applied.fits.items()}
 
 
-def learn_from_stops(stops: list[StopMarks], headings_deg: Any) -> HeadingWeight:
-    """The weight of the model that makes an experiment's marks agree best (:func:`learn_heading_weight` per
-    model, from each stop's :func:`stop_marks`); when no model's weight is shown, the lowest's reason."""
+def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> HeadingWeight:
+    """The weight of the model that predicts held-out directions best, or the chord when its own b predicts
+    them better (:func:`learn_heading_weight` per model from each stop's :func:`stop_marks`, compared by
+    calibration/weight_cv.py); when no model's weight is shown, the lowest's reason. ``groups``: each stop's
+    direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
-    found = []
-    for model in MODELS:
-        rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
-        xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
-        found.append(learn_heading_weight(chord, xy, headings_deg, [r[1] for r in rec], [r[2] for r in rec], model))
+    psi = np.asarray(headings_deg, dtype=float).reshape(-1)
+    found = [learn_model(stops, psi, groups, model) for model in MODELS]
     shown = [w for w in found if w.applied]
-    return min(shown, key=lambda w: w.rms_mm) if shown else found[0]
+    if not shown:
+        return found[0]
+    best = min(shown, key=lambda w: (w.cv or {})["weight_rms_mm"])
+    cv = best.cv or {}
+    if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
+        return replace(best, cv={**cv, "chosen": "weight"})
+    return _chord_instead(best, {**cv, "chosen": "chord"}, chord, psi, (
+        f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
+        f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
+
+
+def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> HeadingWeight:
+    """One bend model's weight (:func:`learn_from_stops` without the choice between models), with its
+    leave-one-direction-out figures when it is shown in-sample."""
+    chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
+    psi = np.asarray(headings_deg, dtype=float).reshape(-1)
+    g = np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
+    rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
+    xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
+    slopes, sig = np.array([r[1] for r in rec], dtype=float), np.array([r[2] for r in rec], dtype=float)
+    w = learn_heading_weight(chord, xy, psi, slopes, sig, model, g)
+    if not w.applied:
+        return w
+    # shown in-sample: does it also predict the directions it did not see?
+    cv = cross_validate(chord, xy, psi, slopes, g, lambda t: learn_heading_weight(
+        chord[t], xy[t], psi[t], slopes[t], sig[t], model))
+    return replace(w, cv=cv) if cv is not None else _chord_instead(w, None, chord, psi, (
+        "fewer than 5 directions: the weight cannot be checked on a direction it did not see"))
+
+
+def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarray, psi: np.ndarray,
+                   why: str) -> HeadingWeight:
+    """``w``'s record turned into the chord's: weight 0, the chord's own b, why."""
+    theta = with_weight(design(psi, np.zeros((len(psi), 2))), chord.reshape(-1), 0.0)
+    b = None if theta is None else (float(theta[2]), float(theta[3]))
+    return replace(w, weight=0.0, applied=False, why=why + ": the chord is used", sigma_heading_rad=0.0,
+                   rms_mm=math.nan, b_mm=b, cv=cv)
 
 
 def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:
@@ -244,4 +292,4 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
 
 
 __all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SIGNIFICANCE", "SLOPE_LIMIT", "StopMarks",
-           "learn_from_stops", "learn_heading_weight", "stop_marks", "weighted_slope"]
+           "learn_from_stops", "learn_heading_weight", "learn_model", "stop_marks", "weighted_slope"]

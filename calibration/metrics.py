@@ -136,17 +136,24 @@ class BiasFit:
     rms_mm: float  # residual RMS of the cluster means
 
 
+def bias_design(headings_deg: Any) -> np.ndarray:
+    """The model M + R(ψ_k)·b as a design matrix: rows x, y per point; columns M_x, M_y, b_x, b_y."""
+    psi = np.radians(np.asarray(headings_deg, dtype=float).reshape(-1))
+    c, s = np.cos(psi), np.sin(psi)
+    A = np.zeros((2 * len(psi), 4))
+    A[0::2, 0], A[1::2, 1] = 1, 1
+    A[0::2, 2], A[0::2, 3] = c, -s
+    A[1::2, 2], A[1::2, 3] = s, c
+    return A
+
+
 def fit_bias(means: np.ndarray, headings_deg: np.ndarray) -> BiasFit:
     """Fit the true mark M (ACS-fixed) and robot-frame bias b to cluster means at headings ψ_k."""
     means = np.asarray(means, dtype=float)
     psi = np.radians(np.asarray(headings_deg, dtype=float))
     if len(means) < 3:
         raise ValueError(f"fit_bias: need at least 3 directions to separate M and b, got {len(means)}")
-    c, s = np.cos(psi), np.sin(psi)
-    A = np.zeros((2 * len(psi), 4))
-    A[0::2, 0], A[1::2, 1] = 1, 1
-    A[0::2, 2], A[0::2, 3] = c, -s
-    A[1::2, 2], A[1::2, 3] = s, c
+    A = bias_design(headings_deg)
     if np.linalg.cond(A) > 1e6:
         raise ValueError(f"fit_bias: headings {np.degrees(psi).round(1).tolist()} do not separate M from b")
     x, *_ = np.linalg.lstsq(A, means.reshape(-1), rcond=None)

@@ -3,13 +3,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-# ritad registers the installed plugins' commands (the simulator's sim.*) when it loads its config;
-# registering them here, before any test module reads the table, lets every test see the table as a
-# running ritad does, whatever ran earlier in the same worker.
-from daemon.ritad.plugins import installed  # noqa: E402
-
-installed()
-
 #: the files whose run on one worker is longest, longest first (`make test` runs whole files per
 #: worker): scheduled before the rest so that no worker picks up a four-minute file near the end
 #: (longest-first scheduling). Order only: the suite's content does not depend on it, and

@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 
 from daemon.bus.client import Client
 from daemon.ritad import config
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from tests.ritad_up import ritad_in_process
 
 

@@ -9,11 +9,16 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
+from daemon.bus import station
 from daemon.bus.client import Client
 from daemon.ritad import config
-from daemon.ritad.main import Daemon
+from daemon.ritad.rigs import CameraRig, Rigs, RobotRig, TrackerRig
+from daemon.ritad.stop_latch import StopLatch
+from daemon.ritad.timelines import Timelines
+from daemon.ritad.timeouts import Timeouts
+from daemon.ritad.daemon import Daemon
 
 #: a small, noise-free simulated camera: renders in milliseconds
 SMALL_CAMERA = "sim:?size=64x48&noise=0"
@@ -48,9 +53,21 @@ def ritad_in_process(rt: Path, data: Path | None = None, *, ready: bool = True, 
         c.close()
         d.stop_event.set()
         d.stop()
-        for r in d.runners.values():
+        for r in (rig.runner for rig in d.rigs):
             if hasattr(r.device, "shutdown"):
                 r.device.shutdown()
 
 
-__all__ = ["SMALL_CAMERA", "ritad_in_process"]
+def unstarted_rigs(cfg: config.Config, latch: StopLatch | None = None) -> Rigs:
+    """The daemon's three rigs for ``cfg``, their runners never started (handlers built, not served):
+    a job submitted to one fails ``not_ready`` at once."""
+    publish = lambda topic, data: None  # noqa: E731 - nothing is published
+    timelines, d = Timelines(), cfg.daemon
+    frames: Any = None  # no frame is ever streamed
+    latch = latch if latch is not None else StopLatch(publish)
+    return Rigs(camera=CameraRig("sim:", publish, frames, timelines, d, cfg.camera),
+                tracker=TrackerRig("sim:", publish, timelines, d, cfg.tracker, station.IDENTITY),
+                robot=RobotRig("sim:", publish, timelines, d, cfg.robot, latch, Timeouts()))
+
+
+__all__ = ["SMALL_CAMERA", "ritad_in_process", "unstarted_rigs"]

@@ -15,7 +15,8 @@ import copy
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Iterator, Mapping
 
 from daemon.bus.args import POS, REQUIRED, Arg, BadValue
 from daemon.bus.procedures import MOVING_PROCEDURES, PROCEDURES
@@ -247,33 +248,65 @@ TABLE: tuple[Command, ...] = (
             result="{revoked}", args=(_KEY_NAME,)),
 )
 
-COMMANDS: dict[str, Command] = {c.name: c for c in TABLE}
-assert len(COMMANDS) == len(TABLE), "duplicate command in TABLE"
+assert len({c.name for c in TABLE}) == len(TABLE), "duplicate command in TABLE"
 assert all(c.role in ROLES for c in TABLE)
 assert all(c.motion in ("", "moves", "stops") for c in TABLE)
 
 
-def register(plugin: str, commands: tuple[Command, ...]) -> None:
-    """Add a plugin's commands to ``COMMANDS`` (ritad, at start): same validation, roles and logging.
+class CommandTable(Mapping[str, Command]):
+    """The commands one ritad serves: the product's ``TABLE`` and the plugins' it registered.
 
-    A name the product or another plugin already declares is refused, so a plugin can never
-    replace a product command; registering the same plugin's commands again is a no-op.
+    An instance, owned by the daemon that registers into it; the product's table alone is
+    ``COMMANDS`` (what the laptop client knows without asking a daemon's ``help``).
     """
-    for c in commands:
-        if not c.name.startswith(f"{plugin}."):
-            raise ValueError(f"plugin {plugin!r}: command {c.name!r} must be named {plugin}.<verb>")
-        if c.role not in ROLES or c.motion not in ("", "moves", "stops"):
-            raise ValueError(f"plugin {plugin!r}: command {c.name!r}: bad role {c.role!r} or motion {c.motion!r}")
-        known = COMMANDS.get(c.name)
-        if known is not None and known.plugin != plugin:
-            raise ValueError(f"plugin {plugin!r}: command {c.name!r} is already declared "
-                             f"by {known.plugin or 'the product'}")
-    for c in commands:
-        COMMANDS[c.name] = c if c.plugin == plugin else dataclasses.replace(c, plugin=plugin)
+
+    def __init__(self, commands: tuple[Command, ...] = TABLE) -> None:
+        self._by_name: dict[str, Command] = {c.name: c for c in commands}
+
+    def __getitem__(self, name: str) -> Command:
+        return self._by_name[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._by_name)
+
+    def __len__(self) -> int:
+        return len(self._by_name)
+
+    def register(self, plugin: str, commands: tuple[Command, ...]) -> None:
+        """Add a plugin's commands: same validation, roles and logging as the product's.
+
+        A name the product or another plugin already declares is refused, so a plugin can never
+        replace a product command; registering the same plugin's commands again is a no-op.
+        """
+        for c in commands:
+            if not c.name.startswith(f"{plugin}."):
+                raise ValueError(f"plugin {plugin!r}: command {c.name!r} must be named {plugin}.<verb>")
+            if c.role not in ROLES or c.motion not in ("", "moves", "stops"):
+                raise ValueError(f"plugin {plugin!r}: command {c.name!r}: bad role {c.role!r} "
+                                 f"or motion {c.motion!r}")
+            known = self._by_name.get(c.name)
+            if known is not None and known.plugin != plugin:
+                raise ValueError(f"plugin {plugin!r}: command {c.name!r} is already declared "
+                                 f"by {known.plugin or 'the product'}")
+        for c in commands:
+            self._by_name[c.name] = c if c.plugin == plugin else dataclasses.replace(c, plugin=plugin)
+
+    def moves(self, cmd: str) -> bool:
+        """``cmd`` drives something physical: refused while the stop is latched."""
+        c = self._by_name.get(cmd)
+        return c is not None and c.motion == "moves"
+
+    def validate(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+        """Every declared argument of ``cmd``, checked and defaulted (:func:`validate`)."""
+        return check_args(self._by_name[cmd], args)
+
+
+#: the product's commands (a read-only view: plugins register into a daemon's own ``CommandTable``)
+COMMANDS: Mapping[str, Command] = MappingProxyType({c.name: c for c in TABLE})
 
 
 def moves(cmd: str) -> bool:
-    """``cmd`` drives something physical: refused while the stop is latched."""
+    """``cmd`` (a product command) drives something physical: refused while the stop is latched."""
     c = COMMANDS.get(cmd)
     return c is not None and c.motion == "moves"
 
@@ -292,13 +325,19 @@ def check_arg(cmd: str, arg: Arg, value: Any) -> Any:
 
 
 def validate(cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-    """Every declared argument of ``cmd``, checked and defaulted; ``bad_args`` names the first bad one.
+    """Every declared argument of the product command ``cmd``, checked and defaulted (:func:`check_args`)."""
+    return check_args(COMMANDS[cmd], args)
+
+
+def check_args(command: Command, args: dict[str, Any]) -> dict[str, Any]:
+    """Every declared argument of ``command``, checked and defaulted; ``bad_args`` names the first bad one.
 
     An optional argument whose default is None ("the daemon decides") may also be sent as null.
     Keys the table does not declare are ignored (older and newer clients keep working).
     """
+    cmd = command.name
     out: dict[str, Any] = {}
-    for arg in COMMANDS[cmd].args:
+    for arg in command.args:
         value = args.get(arg.name)
         if arg.name not in args or (value is None and arg.default is None):
             if arg.required:
@@ -349,8 +388,9 @@ def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Arg", "BadValue", "Command", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES", "REQUIRED", "ROLES",
-           "TABLE", "check_arg", "help_entry", "markdown_table", "moves", "register", "validate"]
+__all__ = ["Arg", "BadValue", "Command", "CommandTable", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES",
+           "REQUIRED", "ROLES", "TABLE", "check_arg", "check_args", "help_entry", "markdown_table", "moves",
+           "validate"]
 
 if __name__ == "__main__":
     import sys

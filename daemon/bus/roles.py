@@ -25,8 +25,9 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
-from daemon.bus.command_table import COMMANDS, ROLES
+from daemon.bus.command_table import COMMANDS, ROLES, Command
 from daemon.bus.storage import atomic_write_text
 
 #: ``keys allow`` without ``--role``: may watch, may not move or change anything
@@ -44,22 +45,23 @@ def check_role(role: object) -> str:
     return role
 
 
-def required_role(cmd: str) -> str:
-    """The role a command needs: its table entry's, admin for anything the table lacks."""
-    entry = COMMANDS.get(cmd)
+def required_role(cmd: str, table: Mapping[str, Command] = COMMANDS) -> str:
+    """The role a command needs: its entry's in ``table`` (a daemon's, with its plugins'), admin for
+    anything the table lacks."""
+    entry = table.get(cmd)
     return entry.role if entry is not None else "admin"
 
 
-def may(role: str, cmd: str) -> bool:
+def may(role: str, cmd: str, table: Mapping[str, Command] = COMMANDS) -> bool:
     """Whether a caller with ``role`` may send ``cmd`` (an unknown role may send nothing)."""
-    return role in ROLES and ROLES.index(role) >= ROLES.index(required_role(cmd))
+    return role in ROLES and ROLES.index(role) >= ROLES.index(required_role(cmd, table))
 
 
-def refusal(cmd: str, role: str, who: str) -> str | None:
+def refusal(cmd: str, role: str, who: str, table: Mapping[str, Command] = COMMANDS) -> str | None:
     """The ``forbidden`` message for ``who`` (e.g. "key bob") sending ``cmd``, or None when allowed."""
-    if may(role, cmd):
+    if may(role, cmd, table):
         return None
-    return f"{cmd} needs role {required_role(cmd)}; {who} is {role}"
+    return f"{cmd} needs role {required_role(cmd, table)}; {who} is {role}"
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ from calibration import __version__ as calib_version
 from calibration.camera_model import CameraModel
 from calibration.checks import bias_model_check
 from calibration.frames import apply_H
-from calibration.heading_weight import NOT_LEARNED, learn_from_stops, stop_marks
+from calibration.coverage import stored_scale
+from calibration.heading_weight import NOT_LEARNED, stop_marks
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
 from calibration.metrics import ExperimentMetrics, experiment_metrics
@@ -29,6 +30,7 @@ from calibration.compensation import Compensation, compensate, reflector_height_
 from daemon.bus.procedures import (COMMISSION, EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks,
                                    Procedure, Resolved, get)
 from daemon.compute.commission import compute_commission
+from daemon.compute.experiment_checks import sigma_check, weight_checks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
                                    parse_compensation, plate_imu_offset, reflector_mount, stop_of, stop_record,
                                    tracker_distance_mm, tracker_position)
@@ -115,6 +117,8 @@ def _reversal(runs: list[Any], P0: dict[str, Any], out: dict[str, Any]) -> tuple
     verdicts = [r.verdict for r in runs]
     mount, why = mount_from_reversal(rev, runs, tracker_position(P0))
     out["reflector_mount"] = None if mount is None else mount.to_dict()
+    if mount is None:  # the reason goes with the calibration: a later job's skip names it, not a guess
+        out["reflector_mount_why"] = why
     messages.append(f"reflector mount offset not estimated: {why}" if mount is None else mount_message(mount))
     if mount is not None:
         verdicts.append("warn" if mount.warn else "ok")
@@ -123,6 +127,20 @@ def _reversal(runs: list[Any], P0: dict[str, Any], out: dict[str, Any]) -> tuple
         out["uncertainty"] = {**out["uncertainty"], "cov_rob_H_scn": rev.cov_rob_H_scn.tolist(),
                               "note": "cov_rob_H_scn of the reversal mean; other figures of run 0"}
     return messages, verdicts
+
+
+def no_mount_why(calib: dict[str, Any]) -> str:
+    """Why a calibration holds no reflector mount offset: the reason its referencing gave (a reversal whose P0
+    carries no ``abs_H_trk`` cannot orient the line of sight), or that it had no reversal."""
+    head = "the calibration holds no reflector mount offset"
+    if calib.get("reflector_mount_why"):
+        return f"{head}: {calib['reflector_mount_why']}"
+    if calib.get("reversal") is None:
+        return f"{head}: its referencing had one run (reference with --reversal)"
+    said = [m for m in calib.get("messages") or []
+            if str(m).startswith("reflector mount offset not estimated: ")]
+    return f"{head}: " + (said[0].split(": ", 1)[1] if said
+                          else "its referencing's reversal did not estimate it")
 
 
 #: the marks' pixel 1σ (the locator's, calibration.measure.measure_mark's default)
@@ -164,6 +182,8 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
                    abs_t_trk=tracker_position(stop["P_at"]), heading_weight=weight, calibration=calib)
     if bad_mount and comp.mount:  # a record no offset can be read from: measure without it, say why
         a.skipped["mount"] = bad_mount
+    elif mount is None and comp.mount:  # the calibration's own reason, not a guess
+        a.skipped["mount"] = no_mount_why(calib)
     if bad_weight and comp.heading_fit:  # a record no weight can be read from: the chord, say why
         a.skipped["heading_fit"] = "; ".join(r for r in (a.skipped.get("heading_fit"), bad_weight) if r
                                              and r != NOT_LEARNED.why) + ": the chord is used"
@@ -179,26 +199,39 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
     sigma = {"tracker_mm": s_t, "tracker_source": t_source, "tracker_distance_mm": distance,
-             "heading_rad": a.sigma_heading_rad, "heading_source": a.heading_source, "pixel_px": MARK_SIGMA_PX,
+             "heading_rad": a.sigma_heading_rad, "heading_source": a.heading_source,
+             "heading_sigma_basis": a.heading_sigma_basis, "pixel_px": MARK_SIGMA_PX,
              "calibration": cov is not None, "parts_mm": m.std_parts_mm}
     return {"abs_xyz": m.abs_P.tolist(), "uv": m.uv.tolist(), "std_mm": float(m.std_mm), "heading_deg": heading,
             **({"k": stop["k"]} if "k" in stop else {}), "sigma": sigma, "compensation": stop_record(comp, a)}
 
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """One floor mark in ACS from one stop (image + approach positions)."""
+    """One floor mark in ACS from one stop (image + approach positions); its σ scaled as the calibration's
+    last experiment found its own σ to need (calibration/coverage.py, stored by ``store_bias`` as
+    ``sigma_check``)."""
     s = recorded(MEASURE_MARK, obs)
     comp = parse_compensation(s.compensation)
     r = _mark_in_acs(obs["calibration"], obs["stop"], _eight_bit(load), s.kind, s.mark_size_mm, s.sigma_t_mm,
                      comp)
+    record = obs["calibration"].get("sigma_check")
+    scale, bad = stored_scale(record)
+    source = (record or {}).get("job") if not bad else None
+    r["sigma"].update(stated_mm=r["std_mm"], scale=scale, scale_source=source)
+    r["std_mm"] = r["std_mm"] * scale
+    messages = [bad] if bad else ([f"σ scaled by {scale:.2f}: the calibration's last experiment ({source}) "
+                                   f"found its stated σ short of its scatter by that Birge ratio"]
+                                  if scale > 1.0 else [])
     return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,
             "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),
-            "verdict": "ok", "messages": []}
+            "verdict": "ok", "messages": messages}
 
 
 def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
-    """The paper's 8-direction repeatability experiment: per-stop marks and the metrics table."""
+    """The paper's 8-direction repeatability experiment: per-stop marks, the metrics table, and what the
+    experiment's own scatter says about its stated σ and heading_fit's weight
+    (daemon/compute/experiment_checks.py)."""
     s, load = recorded(EXPERIMENT, obs), _eight_bit(load)
     comp = parse_compensation(s.compensation)
     stops: list[Any] = []
@@ -211,17 +244,22 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     # the mount's share is the same offset at every stop: no scatter between the cluster means
     scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0)) for m in marks]
     check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm, scatter)
-    messages = [] if check["ok"] else [check["message"]]
-    weight = learn_from_stops(stops, headings).to_dict() if comp.heading_fit else None
-    if weight is not None:
-        messages.append(weight_message(weight))
+    checks: dict[str, Any] = {"bias_model": check, "sigma": sigma_check(marks, xy, headings)}
+    messages = [m for m in (check["message"], (checks["sigma"] or {}).get("message")) if m]
+    out: dict[str, Any] = {"heading_weight": None}
+    if comp.heading_fit:
+        weight, recheck, chord = weight_checks(obs, marks, stops, headings, groups)
+        out.update(heading_weight=weight, chord=chord)
+        checks["heading_weight"] = recheck
+        said = [recheck["message"]] if recheck and recheck["message"] else []
+        messages += [weight_message(weight)] + said
     summary = compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"])
     _label_bias(metrics, summary)
+    ok = all(c is None or c.get("ok", True) for c in checks.values())
     return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "marks": marks, "metrics": metrics.to_dict(),
-            "compensation": summary,
-            "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(), "checks": {"bias_model": check},
-            "heading_weight": weight, "verdict": "ok" if check["ok"] else "warn", "messages": messages}
+            "compensation": summary, "table_markdown": metrics.to_markdown(), "table_csv": metrics.to_csv(),
+            "checks": checks, **out, "verdict": "ok" if ok else "warn", "messages": messages}
 
 
 def _label_bias(metrics: ExperimentMetrics, summary: dict[str, Any]) -> None:

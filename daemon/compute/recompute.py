@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from calibration.errors import CalibrationError  # noqa: F401 - re-exported for ritactl recompute
-from daemon.bus.procedures import ALL, REFERENCING, get
+from daemon.bus.procedures import ALL, EXPERIMENT, REFERENCING, get
+from daemon.bus.storage import atomic_write_json
+from daemon.compute.bias_store import biased_calibration
 from daemon.compute.inputs import parse_compensation
 from daemon.compute.procedures import COMPUTE, shown_params
 from daemon.compute.images import grey_loader
@@ -21,6 +23,11 @@ from daemon.bus.datasets import DatasetInvalid, check_file, validate_folder
 
 #: the schema each override file must meet
 _OVERRIDE_SCHEMA = {"camera_model": "camera_model", "plate": "plate", "calibration": "result"}
+
+
+class BiasNotStored(Exception):
+    """The experiment's result gives no bias a calibration can hold (ritactl recompute --store-bias: exit
+    2)."""
 
 
 class ComputationFailed(Exception):
@@ -148,3 +155,27 @@ def recompute(root: Path, *, camera_model: dict[str, Any] | None = None, plate: 
     keys = [k for k in COMPARED if k in result or k in stored]
     d, bad = compare({k: result.get(k) for k in keys}, {k: stored.get(k) for k in keys})
     return result, Difference(d, bad)
+
+
+def store_bias_offline(root: Path, result: dict[str, Any], out: Path,
+                       calibration: dict[str, Any] | None = None,
+                       stored: str | None = None) -> dict[str, Any]:
+    """Write to ``out`` (atomic) the calibration the live ``store_bias`` would make of ``result``: the
+    calibration the experiment used (the dataset's, or the ``calibration`` given in its place) with the
+    experiment's b, heading_fit weight and σ check (:func:`daemon.compute.bias_store.biased_calibration`, the
+    function the worker calls). ``stored``: the record's time stamp (None: now). ValueError for a dataset that
+    is no experiment, :class:`BiasNotStored` naming why the result gives no b to store (nothing is
+    written)."""
+    if result.get("procedure") != EXPERIMENT.name:
+        what = _a(str(result.get("procedure")))
+        raise ValueError(f"--store-bias applies to an experiment dataset, not {what}")
+    used = calibration
+    if used is None:
+        state = json.loads((Path(root) / "state.json").read_text())
+        used = state["obs"][EXPERIMENT.inputs["calibration"]]
+    try:
+        new = biased_calibration(used, result, stored)
+    except ValueError as exc:
+        raise BiasNotStored(f"robot-frame bias NOT stored: {exc}") from None
+    atomic_write_json(Path(out), new)
+    return new

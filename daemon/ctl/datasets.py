@@ -67,6 +67,14 @@ def _run(a: argparse.Namespace) -> tuple[dict[str, Any], Difference | None]:
                      calibration=_input_file(a.calibration, "calibration result"), compensation=a.compensation)
 
 
+def _store_bias(a: argparse.Namespace, result: dict[str, Any]) -> dict[str, Any]:
+    """The calibration the live ``store_bias`` would store, written to ``--store-bias FILE``."""
+    from daemon.compute.recompute import store_bias_offline
+
+    return store_bias_offline(Path(a.dataset), result, Path(a.store_bias),
+                              _input_file(a.calibration, "calibration result"))
+
+
 def _write_out(out: str, dataset: str, result: dict[str, Any]) -> dict[str, Any]:
     from daemon.compute.files import write_result_files
 
@@ -91,11 +99,14 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         require("ritactl recompute", LAPTOP)
     except CtlError as e:
         return fail(e.exit, e.code, e.args[0], a.json)
-    from daemon.compute.recompute import CalibrationError, ComputationFailed
+    from daemon.compute.recompute import BiasNotStored, CalibrationError, ComputationFailed
+    stored: dict[str, Any] = {}
     try:
         result, diff = _run(a)
         if a.out:
             result = _write_out(a.out, a.dataset, result)
+        if a.store_bias:
+            stored = _store_bias(a, result)
     except KeyboardInterrupt:
         return Exit.INTERRUPTED
     except DatasetInvalid as exc:
@@ -106,6 +117,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         return fail(Exit.FAIL, "calibration_failed", f"calibration failed on {a.dataset}: {exc}", a.json)
     except ComputationFailed as exc:
         return fail(Exit.FAIL, "computation_failed", f"cannot recompute {a.dataset}: {exc}", a.json)
+    except BiasNotStored as exc:  # the result stands (and --out has it); only no calibration was written
+        return fail(Exit.FAIL, "bias_not_stored", f"{a.store_bias} not written: {exc}", a.json)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
         # the schema passed but a value does not make sense (e.g. a plate whose nests coincide)
         what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
@@ -113,7 +126,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
         return fail(Exit.FAIL, "failed", f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}", a.json)
     if a.json:
-        print(json.dumps(result, indent=2, default=str))
+        print(json.dumps(result if not a.store_bias else {**result, "stored_calibration": a.store_bias},
+                         indent=2, default=str))
     else:
         from daemon.ctl.calib import _show_result
 
@@ -122,6 +136,10 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
             print(f"\nthe stored result differs ({len(diff.mismatches)}):" + "".join(f"\n  {m}" for m in diff.mismatches))
         elif diff is not None:
             print(f"\nlargest difference to the stored result: {diff:.3g}")
+        if a.store_bias:
+            b = stored["robot_bias_mm"]
+            print(f"\ncalibration with b = ({b[0]:+.4f}, {b[1]:+.4f}) mm written to {a.store_bias} "
+                  f"(as the live store_bias would store it)")
     return for_verdict(result.get("verdict"))
 
 
@@ -141,6 +159,10 @@ def add_parsers(sub: Any) -> None:
                    help="compensations: none, all, or a comma list of tilt,heading_fit,bias,mount "
                         "(experiment, measure-mark; default: the job's own, the procedure table's when it named none). "
                         "A bad name exits 5")
+    p.add_argument("--store-bias", metavar="OUT.json",
+                   help="(experiment) write the calibration the live store_bias would store: the "
+                        "calibration the experiment used with its fitted b, heading_fit weight and σ check "
+                        "(docs/datasets.md)")
     p.set_defaults(fn=cmd_recompute, offline=True)
 
 

@@ -26,6 +26,7 @@ from daemon.bus.procedures import check_params, get
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch
+from daemon.ritad.timeouts import Timeouts
 from daemon.bus.names import JobState, Topic
 
 #: a job never leaves these by itself; ``calib.resume`` queues a failed or cancelled one again
@@ -45,7 +46,8 @@ log = logging.getLogger(__name__)
 class _Mailbox:
     """A FIFO whose ``get`` returns a Future (completed now, on the next put, or None on timeout)."""
 
-    def __init__(self) -> None:
+    def __init__(self, timeouts: Timeouts) -> None:
+        self._timeouts = timeouts
         self._lock = threading.Lock()
         self._items: collections.deque[Any] = collections.deque()
         self._waiters: collections.deque[Future] = collections.deque()
@@ -70,8 +72,8 @@ class _Mailbox:
     def get(self, timeout: float) -> Future:
         fut: Future = Future()
         with self._lock:
-            if self._items:
-                fut.set_result(self._items.popleft())
+            if self._items or timeout <= 0:  # a poll that does not wait needs no timeout
+                fut.set_result(self._items.popleft() if self._items else None)
                 return fut
             self._waiters.append(fut)
 
@@ -81,10 +83,8 @@ class _Mailbox:
                     self._waiters.remove(fut)
                     fut.set_result(None)
 
-        timer = threading.Timer(timeout, expire)
-        timer.daemon = True
-        timer.start()
-        fut.add_done_callback(lambda _: timer.cancel())
+        pending = self._timeouts.call_later(timeout, expire)
+        fut.add_done_callback(lambda _: pending.cancel())
         return fut
 
     def __len__(self) -> int:
@@ -104,12 +104,14 @@ class CalibJobs:
     """
 
     def __init__(self, publish: Callable[[str, Any], None], data_dir: Path | None = None,
-                 latch: StopLatch | None = None) -> None:
+                 latch: StopLatch | None = None, timeouts: Timeouts | None = None) -> None:
         self._publish = publish
+        # ritad passes its own; alone (tests, tools) the mailbox has one of its own
+        self._timeouts = timeouts if timeouts is not None else Timeouts("calib-timeouts")
         self.latch = latch if latch is not None else StopLatch(publish)
         self._data_dir = Path(data_dir) if data_dir is not None else None  # finds jobs of an earlier daemon run
-        self._queue = _Mailbox()
-        self._inboxes: dict[str, _Mailbox] = collections.defaultdict(_Mailbox)
+        self._queue = _Mailbox(self._timeouts)
+        self._inboxes: dict[str, _Mailbox] = collections.defaultdict(lambda: _Mailbox(self._timeouts))
         self.jobs: dict[str, dict[str, Any]] = {}
         self.worker_seen: float | None = None
 

@@ -1,7 +1,8 @@
 """Bus command handlers: thin glue from requests to device jobs and storage.
 
-Each handler group gets the narrow ``Services`` (daemon/ritad/services.py), never the
-daemon. ``build_handlers`` wraps every handler with the command table's validator, so a
+Each handler group gets what it uses: a device's commands its rig (daemon/ritad/rigs.py), the
+others the narrow ``Services`` (daemon/ritad/services.py), never the daemon. ``build_handlers``
+wraps every handler with the daemon's command table's validator, so a
 handler reads ``req.args`` already checked and defaulted (``bad_args`` names a bad one)
 and only checks what the table cannot: limits from the config.
 A handler answers at once or returns a Future completed in a device runner or the
@@ -17,16 +18,19 @@ import time
 from concurrent.futures import Future, InvalidStateError
 from typing import Any, Callable
 
-from daemon.bus.command_table import COMMANDS, help_entry, moves, validate
+from daemon.bus.command_table import check_args, help_entry
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
 from daemon.ritad import files, plates
+from daemon.ritad.calib_jobs import CalibJobs
 from daemon.ritad.commission import commission_handlers
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
-from daemon.ritad.services import Services
-from daemon.ritad.timelines import COVER_WAIT_S, frame_time
+from daemon.ritad.rigs import CameraRig, Rigs, RobotRig, TrackerRig
+from daemon.ritad.services import Reports, Services
+from daemon.ritad.timelines import COVER_WAIT_S, Timelines, frame_time
+from daemon.ritad.timeouts import Timeouts
 from drivers.base import DeviceError, Frame, Robot, Tracker, TrackerPoint
 
 __all__ = ["build_handlers", "chain", "gather"]
@@ -41,39 +45,39 @@ def _then(fut_of: Callable[[], Any], result: Any) -> Handler:
     return lambda req: chain(fut_of(), lambda _: result)
 
 
-def _daemon(s: Services) -> dict[str, Handler]:
+def _daemon(s: Services, reports: Reports) -> dict[str, Handler]:
     return {"ping": lambda req: {"pong": True, "t_ns": time.time_ns()},
-            "help": lambda req: {"commands": {c.name: help_entry(c) for c in COMMANDS.values()}},
-            "hello": lambda req: s.hello(), "status": lambda req: s.health(),
-            "state": lambda req: s.state(), "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
+            "help": lambda req: {"commands": {c.name: help_entry(c) for c in s.table.values()}},
+            "hello": lambda req: reports.hello(), "status": lambda req: reports.health(),
+            "state": lambda req: reports.state(),
+            "data.dir": lambda req: {"data_dir": str(s.data_dir.resolve())},
             "calib.results": lambda req: read_results(s.data_dir)}
 
 
-def _tracker(s: Services) -> dict[str, Handler]:
+def _tracker(trk: TrackerRig) -> dict[str, Handler]:
     def measure(req: Request) -> Any:
-        return chain(s.job("tracker", lambda t: t.measure(), timeout=60), lambda p: _point_dict(p, s.abs_H_trk))
+        return chain(trk.job(lambda t: t.measure(), timeout=60), lambda p: _point_dict(p, trk.abs_H_trk))
 
     def aim(req: Request) -> Any:
         xyz = tuple(req.args[k] for k in "xyz")
-        return chain(s.job("tracker", lambda t: t.aim(xyz), timeout=60), lambda _: {"aimed": list(xyz)})
+        return chain(trk.job(lambda t: t.aim(xyz), timeout=60), lambda _: {"aimed": list(xyz)})
 
     def find(req: Request) -> Any:
         dist = req.args["approx_distance_mm"]
-        return chain(s.job("tracker", lambda t: t.find_reflector(dist), timeout=60), lambda _: {"locked": True})
+        return chain(trk.job(lambda t: t.find_reflector(dist), timeout=60), lambda _: {"locked": True})
 
     def stream_start(req: Request) -> Any:
-        rate = req.args["rate_hz"] or s.stream_rate_hz
-        return chain(s.job("tracker", lambda t: t.start_stream(rate)), lambda _: {"streaming": True, "rate_hz": rate})
+        rate = req.args["rate_hz"] or trk.stream_rate_hz
+        return chain(trk.job(lambda t: t.start_stream(rate)), lambda _: {"streaming": True, "rate_hz": rate})
 
     return {"tracker.measure": measure, "tracker.aim": aim, "tracker.find": find,
             "tracker.stream.start": stream_start,
-            "tracker.stream.stop": _then(lambda: s.job("tracker", lambda t: t.stop_stream()), {"streaming": False}),
-            "tracker.readback": lambda req: s.job("tracker", lambda t: t.readback()),
-            "tracker.status": lambda req: chain(s.job("tracker", lambda t: t.status()),
-                                                lambda st: {**st, "clock": s.clock_status("tracker")})}
+            "tracker.stream.stop": _then(lambda: trk.job(lambda t: t.stop_stream()), {"streaming": False}),
+            "tracker.readback": lambda req: trk.job(lambda t: t.readback()),
+            "tracker.status": lambda req: trk.status(lambda t: t.status())}
 
 
-def _camera(s: Services) -> dict[str, Handler]:
+def _camera(cam: CameraRig, s: Services) -> dict[str, Handler]:
     def capture(req: Request) -> Any:
         want_pixels = req.args["pixels"]
         save = not want_pixels if req.args["save"] is None else req.args["save"]
@@ -84,14 +88,12 @@ def _camera(s: Services) -> dict[str, Handler]:
                 result["path"] = str(s.save_capture({"camera": frame}, req.args["label"]))
             return Reply(result, [frame.pixels]) if want_pixels else result
 
-        return chain(s.job("camera", lambda c: s.stamp_frame(c.trigger()), timeout=30), finish,
-                     s.storage if save else None)
+        return chain(cam.trigger(), finish, s.storage if save else None)
 
     return {"camera.capture": capture,
-            "camera.stream.start": _then(lambda: s.job("camera", lambda c: c.start_stream()), {"streaming": True}),
-            "camera.stream.stop": _then(lambda: s.job("camera", lambda c: c.stop_stream()), {"streaming": False}),
-            "camera.status": lambda req: chain(s.job("camera", lambda c: c.status()),
-                                               lambda st: {**st, "clock": s.clock_status("camera")})}
+            "camera.stream.start": _then(lambda: cam.job(lambda c: c.start_stream()), {"streaming": True}),
+            "camera.stream.stop": _then(lambda: cam.job(lambda c: c.stop_stream()), {"streaming": False}),
+            "camera.status": lambda req: cam.status(lambda c: c.status())}
 
 
 def _who(req: Request) -> str:
@@ -114,23 +116,25 @@ def _check_motion(req: Request, amount: str, limit: float, speed: str, max_speed
                            f"(ritactl: add --yes)")
 
 
-def _robot(s: Services) -> dict[str, Handler]:
+def _robot(rob: RobotRig, calib: CalibJobs) -> dict[str, Handler]:
+    latch, limits = rob.latch, rob.limits
+
     def motion(req: Request, amount: str, speed: str, fn: Callable[[Robot, float, float], Any]) -> Any:
         a, v = req.args[amount], req.args[speed]
         timeout = req.args["timeout_s"] or 60.0 + 2 * abs(a) / v  # the table's default_text says the same
 
         def guarded(robot: Robot) -> Any:  # again in the owner thread: a STOP may have come while this was queued
-            s.latch.guard(req.cmd, _who(req))
+            latch.guard(req.cmd, _who(req))
             return fn(robot, a, v)
 
-        return s.motion(guarded, req.args["wait"], timeout)
+        return rob.motions.start(guarded, req.args["wait"], timeout)
 
     def move(req: Request) -> Any:
-        _check_motion(req, "distance_mm", s.robot.max_distance_mm, "speed_mm_s", s.robot.max_speed_mm_s)
+        _check_motion(req, "distance_mm", limits.max_distance_mm, "speed_mm_s", limits.max_speed_mm_s)
         return motion(req, "distance_mm", "speed_mm_s", lambda r, a, v: r.move(a, v))
 
     def turn(req: Request) -> Any:
-        _check_motion(req, "angle_deg", 360.0, "speed_deg_s", s.robot.max_turn_speed_deg_s)
+        _check_motion(req, "angle_deg", 360.0, "speed_deg_s", limits.max_turn_speed_deg_s)
         return motion(req, "angle_deg", "speed_deg_s", lambda r, a, v: r.turn(a, v))
 
     def stop(req: Request) -> Any:
@@ -138,25 +142,28 @@ def _robot(s: Services) -> dict[str, Handler]:
         between), then stop the jobs. Accepted whatever the robot's state: the gate sends the halt as soon
         as the base answers; the reply says whether the base has acknowledged it yet."""
         who = _who(req)
-        halted, persisted = s.latch.engage(who)
-        stopped = s.calib.stop_moving_jobs(who)
-        s.abort_motions(s.latch.message("the motion"))
-        return halt_reply(halted, persisted, stopped, s.halt_wait_s)
+        halted, persisted = latch.engage(who)
+        stopped = calib.stop_moving_jobs(who)
+        rob.motions.abort(latch.message("the motion"))
+        return halt_reply(halted, persisted, stopped, rob.halt_wait_s, rob.timeouts)
 
     def release(req: Request) -> Any:
-        return {"released": True, "was_latched": s.latch.release(_who(req))}
+        return {"released": True, "was_latched": latch.release(_who(req))}
 
     return {"robot.move": move, "robot.turn": turn, "robot.stop": stop, "robot.release": release,
-            "robot.status": lambda req: chain(s.job("robot", lambda r: (r.status(), r.streams())),
-                                              lambda got: {**got[0].to_dict(), "streams": got[1],
-                                                           "clock": s.clock_status("robot")})}
+            "robot.status": lambda req: rob.status(_robot_status)}
 
 
-def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_s: float) -> Future:
+def _robot_status(robot: Robot) -> dict[str, Any]:
+    return {**robot.status().to_dict(), "streams": robot.streams()}
+
+
+def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_s: float,
+               timeouts: Timeouts) -> Future:
     """The STOP's reply once the latch is on disk and the base acknowledged the halt, or after ``wait_s``
     without both (link down, base off, a slow disk): latched all the same, the halt still owed."""
     out: Future = Future()
-    expired = threading.Event()
+    expired = threading.Event()  # set in the timeouts' thread, read in the callbacks' threads
 
     def answer(*_: Any) -> None:
         acked = halted.done()
@@ -172,22 +179,21 @@ def halt_reply(halted: Future, persisted: Future, jobs_stopped: list[str], wait_
         expired.set()
         answer()
 
-    timer = threading.Timer(wait_s, expire)
-    timer.daemon = True
     halted.add_done_callback(answer)
     persisted.add_done_callback(answer)
-    timer.start()
-    out.add_done_callback(lambda _: timer.cancel())
+    pending = timeouts.call_later(wait_s, expire)
+    out.add_done_callback(lambda _: pending.cancel())
     return out
 
 
-def _capture(s: Services) -> dict[str, Handler]:
+def _capture(rigs: Rigs, timelines: Timelines, s: Services) -> dict[str, Handler]:
     def capture(req: Request) -> Any:
         label, dataset = req.args["label"], req.args["dataset"]
-        parts = {"camera": s.job("camera", lambda c: s.stamp_frame(c.trigger()), timeout=30),
-                 "tracker": s.job("tracker", _standstill_point, timeout=60),
-                 "robot": s.job("robot", lambda r: r.status())}
-        return chain(gather(parts), lambda res: _captured(s, res, label, dataset), s.storage)
+        parts = {"camera": rigs.camera.trigger(),
+                 "tracker": rigs.tracker.job(_standstill_point, timeout=60),
+                 "robot": rigs.robot.job(lambda r: r.status())}
+        return chain(gather(parts), lambda res: _captured(res, label, dataset, rigs.tracker, timelines, s),
+                     s.storage)
 
     return {"capture": capture}
 
@@ -202,14 +208,15 @@ def _standstill_point(tracker: Tracker) -> TrackerPoint | None:
         raise
 
 
-def _captured(s: Services, res: dict[str, Any], label: str, dataset: str | None) -> dict[str, Any]:
+def _captured(res: dict[str, Any], label: str, dataset: str | None, trk: TrackerRig, timelines: Timelines,
+              s: Services) -> dict[str, Any]:
     """Store a capture with where every stream was at the frame's exposure (in the storage thread)."""
     header = res["camera"].header()
     when = frame_time(header)
     res["at_exposure"] = ({"error": "the frame has no exposure time on the host's timeline (t_ns)"}
-                          if when is None else s.at_time(when[0], COVER_WAIT_S))
+                          if when is None else timelines.at(when[0], COVER_WAIT_S))
     return {"path": str(s.save_capture(res, label, dataset)), "header": header,
-            "tracker": None if res["tracker"] is None else _point_dict(res["tracker"], s.abs_H_trk),
+            "tracker": None if res["tracker"] is None else _point_dict(res["tracker"], trk.abs_H_trk),
             "robot": res["robot"].to_dict(),
             "at_exposure": res["at_exposure"]}
 
@@ -243,43 +250,39 @@ def _keys(s: Services) -> dict[str, Handler]:
     return key_handlers(s.auth_dir, lambda fn: s.storage.submit(fn))  # admin: the allow-list over the bus
 
 
-def _preview(s: Services) -> dict[str, Handler]:
+def _frames(cam: CameraRig, s: Services) -> dict[str, Handler]:
+    """Live view and detection on the newest streamed frame."""
+    from daemon.ritad.detect import detect_handlers
     from daemon.ritad.preview import preview_handlers
 
-    return preview_handlers(s.latest_frame)
-
-
-def _detect(s: Services) -> dict[str, Handler]:
-    from daemon.ritad.detect import detect_handlers
-
-    return detect_handlers(s.latest_frame, s.data_dir, s.private_dirs)
-
-
-GROUPS = (_daemon, _tracker, _camera, _robot, commission_handlers, _capture, _files, _plates, _keys, _preview,
-          _detect)
+    return {**preview_handlers(cam.latest), **detect_handlers(cam.latest, s.data_dir, s.private_dirs)}
 
 
 def validated(cmd: str, handler: Handler, s: Services) -> Handler:
     """``handler`` seeing ``req.args`` checked and defaulted by the command table; motions refused when latched."""
+    declared = s.table[cmd]
+
     def run(req: Request) -> Any:
-        args = validate(cmd, req.args)
-        if moves(cmd):  # declared in the table (robot.move and robot.turn are also guarded in the runner)
+        args = check_args(declared, req.args)
+        if declared.motion == "moves":  # robot.move and robot.turn are also guarded in the runner
             s.latch.guard(cmd, _who(req))
         return handler(dataclasses.replace(req, args=args))
 
     return run
 
 
-def build_handlers(s: Services, plugins: dict[str, Handler] | None = None) -> dict[str, Handler]:
-    """Every command of the table (and of the plugins that registered theirs), validated; a table
-    entry without a handler (or the reverse) is a bug."""
-    raw: dict[str, Handler] = {**s.calib.handlers()}
-    for group in GROUPS:
-        raw.update(group(s))
+def build_handlers(s: Services, rigs: Rigs, reports: Reports, timelines: Timelines,
+                   plugins: dict[str, Handler] | None = None) -> dict[str, Handler]:
+    """Every command of the daemon's table (the plugins' too), validated; each group gets only what it
+    uses. A table entry without a handler (or the reverse) is a bug."""
+    raw: dict[str, Handler] = {**s.calib.handlers(), **_daemon(s, reports), **_tracker(rigs.tracker),
+                               **_camera(rigs.camera, s), **_robot(rigs.robot, s.calib),
+                               **_capture(rigs, timelines, s), **_files(s), **_plates(s), **_keys(s),
+                               **_frames(rigs.camera, s), **commission_handlers(rigs.robot)}
     for name, handler in (plugins or {}).items():
         if name in raw:
             raise RuntimeError(f"plugin handler {name!r} would replace a product command")
         raw[name] = handler
-    if set(raw) != set(COMMANDS):
-        raise RuntimeError(f"handlers and command table differ: {sorted(set(raw) ^ set(COMMANDS))}")
+    if set(raw) != set(s.table):
+        raise RuntimeError(f"handlers and command table differ: {sorted(set(raw) ^ set(s.table))}")
     return {name: validated(name, h, s) for name, h in raw.items()}

@@ -19,7 +19,7 @@ import serial
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Handler, Request
-from daemon.ritad.services import Services
+from daemon.ritad.rigs import RobotRig
 from drivers import robot_conformance_checks as cc
 from drivers import robot_conformance_motion as cm
 from drivers import robot_protocol as rp
@@ -93,7 +93,7 @@ def run_on_port(robot: Robot, allow_motion: bool, clock_s: float) -> dict[str, A
     return {"port": target, "checks": [c.to_dict() for c in checks]}
 
 
-def commission_handlers(s: Services) -> dict[str, Handler]:
+def commission_handlers(rob: RobotRig) -> dict[str, Handler]:
     def run(req: Request) -> Any:
         allow, clock_s = bool(req.args["allow_motion"]), float(req.args["clock_s"])
         if allow and req.args["confirm"] is not True:
@@ -102,10 +102,10 @@ def commission_handlers(s: Services) -> dict[str, Handler]:
 
         def guarded(robot: Robot) -> dict[str, Any]:  # in the owner thread: a STOP may have come meanwhile
             if allow:
-                s.latch.guard(req.cmd, f"{req.peer.split(' (', 1)[0]} ({req.role})")
+                rob.latch.guard(req.cmd, f"{req.peer.split(' (', 1)[0]} ({req.role})")
             return run_on_port(robot, allow, clock_s)
 
-        return s.job("robot", guarded, timeout=90.0 + 2 * clock_s)
+        return rob.job(guarded, timeout=90.0 + 2 * clock_s)
 
     return {"robot.commission": run}
 

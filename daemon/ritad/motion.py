@@ -1,7 +1,8 @@
 """Robot motions that complete on the controller's DONE/FAULT event, not on the command's reply.
 
 The base acknowledges a move at once and reports its end as a ``robot.event``; a motion
-with ``wait`` is a Future that the next DONE completes (FAULT fails it) or a timer expires.
+with ``wait`` is a Future that the next DONE completes (FAULT fails it) or its timeout expires
+(daemon/ritad/timeouts.py: one thread for every timeout).
 """
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any, Callable
 
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.futures import chain
+from daemon.ritad.timeouts import Timeouts
 from drivers.base import Robot
 
 #: a motion: run with the robot adapter in its owner thread
@@ -22,8 +24,10 @@ SubmitRobot = Callable[[RobotJob], Future]
 class MotionWaiters:
     """Futures of motions in progress; ``on_event`` is fed every robot.event."""
 
-    def __init__(self, submit: SubmitRobot) -> None:
+    def __init__(self, submit: SubmitRobot, timeouts: Timeouts | None = None) -> None:
         self._submit = submit
+        # ritad passes its own; alone (tests, tools) the waiters have one of their own
+        self._timeouts = timeouts if timeouts is not None else Timeouts("motion-timeouts")
         self._lock = threading.Lock()
         self._waiters: list[Future] = []
 
@@ -72,8 +76,6 @@ class MotionWaiters:
                 done.set_exception(CommandError(ErrorCode.TIMEOUT, f"robot motion not done after {timeout:.0f} s"))
 
         self._submit(fn).add_done_callback(started)
-        timer = threading.Timer(timeout, expire)
-        timer.daemon = True
-        timer.start()
-        done.add_done_callback(lambda _: timer.cancel())
+        pending = self._timeouts.call_later(timeout, expire)
+        done.add_done_callback(lambda _: pending.cancel())
         return done

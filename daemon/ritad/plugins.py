@@ -10,7 +10,8 @@ is one (``plugin.sim``); ritad names none. What a plugin provides:
   naming the key; ritad adds the file) and returned with defaults filled in;
 - ``start(section, data_dir, urls)``: a :class:`Session` when the configured device URLs
   want it, else None. A session may rewrite device URLs (before any device opens), hands
-  ritad the handlers of its commands, adds keys to ``hello`` and is closed at stop.
+  ritad the handlers of its commands, adds keys to ``hello`` and is closed at stop;
+- or, for a device kind of its own, ``device_handlers(rig, services)`` (:class:`DeviceKind`).
 
 A plugin writes what ritad should read as files in the data dir, as an installer would
 (e.g. calibration/tracker_station.json): it never changes ritad's config.
@@ -21,9 +22,9 @@ import logging
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
-from daemon.bus.command_table import Command, markdown_table, register
+from daemon.bus.command_table import Command, CommandTable, markdown_table
 from daemon.ritad.registry import load_target, schemes
 from daemon.ritad.server import Handler, Request
 
@@ -62,8 +63,26 @@ class Plugin(Protocol):
     def start(self, section: Mapping[str, Any], data_dir: Path, urls: Mapping[str, str]) -> Session | None: ...
 
 
-def installed() -> dict[str, Plugin]:
-    """Every installed plugin, imported and its commands registered in the command table."""
+@runtime_checkable
+class DeviceKind(Plugin, Protocol):
+    """A plugin that is a device kind of its own (a thermometer beside the product's three): ritad runs
+    its device in a rig (daemon/ritad/rigs.py: runner, device clock, sink) and hands that rig to the
+    handlers of the kind's commands. The device's URL is ``url`` in the kind's config section, its
+    adapters are ``rita.adapters`` entry points named ``NAME.SCHEME``; without a URL the kind is
+    absent and its commands answer not_found."""
+
+    def device_handlers(self, rig: Any, services: PluginServices) -> dict[str, Handler]: ...
+
+
+def device_kinds(plugins: Mapping[str, Plugin]) -> dict[str, DeviceKind]:
+    """The plugins that are device kinds."""
+    return {name: p for name, p in plugins.items() if isinstance(p, DeviceKind)}
+
+
+def installed(table: CommandTable | None = None) -> dict[str, Plugin]:
+    """Every installed plugin, imported and its commands registered in ``table`` (a daemon's own; without
+    one, in a table of their own: checked, as a daemon would refuse them)."""
+    table = table if table is not None else CommandTable()
     out: dict[str, Plugin] = {}
     for name, target in sorted(schemes(KIND).items()):
         try:
@@ -74,7 +93,7 @@ def installed() -> dict[str, Plugin]:
             raise PluginError(f"entry point plugin.{name} = {target} names a plugin called "
                                f"{getattr(plugin, 'name', None)!r}")
         try:
-            register(name, tuple(plugin.commands))
+            table.register(name, tuple(plugin.commands))
         except ValueError as exc:
             raise PluginError(str(exc)) from None
         out[name] = plugin

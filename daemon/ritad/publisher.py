@@ -43,14 +43,30 @@ def open_sockets(ctx: zmq.Context, kind: int, endpoints: list[str], security: Se
         if not group:
             continue
         sock = ctx.socket(kind)
-        sock.setsockopt(zmq.LINGER, 0)
-        if setup is not None:
-            setup(sock)
-        if curve is not None:
-            curve.apply(sock)
-        bound += bind_all(sock, group)
         socks.append(sock)
+        try:
+            sock.setsockopt(zmq.LINGER, 0)
+            if setup is not None:
+                setup(sock)
+            if curve is not None:
+                curve.apply(sock)
+            bound += bind_all(sock, group)
+        except BaseException:  # e.g. a port in use: close what this opened, or the context never ends
+            for opened in socks:
+                opened.close(linger=0)
+            raise
     return socks, bound
+
+
+def stop_owner(owner: threading.Thread, stop_evt: threading.Event, close: Callable[[], None],
+               timeout: float) -> None:
+    """End a socket's owner thread and wait for it; one never started (its daemon's build failed
+    later) closes its sockets here, as no thread will."""
+    stop_evt.set()
+    if owner.ident is None:
+        close()
+    else:
+        owner.join(timeout)
 
 
 def bind_all(sock: zmq.Socket, endpoints: list[str]) -> list[str]:
@@ -91,12 +107,14 @@ class _Publisher(threading.Thread):
             except queue.Empty:
                 continue
             self._send(item)
+        self._close()
+
+    def _close(self) -> None:
         for sock in self.socks:
             sock.close(linger=0)
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        self.join(timeout)
+        stop_owner(self, self._stop_evt, self._close, timeout)
 
 
 class TelemetryPublisher(_Publisher):
@@ -107,13 +125,22 @@ class TelemetryPublisher(_Publisher):
         super().__init__("pub-telemetry", ctx, endpoints, hwm, queue_size, security)
         self._lock = threading.Lock()
         self.latest: dict[str, dict[str, Any]] = {}
-        self.dropped: collections.Counter[str] = collections.Counter()
+        self._dropped: collections.Counter[str] = collections.Counter()  # under _lock: every producer counts
+
+    def _drop(self, topic: str) -> None:
+        with self._lock:
+            self._dropped[topic] += 1
+
+    @property
+    def dropped(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._dropped)
 
     def publish(self, topic: str, data: Any) -> None:
         try:
             self._q.put_nowait((topic, data, time.time_ns()))
         except queue.Full:
-            self.dropped[topic] += 1
+            self._drop(topic)
 
     def snapshot(self) -> dict[str, Any]:
         """Last value per topic and the sequence number they are current at."""
@@ -121,7 +148,7 @@ class TelemetryPublisher(_Publisher):
             return {"seq": self.seq, "latest": dict(self.latest)}
 
     def counters(self) -> dict[str, Any]:
-        return {"sent": self.sent, "queued": self._q.qsize(), "dropped": dict(self.dropped)}
+        return {"sent": self.sent, "queued": self._q.qsize(), "dropped": self.dropped}
 
     def _send(self, item: tuple[str, Any, int]) -> None:
         topic, data, t_ns = item
@@ -133,13 +160,13 @@ class TelemetryPublisher(_Publisher):
             msg = [topic.encode(), telemetry(seq, t_ns, data)]
         except (TypeError, ValueError) as exc:  # a payload msgpack cannot encode: a bug, not a crash
             log.error("cannot publish %s: %s", topic, exc)
-            self.dropped[topic] += 1
+            self._drop(topic)
             return
         for sock in self.socks:
             try:
                 sock.send_multipart(msg, flags=zmq.NOBLOCK)
             except zmq.Again:
-                self.dropped[topic] += 1
+                self._drop(topic)
         self.sent += 1
 
 
@@ -149,15 +176,25 @@ class FramePublisher(_Publisher):
     def __init__(self, ctx: zmq.Context, endpoints: list[str], hwm: int = 2, queue_size: int = 4,
                  security: Security | None = None) -> None:
         super().__init__("pub-frames", ctx, endpoints, hwm, queue_size, security)
-        self.dropped = 0  # frames dropped before the socket (publisher could not keep up)
+        self._drops_lock = threading.Lock()  # the camera's thread and this one both count drops
+        self._dropped = 0  # frames dropped (publisher or subscriber could not keep up)
         self.last_header: dict[str, Any] | None = None
         self.last_frame: Frame | None = None  # camera.preview makes live-view pictures from it
+
+    def _drop(self) -> None:
+        with self._drops_lock:
+            self._dropped += 1
+
+    @property
+    def dropped(self) -> int:
+        with self._drops_lock:
+            return self._dropped
 
     def publish(self, frame: Frame) -> None:
         try:
             self._q.put_nowait(frame)
         except queue.Full:
-            self.dropped += 1
+            self._drop()
 
     def counters(self) -> dict[str, Any]:
         return {"sent": self.sent, "dropped": self.dropped, "queued": self._q.qsize(), "seq": self.seq}
@@ -173,7 +210,7 @@ class FramePublisher(_Publisher):
                 # copy=False: libzmq references the daemon-owned array; nobody mutates it afterwards
                 sock.send_multipart([b"camera.frame", packed, pixels.data], copy=False, flags=zmq.NOBLOCK)
             except zmq.Again:
-                self.dropped += 1
+                self._drop()
         self.sent += 1
         self.last_header = header
         self.last_frame = frame

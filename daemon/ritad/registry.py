@@ -17,7 +17,7 @@ import importlib
 from importlib.metadata import entry_points
 from typing import Any
 
-from drivers.base import Device, DeviceSettings, DeviceURL, Emit
+from drivers.base import Device, DeviceSettings, DeviceURL, Emit, no_emit
 
 #: kind -> scheme -> "module:Class"
 ADAPTERS: dict[str, dict[str, str]] = {
@@ -93,13 +93,11 @@ def adapter_class(kind: str, url: DeviceURL) -> type[Device]:
     return cls
 
 
-def open_device(kind: str, url: str, *, emit: Emit, settings: DeviceSettings = None) -> Device:
-    """Construct (not open) the adapter for ``url``."""
+def build_device(kind: str, url: str, *, emit: Emit | None = None, settings: DeviceSettings = None) -> Device:
+    """The adapter for ``url``, constructed and not opened (its runner opens it in its own thread).
+
+    ``--check-config`` builds one without ``emit`` to test the URL's options (a misspelt one, a bad
+    value). ValueError names the URL; AdapterError a missing package."""
     parsed = DeviceURL.parse(url)
-    return adapter_class(kind, parsed)(parsed, emit=emit, settings=settings)
+    return adapter_class(kind, parsed)(parsed, emit=emit or no_emit, settings=settings)
 
-
-def build_device(kind: str, url: str) -> Device:
-    """The adapter for ``url`` built as ritad builds it, never opened: ``--check-config``'s test of the
-    URL's options (a misspelt one, a bad value). ValueError names the URL; AdapterError a missing package."""
-    return open_device(kind, url, emit=lambda topic, payload: None)

@@ -119,7 +119,8 @@ class DeviceRunner(threading.Thread):
 
     def stop(self, timeout: float = 3.0) -> None:
         self._stop_evt.set()
-        self.join(timeout)
+        if self.ident is not None:  # a runner never started has no thread to wait for
+            self.join(timeout)
 
     # ------------------------------------------------------------------ owner thread
 

@@ -29,7 +29,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple
 
 import zmq
 
@@ -38,7 +38,7 @@ from daemon.bus.protocol import (CommandError, ErrorCode, ProtocolError, error_r
                              parse_request)
 from daemon.bus.repeatlog import RepeatGate, times
 from daemon.bus.roles import refusal
-from daemon.ritad.publisher import open_sockets
+from daemon.ritad.publisher import open_sockets, stop_owner
 
 if TYPE_CHECKING:  # imported where used: only a CURVE daemon loads zmq.auth
     from daemon.bus.auth import Security
@@ -103,9 +103,11 @@ class CommandServer(threading.Thread):
 
     def __init__(self, ctx: zmq.Context, endpoints: list[str], handlers: dict[str, Handler],
                  max_message_bytes: int = 1 << 20, security: Security | None = None,
-                 plain_role: str = "operator", on_command: CommandHook | None = None) -> None:
+                 plain_role: str = "operator", on_command: CommandHook | None = None,
+                 table: Mapping[str, Command] = COMMANDS) -> None:
         super().__init__(name="cmd-server", daemon=True)
         self.handlers = handlers
+        self.table = table  # the daemon's: roles, motions and polled reads of its plugins' commands too
         self.on_command = on_command
         self.max_bytes = max_message_bytes
         self.plain_role = plain_role  # of clients on sockets without CURVE (ipc; tcp with insecure_tcp)
@@ -209,7 +211,7 @@ class CommandServer(threading.Thread):
             self._error(envelope, req_id, ErrorCode.UNKNOWN_COMMAND,
                         f"unknown command {cmd!r}; 'help' lists the commands", cmd)
             return None
-        why = refusal(cmd, caller.role, caller.who)
+        why = refusal(cmd, caller.role, caller.who, self.table)
         if why is not None:  # a WARNING naming the sender (rate-limited like every refusal)
             self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd, f"from {caller.peer}, role {caller.role}")
             self._audit(audit(caller), ErrorCode.FORBIDDEN, why)
@@ -236,7 +238,7 @@ class CommandServer(threading.Thread):
             self._error(envelope, None, exc.code, str(exc))
             return
         req_id, cmd = msg["id"], msg["cmd"]
-        declared = COMMANDS.get(cmd)
+        declared = self.table.get(cmd)
 
         def audit(c: Caller) -> Audit | None:
             if self.on_command is None or declared is not None and declared.polled:
@@ -329,11 +331,13 @@ class CommandServer(threading.Thread):
                     except zmq.Again:
                         break
                     self._on_request(sock, frames)
+        self._close()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        stop_owner(self, self._stop_evt, self._close, timeout)
+
+    def _close(self) -> None:
         for sock in self.socks:
             sock.close(linger=0)
         os.close(self._wake_r)
         os.close(self._wake_w)
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self._stop_evt.set()
-        self.join(timeout)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
 
 from daemon.bus.names import Topic
 from daemon.bus.timeline import TimeSeries
@@ -40,25 +40,23 @@ LIVE_NS = 1_000_000_000
 
 
 class Timelines:
-    """The streams a capture looks up, fed from ``emit``."""
+    """The streams a capture looks up, fed by each device's rig (daemon/ritad/rigs.py) with its own clock."""
 
-    def __init__(self, clock_of: Callable[[str], DeviceClock | None]) -> None:
-        self._clock_of = clock_of  # a device runner's clock map, None before the runner exists
+    def __init__(self) -> None:
         self.streams = {name: TimeSeries(name, fields, angles=angles) for name, (fields, angles) in STREAMS.items()}
         self._arrived = threading.Condition()
 
-    def observe(self, topic: str, payload: Any) -> Any:
-        """One telemetry message, fed to its device's clock map and its stream; returns the payload to
-        publish (the base's samples gain their host-timeline ``t_ns``). Anything malformed adds nothing:
-        publishing must go on."""
+    def observe(self, topic: str, payload: Any, clock: DeviceClock) -> Any:
+        """One telemetry message of the device whose clock map is ``clock``, fed to that map and to its
+        stream; returns the payload to publish (the base's samples gain their host-timeline ``t_ns``).
+        Anything malformed adds nothing: publishing must go on."""
         if not isinstance(payload, dict):
             return payload
-        robot_clock = self._clock_of("robot") if topic in ROBOT_CLOCKED else None
-        if robot_clock is not None:
-            payload = robot_clock.observe_robot(topic, payload)
+        if topic in ROBOT_CLOCKED:
+            payload = clock.observe_robot(topic, payload)
         try:
             if topic == Topic.TRACKER_POINT:
-                payload = self._tracker(payload)
+                payload = self._tracker(payload, clock)
             elif topic == Topic.ROBOT_STATE:
                 self._robot(payload)
             elif topic in (Topic.ROBOT_ODOMETRY, Topic.ROBOT_INCL):
@@ -71,12 +69,9 @@ class Timelines:
             self._arrived.notify_all()
         return payload
 
-    def _tracker(self, p: dict[str, Any]) -> dict[str, Any]:
+    def _tracker(self, p: dict[str, Any], clock: DeviceClock) -> dict[str, Any]:
         """Feeds the clock map and the stream; the packet comes back with each record's host-timeline
         ``t_ns`` and ``t_sigma_ns`` (as the base's samples), unchanged without a device clock."""
-        clock = self._clock_of("tracker")
-        if clock is None:
-            return p
         clock.observe_tracker_packet(p)  # the map first: this packet's records are mapped with it
         timed = clock.map_packet(p)
         if timed is None:  # records without a device clock cannot be put on the timeline

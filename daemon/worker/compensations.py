@@ -4,7 +4,8 @@ The math is :mod:`calibration.compensation`; reading stored records is
 :mod:`daemon.compute.inputs`. Here:
 
 * :func:`read_tilt` — the inclinometer averaged at a standstill (``imu_readings``);
-* :func:`store_bias` — an experiment's fitted robot-frame bias into the active calibration.
+* :func:`store_bias` — an experiment's fitted robot-frame bias into the active calibration (what is stored:
+  :func:`daemon.compute.bias_store.biased_calibration`, which ``ritactl recompute --store-bias`` shares).
 
 docs/datasets.md ("Compensations") documents every field written here.
 """
@@ -17,8 +18,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from calibration.compensation import apply_bias
 from daemon.bus.storage import atomic_write_json, calibration_dir
+from daemon.compute.bias_store import biased_calibration
+
 
 def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict[str, Any] | None:
     """Mean roll/pitch of ``n`` robot.status readings at a standstill, or None when the base reports no tilt.
@@ -40,44 +42,6 @@ def read_tilt(call: Callable[..., Any], n: int, interval_s: float = 0.0) -> dict
             "roll_std_deg": float(r[:, 0].std()), "pitch_std_deg": float(r[:, 1].std())}
 
 
-def biased_calibration(active: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
-    """``active`` with the experiment ``result``'s fitted bias b added to what it already held, and the
-    heading_fit weight it learned (calibration/heading_weight.py).
-
-    An experiment that already applied the calibration's bias fits only what is left,
-    so the stored bias is the sum; one that did not fits the whole bias.
-    """
-    fit = (result.get("metrics") or {}).get("fit")
-    if not fit or fit.get("b") is None:
-        raise ValueError("the experiment fitted no robot-frame bias (too few directions?): nothing to store")
-    check = (result.get("checks") or {}).get("bias_model") or {}
-    if check.get("ok") is False:  # the data contradict the bias model: b would not be a robot-frame bias
-        raise ValueError(check.get("message") or "the cluster means do not follow M + R(ψ)·b")
-    summary = result.get("compensation") or {}
-    n_applied, n_stops = summary.get("applied", {}).get("bias", 0), summary.get("stops", 0)
-    if 0 < n_applied < n_stops:
-        raise ValueError(f"the bias was applied to {n_applied} of {n_stops} stops only: the fit mixes both")
-    # what the experiment's own calibration copy applied (not what is active now: another job may have
-    # stored a bias since this one started)
-    held = summary.get("robot_bias_mm") if n_applied else None
-    applied = held is not None
-    weight = result.get("heading_weight")
-    # with heading_fit the b that goes with the learned weight is the one fitted jointly with it (a bend that
-    # leans one way would otherwise be in b and in the weight twice); without it, the chord's marks' b and no
-    # weight (the held one was learned with another b)
-    fit_b = fit["b"] if not weight or weight.get("b_mm") is None else weight["b_mm"]
-    b = np.asarray(fit_b, float) + (np.asarray(held, float) if applied else 0.0)
-    apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
-    new = {k: v for k, v in active.items() if k != "heading_weight"}
-    if weight:
-        new["heading_weight"] = {**weight, "job": result.get("job")}
-    return {**new, "robot_bias_mm": b.tolist(),
-            "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit_b), "fit_rms_mm": fit.get("rms_mm"),
-                           "added_to_mm": held if applied else None,
-                           "compensation": [n for n in summary.get("requested", []) if summary["applied"].get(n)],
-                           "stored": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
-
-
 def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
     """Write the fitted bias into the active calibration (atomic); the one line the result's messages get.
 
@@ -95,7 +59,7 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
         return (f"robot-frame bias NOT stored: the experiment used calibration {result.get('calibration_job')!r} "
                 f"but {active.get('job')!r} is active now")
     try:
-        new = biased_calibration(active, result)
+        new = biased_calibration(active, result, time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
     except ValueError as exc:
         return f"robot-frame bias NOT stored: {exc}"
     # the copy goes beside the history, not into it: it is no new referencing result

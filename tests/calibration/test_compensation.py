@@ -134,7 +134,7 @@ def test_compensate_says_why_it_skips():
     assert a.applied == []
     assert set(a.skipped) == {"tilt", "heading_fit", "bias", "mount"}
     assert "offset" in a.skipped["tilt"] and "stream" in a.skipped["heading_fit"]
-    assert "--reversal" in a.skipped["mount"] and a.cov_mount_xy_mm2 is None
+    assert "no reflector mount offset" in a.skipped["mount"] and a.cov_mount_xy_mm2 is None
     assert np.array_equal(a.rob_H_scn, ROB_H_SCN) and a.roll_deg is None
 
 

@@ -13,7 +13,7 @@ from urllib.parse import parse_qsl
 import numpy as np
 import pytest
 
-from daemon.ritad.registry import open_device
+from daemon.ritad.registry import build_device
 from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import TO_CLIENT, encode_request
@@ -90,7 +90,7 @@ def assert_within_5_sigma(p, truth: np.ndarray) -> None:
 
 
 def test_registry_builds_sim_tracker(world: World) -> None:
-    t = open_device("tracker", sim_url(world, FAST).raw, emit=Sink())
+    t = build_device("tracker", sim_url(world, FAST).raw, emit=Sink())
     assert isinstance(t, SimTracker) and t.world is world
 
 

@@ -206,14 +206,16 @@ def test_the_fake_base_halts_at_its_timer_on_a_virtual_clock() -> None:
 
 def test_halt_reply_waits_for_the_acknowledgement_or_says_it_is_owed() -> None:
     from daemon.ritad.commands import halt_reply
+    from daemon.ritad.timeouts import Timeouts
 
+    timeouts = Timeouts()
     halted, persisted = Future(), Future()
     persisted.set_result(None)
-    reply = halt_reply(halted, persisted, ["exp-1"], wait_s=30.0)
+    reply = halt_reply(halted, persisted, ["exp-1"], wait_s=30.0, timeouts=timeouts)
     assert not reply.done()
     halted.set_result(True)
     assert reply.result(timeout=1) == {"stopped": True, "latched": True, "jobs_stopped": ["exp-1"]}
-    owed = halt_reply(Future(), persisted, [], wait_s=0.05)
+    owed = halt_reply(Future(), persisted, [], wait_s=0.05, timeouts=timeouts)
     got = owed.result(timeout=10)
     assert got["stopped"] is False and got["latched"] is True
     assert "as soon as the base answers" in got["message"]

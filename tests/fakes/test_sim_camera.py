@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from daemon.ritad.registry import adapter_class, open_device
+from daemon.ritad.registry import adapter_class, build_device
 from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
 from drivers.camera_settings import CameraSettings
 from fakes import camera as camera_module
@@ -50,7 +50,7 @@ def moved(world: World, dx_mm: float) -> RobotPose:
 
 def test_registry_and_default_world() -> None:
     assert adapter_class("camera", DeviceURL.parse("sim:")) is SimCamera
-    cam = open_device("camera", f"sim:?{SMALL}", emit=lambda t, p: None)
+    cam = build_device("camera", f"sim:?{SMALL}", emit=lambda t, p: None)
     assert isinstance(cam.world, World)
     assert cam.size == (200, 151)
 

@@ -17,7 +17,7 @@ import pytest
 
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.bus.protocol import CommandError
 from drivers.base import DeviceLost, DeviceURL
 from drivers.emscon.adapter import EmsconTracker

@@ -15,7 +15,7 @@ from daemon.bus import roles
 from daemon.bus.auth import KeyRing, create_keypair
 from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError
-from daemon.bus.command_table import COMMANDS, ROLES
+from daemon.bus.command_table import COMMANDS, ROLES, CommandTable
 from daemon.ritad import config
 from daemon.ritad.server import CommandServer, Request
 
@@ -90,12 +90,17 @@ def test_keyring_rescans_for_a_file_edited_in_place(tmp_path):
 
 def test_fixed_facts_of_the_table():
     """The acceptance cases, spelled out (the fuzz below checks the rule itself)."""
+    from daemon.ritad import plugins
+
+    table = CommandTable()
+    plugins.installed(table)  # a daemon's table: the simulator's commands too
     for cmd in ("status", "state", "ping", "hello", "help", "calib.results", "calib.jobs",
                 "files.list", "files.read", "robot.status", "camera.status", "robot.stop"):
         assert roles.may("viewer", cmd), cmd  # stopping is never forbidden
     for cmd in ("robot.move", "robot.turn", "robot.release", "calib.start", "calib.resume", "capture",
                 "camera.capture", "tracker.aim", "tracker.find", "sim.place_robot_on_plate"):
-        assert not roles.may("viewer", cmd) and roles.may("operator", cmd), cmd
+        assert not roles.may("viewer", cmd, table) and roles.may("operator", cmd, table), cmd
+    assert roles.required_role("sim.place_robot_on_plate") == "admin"  # a table without it: fail closed
     for cmd in ("keys.list", "keys.allow", "keys.role", "keys.revoke"):
         assert not roles.may("operator", cmd) and roles.may("admin", cmd), cmd
     assert roles.refusal("robot.move", "viewer", "key bob") == "robot.move needs role operator; key bob is viewer"

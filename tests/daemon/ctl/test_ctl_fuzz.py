@@ -25,7 +25,8 @@ import pytest
 from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.bus import procedures
-from daemon.bus.command_table import COMMANDS
+from daemon.bus.command_table import CommandTable
+from daemon.ritad import plugins
 from daemon.ctl.exitcodes import Exit
 from tests.ctl_sim import post_job, report, sim_daemon
 from tests.daemon.ctl.test_ctl_table import walk
@@ -43,6 +44,8 @@ OWN_ERROR_TEXT = {"keys", "validate"}
 # the ended jobs follow may see: no case may post them again (calibrate --job, call calib.start)
 ENDED = ("fz-done", "fz-failed")
 # bus commands `call` may send: no motion, no long poll that would hold the reply
+COMMANDS = CommandTable()
+plugins.installed(COMMANDS)  # the table the daemon serves: the simulator's commands too
 # (robot.commission: the base's checks run for seconds, up to 600: its verb is fuzzed and always refused)
 CALLABLE = sorted(set(COMMANDS) - {"robot.move", "robot.turn", "calib.next", "calib.inbox",
                                    "robot.commission"})

@@ -10,8 +10,10 @@ import pytest
 
 from daemon.ritad import config, plugins
 from daemon.ritad.calib_jobs import CalibJobs
-from daemon.ritad.services import Services
-from daemon.bus.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE
+from daemon.ritad.services import Reports, Services
+from daemon.ritad.timelines import Timelines
+from daemon.bus.command_table import COMMANDS, POS, PROCEDURES, ROLES, TABLE, CommandTable
+from tests.ritad_up import unstarted_rigs
 from daemon.ritad.commands import build_handlers
 from daemon.ctl.main import build_parser, main, subparsers_of
 from daemon.ctl.completion import bash_script
@@ -19,21 +21,25 @@ from daemon.ctl.device import table_args
 from daemon.worker.procedures import RUN
 
 
-def registered_commands(tmp_path) -> set[str]:
+def registered_commands(tmp_path, table: CommandTable) -> set[str]:
     """The names build_handlers registers, without starting a daemon."""
     cfg = config.sim_config(tmp_path)
     unused: Any = None  # building the handlers calls no service
-    s = Services(job=unused, motion=unused, storage=unused, data_dir=tmp_path, private_dirs=(),
-                 auth_dir=tmp_path / "authorized_keys", save_capture=unused, abs_H_trk=cfg.tracker.abs_H_trk, stream_rate_hz=1.0, robot=cfg.robot,
-                 calib=CalibJobs(lambda topic, data: None), device_info=unused, hello=unused,
-                 health=unused, state=unused)
-    return set(build_handlers(s, plugins.Running().handlers(s, plugins.installed())))
+    calib = CalibJobs(lambda topic, data: None)
+    s = Services(storage=unused, data_dir=tmp_path, private_dirs=(), auth_dir=tmp_path / "authorized_keys",
+                 save_capture=unused, calib=calib, latch=calib.latch, device_info=unused, table=table)
+    found = plugins.installed(table)
+    reports = Reports(unused, unused, unused)
+    plugin_handlers = plugins.Running().handlers(s, found)
+    return set(build_handlers(s, unstarted_rigs(cfg), reports, Timelines(), plugin_handlers))
 
 
 def test_every_registered_command_has_an_entry_and_vice_versa(tmp_path):
-    registered = registered_commands(tmp_path)
-    assert registered - set(COMMANDS) == set(), "commands without a table entry"
-    assert set(COMMANDS) - registered == set(), "table entries the daemon does not serve"
+    table = CommandTable()
+    registered = registered_commands(tmp_path, table)
+    assert registered - set(table) == set(), "commands without a table entry"
+    assert set(table) - registered == set(), "table entries the daemon does not serve"
+    assert set(COMMANDS) < set(table)  # the product's and the installed plugins' (the simulator's)
 
 
 def test_entries_are_complete():
@@ -131,6 +137,6 @@ def test_a_table_entry_without_handler_stops_ritad(tmp_path, monkeypatch):
     """build_handlers refuses to run when the handlers and the table differ (ritad would not start)."""
     from daemon.ritad import commands
 
-    monkeypatch.setattr(commands, "GROUPS", tuple(g for g in commands.GROUPS if g is not commands._plates))
+    monkeypatch.setattr(commands, "_plates", lambda s: {})
     with pytest.raises(RuntimeError, match="calib.plate.upload"):
-        registered_commands(tmp_path)
+        registered_commands(tmp_path, CommandTable())

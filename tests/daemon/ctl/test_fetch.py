@@ -19,7 +19,7 @@ from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.ctl.fetch import FetchError, fetch, fetch_file, local_target
 from daemon.ritad.files import CHUNK_MAX
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.bus.protocol import CommandError
 
 BIG = 2_600_000  # bytes: several chunks at the small chunk size below

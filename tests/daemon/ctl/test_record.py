@@ -30,7 +30,7 @@ from daemon.ctl import mcapfile as fmt
 from daemon.ctl.exitcodes import CtlError, Exit
 from daemon.ctl.record import Recorder, check_out, parse_frames
 from daemon.ctl.replay import DERIVED, ReplayServer, endpoints, play
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from fakes.operator import lock_on_robot
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 

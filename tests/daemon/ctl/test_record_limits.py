@@ -23,7 +23,7 @@ from daemon.ctl import reclimits
 from daemon.ctl.exitcodes import CtlError, Exit
 from daemon.ctl.reclimits import PROBE_BYTES, RESERVE, Limits, parse_size
 from daemon.ctl.record import Recorder
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from tests.ritad_up import ritad_in_process
 from tools.harness.load import hang_s
 

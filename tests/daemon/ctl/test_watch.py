@@ -17,7 +17,7 @@ from daemon.ctl import main as ctl
 from daemon.bus.client import Client
 from daemon.ctl.watch import NO_FRAMES, LiveStatus, Screen
 from fakes.operator import lock_on_robot
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from daemon.bus.client import Client, ClientTimeout, Subscriber
 from fakes.operator import lock_on_robot
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.ritad.notify import Notifier
 from daemon.bus.protocol import CommandError
 from drivers.emscon.enums import ES_Command
@@ -86,7 +86,7 @@ def test_tracker_server_killed_mid_measurement(make_daemon) -> None:
     # a 20 s measurement at the fake's time scale 0.05 lasts 1 s: long enough to kill the server under it
     d, c = make_daemon(tracker="sim:?meas_time_ms=20000")
     first = lock_on_robot(c)
-    fake = d.runners["tracker"].device.server
+    fake = d.rigs.tracker.runner.device.server
     sub = live_subscriber(c, "tracker")
     seen_before = len(fake.server.commands_seen)
     out: dict[str, Any] = {}
@@ -170,7 +170,7 @@ def test_camera_lost_and_back(make_daemon) -> None:
 
 def test_serial_port_closed(make_daemon) -> None:
     d, c = make_daemon()
-    runner = d.runners["robot"]
+    runner = d.rigs.robot.runner
     sub = live_subscriber(c, "robot")
     before = c.call("robot.status")
     old_server = runner.device.server

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 from daemon.ritad import config
 from daemon.bus.client import Client
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.bus.protocol import CommandError
 from fakes.tracker import FakeTrackerServer, FakeTrackerThread
 from fakes.world import World
@@ -130,7 +130,7 @@ def emscon_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Da
     finally:
         d.stop_event.set()
         d.stop()
-        robot = d.runners["robot"].device
+        robot = d.rigs.robot.runner.device
         if robot is not None:
             robot.shutdown()
         proxy.close()
@@ -149,7 +149,7 @@ def probe_tracker(c: Client) -> str:
 def test_emscon_streams_through_a_live_daemon(emscon_daemon: tuple[Daemon, InjectingProxy],
                                               caplog: pytest.LogCaptureFixture) -> None:
     d, proxy = emscon_daemon
-    runner = d.runners["tracker"]
+    runner = d.rigs.tracker.runner
     _wait(lambda: runner.state.value == "READY", 30, "tracker READY")
     n, resynced, codes = [0], [0], {}
     t0 = time.monotonic()
@@ -187,7 +187,7 @@ def test_emscon_streams_through_a_live_daemon(emscon_daemon: tuple[Daemon, Injec
 
 def test_robot_lines_under_a_daemon(emscon_daemon: tuple[Daemon, InjectingProxy]) -> None:
     d, _ = emscon_daemon
-    runner = d.runners["robot"]
+    runner = d.rigs.robot.runner
     _wait(lambda: runner.state.value == "READY", 30, "robot READY")
     robot = runner.device
     n = [0]

@@ -20,7 +20,7 @@ import pytest
 
 from daemon.ritad import config
 from daemon.bus.client import Client
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 from daemon.ritad.notify import Notifier
 from tests.daemon.ritad.test_faults import SMALL_CAMERA, wait_for
 from tests.daemon.ritad.test_faults_process import Ritad, write_config
@@ -96,7 +96,7 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
         d.stop_event.set()
         sup.join(5)
         d.stop()
-        for r in d.runners.values():
+        for r in (rig.runner for rig in d.rigs):
             if hasattr(r.device, "shutdown"):
                 r.device.shutdown()
         sock.close()

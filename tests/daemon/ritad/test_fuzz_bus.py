@@ -29,11 +29,12 @@ import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.bus.command_table import COMMANDS as TABLE_COMMANDS
+from daemon.bus.command_table import CommandTable
 from daemon.bus.command_table import Arg
 from daemon.bus.client import Client
 from fakes.operator import lock_on_robot
-from daemon.ritad.main import Daemon
+from daemon.ritad import plugins
+from daemon.ritad.daemon import Daemon
 from daemon.ritad.stop_latch import LATCH_FILE
 from daemon.bus.protocol import CommandError, ErrorCode, pack, unpack
 from tests.ritad_up import ritad_in_process
@@ -91,6 +92,8 @@ def arg_value(arg: Arg) -> st.SearchStrategy[Any]:
 
 
 # every command of the table (the daemon's ``help`` is checked against it)
+TABLE_COMMANDS = CommandTable()
+plugins.installed(TABLE_COMMANDS)  # the table a daemon serves: the installed plugins' commands too
 COMMANDS = sorted(TABLE_COMMANDS)
 
 

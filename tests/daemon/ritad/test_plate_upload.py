@@ -19,7 +19,7 @@ from daemon.bus.command_table import COMMANDS
 from daemon.bus.protocol import CommandError
 from daemon.ctl import main as ctl
 from daemon.ritad import config
-from daemon.ritad.main import Daemon
+from daemon.ritad.daemon import Daemon
 
 
 @pytest.fixture(scope="module")

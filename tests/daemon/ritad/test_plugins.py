@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from daemon.bus import station
-from daemon.bus.command_table import COMMANDS, Arg, Command, register
+from daemon.bus.command_table import COMMANDS, TABLE, Arg, Command, CommandTable
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad import plugins
 from tests.ritad_up import ritad_in_process
@@ -17,22 +17,27 @@ from tests.ritad_up import ritad_in_process
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def test_the_simulator_is_an_installed_plugin_with_its_commands_in_the_table():
-    found = plugins.installed()
+def test_the_simulator_is_an_installed_plugin_with_its_commands_in_the_daemons_table():
+    table = CommandTable()
+    found = plugins.installed(table)
     assert "sim" in found
-    assert {c.name for c in found["sim"].commands} <= set(COMMANDS)
-    assert COMMANDS["sim.place_robot_on_plate"].motion == "moves"  # latched by a STOP like robot.move
-    assert all(COMMANDS[c.name].plugin == "sim" for c in found["sim"].commands)
+    assert {c.name for c in found["sim"].commands} <= set(table)
+    assert table["sim.place_robot_on_plate"].motion == "moves"  # latched by a STOP like robot.move
+    assert all(table[c.name].plugin == "sim" for c in found["sim"].commands)
+    assert set(COMMANDS) == {c.name for c in TABLE}  # the product's table is left as it was
+    assert "sim.truth" not in COMMANDS and table.moves("sim.place_robot_on_plate")
 
 
 def test_a_plugin_can_neither_replace_a_product_command_nor_name_one_outside_its_own():
+    table = CommandTable()
     with pytest.raises(ValueError, match="'robot.move' is already declared by the product"):
-        register("robot", (Command("robot.move", "mine"),))
+        table.register("robot", (Command("robot.move", "mine"),))
     with pytest.raises(ValueError, match="must be named x.<verb>"):
-        register("x", (Command("sim.truth", "mine"),))
-    before = dict(COMMANDS)
-    register("sim", plugins.installed()["sim"].commands)  # the same plugin again: nothing changes
-    assert COMMANDS == before
+        table.register("x", (Command("sim.truth", "mine"),))
+    table.register("sim", plugins.installed()["sim"].commands)
+    before = dict(table)
+    table.register("sim", plugins.installed()["sim"].commands)  # the same plugin again: nothing changes
+    assert dict(table) == before
 
 
 def test_a_daemon_without_a_sim_device_answers_the_simulators_commands_not_found(tmp_path):
@@ -88,12 +93,12 @@ def test_check_config_names_a_bad_station_file_with_exit_2(tmp_path):
 
 
 def test_a_plugin_command_declared_with_an_arg_is_validated_like_the_products():
-    from daemon.bus.command_table import validate
-
-    args = validate("sim.survey_images", {"views": 5})
+    table = CommandTable()
+    plugins.installed(table)
+    args = table.validate("sim.survey_images", {"views": 5})
     assert args == {"views": 5, "width_px": 2400}
     with pytest.raises(CommandError) as e:
-        validate("sim.survey_images", {"views": 99})
+        table.validate("sim.survey_images", {"views": 99})
     assert e.value.code == ErrorCode.BAD_ARGS and "'views'" in str(e.value)
     assert isinstance(plugins.installed()["sim"].commands[1].args[0], Arg)
 

@@ -141,18 +141,15 @@ def test_abort_fails_every_motion_waiting_for_its_end():
 
 def test_a_motion_queued_before_the_stop_is_refused_when_its_turn_comes(tmp_path):
     """robot.move accepted, then STOP jumps the runner's queue: the queued move must not run after it."""
+    from daemon.ritad import config
     from daemon.ritad.commands import _robot
-    from daemon.ritad.config import RobotSection
-    from daemon.ritad.services import Services
+    from tests.ritad_up import unstarted_rigs
 
     queued = []
     latch = StopLatch(lambda t, d: None)
-    s = Services(job=lambda kind, fn, timeout=60.0: _done(None), motion=lambda fn, wait, t: queued.append(fn),
-                 storage=None, data_dir=tmp_path, private_dirs=(), auth_dir=tmp_path, save_capture=None,
-                 abs_H_trk=[], stream_rate_hz=100.0, robot=RobotSection(),
-                 calib=CalibJobs(lambda t, d: None, latch=latch), device_info=None, hello=None,
-                 health=None, state=None, latch=latch)
-    handlers = _robot(s)
+    robot = unstarted_rigs(config.sim_config(tmp_path), latch).robot
+    robot.job = lambda fn, timeout=60.0: queued.append(fn) or Future()  # type: ignore[method-assign]
+    handlers = _robot(robot, CalibJobs(lambda t, d: None, latch=latch))
     args = validate("robot.move", {"distance_mm": 10.0, "confirm": True})
     handlers["robot.move"](Request("1", "robot.move", args, "worker", "operator"))
     handlers["robot.stop"](Request("2", "robot.stop", {}, "vic (key)", "viewer"))

@@ -35,14 +35,14 @@ def _packets(rng: np.random.Generator, seconds: float, rate_hz: float = 1000.0, 
 
 def _timelines() -> tuple[Timelines, DeviceClock]:
     clock = DeviceClock()
-    return Timelines(lambda kind: clock if kind == "tracker" else None), clock
+    return Timelines(), clock  # the tracker rig's clock, handed with each of its messages
 
 
 def test_tracker_stream_at_a_frame_time_is_where_the_reflector_was():
     tl, clock = _timelines()
     packets = _packets(np.random.default_rng(7), 30.0)
     for p, _ in packets:
-        tl.observe("tracker.point", p)
+        tl.observe("tracker.point", p, clock)
     assert clock.status()["samples"] > 0  # the timeline feeds the runner's clock map too
     truth = np.concatenate([t for _, t in packets])
     errs = []
@@ -57,26 +57,26 @@ def test_tracker_stream_at_a_frame_time_is_where_the_reflector_was():
 
 
 def test_tracker_is_refused_outside_its_records_and_without_a_device_clock():
-    tl, _ = _timelines()
+    tl, clock = _timelines()
     packets = _packets(np.random.default_rng(1), 2.0)
     for p, _ in packets:
-        tl.observe("tracker.point", p)
+        tl.observe("tracker.point", p, clock)
     last = int(packets[-1][1][-1])
     assert REACH_NS["tracker"] == 0
     assert "after the last sample" in tl.at(last + 50_000_000)["tracker"]["error"]
-    tl2, _ = _timelines()
+    tl2, clock2 = _timelines()
     p = dict(packets[0][0], device_time=None)
-    tl2.observe("tracker.point", p)
+    tl2.observe("tracker.point", p, clock2)
     assert "no samples" in tl2.at(last)["tracker"]["error"]
 
 
 def test_robot_pose_and_tilt_with_the_bases_time_or_its_arrival():
-    tl, _ = _timelines()
+    tl, clock = _timelines()
     t0 = 1_000_000_000_000
     tl.observe("robot.state", {"t_ns": t0, "t_sigma_ns": 20_000, "x_mm": 0.0, "y_mm": 0.0, "heading_deg": 179.0,
-                               "roll_deg": 0.1, "pitch_deg": -0.2})
+                               "roll_deg": 0.1, "pitch_deg": -0.2}, clock)
     tl.observe("robot.state", {"t_ns": t0 + 20_000_000, "t_sigma_ns": 30_000, "x_mm": 2.0, "y_mm": 0.0,
-                               "heading_deg": -179.0, "roll_deg": 0.3, "pitch_deg": -0.2})
+                               "heading_deg": -179.0, "roll_deg": 0.3, "pitch_deg": -0.2}, clock)
     at = tl.at(t0 + 5_000_000)
     assert at["robot"]["x_mm"] == pytest.approx(0.5)
     assert at["robot"]["heading_deg"] == pytest.approx(179.5)  # the short way round, not through 0
@@ -87,18 +87,18 @@ def test_robot_pose_and_tilt_with_the_bases_time_or_its_arrival():
     assert "error" in tl.at(t0 + 20_000_000 + REACH_NS["robot"] + 1)["robot"]
     # a base without a clock: its status is timed by its arrival, with a line's transfer as sigma
     tl.observe("robot.state", {"host_time_ns": t0 + 40_000_000, "x_mm": 4.0, "y_mm": 0.0, "heading_deg": -179.0,
-                               "roll_deg": None, "pitch_deg": None})
+                               "roll_deg": None, "pitch_deg": None}, clock)
     got = tl.at(t0 + 30_000_000)
     assert got["robot"]["x_mm"] == pytest.approx(3.0) and got["robot"]["t_sigma_ns"] == ARRIVAL_SIGMA_NS
     assert got["tilt"]["extrapolated"]  # no tilt in that status: the last tilt is held
 
 
 def test_malformed_telemetry_adds_nothing_and_never_raises():
-    tl, _ = _timelines()
+    tl, clock = _timelines()
     for topic, payload in [("tracker.point", {"n": 2, "x": [1]}), ("tracker.point", "x"),
                            ("robot.state", {"x_mm": 1.0}), ("robot.state", {"t_ns": "soon", "x_mm": 1.0}),
                            ("camera.status", {"t_ns": 1})]:
-        tl.observe(topic, payload)
+        tl.observe(topic, payload, clock)
     assert all("error" in v for v in tl.at(0).values())
 
 

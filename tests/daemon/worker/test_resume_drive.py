@@ -166,7 +166,7 @@ def test_referencing_whose_odometry_was_reset_fails_saying_why(rig):
         run = worker(pool, d, data_dir)
         stop_mid_drive(c, run, 30.0)
         assert run.result(TIMEOUT_S) == "stopped"
-        base = d.runners["robot"].device.fake  # the simulated base, in this process
+        base = d.rigs.robot.runner.device.fake  # the simulated base, in this process
         with base._lock:
             base.odometry = (0.0, 0.0, 0.0)  # a power cycle
         ended = release_and_resume(c, pool, d, data_dir, job)

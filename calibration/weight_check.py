@@ -1,0 +1,107 @@
+"""Does heading_fit's stored weight still hold? Its learning conditions and the experiment's own weight.
+
+A weight (calibration/heading_weight.py) is the share of the fitted bend that helped on the
+paths of the experiment that learned it. If the robot changed since (another approach speed or
+distance, another stream rate, the tilt compensation switched, paths that bend elsewhere in the
+move), the share that helps changes and nothing in a single stop shows it. So the weight carries
+what it was learned under (:func:`learning_conditions`), and every experiment with heading_fit
+learns its own weight from its own stops and compares (:func:`recheck`):
+
+* the two weights, z = (w_own − w_applied) / √(σ_own² + σ_applied²), a disagreement beyond
+  :data:`RECHECK_Z` (each σ covers the spread between experiments, calibration/heading_weight.py);
+* the conditions: each a tolerance of its own (:data:`TOLERANCE`); the slopes' rms by a z of its
+  log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)).
+
+Either makes the experiment's verdict ``warn``, naming both weights and what differs.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+#: two weights disagree beyond this many standard errors of their difference
+RECHECK_Z = 3.0
+#: relative change of a scalar condition beyond which the weight was learned under other conditions: a stream
+#: rate or approach speed within 25 % samples the same path alike, a distance within 10 % bends alike
+TOLERANCE = {"stream_rate_hz": 0.25, "speed_mm_s": 0.25, "distance_mm": 0.10}
+#: the slopes' rms differs beyond this many standard errors of its log ratio
+SLOPE_Z = 3.0
+
+
+def _median(values: list[float]) -> float | None:
+    v = sorted(x for x in values if math.isfinite(x))
+    return None if not v else (v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]))
+
+
+def learning_conditions(rates_hz: list[float], speeds_mm_s: list[float], distances_mm: list[float],
+                        tilt: bool, weight: Any) -> dict[str, Any]:
+    """What a weight was learned under: the stops' median stream rate, approach speed and distance (None where
+    no stop gives it), whether the tilt was compensated, the bend model chosen, and the fitted slopes' rms,
+    robust scale and count (``weight``: the :class:`calibration.heading_weight.HeadingWeight`)."""
+    limit = weight.slope_limit_rad
+    return {"stream_rate_hz": _median(rates_hz), "speed_mm_s": _median(speeds_mm_s),
+            "distance_mm": _median(distances_mm), "tilt": bool(tilt), "model": weight.model,
+            "slope_rms_rad": weight.slope_rms_rad, "n_stops": weight.n_stops,
+            "slope_scale_rad": None if not math.isfinite(limit) else limit / 4.0}
+
+
+def _scalar_differs(name: str, a: Any, b: Any) -> str | None:
+    if a is None or b is None:
+        return None if a is None and b is None else f"{name} {a} learned, {b} now"
+    if abs(b - a) > TOLERANCE[name] * abs(a):
+        return f"{name} {a:.4g} learned, {b:.4g} now (beyond {100 * TOLERANCE[name]:.0f} %)"
+    return None
+
+
+def _slopes_differ(a: dict[str, Any], b: dict[str, Any]) -> str | None:
+    sa, sb = a.get("slope_rms_rad"), b.get("slope_rms_rad")
+    na, nb = a.get("n_stops") or 0, b.get("n_stops") or 0
+    if not sa or not sb or na < 2 or nb < 2:
+        return None
+    z = abs(math.log(sb / sa)) / math.sqrt(1.0 / (2 * na) + 1.0 / (2 * nb))
+    if z <= SLOPE_Z:
+        return None
+    return (f"the fitted end slopes' rms {sa * 1e6:.0f} µrad learned, {sb * 1e6:.0f} µrad now "
+            f"(z {z:.1f} > {SLOPE_Z:g}: the paths bend differently)")
+
+
+def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> list[str]:
+    """Each condition of ``now`` that differs from those the weight was ``learned`` under, named."""
+    if learned is None:
+        return ["the stored weight records no learning conditions (stored before they were recorded)"]
+    out = [_scalar_differs(k, learned.get(k), now.get(k)) for k in TOLERANCE]
+    if learned.get("tilt") != now.get("tilt"):
+        out.append(f"tilt compensation {'on' if learned.get('tilt') else 'off'} learned, "
+                   f"{'on' if now.get('tilt') else 'off'} now")
+    if learned.get("model") != now.get("model"):
+        out.append(f"bend model {learned.get('model')!r} learned, {now.get('model')!r} now")
+    out.append(_slopes_differ(learned, now))
+    return [d for d in out if d]
+
+
+def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
+    """The stored weight ``applied`` against the experiment's own ``own`` (both
+    :class:`calibration.heading_weight.HeadingWeight`; ``own.conditions`` set): {applied_weight,
+    applied_sigma, own_weight_fit, own_sigma, own_model, z (null when a σ is not estimated), differs, ok,
+    message}. ``same``: the experiment's weight re-learned with the applied one's bend model (None: ``own``),
+    whose weight and slopes are compared (another model's slopes are other numbers); the model ``own`` chose
+    is a condition of its own."""
+    same = own if same is None else same
+    s = math.hypot(applied.sigma, same.sigma)
+    z = (same.weight_fit - applied.weight_fit) / s if math.isfinite(s) and s > 0 else None
+    now = {**(own.conditions or {}), "slope_rms_rad": same.slope_rms_rad, "n_stops": same.n_stops}
+    differs = conditions_differ(applied.conditions, now)
+    disagree = z is not None and abs(z) > RECHECK_Z
+    ok = not disagree and not differs
+    both = (f"applied weight {applied.weight:.2f} (fit {applied.weight_fit:.2f} ± {applied.sigma:.2f}, "
+            f"{applied.model}), this experiment's own {same.weight_fit:.2f} ± {same.sigma:.2f}")
+    why = ([f"they differ by {z:.1f}σ (> {RECHECK_Z:g}σ)"] if disagree else []) + differs
+    message = None if ok else (f"heading_fit's stored weight may not hold for this robot any more: {both}; "
+                               f"{'; '.join(why)}; the chord's figures are in the result (chord)")
+    return {"applied_weight": applied.weight, "applied_weight_fit": applied.weight_fit,
+            "applied_sigma": applied.sigma if math.isfinite(applied.sigma) else None,
+            "own_weight_fit": same.weight_fit, "own_sigma": same.sigma if math.isfinite(same.sigma) else None,
+            "own_model": own.model, "z": z, "differs": differs, "ok": ok, "message": message}
+
+
+__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "recheck"]

@@ -1,0 +1,86 @@
+"""The chord or heading_fit's weight: chosen by what predicts a direction the fit did not see.
+
+Within one experiment the weight w and the robot-frame bias b are fitted together
+(calibration/heading_weight.py); in-sample, the richer model always fits at least as well, and
+b can trade against w (a bend leaning one way moves every mark as a bias does). So the choice is
+made by cross-validation, leaving one direction out at a time (its stops share the floor and the
+path there, so a stop's neighbours in its own direction are no unseen data):
+
+* **chord**: M and b fitted to the other directions' chord marks (w = 0);
+* **weight**: w learned on the other directions as the experiment learns it (its significance test
+  and slope limit), M and b fitted jointly with it;
+
+each predicts the held-out stops' marks, ``P_k + w·Δ_k`` against ``M + R(ψ_k)·b`` (Δ_k = 0 where the
+stop keeps the chord). The held-out RMS (2D, mm) of each is the figure; the smaller one is stored
+(Stone 1974, "Cross-validatory choice and assessment of statistical predictions").
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import numpy as np
+
+from calibration.metrics import bias_design
+
+#: the fewest directions for a leave-one-direction-out comparison (each fold keeps ≥ 4 to fix M, b and w)
+MIN_FOLDS = 5
+
+
+def design(headings_deg: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Rows x, y per stop; columns M_x, M_y, b_x, b_y (rotated by ψ_k: calibration/metrics.py), −Δ (the
+    weight's)."""
+    return np.column_stack([bias_design(headings_deg), -delta.reshape(-1)])
+
+
+def with_weight(A: np.ndarray, y: np.ndarray, w: float) -> np.ndarray | None:
+    """(M_x, M_y, b_x, b_y, w): M + R(ψ)·b fitted with the weight fixed at ``w`` (None: headings too few)."""
+    B = A[:, :4]
+    if np.linalg.cond(B) > 1e6:
+        return None
+    return np.append(np.linalg.lstsq(B, y - w * A[:, 4], rcond=None)[0], w)
+
+
+def _held_out(P: np.ndarray, F: np.ndarray, psi: np.ndarray, fitted: np.ndarray, slopes: np.ndarray,
+              train: np.ndarray, w: float, limit: float) -> np.ndarray | None:
+    """The held-out stops' residuals (N_test, 2) with the weight ``w`` and slope ``limit`` learned on
+    ``train``, M and b fitted on ``train`` with it (None: the training headings cannot fix M and b)."""
+    use = fitted & (np.abs(np.nan_to_num(slopes)) <= limit)  # as a later job: beyond the limit, the chord
+    delta = np.where(use[:, None], F - P, 0.0)
+    A, y = design(psi, delta), P.reshape(-1)
+    rows = np.repeat(train, 2)
+    theta = with_weight(A[rows], y[rows], w)
+    if theta is None:
+        return None
+    return (y - A @ theta)[~rows].reshape(-1, 2)
+
+
+def cross_validate(P: np.ndarray, F: np.ndarray, psi: np.ndarray, slopes: np.ndarray, groups: np.ndarray,
+                   learn: Callable[[np.ndarray], Any]) -> dict[str, Any] | None:
+    """{folds, chord_rms_mm, weight_rms_mm, weight_folds (the weight each fold learned)} over the directions
+    ``groups``; ``learn(train_mask)`` gives the weight record learned on those stops (its ``weight``,
+    ``slope_limit_rad``); None with fewer than :data:`MIN_FOLDS` directions or a fold M, b cannot be fitted
+    in."""
+    names = list(dict.fromkeys(groups.tolist()))
+    if len(names) < MIN_FOLDS:
+        return None
+    fitted = np.all(np.isfinite(F), axis=1) & np.isfinite(slopes)
+    chord, weight, ws = [], [], []
+    for g in names:
+        train = groups != g
+        learned = learn(train)
+        r_chord = _held_out(P, F, psi, fitted, slopes, train, 0.0, math.inf)
+        r_weight = _held_out(P, F, psi, fitted, slopes, train, learned.weight, learned.slope_limit_rad)
+        if r_chord is None or r_weight is None:
+            return None
+        chord.append(r_chord)
+        weight.append(r_weight)
+        ws.append(float(learned.weight))
+
+    def rms(r: list[np.ndarray]) -> float:  # 2D, as fit_bias's
+        return float(np.sqrt(np.mean(np.sum(np.concatenate(r) ** 2, axis=1))))
+
+    return {"folds": len(names), "chord_rms_mm": rms(chord), "weight_rms_mm": rms(weight), "weight_folds": ws}
+
+
+__all__ = ["MIN_FOLDS", "cross_validate", "design", "with_weight"]
