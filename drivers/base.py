@@ -230,8 +230,10 @@ class Tracker(StreamingDevice):
         """Search and lock onto the reflector nearest to where the beam points."""
 
     @abstractmethod
-    def start_stream(self, rate_hz: float) -> None:
-        """Start continuous measurement; points go to ``emit('tracker.point', {...})``."""
+    def start_stream(self, rate_hz: float) -> float:
+        """Start continuous measurement; points go to ``emit('tracker.point', {...})``.
+
+        Returns the rate streamed, in Hz: the device may clamp or round the one asked for."""
 
     def readback(self) -> dict[str, Any]:
         """What the controller holds now (frames, environment, packet rate), read from it: the commissioning

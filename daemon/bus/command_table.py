@@ -81,7 +81,7 @@ TABLE: tuple[Command, ...] = (
                 Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
                     lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),), motion="moves"),
     Command("tracker.stream.start", "stream tracker points as tracker.point telemetry", "operator",
-            cli=("tracker", "stream", "start"), result="{streaming, rate_hz}; points then flow as tracker.point", args=(
+            cli=("tracker", "stream", "start"), result="{streaming, rate_hz: the rate streamed, after any clamp}; points then flow as tracker.point", args=(
                 Arg("rate_hz", "float", "points per second", unit="Hz", lo=0, lo_open=True, hi=10000,
                     default_text="config [tracker] stream_rate_hz", cli="--rate", metavar="HZ"),)),
     Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),

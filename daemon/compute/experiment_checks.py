@@ -5,7 +5,8 @@
 * :func:`weight_checks` — heading_fit's weight learned here, with its learning conditions, re-checked
   against the one the calibration applied (calibration/weight_check.py), and the chord's own figures.
 
-docs/datasets.md ("experiment": ``checks.sigma``, ``checks.heading_weight``, ``chord``) documents the fields.
+docs/datasets.md (the 8-direction result: ``checks.sigma``, ``checks.heading_weight``, ``chord``)
+documents the fields.
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def sigma_check(marks: list[dict[str, Any]], xy: np.ndarray, headings: np.ndarra
     if check is None:
         return None
     for m in marks:
-        m["sigma"].update(stated_mm=m["std_mm"], scale=check.scale, scale_source="experiment")
+        m["sigma"].update(stated_mm=m["std_mm"], scale=check.scale, scale_source="this experiment")
         m["std_mm"] = m["std_mm"] * check.scale
     return check.to_dict()
 

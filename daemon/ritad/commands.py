@@ -68,7 +68,9 @@ def _tracker(trk: TrackerRig) -> dict[str, Handler]:
 
     def stream_start(req: Request) -> Any:
         rate = req.args["rate_hz"] or trk.stream_rate_hz
-        return chain(trk.job(lambda t: t.start_stream(rate)), lambda _: {"streaming": True, "rate_hz": rate})
+        # the reply states the rate the tracker streams, which it may have clamped to its maximum
+        return chain(trk.job(lambda t: t.start_stream(rate)),
+                     lambda streamed: {"streaming": True, "rate_hz": streamed})
 
     return {"tracker.measure": measure, "tracker.aim": aim, "tracker.find": find,
             "tracker.stream.start": stream_start,

@@ -253,7 +253,7 @@ class EmsconTracker(Tracker):
                         f"(`ritactl tracker aim X Y Z`, tracker frame, mm) or hold the reflector in the beam",)
             raise
 
-    def start_stream(self, rate_hz: float) -> None:
+    def start_stream(self, rate_hz: float) -> float:
         if not (math.isfinite(rate_hz) and rate_hz >= MIN_RATE_HZ):
             raise ValueError(f"start_stream: rate_hz={rate_hz!r} must be >= {MIN_RATE_HZ:g}")
         top = float(self._info.get("max_data_rate") or MAX_RATE_HZ)
@@ -268,6 +268,7 @@ class EmsconTracker(Tracker):
         self._sep_ms = max(1, round(1000.0 / rate_hz), math.ceil(1000.0 / top - 1e-9))
         self._begin_stream(c)
         self._streaming, self._interrupted, self._rate_hz = True, False, 1000.0 / self._sep_ms
+        return self._rate_hz
 
     def _begin_stream(self, c: EmsconClient) -> None:
         """Continuous-time mode at ``_sep_ms`` and StartMeasurement; back to stationary if refused."""

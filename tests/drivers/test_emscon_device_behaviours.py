@@ -84,7 +84,8 @@ def test_a_rate_above_max_data_rate_is_clamped_with_a_warning(make, world: World
     t.open()
     lock_on(t, world, "green")
     with caplog.at_level(logging.WARNING):
-        t.start_stream(1000.0)
+        streamed = t.start_stream(1000.0)
+    assert streamed == 250.0  # what tracker.stream.start replies
     assert "1000 Hz" in caplog.text and "max_data_rate 250 Hz" in caplog.text
     assert t.status()["streaming"] and t.status()["rate_hz"] == 250.0
     assert t.server.server.model.state.time_separation_ms == 4

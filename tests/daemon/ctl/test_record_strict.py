@@ -72,7 +72,7 @@ def _record(tmp_path: Path, out: Path) -> None:
         time.sleep(0.3)  # subscribed
         # accepted (key, code and message null), at the fake's max_data_rate 1000 Hz: ritad's journal
         # warns that 2000 Hz was asked for, which the recording has as a foxglove.Log
-        c.call("tracker.stream.start", rate_hz=2000.0)
+        assert c.call("tracker.stream.start", rate_hz=2000.0)["rate_hz"] == 1000.0  # the rate streamed
         c.call("camera.stream.start")
         with pytest.raises(CommandError):
             c.call("robot.move", distance_mm="far")  # refused: code and message filled
