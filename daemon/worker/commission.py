@@ -74,10 +74,9 @@ def tracker_obs(ctx: JobContext) -> dict[str, Any]:
     sub = ctx.client.subscriber(["tracker.point"])
     try:
         time.sleep(SUB_SETTLE_S)
-        started = ctx.call("tracker.stream.start", rate_hz=ctx.params.tracker_rate_hz)
+        # the reply's rate is the one streamed: above the tracker's max_data_rate it is clamped (docs/emscon.md)
+        rate = ctx.call("tracker.stream.start", rate_hz=ctx.params.tracker_rate_hz)["rate_hz"]
         try:
-            # the rate it streams at: a rate above the tracker's max_data_rate is clamped (docs/emscon.md)
-            rate = ctx.call("tracker.status").get("rate_hz") or started["rate_hz"]
             packets = _records(sub, ctx.params.duration_s)
         finally:
             ctx.call("tracker.stream.stop")
