@@ -74,7 +74,7 @@ def tracker_obs(ctx: JobContext) -> dict[str, Any]:
     sub = ctx.client.subscriber(["tracker.point"])
     try:
         time.sleep(SUB_SETTLE_S)
-        # the reply's rate is the one streamed: above the tracker's max_data_rate it is clamped (docs/emscon.md)
+        # the reply says the rate streamed: above the tracker's max_data_rate it is clamped (docs/emscon.md)
         rate = ctx.call("tracker.stream.start", rate_hz=ctx.params.tracker_rate_hz)["rate_hz"]
         try:
             packets = _records(sub, ctx.params.duration_s)
