@@ -235,6 +235,11 @@ class Tracker(StreamingDevice):
 
         Returns the rate streamed, in Hz: the device may clamp or round the one asked for."""
 
+    def readback(self) -> dict[str, Any]:
+        """What the controller holds now (frames, environment, packet rate), read from it: the commissioning
+        check's evidence. A tracker that cannot read them back says so."""
+        raise DeviceError(f"{type(self).__name__} cannot read its settings back", code="not_supported")
+
 
 # --------------------------------------------------------------------------- camera
 

@@ -390,5 +390,7 @@ class GenICamCamera(Camera):
             "applied": dict(self._applied), "warnings": list(self._warnings),
             "incomplete_count": self._incomplete.count, "link": self._link() if opened else None,
             "ptp": ptp_status(self._writer()) if opened else {"available": False},
+            # as the camera gives it (SFNC: bytes/s), for ritactl commission; None without the node
+            "device_link_speed": self._writer().read("DeviceLinkSpeed") if opened else None,
             **self.counters,
         }

@@ -368,5 +368,6 @@ class SimCamera(Camera):
             "incomplete_count": self.counters["incomplete"],
             "link": self.link.stats(),
             "ptp": self.clock.ptp_status(),
+            "device_link_speed": self.link.link_bytes_s,  # the link model's, in SFNC's bytes/s
             **self.counters,
         }

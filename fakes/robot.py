@@ -47,6 +47,7 @@ from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
 from fakes.robot_base import FakeBase, unit_interval
 from fakes.robot_boot import Boot
+from fakes.robot_defects import DefectiveBase
 from fakes.robot_rfc2217 import Rfc2217Base
 from fakes import worlds
 from fakes.world import World, WorldParams
@@ -255,17 +256,26 @@ class SimRobot(SerialRobot):
     """``sim:`` robot: a :class:`FakeBase` on a private pty, driven by the real driver.
 
     Options (besides the SerialRobot ones): ``time_scale`` (0.02), ``garbage_rate``,
-    ``corrupt_rate``, ``fault_rate`` (all 0). The fake keeps running across
+    ``corrupt_rate``, ``fault_rate`` (all 0), ``clock_offset_s`` (the base's clock at the fake's start: how
+    long it has been on; default seeded, 10-10 000 s), ``defects`` (a comma list of fakes/robot_defects.py's
+    protocol defects, e.g. ``t_us_32bit,no_watchdog``), ``max_protocol`` (the newest version it speaks,
+    default 3). The fake keeps running across
     ``close()``/``open()`` like a powered base; :meth:`shutdown` stops it.
     """
 
-    OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate", worlds.OPTION}
+    OPTIONS = SerialRobot.OPTIONS | {"time_scale", "garbage_rate", "corrupt_rate", "fault_rate",
+                                     "clock_offset_s", "defects", "max_protocol", worlds.OPTION}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
-        self.fake = FakeBase(self.world, time_scale=url.option("time_scale", 0.02, float),
-                             fault_rate=url.option("fault_rate", 0.0, float))
+        kwargs = {"time_scale": url.option("time_scale", 0.02, float),
+                  "fault_rate": url.option("fault_rate", 0.0, float),
+                  "clock_offset_s": url.option("clock_offset_s", None, float),
+                  "max_protocol": url.option("max_protocol", rp.PROTOCOL_VERSION, int)}
+        defects = [d for d in url.option("defects", "", str).split(",") if d]
+        self.fake = (DefectiveBase(self.world, defects=defects, **kwargs) if defects
+                     else FakeBase(self.world, **kwargs))
         self.garbage_rate: float = url.option("garbage_rate", 0.0, float)
         self.corrupt_rate: float = url.option("corrupt_rate", 0.0, float)
         self.server: PtyServer | None = None

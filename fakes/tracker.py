@@ -147,13 +147,15 @@ class SimTracker(EmsconTracker):
     ``packet_rate_hz``, ``flood_batch`` (stream packets of N records back to back, as fast
     as TCP allows, for throughput benchmarks), ``drop_after``, ``delay_ms``, ``split``,
     ``garbage_after``, ``result_first``, ``fail`` (``Cmd=Status,...``), ``ok`` (``Cmd=Status,...``, an
-    OutOfRangeOK answer that still takes effect), ``max_data_rate``, ``foreign_frame`` (0/1),
+    OutOfRangeOK answer that still takes effect), ``max_data_rate``, ``foreign_frame`` (0/1), ``frame_held``
+    (0/1: a defect, another client holds its frame),
     ``search_radius_mm``.
     """
 
     OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
                                        "delay_ms", "split", "garbage_after", "result_first", "fail",
-                                       worlds.OPTION, "ok", "max_data_rate", "foreign_frame"}
+                                       worlds.OPTION, "ok", "max_data_rate", "foreign_frame",
+                                       "frame_held"}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
@@ -163,7 +165,8 @@ class SimTracker(EmsconTracker):
                             "packet_rate_hz": o("packet_rate_hz", 8.0, float),
                             "flood_batch": o("flood_batch", 0, int),
                             "max_data_rate": o("max_data_rate", 1000, int),
-                            "foreign_frame": o("foreign_frame", False, flag)}
+                            "foreign_frame": o("foreign_frame", False, flag),
+                            "frame_held": o("frame_held", False, flag)}
         if self.sim_options["flood_batch"] < 0:
             raise ValueError(f"tracker URL {url.raw!r}: flood_batch={self.sim_options['flood_batch']} "
                              "must be >= 0")

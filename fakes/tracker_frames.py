@@ -10,7 +10,9 @@ include/emscon_ros/ES_C_API_Def.h):
   ``foreign_frame`` starts the fake with both applied and not the identity, as another client may leave
   them. How the controller composes the six or seven numbers is not public: this fake rotates about
   X, then Y, then Z (angles in the current angle unit), scales and shifts; any non-identity frame
-  moves the points, which is all a test of the driver needs.
+  moves the points, which is all a test of the driver needs. ``frame_held`` is a defect for ``ritactl
+  commission``'s test, not a documented behaviour: another client on the controller holds its frame (sets it
+  and applies it again whenever a client changes a frame or the settings), so no connect can clear it.
 * ES_SP_TcpDataPacketRate (400): "Between 3 and 10 packets per second (LTD706 and later!)", set with
   SetLongSystemParameter (120) and read with GetLongSystemParameter (121). Outside 3-10 the fake
   answers Parameter2OutOfRangeNOK (the value is the command's second parameter); a parameter id it
@@ -49,6 +51,9 @@ class _Host(Protocol):
     model: Any
     packet_rate_hz: float
     session: Any
+    frame_held: bool
+
+    def preset_foreign_frame(self) -> None: ...
 
 
 def _rotation(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -89,8 +94,14 @@ class FrameCommands:
             out = _apply(out, st.transformation, deg)
         return out
 
+    def held_again(self: _Host) -> None:
+        """``frame_held``: the other client sets its frame back after any change."""
+        if self.frame_held:
+            self.preset_foreign_frame()
+
     async def _c_SetStationOrientationParams(self: _Host, s: Any, v: dict) -> Reply:
         self.model.state.orientation = tuple(float(v[k]) for k in ORIENTATION_KEYS)
+        FrameCommands.held_again(self)
         return 0, {}, [encode_status_change(SSC.StationOrientationParamsChanged)]
 
     async def _c_GetStationOrientationParams(self: _Host, s: Any, v: dict) -> Reply:
@@ -100,6 +111,7 @@ class FrameCommands:
         if not v["scale"] > 0:
             return RS.WrongParameter7, {}, []
         self.model.state.transformation = tuple(float(v[k]) for k in TRANSFORMATION_KEYS)
+        FrameCommands.held_again(self)
         return 0, {}, [encode_status_change(SSC.TransformationParamsChanged)]
 
     async def _c_GetTransformationParams(self: _Host, s: Any, v: dict) -> Reply:

@@ -27,6 +27,7 @@ from fakes.tracker_session import Faults, Session, bare_answer, Dropped
 
 MAX_RECORDS = 20000  # per MultiMeasResult packet (well under the 1 MiB framer limit)
 COMPUTE_STEP_S = 0.005  # a stream's records are computed this often between packets
+MAX_BEHIND_S = 1.0  # a stream stalled longer than this (a suspended host) resumes its cadence from now
 
 
 class FakeTrackerServer(FrameCommands):
@@ -34,12 +35,14 @@ class FakeTrackerServer(FrameCommands):
 
     ``packet_rate_hz``: stream packets per second until a client sets ES_SP_TcpDataPacketRate;
     ``max_data_rate``: GetTrackerInfo's iMaxDataRate (a faster time separation is refused);
-    ``foreign_frame``: start with another client's station orientation and transformation applied.
+    ``foreign_frame``: start with another client's station orientation and transformation applied;
+    ``frame_held``: that client holds them (a defect no connect can clear: fakes/tracker_frames.py).
     """
 
     def __init__(self, world: Any, *, sigma_mm: float | None = None, time_scale: float = 0.05,
                  packet_rate_hz: float = 8.0, flood_batch: int = 0, faults: Faults | None = None,
-                 host: str = "127.0.0.1", max_data_rate: int = 1000, foreign_frame: bool = False) -> None:
+                 host: str = "127.0.0.1", max_data_rate: int = 1000, foreign_frame: bool = False,
+                 frame_held: bool = False) -> None:
         if not time_scale >= 0:
             raise ValueError(f"time_scale={time_scale!r} must be >= 0")
         if not 0 < packet_rate_hz <= 100:
@@ -48,7 +51,8 @@ class FakeTrackerServer(FrameCommands):
         self.time_scale = time_scale
         self.packet_rate_hz = packet_rate_hz
         self.max_data_rate = int(max_data_rate)
-        if foreign_frame:
+        self.frame_held = frame_held
+        if foreign_frame or frame_held:
             self.preset_foreign_frame()
         self.flood_batch = int(flood_batch)  # >0: stream full packets as fast as TCP allows (benchmarks)
         self.faults = faults or Faults()
@@ -211,6 +215,7 @@ class FakeTrackerServer(FrameCommands):
 
     async def _c_SetSystemSettings(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
         self.model.state.settings = {k: int(x) for k, x in v.items()}
+        self.held_again()
         return 0, {}, [encode_status_change(SSC.SystemSettingsChanged)]
 
     async def _c_SetSearchParams(self, s: Session, v: dict) -> tuple[int, dict, list[bytes]]:
@@ -344,11 +349,11 @@ class FakeTrackerServer(FrameCommands):
             rec["val1"], rec["val2"], rec["val3"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         return rec
 
-    async def _packet(self, t_next: float, dt: float, left: int) -> np.ndarray | None:
-        """One packet's records, due by the time it is sent. They are computed a few ms at a time as they
-        fall due (a moving robot's pose costs tens of µs a record), so the packet leaves right after its
-        last record's time, as a device's would, not a packet's computation later."""
-        end = time.monotonic() + 1.0 / self.packet_rate_hz
+    async def _packet(self, t_next: float, dt: float, left: int, end: float) -> np.ndarray | None:
+        """One packet's records, due by the time it is sent (``end``, its slot on the server's clock). They
+        are computed a few ms at a time as they fall due (a moving robot's pose costs tens of µs a record),
+        so the packet leaves right after its last record's time, as a device's would, not a packet's
+        computation later."""
         parts: list[np.ndarray] = []
         t, got = t_next, 0
         while True:
@@ -369,7 +374,7 @@ class FakeTrackerServer(FrameCommands):
         """Continuous-time mode: batches of records at the packet rate until stopped."""
         st = self.model.state
         dt = st.time_separation_ms / 1000.0
-        t_next = time.monotonic()
+        t_next = slot = time.monotonic()
         left = st.number_of_points or -1
         env = dict(zip(("temperature", "pressure", "humidity"), st.environment))
         try:
@@ -379,7 +384,12 @@ class FakeTrackerServer(FrameCommands):
                     await asyncio.sleep(0)
                     rec = self._records(min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS), t_next, dt)
                 else:
-                    rec = await self._packet(t_next, dt, left)
+                    # packets on a fixed cadence of the server's clock, as a device's timer sends them:
+                    # after a stall (a busy host) the packets due go out back to back, each with its own
+                    # records; one of more than MAX_BEHIND_S restarts the cadence
+                    slot += 1.0 / self.packet_rate_hz
+                    slot = slot if time.monotonic() - slot < MAX_BEHIND_S else time.monotonic()
+                    rec = await self._packet(t_next, dt, left, slot)
                 if rec is None:  # beam lost: tell the client the way a real server does
                     await s.send(encode_error(C.StartMeasurement, RS.MeasurementStatusNotReady))
                     return

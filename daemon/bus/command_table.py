@@ -91,6 +91,11 @@ TABLE: tuple[Command, ...] = (
                    "stream packets {source (clockmap, null before the first), offset_ns, drift_ppm, sigma_ns, samples, "
                    "window_s, two_way, resets}; sigma_ns leaves out the latency's fixed part (docs/architecture.md, Time)",
             polled=True),
+    Command("tracker.readback", "what the controller holds now: frames, environment, packet rate "
+            "(ritactl commission)", cli=("tracker", "readback"),
+            result="{apply_station_orientation_params, apply_transformation_params, station_orientation, "
+                   "transformation, weather_monitor_status, environment {temperature, pressure, humidity}, "
+                   "packet_rate}"),
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),
@@ -153,6 +158,17 @@ TABLE: tuple[Command, ...] = (
     Command("robot.release", "clear a latched stop: motions and robot jobs are allowed again (stopped jobs "
             "continue only on calib.resume)", "operator", cli=("robot", "release"),
             result="{released, was_latched}"),
+    Command("robot.commission", "the base firmware's conformance checks (drivers/robot_conformance) run on "
+            "ritad's own port: reachable, versions, reply latency, t_us; with allow_motion the host watchdog "
+            "and STOP's braking (ritactl commission)", "operator", cli=("robot", "conformance"),
+            result="{port, checks: [{name, verdict (pass, fail, warn, skip), value, detail}]}",
+            motion="moves",
+            args=(
+                Arg("allow_motion", "bool", "run the checks that drive the base (~0.1 m forwards)",
+                    default=False, cli="--allow-motion"),
+                Arg("clock_s", "float", "how long the base's clock is polled", unit="s", lo=0.5, hi=600,
+                    default=5.0, cli="--clock-s", metavar="S"),
+                _CONFIRM)),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
                    "inclinometer), battery_v, fault, host_time_ns, t_us (the base's clock, protocol 2; else null); "

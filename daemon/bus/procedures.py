@@ -28,7 +28,7 @@ from daemon.bus.procedure_params import (APPROACH_SPEED, CALIBRATION, COMPENSATI
 from daemon.bus.protocol import CommandError
 
 #: what the result shows (ritactl, the console's panel and plot)
-VIEWS = ("pose", "camera_model", "mark", "clusters")
+VIEWS = ("pose", "camera_model", "mark", "clusters", "checks")
 
 
 class Resolved:
@@ -164,7 +164,23 @@ EXPERIMENT = Procedure(
         Param("store_bias", "bool", "store the fitted robot-frame bias b in the active calibration "
               "(docs/operations.md)", default=False)))
 
-ALL: tuple[Procedure, ...] = (REFERENCING, INTRINSICS, MEASURE_MARK, EXPERIMENT)
+COMMISSION = Procedure(
+    "commission", "commission", "commissioning check: measures every assumption about the real devices that "
+    "the docs call unverified, one by one (docs/operations.md, Commissioning)", moves=True, view="checks",
+    params=(
+        Param("devices", "str", "the devices to check: all, or a comma list of tracker, camera, base",
+              default="all"),
+        Param("allow_motion", "bool", "run the base's checks that drive it: the host watchdog and STOP's "
+              "braking (~0.1 m forwards at 20-50 mm/s; clear its path)", default=False, aliases=("--yes",)),
+        Param("reflector_approx_trk", "vec", "approximate reflector position to lock the tracker onto, "
+              "tracker frame", unit="mm", length=3, default_text="none: a locked tracker, or the worker asks",
+              aliases=("--reflector",)),
+        Param("tracker_rate_hz", "float", "record rate of the tracker stream measured", unit="Hz", lo=0,
+              lo_open=True, hi=1000, default_text="the tracker's configured rate ([tracker] stream_rate_hz)"),
+        Param("duration_s", "float", "how long each device's stream is measured (the tracker's clock is "
+              "judged from 60 s on)", unit="s", default=60.0, lo=1, hi=600)))
+
+ALL: tuple[Procedure, ...] = (REFERENCING, INTRINSICS, MEASURE_MARK, EXPERIMENT, COMMISSION)
 BY_NAME: dict[str, Procedure] = {p.name: p for p in ALL}
 PROCEDURES: tuple[str, ...] = tuple(BY_NAME)
 #: the procedures that drive the robot: a STOP stops their jobs, and they cannot start while it is latched
@@ -293,7 +309,8 @@ def markdown_table() -> str:
     return "\n".join(_rows()) + "\n"
 
 
-__all__ = ["ALL", "BY_NAME", "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
+__all__ = ["ALL", "BY_NAME", "COMMISSION",
+           "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
            "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "Resolved", "check_params",
            "cli_flags", "describe", "get", "load_files", "markdown_table", "schema"]
 

@@ -27,8 +27,9 @@ from calibration.mount import from_reversal as mount_from_reversal, message as m
 from calibration.reversal import combine
 from calibration.scs import Scs, make_scs
 from calibration.compensation import Compensation, compensate, reflector_height_mm
-from daemon.bus.procedures import (EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks, Procedure,
-                                   Resolved, get)
+from daemon.bus.procedures import (COMMISSION, EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks,
+                                   Procedure, Resolved, get)
+from daemon.compute.commission import compute_commission
 from daemon.compute.experiment_checks import sigma_check, weight_checks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
                                    parse_compensation, plate_imu_offset, reflector_mount, stop_of, stop_record,
@@ -324,7 +325,8 @@ def compute_intrinsics(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
 #: the computation per declared procedure (the live worker and ``ritactl recompute`` alike)
 COMPUTE: Hooks[Callable[..., dict[str, Any]]] = Hooks("computation")
 for _proc, _fn in ((REFERENCING, compute_referencing), (INTRINSICS, compute_intrinsics),
-                   (MEASURE_MARK, compute_measure_mark), (EXPERIMENT, compute_experiment)):
+                   (MEASURE_MARK, compute_measure_mark), (EXPERIMENT, compute_experiment),
+                   (COMMISSION, compute_commission)):
     COMPUTE.on(_proc)(_fn)
 COMPUTE.complete()
 

@@ -16,7 +16,7 @@ from typing import Any
 from daemon.bus.client import Client
 from daemon.bus.command_table import COMMANDS
 from daemon.bus.names import JobState
-from daemon.bus.procedures import MOVING_PROCEDURES
+from daemon.bus.procedures import BY_NAME, MOVING_PROCEDURES
 from daemon.ctl.device import add_table_args, table_args
 from daemon.ctl.procverbs import add_procedure_parsers
 from daemon.ctl.io import ask, print_result, say, yes_after_ctrl_c
@@ -163,7 +163,9 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     if d.get("mark"):
         x, y, z = d["mark"]["abs_xyz"]
         print(f"  mark at ACS ({x:.4f}, {y:.4f}, {z:.4f}) mm ± {d['mark']['std_mm'] * 1000:.0f} µm")
-    if d.get("table_markdown"):
+    if view_of(d.get("procedure")) == "checks" and d.get("checks"):  # one line per check, as the kit's
+        print_checks(d["checks"])
+    elif d.get("table_markdown"):
         print("\n" + d["table_markdown"])
     for line in experiment_goal_lines(d.get("metrics")):  # each goal met or MISSED, never a bare figure
         print(f"  {line}")
@@ -179,6 +181,22 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
     return code
 
 
+
+
+def view_of(procedure: Any) -> str:
+    """What a procedure's result shows (daemon/bus/procedures.py ``view``); "" for an unknown one."""
+    proc = BY_NAME.get(procedure) if isinstance(procedure, str) else None
+    return proc.view if proc else ""
+
+
+def print_checks(checks: list[dict[str, Any]]) -> None:
+    """A commissioning's checks: verdict, device, check, the measured value and why."""
+    for c in checks:
+        detail = f"  ({c['detail']})" if c.get("detail") else ""
+        verdict = str(c.get("verdict")).upper()
+        print(f"  {verdict:4}  {c.get('device')!s:7} {c.get('name')!s:18} {c.get('value')}{detail}")
+    n = {v: sum(1 for c in checks if c.get("verdict") == v) for v in ("pass", "fail", "warn", "skip")}
+    print(f"  {n['pass']} passed, {n['fail']} failed, {n['warn']} warned, {n['skip']} skipped")
 
 
 _show_result = show_result  # the name daemon/ctl/datasets.py imports (recompute)

@@ -23,6 +23,7 @@ from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import read_results, tracker_point_dict
 from daemon.ritad import files, plates
 from daemon.ritad.calib_jobs import CalibJobs
+from daemon.ritad.commission import commission_handlers
 from daemon.ritad.futures import chain, gather
 from daemon.ritad.key_admin import key_handlers
 from daemon.ritad.server import Handler, Reply, Request
@@ -74,6 +75,7 @@ def _tracker(trk: TrackerRig) -> dict[str, Handler]:
     return {"tracker.measure": measure, "tracker.aim": aim, "tracker.find": find,
             "tracker.stream.start": stream_start,
             "tracker.stream.stop": _then(lambda: trk.job(lambda t: t.stop_stream()), {"streaming": False}),
+            "tracker.readback": lambda req: trk.job(lambda t: t.readback()),
             "tracker.status": lambda req: trk.status(lambda t: t.status())}
 
 
@@ -278,7 +280,7 @@ def build_handlers(s: Services, rigs: Rigs, reports: Reports, timelines: Timelin
     raw: dict[str, Handler] = {**s.calib.handlers(), **_daemon(s, reports), **_tracker(rigs.tracker),
                                **_camera(rigs.camera, s), **_robot(rigs.robot, s.calib),
                                **_capture(rigs, timelines, s), **_files(s), **_plates(s), **_keys(s),
-                               **_frames(rigs.camera, s)}
+                               **_frames(rigs.camera, s), **commission_handlers(rigs.robot)}
     for name, handler in (plugins or {}).items():
         if name in raw:
             raise RuntimeError(f"plugin handler {name!r} would replace a product command")

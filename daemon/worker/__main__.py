@@ -116,7 +116,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
     ctx.finish(JobState.DONE)
     summary = {k: result.get(k) for k in ("procedure", "verdict", "messages", "rob_H_cam", "dataset", "mark",
                                           "table_markdown", "files", "uncertainty", "compensation",
-                                          "metrics")}  # metrics: ritactl marks the experiment's goals
+                                          "metrics", "checks")}  # metrics: ritactl marks the goals
     ctx.report("result", summary)  # the last report: a job with a result is final
     return result
 

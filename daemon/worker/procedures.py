@@ -20,7 +20,8 @@ from daemon.worker.guided_intrinsics import guided_intrinsics
 from daemon.worker.job import JobContext, StepFailed
 from daemon.worker.motion import HEADING_TOL_DEG, ODOMETRY_TOL_MM, odometry_delta
 from daemon.worker.nav import Navigator
-from daemon.bus.procedures import EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
+from daemon.bus.procedures import COMMISSION, EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks
+from daemon.worker.commission import run_commission
 from daemon.bus.protocol import CommandError
 
 #: a referencing drive cut short is driven back when the odometry since P0 shows the robot on its line
@@ -244,6 +245,6 @@ def experiment(ctx: JobContext) -> None:
 #: the worker's run per declared procedure; a declared procedure without one fails here, at import
 RUN: Hooks[Callable[[JobContext], None]] = Hooks("worker run")
 for _proc, _fn in ((REFERENCING, referencing), (INTRINSICS, guided_intrinsics), (MEASURE_MARK, measure_mark),
-                   (EXPERIMENT, experiment)):
+                   (EXPERIMENT, experiment), (COMMISSION, run_commission)):
     RUN.on(_proc)(_fn)
 RUN.complete()

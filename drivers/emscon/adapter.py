@@ -32,7 +32,8 @@ from drivers.emscon.enums import (
     ES_MeasMode,
     ES_PressureUnit, ES_ResultStatus, ES_SystemStatusChange, ES_TemperatureUnit,
     ES_TrackerProcessorStatus, ES_TrackerStatus, enum_name)
-from drivers.emscon.known_state import DEFAULT_PACKET_RATE, PACKET_RATE_RANGE, clear_frames, set_packet_rate
+from drivers.emscon.known_state import (DEFAULT_PACKET_RATE, PACKET_RATE_RANGE, clear_frames, read_back,
+                                        set_packet_rate)
 
 log = logging.getLogger(__name__)
 DEFAULT_PORT = 700
@@ -163,6 +164,7 @@ class EmsconTracker(Tracker):
             self._select_reflector(c, self.reflector)
         info = c.request(ES_Command.GetTrackerInfo).values
         self._info = {"packet_rate": set_packet_rate(c, self.packet_rate, self.url.raw),
+                      "packet_rate_asked": self.packet_rate,
                       "tracker_name": info["tracker_name"],
                       "tracker_type": enum_name(ES_LTSensorType, info["tracker_type"]),
                       "serial_number": info["serial_number"], "max_data_rate": info["max_data_rate"],
@@ -329,6 +331,10 @@ class EmsconTracker(Tracker):
 
     def info(self) -> dict[str, Any]:
         return {"url": self.url.raw, **self._info}
+
+    def readback(self) -> dict[str, Any]:
+        """The controller's frames, environment and packet rate, read back now (``tracker.readback``)."""
+        return read_back(self._conn())
 
     # ------------------------------------------------------------------ async input
 

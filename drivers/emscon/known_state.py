@@ -11,10 +11,11 @@ ES_C_API_Def.h as published in beckjac/emscon_ros include/emscon_ros/ES_C_API_De
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from drivers.base import DeviceError, DeviceLost
 from drivers.emscon.client import EmsconClient
-from drivers.emscon.enums import ES_Command, ES_SystemParameter
+from drivers.emscon.enums import ES_Command, ES_SystemParameter, ES_WeatherMonitorStatus, enum_name
 
 log = logging.getLogger(__name__)
 #: ES_SP_TcpDataPacketRate's range, packets per second (ES_C_API_Def.h: "Between 3 and 10 packets per
@@ -52,3 +53,25 @@ def set_packet_rate(c: EmsconClient, rate: int, where: str) -> int | None:
                     where, exc)
         return None
     return int(got["parameter"])
+
+
+def read_back(c: EmsconClient) -> dict[str, Any]:
+    """What the controller holds now, as ``ritactl commission`` checks it: the apply flags, station
+    orientation and transformation (identity and off after every connect), the weather monitor's status and
+    the environment the refraction uses, and the stream packet rate (None: no such parameter)."""
+    settings = c.request(ES_Command.GetSystemSettings).values
+    status = c.request(ES_Command.GetSystemStatus).values
+    try:
+        rate: int | None = int(c.request(ES_Command.GetLongSystemParameter,
+                                         system_param=ES_SystemParameter.TcpDataPacketRate)["parameter"])
+    except DeviceLost:
+        raise
+    except DeviceError:
+        rate = None
+    return {"apply_station_orientation_params": int(settings["apply_station_orientation_params"]),
+            "apply_transformation_params": int(settings["apply_transformation_params"]),
+            "station_orientation": dict(c.request(ES_Command.GetStationOrientationParams).values),
+            "transformation": dict(c.request(ES_Command.GetTransformationParams).values),
+            "weather_monitor_status": enum_name(ES_WeatherMonitorStatus, status["weather_monitor_status"]),
+            "environment": dict(c.request(ES_Command.GetEnvironmentParams).values),
+            "packet_rate": rate}

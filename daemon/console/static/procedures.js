@@ -93,6 +93,7 @@ function showResult(r) {
   } else $("result-rob-H-cam").textContent = r.mark ? `mark (ACS, mm): ${r.mark.abs_xyz.map((v) => fmt(v)).join(", ")}` : "";
   $("result-messages").replaceChildren(...(r.messages || []).map((t) => el("li", { textContent: t })));
   $("result-table").innerHTML = markdownTable(r.table_markdown || "");
+  if (viewOf(r.procedure) === "checks" && r.checks) showChecks(r.checks);   // checks.js
   if (viewOf(r.procedure) === "camera_model" && r.dataset) showIntrinsics(r.dataset);
   const names = ["result.json", "result.yaml", ...(r.files || [])];
   const files = names.flatMap((f) => [" ", fileLink(`${r.dataset}/${f}`, f)]);

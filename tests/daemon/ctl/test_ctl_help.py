@@ -122,7 +122,7 @@ def complete(shell: str, *words: str, cur: str = "", cwd: str | None = None) -> 
 def test_completion_completes_subcommands_options_and_values(shell, tmp_path):
     _need(shell)
     assert {"status", "tracker", "robot", "calibrate", "keys", "completion"} <= complete(shell)
-    assert complete(shell, "tracker") == {"measure", "aim", "find", "stream", "status"}
+    assert complete(shell, "tracker") == {"measure", "aim", "find", "stream", "status", "readback"}
     assert complete(shell, "keys") == {"init", "allow", "role", "revoke", "list"}
     assert complete(shell, "completion") == {"bash", "zsh", "fish"}  # a positional's choices
     # an option's values

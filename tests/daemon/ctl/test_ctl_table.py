@@ -125,7 +125,7 @@ def test_bash_completion_completes_from_the_parser():
         return set(out.stdout.split())
 
     assert {"status", "tracker", "robot", "calibrate", "jobs"} <= complete("")
-    assert complete("tracker", "") == {"measure", "aim", "find", "stream", "status"}
+    assert complete("tracker", "") == {"measure", "aim", "find", "stream", "status", "readback"}
     assert complete("tracker", "stream", "") == {"start", "stop"}
     tracker_opts = complete("tracker", "aim", "--")
     assert "--json" in tracker_opts and "--yes" not in tracker_opts and "--speed" not in tracker_opts

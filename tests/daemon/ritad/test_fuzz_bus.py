@@ -113,6 +113,8 @@ def make_safe(cmd: str, args: Any) -> Any:
         args["confirm"] = False
     if cmd in SLOW:  # a valid request renders for tens of seconds: keep it fuzzed, always refused
         args["views"] = 0
+    if cmd == "robot.commission":  # a valid one runs the base's checks for seconds: fuzzed, always refused
+        args["clock_s"] = 0.0
     if cmd in ("calib.next", "calib.inbox"):
         t = args.get("timeout_s", _MISSING)
         if t is _MISSING or (isinstance(t, (int, float)) and not isinstance(t, bool) and 0 <= t <= 60):

@@ -22,7 +22,7 @@ import pytest
 from calibration.camera_model import CameraModel
 from calibration.scs import make_scs
 from daemon.bus.client import Client
-from daemon.bus.procedures import MOVING_PROCEDURES
+from daemon.bus.procedures import COMMISSION, MOVING_PROCEDURES
 from daemon.worker.job import JobContext, StepFailed, Stopped
 from daemon.worker.motion import odometry_delta
 from daemon.worker.procedures import RUN
@@ -131,7 +131,9 @@ def referencing_params(c: Client, tmp: Path) -> dict[str, Any]:
 
 
 def test_the_driving_procedures_are_the_ones_tested_here():
-    assert set(MOVING_PROCEDURES) == {"referencing", "measure-mark", "experiment"}
+    # and the commissioning, which records no motion as driven: its base checks' moves (the conformance kit's,
+    # each ending in a STOP of its own) are judged, never resumed (tests/system/test_commission.py)
+    assert set(MOVING_PROCEDURES) == {"referencing", "measure-mark", "experiment", COMMISSION.name}
 
 
 def test_referencing_stopped_before_50_mm_drives_back_and_redoes_the_drive_from_p0(rig):
