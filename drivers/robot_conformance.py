@@ -23,7 +23,7 @@ from drivers import robot_conformance_checks as cc
 from drivers import robot_conformance_motion as cm
 from drivers.base import DeviceURL
 from drivers.robot import SerialRobot
-from drivers.robot_conformance_link import Check, Link
+from drivers.robot_conformance_link import SLICE_S, VERDICTS, Check, Link
 from drivers.robot_port import open_error, open_port
 
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
             target,
             robot.url.scheme,
             baudrate=robot.baudrate,
-            timeout=0.005,
+            timeout=SLICE_S,
             write_timeout=robot.reply_timeout,
             dtr=bool(robot.dtr),
             rts=bool(robot.rts),
@@ -144,7 +144,7 @@ def _print(results: list[Check], as_json: bool, target: str) -> None:
         return
     for r in results:
         print(r.line())
-    counts = {v: sum(1 for r in results if r.verdict == v) for v in ("pass", "fail", "warn", "skip")}
+    counts = {v: sum(1 for r in results if r.verdict == v) for v in VERDICTS}
     print(
         f"{counts['pass']} passed, {counts['fail']} failed, {counts['warn']} warned, "
         f"{counts['skip']} skipped "

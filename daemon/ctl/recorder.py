@@ -14,7 +14,7 @@ from typing import IO, Any, Callable
 from daemon import __version__
 from daemon.ctl import foxglove as fox
 from daemon.ctl import mcapfile as fmt
-from daemon.ctl.exitcodes import CtlError, Exit
+from daemon.ctl.exitcodes import CtlError, Exit, missing_extra
 from daemon.ctl.foxglove_schemas import schema_bytes
 from daemon.ctl.reclimits import Limits
 
@@ -42,9 +42,7 @@ def image_encoder(frames_format: str) -> Callable[[dict[str, Any], Any], bytes]:
         import cv2
         import numpy as np
     except ImportError as exc:
-        raise CtlError(Exit.BAD_INPUT, "missing_package",
-                       f"--frames-format {frames_format} needs OpenCV ({exc.name} is not installed): "
-                       f"pip install 'rita[laptop]'") from None
+        raise missing_extra(f"--frames-format {frames_format}", "laptop", "OpenCV", exc) from None
     ext = ".jpg" if frames_format == "jpeg" else ".png"
 
     def encode(header: dict[str, Any], pixels: Any) -> bytes:
