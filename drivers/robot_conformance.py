@@ -51,7 +51,7 @@ def run_checks(
     polls_done = cc.poll_status(link, polls)
     results += [cc.check_seq(polls_done), cc.check_latency(polls_done, baudrate, link.timeout)]
     if rp_clock(protocol, caps):
-        results.append(cc.check_clock(cc.status_t_us(link, clock_s)))
+        results += cc.check_clock(cc.status_t_us(link, clock_s))
     else:
         results.append(Check("t_us", "skip", f"protocol {protocol} without CLOCK"))
     results += cc.check_streams(link, caps, seconds=stream_s)

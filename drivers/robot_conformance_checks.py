@@ -219,29 +219,33 @@ def _t_us(r: Received) -> int | None:
         return None
 
 
-def check_clock(readings: ClockReadings) -> Check:
-    """``t_us`` never goes back, counts µs at the host's rate, and is wider than 32 bits: a value at or
-    above 2³² proves it; below, its width is not shown yet (warn: run again after 72 min of uptime).
+def check_clock(readings: ClockReadings) -> list[Check]:
+    """``t_us`` never goes back and counts µs at the host's rate; ``t_us_width``: it is wider than 32 bits.
+    A value at or above 2³² proves the width; below, it cannot be shown yet, so that check is skipped with
+    its reason (run again after 72 min of uptime) rather than passed or failed on no evidence.
     The rate is bounded, not estimated: each stamp was taken between its poll's write and read, so the
     base's interval from the first poll to the last lies between (write_last - read_first) and
     (read_last - write_first) of the host's, widened by CLOCK_PPM (two crystals): the host's load only
     widens the bounds, it never fails a good base."""
     polled, all_t = readings.polled, readings.all_t_us
     if len(polled) < 2:
-        return verdict("t_us", False, f"{len(polled)} STATUS with t_us", "a base with CLOCK sends t_us")
+        return [verdict("t_us", False, f"{len(polled)} STATUS with t_us", "a base with CLOCK sends t_us")]
     back = [b - a for a, b in zip(all_t, all_t[1:]) if b < a]
     value = f"{len(all_t)} readings, last {all_t[-1]} µs"
     if back:
-        return verdict("t_us", False, value, f"went back by {-min(back)} µs (a wrap or a restart)")
+        return [verdict("t_us", False, value, f"went back by {-min(back)} µs (a wrap or a restart)")]
     (w0, r0, u0), (w1, r1, u1) = polled[0], polled[-1]
     device_s = (u1 - u0) / 1e6
     low, high = (w1 - r0) * (1 - CLOCK_PPM * 1e-6), (r1 - w0) * (1 + CLOCK_PPM * 1e-6)
     value += f"; {device_s:.4f} s of its clock in {low:.4f}..{high:.4f} s of the host's"
     if not low <= device_s <= high:
-        return verdict("t_us", False, value, "not counting µs at the host's rate")
+        return [verdict("t_us", False, value, "not counting µs at the host's rate")]
+    rate = verdict("t_us", True, value, "never back, at the host's rate")
+    top = f"largest {max(all_t)} µs"
     if max(all_t) < 2**32:
-        return Check("t_us", "warn", value, "below 2^32: the width is shown only after 71.6 min of uptime")
-    return verdict("t_us", True, value, "above 2^32: wider than 32 bits")
+        return [rate, Check("t_us_width", "skip", top, "below 2^32: the width shows only after 71.6 min "
+                            "of uptime; run again then")]
+    return [rate, verdict("t_us_width", True, top, "above 2^32: wider than 32 bits")]
 
 
 def check_streams(link: Link, caps: list[str], rate_hz: float = 20.0, seconds: float = 1.0) -> list[Check]:

@@ -44,7 +44,7 @@ def kit_checks(link: Link, *, baudrate: int, allow_motion: bool, clock_s: float)
     polls = cc.poll_status(link, POLLS)
     results += [versions, cc.check_latency(polls, baudrate, link.timeout)]
     if rp_clock(protocol, caps):
-        results.append(cc.check_clock(cc.status_t_us(link, clock_s)))
+        results += cc.check_clock(cc.status_t_us(link, clock_s))
     else:
         results.append(Check("t_us", "warn", f"protocol {protocol} without CLOCK", "the host times the "
                              "base by arrival (σ 6 ms): update the firmware to protocol 2 or 3"))

@@ -35,7 +35,7 @@ BASE = f"sim:?time_scale=1&clock_offset_s={UP_S:g}"
 TRACKER_CHECKS = {"record_time", "packet_rate", "frame_cleared", "environment", "clock_sigma"}
 CAMERA_CHECKS = {"ptp_role", "ptp_offset", "timestamp_unit", "timestamp_latch", "link_speed", "packet_size",
                  "resends", "pixel_format"}
-BASE_CHECKS = {"stop_before_hello", "versions", "latency", "t_us", "watchdog", "hello_while_moving",
+BASE_CHECKS = {"stop_before_hello", "versions", "latency", "t_us", "t_us_width", "watchdog", "hello_while_moving",
                "stop_braking", "t_us_resets"}
 
 
@@ -98,7 +98,7 @@ def test_ritactl_commission_passes_on_the_simulated_robot(tmp_path: Path, capsys
     assert code == 0 and result["verdict"] == "ok", printed
     for c in checks.values():  # the ritactl lines: verdict, device, check and the measured value
         assert f"{c['verdict'].upper():4}  {c['device']:7} {c['name']:18} {c['value']}" in printed
-    assert "FAULT HOST_LOST" in checks["watchdog"]["value"] and "above 2^32" in checks["t_us"]["detail"]
+    assert "FAULT HOST_LOST" in checks["watchdog"]["value"] and "above 2^32" in checks["t_us_width"]["detail"]
     folder = Path(result["dataset"])
     assert validate_folder(folder) == []
     state = json.loads((folder / "state.json").read_text())
@@ -110,14 +110,15 @@ def test_ritactl_commission_passes_on_the_simulated_robot(tmp_path: Path, capsys
         validate_folder(folder)
 
 
-def test_a_fresh_base_and_no_motion_warn_and_skip_and_say_why(tmp_path: Path) -> None:
-    """A base up for less than 71.6 min cannot show its clock's width: warn; the motions skipped without
-    --allow-motion; ritactl's exit 1 for a warn."""
+def test_a_fresh_base_and_no_motion_skip_what_they_cannot_show_and_say_why(tmp_path: Path) -> None:
+    """A base up for less than 71.6 min cannot show its clock's width: that check skipped with its reason,
+    the clock's other checks passed; the motions skipped without --allow-motion."""
     result, _ = commission(tmp_path, {"devices": "base"}, robot="sim:?time_scale=1&clock_offset_s=100")
     checks = by_name(result)
-    assert checks["t_us"]["verdict"] == "warn" and "71.6 min" in checks["t_us"]["detail"]
+    assert checks["t_us"]["verdict"] == "pass"
+    assert checks["t_us_width"]["verdict"] == "skip" and "71.6 min" in checks["t_us_width"]["detail"]
     assert {checks[n]["verdict"] for n in ("watchdog", "stop_braking")} == {"skip"}
-    assert "--allow-motion" in checks["watchdog"]["value"] and result["verdict"] == "warn"
+    assert "--allow-motion" in checks["watchdog"]["value"] and result["verdict"] == "ok"
 
 
 def test_a_tracker_that_keeps_another_clients_frame_fails_frame_cleared(tmp_path: Path) -> None:
