@@ -56,8 +56,6 @@ LONG_LINES: dict[str, int] = {
     "daemon/compute/procedures.py": 8,
     "daemon/compute/recompute.py": 3,
     "daemon/compute/survey.py": 1,
-    "daemon/console/bridge.py": 1,
-    "daemon/console/server.py": 17,
     "daemon/ctl/calib.py": 7,
     "daemon/ctl/console.py": 7,
     "daemon/ctl/datasets.py": 7,
