@@ -79,7 +79,6 @@ LONG_LINES: dict[str, int] = {
     "daemon/worker/__main__.py": 3,
     "daemon/worker/compensations.py": 1,
     "daemon/worker/procedures.py": 2,
-    "drivers/emscon/adapter.py": 5,
     "fakes/accuracy.py": 8,
     "fakes/camera.py": 1,
     "fakes/demo_floor.py": 5,
