@@ -80,14 +80,6 @@ LONG_LINES: dict[str, int] = {
     "daemon/worker/compensations.py": 1,
     "daemon/worker/procedures.py": 2,
     "fakes/accuracy.py": 8,
-    "fakes/camera.py": 1,
-    "fakes/demo_floor.py": 5,
-    "fakes/effects.py": 4,
-    "fakes/errors.py": 16,
-    "fakes/robot.py": 4,
-    "fakes/simulate.py": 1,
-    "fakes/tracker.py": 2,
-    "fakes/tracker_server.py": 1,
 }
 
 
