@@ -81,9 +81,7 @@ TABLE: tuple[Command, ...] = (
         Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
             metavar=k.upper()) for k in "xyz"), result="{aimed}", motion="moves"),
     Command("tracker.find", "search and lock the reflector near where the tracker points", "operator",
-            cli=("tracker", "find"),
-            result="{locked: true}; tracker_<Status> when nothing is found",
-            args=(
+            cli=("tracker", "find"), result="{locked: true}; tracker_<Status> when nothing is found", args=(
                 Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
                     lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),),
             motion="moves"),
@@ -235,13 +233,11 @@ TABLE: tuple[Command, ...] = (
             "checkpoint (a stopped one only after robot.release)",
             "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
     Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator",
-            verb="calibrate",
-            result="{job, worker_seen_s_ago}", args=(
+            verb="calibrate", result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
                 Arg("params", "map", "the procedure's parameters, checked against its table in "
                     "daemon/bus/procedure_params.py (types, ranges, names; a definition file as the JSON "
-                    "object)",
-                    default={}),
+                    "object)", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
             result="{delivered}; answer must be one of the prompt's choices",
@@ -257,8 +253,7 @@ TABLE: tuple[Command, ...] = (
             args=(
         Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),), polled=True),
     Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator",
-            worker_only=True,
-            result="{answer} or {cancel: true}, or null on timeout",
+            worker_only=True, result="{answer} or {cancel: true}, or null on timeout",
             args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60)),
             polled=True),
     Command("calib.report", "worker: progress, prompt, result or error of a job", "operator",
@@ -271,11 +266,9 @@ TABLE: tuple[Command, ...] = (
                       default_text="the posted job's")),
             polled=True),
     Command("keys.list", "the allow-list: names, roles and public keys of the CURVE keys", "admin",
-            verb="keys",
-            result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
+            verb="keys", result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
     Command("keys.allow", "allow a CURVE key with a role (replaces an entry of that name)", "admin",
-            verb="keys",
-            result="{name, role, public_key}", args=(
+            verb="keys", result="{name, role, public_key}", args=(
                 _KEY_NAME,
                 Arg("public_key", "str", "the client's public key (z85, 40 characters)", default=REQUIRED),
                 Arg("role", "str", "what the key may do", default="viewer", choices=ROLES))),
@@ -283,8 +276,7 @@ TABLE: tuple[Command, ...] = (
             result="{name, role, public_key}", args=(
                 _KEY_NAME, Arg("role", "str", "what the key may do", default=REQUIRED, choices=ROLES))),
     Command("keys.revoke", "remove a key from the allow-list (its open connections too)", "admin",
-            verb="keys",
-            result="{revoked}", args=(_KEY_NAME,)),
+            verb="keys", result="{revoked}", args=(_KEY_NAME,)),
 )
 
 assert len({c.name for c in TABLE}) == len(TABLE), "duplicate command in TABLE"
