@@ -85,7 +85,8 @@ def _run(link: Link, results: list[Check], *, baudrate: int, allow_motion: bool,
     results.append(cc.check_framing(link, start))
 
 
-def _run_motions(link: Link, results: list[Check], protocol: int, caps: list[str], allow_motion: bool) -> None:
+def _run_motions(link: Link, results: list[Check], protocol: int, caps: list[str],
+                 allow_motion: bool) -> None:
     if not allow_motion:
         results += [Check(name, "skip", "moves the robot: run with --allow-motion") for name in MOTION_CHECKS]
         return
@@ -154,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_UNREACHABLE
     gate = MotionGate()  # Ctrl-C and SIGTERM engage it: the link writes STOP at its next read slice
     restore = _stop_on_signals(gate)
-    link = Link(port, robot.reply_timeout, gate=gate, stop_by="Ctrl-C or SIGTERM", halt_tries=robot.retries + 1)
+    link = Link(port, robot.reply_timeout, gate=gate, stop_by="Ctrl-C or SIGTERM",
+                halt_tries=robot.retries + 1)
     try:
         results = run_checks(link, baudrate=robot.baudrate, allow_motion=args.allow_motion, polls=args.polls)
     finally:

@@ -60,7 +60,7 @@ def verdict(name: str, ok: bool, value: str, detail: str = "") -> Check:
 
 
 def not_run(done: list[Check], names: tuple[str, ...], why: str) -> list[Check]:
-    """Each check of ``names`` that a STOP kept from its end, failed (a stopped kit passed nothing), saying why."""
+    """Each check of ``names`` a STOP kept from its end, failed (a stopped kit passed nothing), saying why."""
     ran = {c.name for c in done}
     return [Check(n, "fail", STOPPED, f"{why}; release the stop and run the kit again") for n in names
             if n not in ran]
@@ -139,8 +139,8 @@ class Link:
         return self.log[start:]
 
     def _gate_check(self, line: bytes | None) -> None:
-        """Before a read slice or the write of ``line``: the halt owed goes out first and ends the run; a motion
-        line is refused while the gate is latched or after the run was stopped (its finally's STOPs are not)."""
+        """Before a read slice or the write of ``line``: the halt owed goes out first and ends the run; a
+        motion line is refused while the gate is latched or after the run was stopped (a STOP never is)."""
         gate = self.gate
         if gate is None:
             return
@@ -152,7 +152,7 @@ class Link:
             raise KitStopped(self.stopped or f"{kind} refused: the stop is latched (no motion line written)")
 
     def _halt_due(self, gate: MotionGate) -> tuple[int, str] | None:
-        """The gate's newest request to halt for and who asked; ritad's exit owes the base a halt of its own."""
+        """The gate's newest request to halt for, and who asked (ritad's exit owes the base a halt too)."""
         if (due := gate.halt_due()) is not None:
             return due, self.stop_by
         if not self.exiting():
@@ -177,9 +177,10 @@ class Link:
                         and seq_of(got.msg) == seq:
                     got.taken = True
                     gate.halted(upto)
-                    return f"{who}: STOP (seq {seq}) acknowledged by the base in {ms(got.t - t0)}; kit aborted"
-        return (f"{who}: STOP (seq {seq}) NOT acknowledged in {limit:.3g} s (still owed: the driver's connect "
-                "writes it first); kit aborted")
+                    return f"{who}: STOP (seq {seq}) acknowledged by the base in {ms(got.t - t0)}; " \
+                        "kit aborted"
+        return (f"{who}: STOP (seq {seq}) NOT acknowledged in {limit:.3g} s (still owed: the driver's "
+                "connect writes it first); kit aborted")
 
     def wait_for(
         self, pred: Callable[[rp.Message], bool], timeout: float, after: float = 0.0

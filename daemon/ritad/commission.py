@@ -105,8 +105,9 @@ def run_on_port(robot: Robot, allow_motion: bool, clock_s: float,
     robot.close()
     try:
         port = _kit_port(robot, target)
-        try:  # the driver's gate: a STOP meanwhile goes out within the kit's read slice, as the driver's would
-            link = Link(port, robot.reply_timeout, gate=robot.gate, exiting=exiting, halt_tries=robot.retries + 1)
+        try:  # the driver's gate: a STOP meanwhile goes out within the kit's read slice, as the driver's
+            link = Link(port, robot.reply_timeout, gate=robot.gate, exiting=exiting,
+                        halt_tries=robot.retries + 1)
             checks = kit_checks(link, baudrate=robot.baudrate, allow_motion=allow_motion, clock_s=clock_s)
         finally:
             port.close()

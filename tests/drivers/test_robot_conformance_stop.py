@@ -35,26 +35,36 @@ ROOT = Path(__file__).resolve().parents[2]
 HANG_S = 2.0
 
 
+def record_lines(fake: Any) -> list[tuple[float, str]]:
+    """From now on, (host time, kind) of every line the fake base ``fake`` handles."""
+    heard: list[tuple[float, str]] = []
+    handle = fake.handle_line
+
+    def recording(line: bytes) -> None:
+        heard.append((time.monotonic(), line.split(b",", 1)[0].lstrip(b"$").decode(errors="replace")))
+        handle(line)
+
+    fake.handle_line = recording
+    return heard
+
+
+def is_moving(fake: Any) -> bool:
+    with fake._lock:
+        fake.tick()
+        return bool(fake.moving)
+
+
 class Base:
     """A fake base (with ``defects``) on a pty, recording (host time, kind) of every line it handles."""
 
     def __init__(self, *defects: str) -> None:
         self.base = DefectiveBase(World(WorldParams(seed=1, start_pose=(0.0, 0.0, 0.0))), time_scale=1.0,
                                   defects=defects, clock_offset_s=5000.0)
-        self.heard: list[tuple[float, str]] = []
-        handle = self.base.handle_line
-
-        def recording(line: bytes) -> None:
-            self.heard.append((time.monotonic(), line.split(b",", 1)[0].lstrip(b"$").decode(errors="replace")))
-            handle(line)
-
-        self.base.handle_line = recording  # type: ignore[method-assign]
+        self.heard = record_lines(self.base)
         self.server = PtyServer(self.base)
 
     def moving(self) -> bool:
-        with self.base._lock:
-            self.base.tick()
-            return self.base.moving
+        return is_moving(self.base)
 
     def x(self) -> float:
         with self.base._lock:

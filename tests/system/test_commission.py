@@ -24,6 +24,7 @@ from daemon.compute.commission import compute_commission
 from daemon.ctl.main import main as ritactl
 from daemon.ritad import config
 from daemon.worker.__main__ import run_job
+from tests.drivers.test_robot_conformance_stop import is_moving, record_lines
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 from tools.harness.stop_rig import wait_for
 
@@ -200,25 +201,6 @@ def test_a_device_that_is_down_is_one_failed_check_naming_why() -> None:
          "detail": "fix this first: no other check of it ran"}]
 
 
-def _heard(fake: Any) -> list[tuple[float, str]]:
-    """From now on, (host time, kind) of every line the fake base handles."""
-    heard: list[tuple[float, str]] = []
-    handle = fake.handle_line
-
-    def recording(line: bytes) -> None:
-        heard.append((time.monotonic(), line.split(b",", 1)[0].lstrip(b"$").decode(errors="replace")))
-        handle(line)
-
-    fake.handle_line = recording
-    return heard
-
-
-def _moving(fake: Any) -> bool:
-    with fake._lock:
-        fake.tick()
-        return bool(fake.moving)
-
-
 def _kit_moving(endpoint: str, fake: Any, out: dict[str, Any]) -> threading.Thread:
     """``robot.commission allow_motion confirm`` from a client of its own (its reply or error in ``out``),
     returned once the kit's first MOVE is under way."""
@@ -231,7 +213,7 @@ def _kit_moving(endpoint: str, fake: Any, out: dict[str, Any]) -> threading.Thre
 
     kit = threading.Thread(target=run, daemon=True)
     kit.start()
-    wait_for(lambda: _moving(fake), 60, "the kit's MOVE under way")
+    wait_for(lambda: is_moving(fake), 60, "the kit's MOVE under way")
     return kit
 
 
@@ -241,17 +223,18 @@ def test_a_stop_from_another_client_halts_the_base_during_the_kits_motions(tmp_p
     the commission's reply names the stop, and motions are refused while latched."""
     with ritad_in_process(tmp_path / "rt", tmp_path / "data", robot=BASE) as (d, c):
         fake = d.rigs.robot.runner.device.fake
-        heard, out = _heard(fake), {}
+        heard, out = record_lines(fake), {}
         kit = _kit_moving(d.server.endpoints[0], fake, out)
         t_stop = time.monotonic()
         reply = c.call("robot.stop", timeout=30)
         kit.join(timeout=60)
         after = [kind for t, kind in list(heard) if t >= t_stop]
         assert reply["stopped"] is True and reply["latched"] is True, reply  # the base acknowledged it
-        assert not _moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
+        assert not is_moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
         assert not kit.is_alive() and "error" not in out, out
         checks = {ch["name"]: ch for ch in out["reply"]["checks"]}
-        assert checks["watchdog"]["verdict"] == "fail" and "STOP during the kit" in checks["watchdog"]["value"]
+        assert checks["watchdog"]["verdict"] == "fail", checks["watchdog"]
+        assert checks["watchdog"]["value"] == "STOP during the kit: not run", checks["watchdog"]
         assert "an operator's STOP" in checks["watchdog"]["detail"], checks["watchdog"]
         with pytest.raises(CommandError) as exc:
             c.call("robot.move", distance_mm=10, confirm=True)
@@ -264,13 +247,13 @@ def test_ritad_stopping_during_the_kits_motions_halts_the_base_first(tmp_path: P
     writes STOP, aborts, and the owner thread ends; no motion line after."""
     with ritad_in_process(tmp_path / "rt", tmp_path / "data", robot=BASE) as (d, _):
         fake = d.rigs.robot.runner.device.fake
-        heard, out = _heard(fake), {}
+        heard, out = record_lines(fake), {}
         kit = _kit_moving(d.server.endpoints[0], fake, out)
         t_stop = time.monotonic()
         d.rigs.robot.runner.stop(timeout=30)  # what Daemon.stop does first
         assert not d.rigs.robot.runner.is_alive()
         after = [kind for t, kind in list(heard) if t >= t_stop]
-        assert not _moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
+        assert not is_moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
         kit.join(timeout=60)
         checks = {ch["name"]: ch for ch in out["reply"]["checks"]}
         assert "ritad exiting" in checks["watchdog"]["detail"], checks["watchdog"]
