@@ -80,15 +80,6 @@ def fields_struct(prefix: str, fields: Fields) -> struct.Struct:
     return struct.Struct("<" + prefix + "".join(_CODES[code] for _, code in fields))
 
 
-def field_offsets(prefix_size: int, fields: Fields) -> dict[str, int]:
-    """Byte offset of each field (for golden tests against the header tables)."""
-    out, pos = {}, prefix_size
-    for name, code in fields:
-        out[name] = pos
-        pos += struct.calcsize("<" + _CODES[code])
-    return out
-
-
 # prefixes: CT = size,type,command; RT/error = size,type,command,status;
 # results = size,type,status; status change = size,type,change
 _CT = {c: fields_struct("iii", ct) for c, (ct, _) in COMMANDS.items()}
