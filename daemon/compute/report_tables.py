@@ -58,9 +58,10 @@ def _bias_rows(result: dict[str, Any]) -> list[list[Any]]:
     fit, comp = (result.get("metrics") or {}).get("fit"), result.get("compensation") or {}
     if not fit:
         return []
-    applied, held = bias_applied(comp), comp.get("robot_bias_mm")
+    applied = bias_applied(comp)
     rows: list[list[Any]] = []
-    if applied == "every":
+    if applied == "every":  # so the calibration's b is there
+        held = comp["robot_bias_mm"]
         rows += [["bias_applied_x", float(held[0]), "mm"], ["bias_applied_y", float(held[1]), "mm"]]
     name = {"every": "bias_left_fitted", "some": "bias_fitted_mixed", "none": "bias_fitted"}[applied]
     rows += [[f"{name}_x", fit["b"][0], "mm"], [f"{name}_y", fit["b"][1], "mm"]]
@@ -139,6 +140,3 @@ def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | Non
                     *_comp_cells(m.get("compensation")),
                     *_shift_cells(shifts[i] if shifts else {})])
     return _csv(out)
-
-
-__all__ = ["METRICS_COLUMNS", "SIGMA_PARTS", "STOPS_FIXED", "metrics_csv", "stops_columns", "stops_csv"]
