@@ -23,6 +23,3 @@ def _read_json(path: Path, what: str) -> Any:
 def load_plate(path: str | Path) -> Plate:
     """Read a plate file (OSError if unreadable, ValueError naming the file and key if bad)."""
     return Plate.from_dict(_read_json(Path(path), "plate definition"), source=str(path))
-
-
-__all__ = ["load_plate"]

@@ -275,6 +275,3 @@ def _report(views: list[View], skipped: dict[str, str], b: Bundle, bias: list[di
             "sigma_corner_px": b.sigma_corner_px, "sigma_ring_px": b.sigma_ring_px,
             "calibrate_camera_rms_px": rms0, "k3_fitted": bool(k3_kept),
             "camera_model": b.model.to_dict(), "intrinsics_sigma": b.intr_sigma.tolist()}
-
-
-__all__ = ["SurveyResult", "View", "calibrate", "detect_views", "initial_seats", "ring_observation", "run_survey"]

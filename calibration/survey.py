@@ -36,6 +36,3 @@ def intersect_rays(C: Any, d: Any) -> tuple[np.ndarray, np.ndarray, float]:
     X = np.linalg.solve(A, b)
     dist = np.linalg.norm(np.einsum("kij,kj->ki", P, X - C), axis=1)
     return X, dist, max_angle
-
-
-__all__ = ["MIN_RAY_ANGLE_DEG", "intersect_rays"]

@@ -215,6 +215,3 @@ def compute_commission(obs: dict[str, Any], load: Any = None) -> dict[str, Any]:
     messages = [message(c) for c in checks if c["verdict"] in ("fail", "warn")]
     return {"schema": RESULT_SCHEMA, "procedure": COMMISSION.name, "software": calib_version,
             "verdict": verdict, "messages": messages, "checks": checks, "table_markdown": table(checks)}
-
-
-__all__ = ["compute_commission", "device_checks", "table"]

@@ -191,7 +191,3 @@ def header_markdown(result: dict[str, Any], compared: dict[str, Any] | None = No
             lines.append(f"- **{name}**:")
             lines += [_bullet(v) for v in values]
     return "\n".join(lines) + "\n"
-
-
-__all__ = ["ANGLE_CONVENTION", "NOT_RECORDED", "bias_applied", "bias_lines", "compensation_lines",
-           "dataset_id", "header", "header_markdown", "mark_text", "verdict_lines"]
