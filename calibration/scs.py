@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from calibration.camera_model import CameraModel, _points
+from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
-from calibration.frames import apply_H, check_H, inv_H, make_H
+from calibration.frames import check_H, inv_H, make_H
 
 SCS_SCHEMA = 1
 
@@ -50,11 +50,6 @@ class Scs:
         """Image size (w, h) of the camera model."""
         return self.model.size
 
-    @property
-    def cam_H_scn(self) -> np.ndarray:
-        """Inverse of ``scn_H_cam``."""
-        return inv_H(self.scn_H_cam)
-
     def image_to_scn(self, uv: np.ndarray) -> np.ndarray:
         """Map pixel coordinates (N, 2) of the distorted image to SCS xy (N, 2) on z = 0."""
         xy_n = self.model.undistort(uv)
@@ -67,12 +62,6 @@ class Scs:
             raise ValueError(f"image_to_scn: {int(bad.sum())} pixel ray(s) do not meet the plane in front of "
                              f"the camera, e.g. uv={np.asarray(uv, float).reshape(-1, 2)[bad][0]}")
         return C[:2] + s[:, None] * d[:, :2]
-
-    def scn_to_image(self, xy: np.ndarray) -> np.ndarray:
-        """Map SCS xy points (N, 2) on z = 0 to distorted pixel coordinates (N, 2)."""
-        a = _points(xy, 2, "xy")
-        P = np.column_stack([a, np.zeros(len(a))])
-        return self.model.project(apply_H(self.cam_H_scn, P))
 
     # ------------------------------------------------------------------ files
 
