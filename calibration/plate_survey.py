@@ -27,7 +27,7 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.plate import NEST_NAMES, Plate
-from calibration.survey import MIN_RAY_ANGLE_DEG, intersect_rays
+from calibration.survey import intersect_rays
 from calibration.survey_bundle import Bundle, adjust
 from calibration.survey_detect import RingEdges, check_rgb, detect_patch_corners, find_rings
 
@@ -150,10 +150,7 @@ def initial_seats(views: list[View], model: CameraModel, poses: list[np.ndarray]
         if len(C) < 2:
             raise CalibrationError(f"the {colour} ring was found in {len(C)} photograph(s), need >= 2 "
                                    f"({_why_missing(views, colour)})")
-        X, _, ang = intersect_rays(np.array(C), np.array(d))
-        if ang < MIN_RAY_ANGLE_DEG:
-            raise CalibrationError(f"the {colour} ring's views are too close to parallel ({ang:.1f}°)")
-        out[colour] = X
+        out[colour] = intersect_rays(np.array(C), np.array(d))[0]  # too close to parallel: it raises
     return out
 
 

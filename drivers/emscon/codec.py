@@ -41,13 +41,12 @@ class ProtocolError(Exception):
 #: result packets: data type -> fields after the 12-byte ReturnDataT prefix
 _STD = parse_fields("std1:d std2:d std3:d std_total:d")
 _APRIORI = parse_fields("apriori_std1:d apriori_std2:d apriori_std3:d apriori_std_total:d")
-_ENV_TAIL = ENV_FIELDS
 RESULTS: dict[ES_DataType, Fields] = {
     ES_DataType.SingleMeasResult: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
-    + parse_fields("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + _ENV_TAIL,
+    + parse_fields("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + ENV_FIELDS,
     ES_DataType.SingleMeasResult2: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
     + parse_fields("covar12:d covar13:d covar23:d pointing_error_h:d pointing_error_v:d pointing_error_d:d")
-    + _APRIORI + parse_fields("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + _ENV_TAIL,
+    + _APRIORI + parse_fields("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + ENV_FIELDS,
     ES_DataType.MultiMeasResult: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
     ES_DataType.MultiMeasResult2: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
     ES_DataType.ReflectorPosResult: XYZ_FIELDS,
