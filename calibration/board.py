@@ -107,6 +107,3 @@ def detect_board_corners(image: np.ndarray, board: BoardLayout) -> tuple[np.ndar
     from calibration.target import detect_corners
 
     return detect_corners(image, board, fast=False)
-
-
-__all__ = ["BOARD_SCHEMA", "Board", "DEFAULT_BOARD", "detect_board_corners"]

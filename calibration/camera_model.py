@@ -79,17 +79,6 @@ class CameraModel:
         d = np.column_stack([xy, np.ones(len(xy))])
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def scaled(self, size: tuple[int, int]) -> "CameraModel":
-        """The same lens on a resampled sensor of ``size`` (same field of view)."""
-        s = size[0] / self.size[0]
-        K = self.K.copy()
-        K[0, 0] *= s
-        K[1, 1] *= s
-        # pixel centres: continuous coordinate x maps to (x + 0.5)·s − 0.5
-        K[0, 2] = (K[0, 2] + 0.5) * s - 0.5
-        K[1, 2] = (K[1, 2] + 0.5) * s - 0.5
-        return CameraModel(K, self.dist.copy(), size)
-
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:

@@ -94,6 +94,3 @@ def bias_model_check(xy: np.ndarray, labels: Sequence[Any], fit_rms_mm: float | 
                           f"robot-frame bias (floor, tracker line of sight, reflector mount) is present, and a "
                           f"stored bias would not remove it")
     return out
-
-
-__all__ = ["bias_model_check", "stream_ends_check", "stream_tilt_check"]

@@ -128,6 +128,3 @@ def imu_mount(body_tilts: Sequence[Sequence[float]], readings: Sequence[Sequence
         out.messages.append(f"the inclinometer is yawed {yaw:.2f}° ± {yaw_sigma:.2f}° in the body (from the runs' "
                             f"offsets, which disagree by {np.hypot(*d):.4f}°): the tilt is compensated with it")
     return out
-
-
-__all__ = ["ImuMount", "MAX_MOUNT_YAW_DEG", "SEATING_SIGMA_DEG", "body_tilt", "imu_mount", "rot2"]

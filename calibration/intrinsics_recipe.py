@@ -164,7 +164,3 @@ def coverage_findings(uv_all: np.ndarray, size: tuple[int, int]) -> list[str]:
     return [f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: the distortion "
             f"there is extrapolated; add a view with the board in the {name} corner (recipe view {name})"
             for name in CORNERS if not reaches_corner(uv_all, size, name)]
-
-
-__all__ = ["CORNERS", "RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "coverage_findings", "reaches_corner",
-           "same_as", "tilt_findings", "view_geometry"]

@@ -76,18 +76,6 @@ def min_enclosing_circle(points: Any, seed: int = 0) -> tuple[np.ndarray, float]
     return origin + c * span, r * span
 
 
-def min_enclosing_circle_brute(points: Any) -> tuple[np.ndarray, float]:
-    """Reference O(N⁴) solution over all pair and triple circles (for tests on small sets)."""
-    P = np.asarray(points, dtype=float)
-    best: tuple[np.ndarray, float] = (P[0], 0.0) if len(P) == 1 else (P[0], np.inf)
-    cands = [_circle2(P[i], P[j]) for i, j in itertools.combinations(range(len(P)), 2)]
-    cands += [_circle3(P[i], P[j], P[k]) for i, j, k in itertools.combinations(range(len(P)), 3)]
-    for c, r in cands:
-        if r < best[1] and np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-9) + 1e-12):
-            best = (c, r)
-    return best
-
-
 def wrap_deg(a: Any) -> Any:
     """Angle(s) wrapped to [−180, 180)."""
     return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0

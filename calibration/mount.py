@@ -183,7 +183,3 @@ def message(m: MountOffset) -> str:
     fig = (f"reflector mount offset {1000 * m.los_mm[0]:+.0f} µm toward the tracker, {1000 * m.los_mm[1]:+.0f} µm "
            f"left of it (±{sd[0]:.0f}, ±{sd[1]:.0f} µm)")
     return f"{fig}: marks measured with compensation 'mount' correct it" if m.significant else f"{fig}: {m.why}"
-
-
-__all__ = ["MAX_OFFSET_MM", "MountOffset", "SIGNIFICANT_CHI2", "estimate", "from_reversal", "half_diff_cov", "los_R",
-           "message"]

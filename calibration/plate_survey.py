@@ -27,7 +27,7 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.plate import NEST_NAMES, Plate
-from calibration.survey import MIN_RAY_ANGLE_DEG, intersect_rays
+from calibration.survey import intersect_rays
 from calibration.survey_bundle import Bundle, adjust
 from calibration.survey_detect import RingEdges, check_rgb, detect_patch_corners, find_rings
 
@@ -150,10 +150,7 @@ def initial_seats(views: list[View], model: CameraModel, poses: list[np.ndarray]
         if len(C) < 2:
             raise CalibrationError(f"the {colour} ring was found in {len(C)} photograph(s), need >= 2 "
                                    f"({_why_missing(views, colour)})")
-        X, _, ang = intersect_rays(np.array(C), np.array(d))
-        if ang < MIN_RAY_ANGLE_DEG:
-            raise CalibrationError(f"the {colour} ring's views are too close to parallel ({ang:.1f}°)")
-        out[colour] = X
+        out[colour] = intersect_rays(np.array(C), np.array(d))[0]  # too close to parallel: it raises
     return out
 
 
@@ -275,6 +272,3 @@ def _report(views: list[View], skipped: dict[str, str], b: Bundle, bias: list[di
             "sigma_corner_px": b.sigma_corner_px, "sigma_ring_px": b.sigma_ring_px,
             "calibrate_camera_rms_px": rms0, "k3_fitted": bool(k3_kept),
             "camera_model": b.model.to_dict(), "intrinsics_sigma": b.intr_sigma.tolist()}
-
-
-__all__ = ["SurveyResult", "View", "calibrate", "detect_views", "initial_seats", "ring_observation", "run_survey"]

@@ -149,9 +149,3 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
             # how many stops gave each reason: a reader sees "reason ×7", not seven copies or one
             out["skipped_stops"][name] = {r: reasons.count(r) for r in dict.fromkeys(reasons)}
     return out
-
-
-__all__ = ["calibration_inputs", "compensation_summary", "heading_weight", "imu_yaw",
-           "parse_compensation",
-           "plate_imu_offset", "reflector_mount", "stop_of", "stop_record", "tracker_distance_mm",
-           "tracker_position"]

@@ -65,6 +65,3 @@ def survey_plate(folder: Path, plate: dict[str, Any], source: str = "plate",
                                 + ("" if verdict == "ok" else ": add photographs from more directions"))
     result.report["source_folder"] = str(folder)
     return result.plate.to_dict()
-
-
-__all__ = ["IMAGE_EXTS", "SIGMA_OK_MM", "load_images", "survey_plate"]

@@ -33,8 +33,6 @@ from daemon.ritad.timelines import COVER_WAIT_S, Timelines, frame_time
 from daemon.ritad.timeouts import Timeouts
 from drivers.base import DeviceError, Frame, Robot, Tracker, TrackerPoint
 
-__all__ = ["build_handlers", "chain", "gather"]
-
 
 def _point_dict(p: TrackerPoint, abs_H_trk: list[list[float]]) -> dict[str, Any]:
     return tracker_point_dict(p.to_dict(), abs_H_trk)  # abs_xyz + abs_H_trk: datasets cross-check them

@@ -131,6 +131,3 @@ class Detections:
 def detect_handlers(latest: Callable[[], Frame | None], data_dir: Path,
                     private: tuple[str, ...] = PRIVATE_DIRS) -> dict[str, Callable[[Request], Any]]:
     return {CMD: Detections(latest, data_dir, private).handle}
-
-
-__all__ = ["Detections", "detect_handlers"]

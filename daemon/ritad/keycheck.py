@@ -60,6 +60,3 @@ def key_problems(cfg: Config, env: Mapping[str, str] = os.environ, unit: Path = 
         warnings.append(f"security.authorized_keys_dir {auth} does not exist yet: no CURVE client can connect "
                         f"until a key is allowed (`ritactl keys allow FILE.key --name NAME --role operator`)")
     return errors, warnings
-
-
-__all__ = ["UNIT", "key_problems", "server_key_candidates"]

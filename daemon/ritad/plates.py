@@ -74,6 +74,3 @@ def _answer(data_dir: Path, target: Path, data: bytes, kept: Path | None, unchan
 
     return {"path": rel(target), "sha256": hashlib.sha256(data).hexdigest(), "size": len(data),
             "replaced": rel(kept) if kept else None, "unchanged": unchanged}
-
-
-__all__ = ["store_plate"]

@@ -87,6 +87,3 @@ class Previews:
 
 def preview_handlers(latest: Callable[[], Frame | None]) -> dict[str, Callable[[Request], Any]]:
     return {"camera.preview": Previews(latest).handle}
-
-
-__all__ = ["Previews", "preview_handlers"]

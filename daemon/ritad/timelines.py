@@ -125,6 +125,3 @@ def frame_time(header: dict[str, Any]) -> tuple[int, int] | None:
     """A frame's exposure mid-time on the host's timeline and its sigma, None when it has none."""
     t = header.get("t_ns")
     return None if t is None else (int(t), int(header.get("t_sigma_ns") or 0))
-
-
-__all__ = ["ARRIVAL_SIGMA_NS", "COVER_WAIT_S", "LIVE_NS", "REACH_NS", "STREAMS", "Timelines", "frame_time"]

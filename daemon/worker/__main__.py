@@ -147,7 +147,6 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m daemon.worker", description="Rita calibration worker")
     ap.add_argument("--endpoint", help="ritad command endpoint (default $RITA_ENDPOINT)")
     ap.add_argument("--data-dir", help="where datasets and results go (default: the daemon's data_dir)")
-    ap.add_argument("--once", action="store_true", help="exit after one job (tests)")
     ap.add_argument("--parent-pid", type=int, help="exit when this process (ritad) is gone")
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
@@ -174,8 +173,6 @@ def main(argv: list[str] | None = None) -> int:
             continue
         log.info("resuming job %s (%s)", job["job"], job["procedure"])
         run_job(client, job, data_dir)
-        if args.once:
-            return 0
     log.info("waiting for jobs from %s", client.endpoint)
     while True:
         if args.parent_pid and os.getppid() != args.parent_pid:
@@ -187,8 +184,6 @@ def main(argv: list[str] | None = None) -> int:
             continue  # the daemon may be restarting: keep trying
         if job:
             run_job(client, job, data_dir)
-            if args.once:
-                return 0
 
 
 if __name__ == "__main__":
