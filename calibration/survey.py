@@ -77,7 +77,8 @@ def intersect_rays(C: Any, d: Any) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def triangulate(ref_H_cams: Sequence[np.ndarray], uvs: Any, models: CameraModels) -> Triangulation:
-    """Triangulate one point seen at pixel ``uvs[k]`` by camera ``models[k]`` (or one shared model) at ``ref_H_cams[k]``."""
+    """Triangulate one point seen at pixel ``uvs[k]`` by camera ``models[k]`` (or one shared model)
+    at ``ref_H_cams[k]``."""
     uvs = np.asarray(uvs, dtype=float).reshape(-1, 2)
     if len(ref_H_cams) != len(uvs):
         raise ValueError(f"triangulate: {len(ref_H_cams)} poses but {len(uvs)} image points")
