@@ -88,8 +88,8 @@ def _patch(d: Any, where: str) -> Patch:
         if isinstance(v, bool) or not isinstance(v, kind):
             raise ValueError(f"{where}.{k} has the wrong type: {v!r}")
     o = d["origin_mm"]
-    finite = all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in o)
-    if len(o) != 2 or not finite:
+    if len(o) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                              for v in o):
         raise ValueError(f"{where}.origin_mm must be 2 finite numbers [x, y] in mm, got {o!r}")
     p = Patch(d["name"], d["cols"], d["rows"], float(d["square_mm"]), float(d["marker_mm"]), d["first_id"],
               (float(o[0]), float(o[1])))
