@@ -55,8 +55,8 @@ def detect_views(images: dict[str, np.ndarray], plate: Plate,
     """Detections of every photograph with enough corners, and {name: why skipped} for the others."""
     patches = plate.survey_patches()
     if not patches:
-        raise ValueError(f"plate {plate.plate_id!r} has no survey patches: the survey needs a plate definition "
-                         f"with `patches` (docs/datasets.md)")
+        raise ValueError(f"plate {plate.plate_id!r} has no survey patches: the survey needs a plate "
+                         f"definition with `patches` (docs/datasets.md)")
     views, skipped = [], {}
     for i, (name, image) in enumerate(images.items()):
         if progress:
@@ -219,8 +219,9 @@ def run_survey(images: dict[str, np.ndarray], plate: Plate, progress: Progress |
     size = _same_size(images)
     views, skipped = detect_views(images, plate, progress)
     if len(views) < MIN_VIEWS:
-        raise CalibrationError(f"only {len(views)} usable photograph(s) of {len(images)} (need >= {MIN_VIEWS}): "
-                               + "; ".join(f"{n}: {why}" for n, why in list(skipped.items())[:4]))
+        skips = "; ".join(f"{n}: {why}" for n, why in list(skipped.items())[:4])
+        raise CalibrationError(f"only {len(views)} usable photograph(s) of {len(images)} "
+                               f"(need >= {MIN_VIEWS}): {skips}")
     if progress:
         progress(1.0, f"camera calibration and bundle adjustment over {len(views)} photographs")
     model, poses, rms0 = calibrate(views, size)
@@ -236,8 +237,9 @@ def run_survey(images: dict[str, np.ndarray], plate: Plate, progress: Progress |
     sig = {c: np.sqrt(np.diag(b.seat_cov[i])).tolist() for i, c in enumerate(NEST_NAMES)}
     report = _report(views, skipped, b, bias, k3_kept, rms0)
     seats_out = {c: b.seats[i].tolist() for i, c in enumerate(NEST_NAMES)}
+    note = f"nests surveyed from {len(views)} photographs"
     out = replace(plate, nests_ref_nst=seats_out, nests_sigma_mm=sig, survey=report,
-                  notes=(plate.notes + "; " if plate.notes else "") + f"nests surveyed from {len(views)} photographs")
+                  notes=(plate.notes + "; " if plate.notes else "") + note)
     return SurveyResult(out, report)
 
 
@@ -247,10 +249,11 @@ def _drop_outliers(views: list[View], b: Bundle) -> bool:
     dropped = False
     for v, rr in zip(views, b.ring_res):
         for i, r in rr.items():
-            if np.linalg.norm(r) > limit:
+            off = float(np.linalg.norm(r))
+            if off > limit:
                 colour = NEST_NAMES[i]
-                v.missing[colour] = f"{v.name}: {colour} ring dropped, {np.linalg.norm(r):.2f} px off the " \
-                                    f"other photographs' solution (limit {limit:.2f} px): another {colour} object?"
+                v.missing[colour] = f"{v.name}: {colour} ring dropped, {off:.2f} px off the other " \
+                                    f"photographs' solution (limit {limit:.2f} px): another {colour} object?"
                 del v.rings[colour]
                 dropped = True
     return dropped

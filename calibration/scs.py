@@ -43,7 +43,8 @@ class Scs:
     def __post_init__(self) -> None:
         self.scn_H_cam = check_H(np.asarray(self.scn_H_cam, dtype=float), "scn_H_cam")
         if self.scn_H_cam[2, 3] <= 0:
-            raise ValueError(f"scn_H_cam: the camera must be above the plane (z = {self.scn_H_cam[2, 3]:.3f} mm)")
+            raise ValueError(f"scn_H_cam: the camera must be above the plane "
+                             f"(z = {self.scn_H_cam[2, 3]:.3f} mm)")
 
     @property
     def size(self) -> tuple[int, int]:
@@ -74,7 +75,8 @@ class Scs:
     def from_dict(cls, d: dict[str, Any], source: str = "scs") -> "Scs":
         """Inverse of :meth:`to_dict`; errors name ``source``."""
         if d.get("schema", SCS_SCHEMA) != SCS_SCHEMA:
-            raise ValueError(f"{source}: SCS schema {d.get('schema')} is not supported (expected {SCS_SCHEMA})")
+            raise ValueError(f"{source}: SCS schema {d.get('schema')} is not supported "
+                             f"(expected {SCS_SCHEMA})")
         try:
             return cls(np.array(d["scn_H_cam"], float), CameraModel.from_dict(d["model"], source),
                        float(d["gsd_mm"]), (float(d["extent_mm"][0]), float(d["extent_mm"][1])))

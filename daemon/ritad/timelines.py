@@ -43,7 +43,8 @@ class Timelines:
     """The streams a capture looks up, fed by each device's rig (daemon/ritad/rigs.py) with its own clock."""
 
     def __init__(self) -> None:
-        self.streams = {name: TimeSeries(name, fields, angles=angles) for name, (fields, angles) in STREAMS.items()}
+        self.streams = {name: TimeSeries(name, fields, angles=angles)
+                        for name, (fields, angles) in STREAMS.items()}
         self._arrived = threading.Condition()
 
     def observe(self, topic: str, payload: Any, clock: DeviceClock) -> Any:

@@ -64,8 +64,8 @@ def _compute(ctx: JobContext, before: dict[str, Any]) -> dict[str, Any]:
         if before.get("step") == ctx.step and before.get("obs") == _digest(ctx.obs):
             # resuming re-ran the calculation on exactly the data that failed before
             raise StepFailed("the calculation failed again on the same stored data (nothing was re-measured "
-                             f"since the last attempt): {operator_message(exc)}. Start a new job after fixing "
-                             f"the cause", resumable=False) from exc
+                             f"since the last attempt): {operator_message(exc)}. Start a new job after "
+                             f"fixing the cause", resumable=False) from exc
         raise
 
 
@@ -108,7 +108,8 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                 if getattr(exc, "resumable", True) else f"The data is kept in {ctx.root}.")
         msg = f"{ctx.step}: {operator_message(exc)}. {hint}"
         log.error("job %s failed: %s", ctx.job_id, msg)
-        if not isinstance(exc, (CommandError, ValueError, TimeoutError, OSError, CalibrationError, StepFailed)):
+        expected = (CommandError, ValueError, TimeoutError, OSError, CalibrationError, StepFailed)
+        if not isinstance(exc, expected):  # a bug: its traceback goes to the log
             log.error("%s", traceback.format_exc())
         ctx.report("error", {"message": msg, "step": ctx.step})
         return None
@@ -150,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parent-pid", type=int, help="exit when this process (ritad) is gone")
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
     def on_term(*_: object) -> None:
         # leave at once, even from inside a long poll or a job: every completed step is
