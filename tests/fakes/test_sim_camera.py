@@ -193,7 +193,8 @@ def test_free_run_rate(world: World, vtime: VirtualTime) -> None:
     assert len(frames) == n
 
 
-def test_virtual_rate_holds_beside_another_camera_pumped_in_a_thread(world: World, vtime: VirtualTime) -> None:
+def test_virtual_rate_holds_beside_another_camera_pumped_in_a_thread(world: World,
+                                                                     vtime: VirtualTime) -> None:
     """The flake's mechanism, made certain: an idle camera pumped by another thread of the process on
     the real clock (as a ritad's camera runner an earlier test left) leaves this camera's count exact."""
     idle = make(SMALL, world)

@@ -124,7 +124,8 @@ def _pip(venv: Path, *argv: object, cwd: Path, timeout: float = 300) -> subproce
     """This test venv's pip acting on ``venv`` (``pip --python``): the clean venvs need no pip of their own
     (``venv --without-pip`` skips ensurepip's install, seconds per venv), and pip still resolves for the
     venv's interpreter, as the operator's own pip would."""
-    return _run(sys.executable, "-m", "pip", "--python", venv / "bin" / "python", *argv, cwd=cwd, timeout=timeout)
+    python = venv / "bin" / "python"
+    return _run(sys.executable, "-m", "pip", "--python", python, *argv, cwd=cwd, timeout=timeout)
 
 
 def _install(venv: Path, wheel: Path, extra: str, cwd: Path) -> None:
