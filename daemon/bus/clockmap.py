@@ -9,11 +9,11 @@ Fit (one-way samples, ``add(device_ns, host_rx_ns)``). Samples are reduced to th
 per bin of device time (``bin_s``, a min-filter), the bins older than ``window_s`` dropped. The
 line is the lower envelope of the bins (their lower convex hull) chosen as TICSync and the
 linear-programming skew estimators do: the line under every point that is highest at the
-samples' mean device time, i.e. the hull edge spanning it. Its slope is the drift; a fit with
-fewer than ``MIN_DRIFT_BINS`` bins, or whose slope is known no better than the drift prior
-``prior_drift_ppm``, takes no drift (the lowest point's offset) and states the prior in its
-sigma instead. Delayed packets lie above the line and
-move nothing; only a message stamped *early* (a clock fault) could pull it down.
+samples' mean device time, i.e. the hull edge spanning it (the hull is kept as bins come and
+go, not rebuilt for each fit). Its slope is the drift; a fit with fewer than ``MIN_DRIFT_BINS``
+bins, or whose slope is known no better than the drift prior ``prior_drift_ppm``, takes no drift
+(the lowest point's offset) and states the prior in its sigma instead. Delayed packets lie above
+the line and move nothing; only a message stamped *early* (a clock fault) could pull it down.
 
 Sigma. The fitted line sits above the truth by about the least latency among the bins near
 the hull's contacts. Where the latency's density at its floor is f, the bins' residuals
@@ -48,7 +48,9 @@ Stdlib only: the laptop's client imports the bus library without numpy.
 """
 from __future__ import annotations
 
+import heapq
 import math
+from bisect import bisect_left
 from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -94,45 +96,82 @@ class _Line:
 
 
 class _Bins:
-    """The lowest ``y`` per bin of device time over a sliding window."""
+    """The lowest ``y`` per bin of device time over a sliding window, and the lower convex hull of
+    all but the newest bin kept as bins come and go (the newest one's minimum still moves)."""
 
     def __init__(self, bin_ns: int, window_ns: int) -> None:
         self.bin_ns, self.window_ns = bin_ns, window_ns
         self.bins: deque[list[int]] = deque()  # [key, x, y, count]
+        self._closed: list[list[int]] | None = []  # hull of bins[:-1]; None: rebuild when read
 
     def add(self, x: int, y: int) -> bool:
         """One point; whether the bins' minima changed (a sample above its bin's lowest one changes
         nothing a fit reads: the map keeps its fit)."""
         key = x // self.bin_ns
-        for b in reversed(self.bins):  # almost always the last bin or a new one
+        for i in range(len(self.bins) - 1, -1, -1):  # almost always the last bin or a new one
+            b = self.bins[i]
             if b[0] == key:
                 b[3] += 1
                 if y < b[2]:
                     b[1], b[2] = x, y
+                    if i < len(self.bins) - 1:  # a late sample lowered a closed bin: its hull is stale
+                        self._closed = None
                     return True
                 return False
             if b[0] < key:
                 break
+        if self.bins and self._closed is not None:  # the newest bin is closed by a later one
+            _push(self._closed, self.bins[-1])
         self.bins.append([key, x, y, 1])
         if len(self.bins) > 1 and self.bins[-2][0] > key:  # late and in a bin of its own: keep order
-            self.bins = deque(sorted(self.bins))
+            self.bins, self._closed = deque(sorted(self.bins)), None
         newest = self.bins[-1][0]
         while self.bins and (newest - self.bins[0][0]) * self.bin_ns > self.window_ns:
-            self.bins.popleft()
+            self._drop_front()
         return True
 
-
-def _lower_hull(xs: Sequence[float], ys: Sequence[float]) -> list[int]:
-    """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain)."""
-    hull: list[int] = []
-    for i in range(len(xs)):
-        while len(hull) >= 2:
-            j, k = hull[-2], hull[-1]
-            cross = (xs[k] - xs[j]) * (ys[i] - ys[j]) - (ys[k] - ys[j]) * (xs[i] - xs[j])
-            if cross > 0:
+    def _drop_front(self) -> None:
+        """Drop the oldest bin. The hull's second vertex stays a vertex without the first (an extreme
+        point of a set is one of every subset holding it): only the bins before it are chained afresh."""
+        front = self.bins.popleft()
+        if self._closed is None:
+            return
+        rest = self._closed[1:] if self._closed and self._closed[0] is front else None
+        if not rest:  # the closed hull held the front alone (or was not built from it): rebuild it
+            self._closed = None
+            return
+        prefix: list[list[int]] = []
+        for b in self.bins:  # up to the second vertex, which the new start's chain ends on
+            prefix.append(b)
+            if b is rest[0]:
                 break
-            hull.pop()
-        hull.append(i)
+        self._closed = _chain(prefix) + rest[1:]
+
+    def hull(self) -> list[list[int]]:
+        """The bins of the lower convex hull of all the bins, in device time order."""
+        if self._closed is None:
+            self._closed = _chain(list(self.bins)[:-1])
+        hull = list(self._closed)
+        _push(hull, self.bins[-1])
+        return hull
+
+
+def _push(hull: list[list[int]], p: list[int]) -> None:
+    """One step of Andrew's monotone chain: append bin ``p`` (right of all in ``hull``), first
+    dropping the vertices on or above the segment to it. Exact: the bins' times are integers."""
+    while len(hull) >= 2:
+        j, k = hull[-2], hull[-1]
+        if (k[1] - j[1]) * (p[2] - j[2]) - (k[2] - j[2]) * (p[1] - j[1]) > 0:  # a left turn stays
+            break
+        hull.pop()
+    hull.append(p)
+
+
+def _chain(bins: list[list[int]]) -> list[list[int]]:
+    """The lower convex hull of bins sorted by device time (Andrew's monotone chain)."""
+    hull: list[list[int]] = []
+    for b in bins:
+        _push(hull, b)
     return hull
 
 
@@ -145,12 +184,12 @@ def _slope_sigma(xs: Sequence[float], res: Sequence[float]) -> tuple[float, floa
     m = min(SEGMENTS, len(xs) // 2)
     if m < 4 or span <= 0:
         return None
-    low: dict[int, tuple[float, float]] = {}
-    for x, r in zip(xs, res):
-        j = min(m - 1, int((x - xs[0]) / span * m))
-        if j not in low or r < low[j][1]:
-            low[j] = (x, r)
-    pts = list(low.values())
+
+    def stretch(x: float) -> int:  # non-decreasing in x: each stretch is one run of the sorted xs
+        return min(m - 1, int((x - xs[0]) / span * m))
+    starts = [bisect_left(xs, j, key=stretch) for j in range(m)] + [len(xs)]
+    lowest = [min(range(i, k), key=res.__getitem__) for i, k in zip(starts, starts[1:]) if i < k]
+    pts = [(xs[i], res[i]) for i in lowest]
     if len(pts) < 4:
         return None
     mx = sum(p[0] for p in pts) / len(pts)
@@ -165,32 +204,33 @@ def _slope_sigma(xs: Sequence[float], res: Sequence[float]) -> tuple[float, floa
 def _envelope_sigma(res: list[float], prior_latency_ns: float) -> float:
     """The envelope's sigma from the residuals above it: the floor's spacing, scaled; with fewer
     than 2·``K_ORDER`` bins at least the prior's latency over their number."""
-    res = sorted(res)
     n = len(res)
     k = min(K_ORDER, n)
-    sigma = ENVELOPE_SIGMA_SCALE * res[k - 1] / k
+    sigma = ENVELOPE_SIGMA_SCALE * heapq.nsmallest(k, res)[-1] / k  # the k-th smallest, no full sort
     return max(sigma, prior_latency_ns / n) if n < 2 * K_ORDER else sigma
 
 
-def _fit_lower(bins: deque[list[int]], prior_latency_ns: float, prior_drift: float) -> _Line | None:
+def _fit_lower(bins: _Bins, prior_latency_ns: float, prior_drift: float) -> _Line | None:
     """The lower envelope line of the bins' minima and its sigma (module docstring)."""
-    if not bins:
+    if not bins.bins:
         return None
-    x0, y0 = bins[0][1], bins[0][2]
-    xs = [float(b[1] - x0) for b in bins]
-    ys = [float(b[2] - y0) for b in bins]
+    x0, y0 = bins.bins[0][1], bins.bins[0][2]
+    xs = [float(b[1] - x0) for b in bins.bins]
+    ys = [float(b[2] - y0) for b in bins.bins]
     n = len(xs)
     centre = sum(xs) / n
     if n < MIN_DRIFT_BINS:
         return _Line(x0, y0, min(ys), 0.0, prior_latency_ns / n, prior_drift, centre, False)
-    hull = _lower_hull(xs, ys)
+    hull = [(float(h[1] - x0), float(h[2] - y0)) for h in bins.hull()]
     b = 0.0
-    for j, k in zip(hull, hull[1:]):
-        if xs[j] <= centre <= xs[k] and xs[k] > xs[j]:
-            b = (ys[k] - ys[j]) / (xs[k] - xs[j])
+    for (xj, yj), (xk, yk) in zip(hull, hull[1:]):  # the hull edge spanning the centre
+        if xj <= centre <= xk and xk > xj:
+            b = (yk - yj) / (xk - xj)
             break
     lim = MAX_DRIFT_PPM * 1e-6
     b = min(lim, max(-lim, b))
+    # lowest at a hull vertex, but bins on an edge between two vertices round differently: taken over
+    # every bin, the offset does not depend on which of such bins the hull kept
     a = min(y - b * x for x, y in zip(xs, ys))
     res = [y - a - b * x for x, y in zip(xs, ys)]
     slope = _slope_sigma(xs, res)
@@ -257,10 +297,10 @@ class ClockMap:
         """(receive-side line, send-side line negated or None), refitted after new samples."""
         if self._fit is None:
             if self._rx_ex.bins:
-                self._fit = (_fit_lower(self._rx_ex.bins, self.prior_latency_ns, self.prior_drift),
-                             _fit_lower(self._tx.bins, self.prior_latency_ns, self.prior_drift))
+                self._fit = (_fit_lower(self._rx_ex, self.prior_latency_ns, self.prior_drift),
+                             _fit_lower(self._tx, self.prior_latency_ns, self.prior_drift))
             else:
-                self._fit = (_fit_lower(self._rx.bins, self.prior_latency_ns, self.prior_drift), None)
+                self._fit = (_fit_lower(self._rx, self.prior_latency_ns, self.prior_drift), None)
         return self._fit
 
     def map(self, device_ns: int) -> tuple[int, int]:
