@@ -162,7 +162,8 @@ def tables(rows: list[dict[str, Any]], before: list[dict[str, Any]] | None = Non
             f"{np.median(secs):.0f} s per seed (median, one process)") if rows else "no rows"
     changed = ["Shape changed after learning (default against the chord, same seed):", changed_table(rows)]
     return "\n\n".join([head, "Coverage, the paper's figures (median / p95, mm) and verdicts:",
-                        coverage_table(rows), *(changed if any(r["learned_on"] != r["shape"] for r in rows) else []),
+                        coverage_table(rows),
+                        *(changed if any(r["learned_on"] != r["shape"] for r in rows) else []),
                         "Stored b/w against the better of chord-own-b and joint fit:", cv_table(rows, before),
                         "The applied weight against the scored experiment's own:", weight_table(rows),
                         "Why the verdicts warned:", reasons(rows)])

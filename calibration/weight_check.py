@@ -12,7 +12,12 @@ learns its own weight from its own stops and compares (:func:`recheck`):
 * the conditions: each a tolerance of its own (:data:`TOLERANCE`); the slopes' rms by a z of its
   log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)).
 
-Either makes the experiment's verdict ``warn``, naming both weights and what differs.
+Either makes the experiment's verdict ``warn``, naming both weights and what differs. When this
+experiment's own weight has no σ (its bend was fitted at too few stops, or its headings do not
+separate the weight from M and b), z cannot be made: the conditions are still compared, a differing
+one still warns (the weight was learned on another robot state, and nothing here shows it holds),
+and the warning says that the weight itself could not be re-checked, and why; with the same
+conditions the verdict stays ``ok`` (nothing contradicts the weight).
 """
 from __future__ import annotations
 
@@ -79,6 +84,12 @@ def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> li
     return [d for d in out if d]
 
 
+def not_rechecked(same: Any) -> str:
+    """Why the experiment's own weight has no σ to compare with (its record's reason, else the stop count)."""
+    why = str(getattr(same, "why", "") or "").removesuffix(": the chord is used")
+    return why or f"its σ is not estimated from the {same.n_stops} stops whose bend was fitted"
+
+
 def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
     """The stored weight ``applied`` against the experiment's own ``own`` (both
     :class:`calibration.heading_weight.HeadingWeight`; ``own.conditions`` set): {applied_weight,
@@ -96,6 +107,8 @@ def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
     both = (f"applied weight {applied.weight:.2f} (fit {applied.weight_fit:.2f} ± {applied.sigma:.2f}, "
             f"{applied.model}), this experiment's own {same.weight_fit:.2f} ± {same.sigma:.2f}")
     why = ([f"they differ by {z:.1f}σ (> {RECHECK_Z:g}σ)"] if disagree else []) + differs
+    if z is None:  # no σ here: only the conditions are compared, and the warning says so
+        why.append(f"the weight itself could not be re-checked here ({not_rechecked(same)})")
     message = None if ok else (f"heading_fit's stored weight may not hold for this robot any more: {both}; "
                                f"{'; '.join(why)}; the chord's figures are in the result (chord)")
     return {"applied_weight": applied.weight, "applied_weight_fit": applied.weight_fit,
@@ -104,4 +117,5 @@ def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
             "own_model": own.model, "z": z, "differs": differs, "ok": ok, "message": message}
 
 
-__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "recheck"]
+__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "not_rechecked",
+           "recheck"]
