@@ -13,7 +13,11 @@ Rows:
   restore → halted, and the travel after the restore;
 - link cut (version-3 base): cut → the base halted itself (host timeout 0.3 s);
 - ritad SIGKILLed mid-move (version-3 base): kill → the base halted itself;
-- ritad SIGTERMed mid-move (version-2 base): SIGTERM → halted by ritad's STOP, before it exits.
+- ritad SIGTERMed mid-move (version-2 base): SIGTERM → halted by ritad's STOP, before it exits;
+- during the commissioning kit's MOVE (``robot.commission allow_motion``, the kit on ritad's owner thread
+  with its own line to the base): ``robot.stop`` sent by a client → wheels stopped by the kit's STOP.
+
+``--cases`` runs some rows only (their numbers, from 1, in the order above).
 """
 from __future__ import annotations
 
@@ -21,14 +25,15 @@ import argparse
 import signal
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import machine, pct  # noqa: E402
-from tools.harness.stop_rig import StopRig  # noqa: E402
+from tools.harness.stop_rig import StopRig, wait_for  # noqa: E402
 
 Round = Callable[[StopRig], tuple[float, float]]  # one measurement: (seconds, mm after the instant)
 
@@ -88,6 +93,28 @@ def killed(sig: signal.Signals) -> Round:
     return one
 
 
+def during_kit(rig: StopRig) -> tuple[float, float]:
+    """robot.stop while the commissioning kit's MOVE runs; the kit's reply must name the stop."""
+    out: dict[str, Any] = {}
+
+    def commission() -> None:
+        assert rig.ritad is not None
+        with rig.ritad.client(timeout=120) as k:
+            out["reply"] = k.call("robot.commission", allow_motion=True, clock_s=0.5, confirm=True)
+
+    with rig.client() as c:
+        c.call("robot.release")
+        kit = threading.Thread(target=commission, daemon=True)
+        kit.start()
+        wait_for(rig.moving, 60, "the kit's MOVE under way")
+        t0, x0 = time.monotonic(), rig.x()
+        c.call("robot.stop", timeout=10)
+        got = _halt_after(rig, t0, x0)
+        kit.join(timeout=60)
+    assert "STOP during the kit" in str(out.get("reply")), out
+    return got
+
+
 def run(name: str, protocol: int, fn: Round, rounds: int) -> str:
     with tempfile.TemporaryDirectory(prefix="bench-stop-") as tmp:
         rig = StopRig(Path(tmp), protocol)
@@ -105,13 +132,18 @@ def run(name: str, protocol: int, fn: Round, rounds: int) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=10)
-    n = ap.parse_args().rounds
-    rows = [run("no fault: robot.stop → halted", 3, no_fault, n),
-            run("link cut, STOP, restored 1 s later: restore → halted", 2, link_cut_then_restored,
-                max(3, n // 2)),
-            run("link cut: cut → the base halted itself", 3, link_cut_watchdog, max(3, n // 2)),
-            run("ritad SIGKILL mid-move: kill → the base halted itself", 3, killed(signal.SIGKILL), 3),
-            run("ritad SIGTERM mid-move: SIGTERM → halted by ritad", 2, killed(signal.SIGTERM), 3)]
+    ap.add_argument("--cases", default="", help="comma list of row numbers to run (default: all)")
+    args = ap.parse_args()
+    n = args.rounds
+    cases: list[tuple[str, int, Round, int]] = [
+        ("no fault: robot.stop → halted", 3, no_fault, n),
+        ("link cut, STOP, restored 1 s later: restore → halted", 2, link_cut_then_restored, max(3, n // 2)),
+        ("link cut: cut → the base halted itself", 3, link_cut_watchdog, max(3, n // 2)),
+        ("ritad SIGKILL mid-move: kill → the base halted itself", 3, killed(signal.SIGKILL), 3),
+        ("ritad SIGTERM mid-move: SIGTERM → halted by ritad", 2, killed(signal.SIGTERM), 3),
+        ("commissioning kit's MOVE: robot.stop → halted by the kit's STOP", 3, during_kit, max(3, n // 2))]
+    wanted = {int(x) for x in args.cases.split(",") if x} or set(range(1, len(cases) + 1))
+    rows = [run(*case) for i, case in enumerate(cases, 1) if i in wanted]
     print(machine())
     print("| case (100 mm/s) | base protocol | rounds | ms p50 / max | mm driven after p50 / max |")
     print("|---|---:|---:|---:|---:|")

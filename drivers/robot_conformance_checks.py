@@ -206,7 +206,7 @@ def status_t_us(link: Link, seconds: float) -> ClockReadings:
         _, got, rtt = link.ask("STATUS")
         if got is not None and (t_us := _t_us(got)) is not None:
             polled.append((got.t - rtt, got.t, t_us))
-        time.sleep(0.02)
+        link.quiet(0.02)  # reading, not sleeping: a STOP owed meanwhile goes out within a read slice
     return ClockReadings(polled, [t for r in link.log if (t := _t_us(r)) is not None])
 
 

@@ -281,8 +281,9 @@ class SimCamera(Camera):
             self.counters["incomplete"] += 1
             extra["incomplete"] = True
         self.counters["frames"] += 1
-        return Frame(pixels=img, frame_id=n, camera_serial=self.serial, pixel_format=self._applied["PixelFormat"],
-                     exposure_us=exposure, device_time_ns=device_ns, host_time_ns=arrived,
+        return Frame(pixels=img, frame_id=n, camera_serial=self.serial,
+                     pixel_format=self._applied["PixelFormat"], exposure_us=exposure,
+                     device_time_ns=device_ns, host_time_ns=arrived,
                      host_monotonic_ns=arrived - (time.time_ns() - time.monotonic_ns()),
                      incomplete_count=self.counters["incomplete"], extra=extra,
                      transfer_ns=int(img.nbytes / self.link.rate(self._link_settings) * 1e9),

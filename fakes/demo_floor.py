@@ -88,10 +88,12 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
 
     truth_marks = c.call("sim.truth")["marks"]  # scoring only (and the operator's eye: rough_mark)
     name, approx = rough_mark(c, 1)
-    print(f"\n== a short experiment on mark {name} (8 × 1) stores the robot-frame bias b with the calibration")
-    rc, _ = _job(c, endpoint, ritactl, "experiment", {"mark_xy": approx, "kind": truth_marks[1]["kind"],
-                                                      "repetitions": 1, "store_bias": True},
-                 f"experiment --mark {approx[0]} {approx[1]} --kind {truth_marks[1]['kind']} --reps 1 --store-bias")
+    print(f"\n== a short experiment on mark {name} (8 × 1) stores the robot-frame bias b "
+          "with the calibration")
+    kind = truth_marks[1]["kind"]
+    rc, _ = _job(c, endpoint, ritactl, "experiment",
+                 {"mark_xy": approx, "kind": kind, "repetitions": 1, "store_bias": True},
+                 f"experiment --mark {approx[0]} {approx[1]} --kind {kind} --reps 1 --store-bias")
     if rc:
         return rc
     name, approx = rough_mark(c, 0)
@@ -101,7 +103,8 @@ def _experiments(c: Client, out: Path, endpoint: str, ritactl: Callable[..., int
     if rc or not result:
         return rc or 1
     plain, _ = recompute(Path(result["dataset"]), compensation="none")
-    print("\n  The paper's table WITHOUT compensation (the same dataset, ritactl recompute --compensation none):\n")
+    print("\n  The paper's table WITHOUT compensation "
+          "(the same dataset, ritactl recompute --compensation none):\n")
     print("  " + plain["table_markdown"].replace("\n", "\n  "))
     print()
     scored = (score_experiment(plain, truth_marks[0]), score_experiment(result, truth_marks[0]))
@@ -134,12 +137,13 @@ def run_realistic_floor(out: Path, camera_model: Path, plate: Path, nests: Path,
         with ritad.client() as c:
             p = lock_on_robot(c)
             say("referencing with reversal (the inclinometer's offset is calibrated on the plate)")
-            params = {"camera_model": json.loads(camera_model.read_text()), "plate": json.loads(plate.read_text()),
+            params = {"camera_model": json.loads(camera_model.read_text()),
+                      "plate": json.loads(plate.read_text()),
                       "nests_approx_trk": json.loads(nests.read_text()), "reversal": True,
                       "robot_approx_trk": [p["x"], p["y"], p["z"]]}
             rc, _ = _job(c, ritad.endpoint, ritactl, "referencing", params,
-                         f"calibrate --reversal --camera-model {camera_model} --plate {plate} --nests-approx {nests} "
-                         f"--robot-approx {p['x']:.1f} {p['y']:.1f} {p['z']:.1f}")
+                         f"calibrate --reversal --camera-model {camera_model} --plate {plate} "
+                         f"--nests-approx {nests} --robot-approx {p['x']:.1f} {p['y']:.1f} {p['z']:.1f}")
             if rc:
                 return rc
             off = c.call("calib.results")["active"].get("imu_offset_deg")

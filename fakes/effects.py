@@ -35,7 +35,7 @@ class Effects:
     """The per-world draws of the error model and the hooks the fakes call."""
 
     def __init__(self, world: Any) -> None:
-        """``world``: the fakes.world.World being built (its params and rng; typed loosely: world imports us)."""
+        """``world``: the fakes.world.World being built (its params and rng; typed Any: world imports us)."""
         self.world = world
         e: ErrorModel = world.params.errors
         self.model = e
@@ -67,8 +67,9 @@ class Effects:
         if e.floor is not None:
             f = e.floor
             slope = world.rng("errors.floor.slope").normal(0.0, f.slope_sigma_mrad * 1e-3, 2)
-            self.floor = HeightField(world.rng("errors.floor.waviness"), f.rms_slope_mrad * 1e-3 * f.correlation_mm,
-                                     f.correlation_mm, (float(slope[0]), float(slope[1])))
+            rms_mm = f.rms_slope_mrad * 1e-3 * f.correlation_mm  # the field's rms slope is rms / correlation
+            self.floor = HeightField(world.rng("errors.floor.waviness"), rms_mm, f.correlation_mm,
+                                     (float(slope[0]), float(slope[1])))
         if e.plate is not None:
             self.plate_flatness = HeightField(world.rng("errors.plate.flatness"), e.plate.flatness_rms_mm,
                                               e.plate.flatness_correlation_mm)
@@ -161,7 +162,7 @@ class Effects:
         pattern = basis @ self.sys_coef.T  # (n, 3): range, hz, vt; unit variance over stations
         z = rng.standard_normal(flat.shape)
         d_r = k * t.range_a_mm * z[:, 0] + k * t.range_b_mm_per_m * D_m * pattern[:, 0]
-        if t.random_share_b > 0:  # part of the distance term random per reading (drawn only then: same streams)
+        if t.random_share_b > 0:  # part of the b term random per reading (drawn only then: same streams)
             share = t.random_share_b
             pattern = math.sqrt(1.0 - share) * pattern + math.sqrt(share) * rng.standard_normal(pattern.shape)
         d_h = k * t.transverse_a_mm * z[:, 1] + k * t.transverse_b_mm_per_m * D_m * pattern[:, 1]
@@ -176,7 +177,8 @@ class Effects:
 
     # ------------------------------------------------------------------ base and target
 
-    def inclinometer(self, roll_rad: float, pitch_rad: float, rng: np.random.Generator) -> tuple[float, float]:
+    def inclinometer(self, roll_rad: float, pitch_rad: float,
+                     rng: np.random.Generator) -> tuple[float, float]:
         """What the base's inclinometer reads for a true roll/pitch (rad)."""
         imu = self.model.imu
         if imu is None:

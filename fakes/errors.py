@@ -44,23 +44,24 @@ class TrackerErrors:
     range_a_mm: float = sourced(0.010, ADM + ": random range part")
     range_b_mm_per_m: float = sourced(0.0003, ADM + ": systematic range part")
     mpe_to_sigma: float = sourced(0.5, TYPICAL)
-    random_share_b: float = sourced(0.0, "assumption: share of the transverse distance part's variance that is "
-                                         "random per reading instead of the station's smooth pattern (0 = all "
-                                         "systematic); "
-                                         "the MPE does not say how it splits; the sensitivity envelope takes 0.5")
+    random_share_b: float = sourced(0.0, "assumption: share of the transverse distance part's variance that "
+                                         "is random per reading instead of the station's smooth pattern "
+                                         "(0 = all systematic); the MPE does not say how it splits; the "
+                                         "sensitivity envelope takes 0.5")
 
 
 @dataclass(frozen=True)
 class ReflectorErrors:
     """SMRs and their seats: centring of the optics, nest re-seating, the robot's rotatable mount."""
 
-    smr_centring_mm: float = sourced(0.005, "optical centre vs ball centre of a 1.5-inch SMR: ±2.5–12.7 µm by "
-                                            "grade in typical SMR data sheets (unverified); 5 µm assumed")
-    nest_reseat_mm: float = sourced(0.0025, "seating repeatability of a magnetic kinematic SMR nest, 0.0001 in "
-                                            "in typical nest data sheets (unverified); 1σ per axis")
-    mount_eccentricity_mm: float = sourced(0.030, "paper §Robot: the SMR's movement in the rotatable mount is "
-                                                  "'sub-mm'; 30 µm assumed (radial runout of a normal-class small "
-                                                  "ball bearing is 10–15 µm, ISO 492, plus seat machining)")
+    smr_centring_mm: float = sourced(0.005, "optical centre vs ball centre of a 1.5-inch SMR: ±2.5–12.7 µm "
+                                            "by grade in typical SMR data sheets (unverified); 5 µm assumed")
+    nest_reseat_mm: float = sourced(0.0025, "seating repeatability of a magnetic kinematic SMR nest, "
+                                            "0.0001 in in typical nest data sheets (unverified); 1σ per axis")
+    mount_eccentricity_mm: float = sourced(0.030, "paper §Robot: the SMR's movement in the rotatable mount "
+                                                  "is 'sub-mm'; 30 µm assumed (radial runout of a "
+                                                  "normal-class small ball bearing is 10–15 µm, ISO 492, "
+                                                  "plus seat machining)")
 
 
 @dataclass(frozen=True)
@@ -74,17 +75,18 @@ class RobotErrors:
     """
 
     lateral_sigma_mm: float = sourced(0.050, CAL_44)
-    path_shape: str = sourced("arc", "assumption: each move bends on one arc ('arc'); 's' bends left then right "
-                                     "(curvature ±2κ over the halves): the same lateral offset at the end and the "
-                                     "same chord-to-heading angle κd/2, but the heading turns back "
-                                     "(envelope case); 'early', 'late' (the bend in the first or last 30 %), "
-                                     "'kink' (a heading step at a random point), 'kink-end' (in the last "
-                                     "10 %): envelope cases no larger than the arc in end offset or turn "
-                                     "(fakes/path_shapes.py)")
+    path_shape: str = sourced("arc", "assumption: each move bends on one arc ('arc'); 's' bends left then "
+                                     "right (curvature ±2κ over the halves): the same lateral offset at the "
+                                     "end and the same chord-to-heading angle κd/2, but the heading turns "
+                                     "back (envelope case); 'early', 'late' (the bend in the first or last "
+                                     "30 %), 'kink' (a heading step at a random point), 'kink-end' (in the "
+                                     "last 10 %): envelope cases no larger than the arc in end offset or "
+                                     "turn (fakes/path_shapes.py)")
     lateral_ref_mm: float = sourced(200.0, CAL_44 + " (the move length the 50 µm refers to)")
-    slip_sigma: float = sourced(0.002, "relative distance error per move from wheel slip; non-systematic odometry "
-                                       "errors of 0.1–1 % of travel on smooth floors (Borenstein & Feng 1996, "
-                                       "UMBmark; order of magnitude, unverified); 0.2 % assumed")
+    slip_sigma: float = sourced(0.002, "relative distance error per move from wheel slip; non-systematic "
+                                       "odometry errors of 0.1–1 % of travel on smooth floors "
+                                       "(Borenstein & Feng 1996, UMBmark; order of magnitude, unverified); "
+                                       "0.2 % assumed")
     #: robot frame, mm: left and right drive wheel contacts and the front caster
     wheel_track_mm: float = sourced(400.0, "paper Fig. 1: differential drive with a front caster; dimensions "
                                            "not published, 0.4 m track assumed")
@@ -104,8 +106,8 @@ class FloorErrors:
                                            "(4 mm over 1 m); ACS z is the levelled tracker's vertical")
     rms_slope_mrad: float = sourced(0.5, "assumed: robot tilt at use from floor unevenness ≈ 0.5 mrad "
                                          "(rms slope of the waviness per axis)")
-    correlation_mm: float = sourced(400.0, "assumption: of the order of the wheel base; gives 0.2 mm rms height, "
-                                           "inside DIN 18202 Table 3 row 4 (3 mm over 1 m)")
+    correlation_mm: float = sourced(400.0, "assumption: of the order of the wheel base; gives 0.2 mm rms "
+                                           "height, inside DIN 18202 Table 3 row 4 (3 mm over 1 m)")
 
 
 @dataclass(frozen=True)
@@ -114,8 +116,8 @@ class PlateErrors:
 
     thickness_tol_mm: float = sourced(1.0, "EN 572-2 float glass thickness tolerance for 19 mm: ±1.0 mm "
                                            "(uniform draw)")
-    flatness_rms_mm: float = sourced(0.020, "paper §Referencing plate: 'conforms to a plane within sub-millimeter "
-                                            "tolerances'; 20 µm rms assumed for float glass")
+    flatness_rms_mm: float = sourced(0.020, "paper §Referencing plate: 'conforms to a plane within "
+                                            "sub-millimeter tolerances'; 20 µm rms assumed for float glass")
     flatness_correlation_mm: float = sourced(300.0, "assumption: a few waves over the 1.1 m plate")
 
 
@@ -132,8 +134,9 @@ class TargetErrors:
 class ImuErrors:
     """The base's inclinometer/IMU (``paper+imu`` only): roll and pitch per STATUS."""
 
-    noise_sigma_deg: float = sourced(0.0025, "Murata SCA100T/SCA121T dual-axis inclinometer data sheet: 0.0025° "
-                                             "resolution at 10 Hz bandwidth, taken as 1σ noise per reading")
+    noise_sigma_deg: float = sourced(0.0025, "Murata SCA100T/SCA121T dual-axis inclinometer data sheet: "
+                                             "0.0025° resolution at 10 Hz bandwidth, taken as 1σ noise per "
+                                             "reading")
     bias_sigma_deg: float = sourced(0.0057, "assumption: 0.1 mrad per axis residual zero offset and mounting "
                                             "misalignment after a one-time levelling, constant per power-on")
 
@@ -190,7 +193,8 @@ class ErrorModel:
 #: group names in ErrorModel order
 GROUPS = tuple(f.name for f in fields(ErrorModel))
 #: the group classes, for the sources table
-GROUP_CLASSES = (TrackerErrors, ReflectorErrors, RobotErrors, FloorErrors, PlateErrors, TargetErrors, ImuErrors)
+GROUP_CLASSES = (TrackerErrors, ReflectorErrors, RobotErrors, FloorErrors, PlateErrors, TargetErrors,
+                 ImuErrors)
 
 
 def sources_table() -> str:
@@ -203,5 +207,5 @@ def sources_table() -> str:
     return "\n".join(rows)
 
 
-__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PATH_SHAPES", "PlateErrors", "ReflectorErrors",
-           "RobotErrors", "TargetErrors", "TrackerErrors", "sourced", "sources_table"]
+__all__ = ["ErrorModel", "FloorErrors", "GROUPS", "ImuErrors", "PATH_SHAPES", "PlateErrors",
+           "ReflectorErrors", "RobotErrors", "TargetErrors", "TrackerErrors", "sourced", "sources_table"]

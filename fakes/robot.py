@@ -14,8 +14,8 @@ How it differs from the real base:
 * motion is at constant speed with instant start and stop (no ramps), and takes
   distance / speed × ``time_scale`` of wall time (0 = instant);
 * drive errors and floor tilt follow the simple model of :mod:`fakes.robot_base`
-  (no slip, no wheel-specific errors, the lateral error is spread linearly along
-  the path); the inclinometer reads the true tilt with the error model's noise and bias (none in the ideal profile);
+  (no slip, no wheel-specific errors, the lateral error is spread linearly along the path);
+  the inclinometer reads the true tilt with the error model's noise and bias (none in the ideal profile);
 * the battery voltage only drops with the distance driven;
 * its clock (protocol 2) is the host's monotonic clock with an offset and 50 ppm of drift, and
   its inclinometer outputs 10 samples per *simulated* second (fakes/robot_stream.py);
@@ -80,7 +80,8 @@ class PtyServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.alive = True
-        self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0, "corrupted": 0}
+        self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0,
+                         "corrupted": 0}
         # what the base said while no port was attached is lost, as on a real cable
         base.tick()
         self.counters["tx_dropped"] += len(base.drain()) + len(base.drain_stream())
@@ -102,7 +103,7 @@ class PtyServer:
 
     def inject(self, data: bytes) -> None:
         """``data`` sent to the host as if from the base: written whole by the server's own thread, in order,
-        before any line the base sends after this call and never interleaved with one (the fuzz tests' lines)."""
+        before any line the base sends after this call and never interleaved with one (fuzz tests' lines)."""
         with self._lock:
             self._injected += data
         try:
@@ -173,7 +174,7 @@ class PtyServer:
             out, samples = self.base.drain(), self.base.drain_stream()
             with self._lock:
                 pending, self._pending = self._pending, []
-            if not self._write_injected():  # the base's lines wait behind injected bytes the pty could not take
+            if not self._write_injected():  # the base's lines wait behind injected bytes the pty did not take
                 self._held += out
                 self.counters["samples_dropped"] += len(samples)
             elif not self.silent:

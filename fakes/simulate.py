@@ -265,8 +265,8 @@ class Simulation:
                 if cfg.tilt_sigma_mrad:
                     pose.roll_rad, pose.pitch_rad = rng.normal(0.0, cfg.tilt_sigma_mrad * 1e-3, size=2)
                 if w.on_plate(pose.x_mm, pose.y_mm):
-                    raise ValueError(f"validation stop at ({pose.x_mm:.0f}, {pose.y_mm:.0f}) is on the plate; "
-                                     "move the mark away from it")
+                    raise ValueError(f"validation stop at ({pose.x_mm:.0f}, {pose.y_mm:.0f}) is on the "
+                                     "plate; move the mark away from it")
                 extra: dict[str, Any] = {}
                 if w.effects.active:
                     pose, P_prev_true, P_at_true = self._stop(pose, rng)

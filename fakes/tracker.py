@@ -152,16 +152,17 @@ class SimTracker(EmsconTracker):
     ``search_radius_mm``.
     """
 
-    OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch", "drop_after",
-                                       "delay_ms", "split", "garbage_after", "result_first", "fail",
-                                       worlds.OPTION, "ok", "max_data_rate", "foreign_frame",
+    OPTIONS = EmsconTracker.OPTIONS | {"sigma_mm", "time_scale", "packet_rate_hz", "flood_batch",
+                                       "drop_after", "delay_ms", "split", "garbage_after", "result_first",
+                                       "fail", worlds.OPTION, "ok", "max_data_rate", "foreign_frame",
                                        "frame_held"}
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit, settings: Any = None) -> None:
         super().__init__(url, emit=emit, settings=settings)
         self.world = worlds.world_for(url)
         o = url.option
-        self.sim_options = {"sigma_mm": o("sigma_mm", None, float), "time_scale": o("time_scale", 0.05, float),
+        self.sim_options = {"sigma_mm": o("sigma_mm", None, float),
+                            "time_scale": o("time_scale", 0.05, float),
                             "packet_rate_hz": o("packet_rate_hz", 8.0, float),
                             "flood_batch": o("flood_batch", 0, int),
                             "max_data_rate": o("max_data_rate", 1000, int),

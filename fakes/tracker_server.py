@@ -380,9 +380,9 @@ class FakeTrackerServer(FrameCommands):
         try:
             while left != 0:
                 if self.flood_batch > 0:
-                    n = self.flood_batch
+                    n = self.flood_batch if left < 0 else min(self.flood_batch, left)
                     await asyncio.sleep(0)
-                    rec = self._records(min(n, MAX_RECORDS) if left < 0 else min(n, left, MAX_RECORDS), t_next, dt)
+                    rec = self._records(min(n, MAX_RECORDS), t_next, dt)
                 else:
                     # packets on a fixed cadence of the server's clock, as a device's timer sends them:
                     # after a stall (a busy host) the packets due go out back to back, each with its own

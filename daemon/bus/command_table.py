@@ -46,7 +46,8 @@ class Command:
 
 
 _CONFIRM = Arg("confirm", "bool", "confirm that the robot may move", default=False, cli="--yes")
-_WAIT = Arg("wait", "bool", "return once the motion started instead of at its end", default=True, cli="--no-wait")
+_WAIT = Arg("wait", "bool", "return once the motion started instead of at its end", default=True,
+            cli="--no-wait")
 
 
 def _motion_timeout(how_far: str, speed: str) -> Arg:
@@ -66,30 +67,38 @@ TABLE: tuple[Command, ...] = (
             "[{name, type, unit, range, choices, required, default, help}]}}}", polled=True),
     Command("hello", "who is this daemon: version, schema, endpoints",
             result="name, version, schema, pid, sim, endpoints, device URLs", polled=True),
-    Command("status", "device states at a glance", verb="status", result="the daemon.health payload", polled=True),
+    Command("status", "device states at a glance", verb="status", result="the daemon.health payload",
+            polled=True),
     Command("state", "Clone snapshot for late joiners", verb="watch",
             result="{seq, latest: {topic: {seq, t_ns, data}}, devices}", polled=True),
     Command("tracker.measure", "one stationary point of the locked reflector", "operator",
             cli=("tracker", "measure"),
             result="stationary point: x y z (mm, tracker frame), abs_xyz (ACS via tracker.abs_H_trk), "
-                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, host_monotonic_ns", polled=True),
+                   "abs_H_trk (the 4×4 used), std, environment, tracker status, host_time_ns, "
+                   "host_monotonic_ns",
+            polled=True),
     Command("tracker.aim", "turn the tracker head to a point", "operator", cli=("tracker", "aim"), args=tuple(
         Arg(k, "float", f"{k.upper()} of the point, tracker frame", unit="mm", default=REQUIRED, cli=POS,
             metavar=k.upper()) for k in "xyz"), result="{aimed}", motion="moves"),
     Command("tracker.find", "search and lock the reflector near where the tracker points", "operator",
             cli=("tracker", "find"), result="{locked: true}; tracker_<Status> when nothing is found", args=(
                 Arg("approx_distance_mm", "float", "approximate distance to the reflector", unit="mm", lo=0,
-                    lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),), motion="moves"),
+                    lo_open=True, default_text="the tracker's own search", cli="--distance", metavar="MM"),),
+            motion="moves"),
     Command("tracker.stream.start", "stream tracker points as tracker.point telemetry", "operator",
-            cli=("tracker", "stream", "start"), result="{streaming, rate_hz: the rate streamed, after any clamp}; points then flow as tracker.point", args=(
+            cli=("tracker", "stream", "start"),
+            result="{streaming, rate_hz: the rate streamed, after any clamp}; points then flow as "
+                   "tracker.point",
+            args=(
                 Arg("rate_hz", "float", "points per second", unit="Hz", lo=0, lo_open=True, hi=10000,
                     default_text="config [tracker] stream_rate_hz", cli="--rate", metavar="HZ"),)),
     Command("tracker.stream.stop", "stop the point stream", "operator", cli=("tracker", "stream", "stop"),
             result="{streaming: false}"),
     Command("tracker.status", "tracker adapter status and counters", cli=("tracker", "status"),
             result="adapter status and counters; clock: the tracker clock's mapping onto the host's from its "
-                   "stream packets {source (clockmap, null before the first), offset_ns, drift_ppm, sigma_ns, samples, "
-                   "window_s, two_way, resets}; sigma_ns leaves out the latency's fixed part (docs/architecture.md, Time)",
+                   "stream packets {source (clockmap, null before the first), offset_ns, drift_ppm, "
+                   "sigma_ns, samples, window_s, two_way, resets}; sigma_ns leaves out the latency's fixed "
+                   "part (docs/architecture.md, Time)",
             polled=True),
     Command("tracker.readback", "what the controller holds now: frames, environment, packet rate "
             "(ritactl commission)", cli=("tracker", "readback"),
@@ -99,24 +108,28 @@ TABLE: tuple[Command, ...] = (
     Command("camera.capture", "trigger one frame", "operator", cli=("camera", "capture"),
             result="{header, path?}; pixels as one attachment", args=(
                 Arg("pixels", "bool", "send the pixels back as an attachment", default=False),
-                Arg("save", "bool", "store the frame as a dataset entry on the robot", default_text="not pixels"),
-                Arg("label", "str", "name of the stored entry", default="frame", cli="--label")), polled=True),
+                Arg("save", "bool", "store the frame as a dataset entry on the robot",
+                    default_text="not pixels"),
+                Arg("label", "str", "name of the stored entry", default="frame", cli="--label")),
+            polled=True),
     Command("camera.stream.start", "free-running frames on the frame socket", "operator",
             cli=("camera", "stream", "start"), result="{streaming: true}"),
     Command("camera.stream.stop", "stop the free run", "operator", cli=("camera", "stream", "stop"),
             result="{streaming: false}"),
     Command("camera.status", "applied camera settings, warnings, counters, ptp (PTP status), link "
             "(GigE link statistics) and clock (how frames are timed)", cli=("camera", "status"),
-            result="applied settings, warnings, counters, ptp, link; clock: how the newest frame was put on the "
-                   "host's timeline {source (ptp, clockmap or host; null before the first frame), offset_ns (host − "
-                   "device), drift_ppm, sigma_ns, samples, window_s, two_way, resets, ptp (the camera's PTP state at "
-                   "that frame), note (why PTP is not used, else null); with source ptp also clockmap {offset_ns, "
-                   "drift_ppm, sigma_ns}, the map kept as fallback} (docs/architecture.md, Time)", polled=True),
+            result="applied settings, warnings, counters, ptp, link; clock: how the newest frame was put on "
+                   "the host's timeline {source (ptp, clockmap or host; null before the first frame), "
+                   "offset_ns (host − device), drift_ppm, sigma_ns, samples, window_s, two_way, resets, ptp "
+                   "(the camera's PTP state at that frame), note (why PTP is not used, else null); with "
+                   "source ptp also clockmap {offset_ns, drift_ppm, sigma_ns}, the map kept as fallback} "
+                   "(docs/architecture.md, Time)",
+            polled=True),
     Command("camera.preview", "the newest streamed frame, small (or a full-resolution region), as one JPEG "
             "attachment: live views over a thin link", verb="console",
             result="{header, format: jpeg, x, y, w, h, step, out_w, out_h, full_w, full_h}: the region shown "
-                   "(sensor px) and the stride; {unchanged: true, frame_id} while the newest frame's id is after; "
-                   "not_found before the first streamed frame", args=(
+                   "(sensor px) and the stride; {unchanged: true, frame_id} while the newest frame's id is "
+                   "after; not_found before the first streamed frame", args=(
                 Arg("width", "int", "largest width of the picture", unit="px", default=640, lo=16, hi=4096),
                 Arg("roi_x", "int", "left edge of the region", unit="px", lo=0, default_text="0"),
                 Arg("roi_y", "int", "top edge of the region", unit="px", lo=0, default_text="0"),
@@ -124,8 +137,8 @@ TABLE: tuple[Command, ...] = (
                 Arg("roi_h", "int", "region height", unit="px", lo=1, default_text="the whole frame"),
                 Arg("quality", "int", "JPEG quality", default=80, lo=10, hi=95),
                 Arg("after", "int", "frame id the client already shows", default=-1, lo=-1)), polled=True),
-    Command("camera.detect", "the plate target's ChArUco corners or a floor mark in the newest streamed frame, "
-            "on demand (one detection at a time)", cli=("camera", "detect"),
+    Command("camera.detect", "the plate target's ChArUco corners or a floor mark in the newest streamed "
+            "frame, on demand (one detection at a time)", cli=("camera", "detect"),
             result="{target, frame_id, full_w, full_h, searched_w, searched_h, found, n, uv: sensor px "
                    "(corners: [[u, v], ...] with ids and plate_id; mark: [u, v]), took_s}; mark not found: "
                    "{found: false, message}; busy while a detection runs", args=(
@@ -133,11 +146,12 @@ TABLE: tuple[Command, ...] = (
                     cli="--target"),
                 Arg("plate_file", "str", "plate definition (data-dir path) for target plate",
                     default="calibration/plate.json", cli="--plate-file", metavar="FILE"),
-                Arg("width", "int", "search a copy downscaled to this width (faster, coarser)", unit="px", lo=64,
-                    hi=16384, default_text="the full frame", cli="--width", metavar="PX"),
+                Arg("width", "int", "search a copy downscaled to this width (faster, coarser)", unit="px",
+                    lo=64, hi=16384, default_text="the full frame", cli="--width", metavar="PX"),
                 Arg("size_px", "float", "mark size (dot radius or cross half-size) in sensor px: searches "
-                    "coarse to fine", unit="px", lo=0, lo_open=True, default_text="unknown: full-resolution search",
-                    cli="--size", metavar="PX")), polled=True),
+                    "coarse to fine", unit="px", lo=0, lo_open=True,
+                    default_text="unknown: full-resolution search", cli="--size", metavar="PX")),
+            polled=True),
     Command("robot.move", "drive straight (negative: backwards)", "operator", cli=("robot", "move"),
             result="controller's DONE, or {started} with wait: false", args=(
                 Arg("distance_mm", "float", "distance to drive (limit: config [robot] max_distance_mm)",
@@ -147,13 +161,13 @@ TABLE: tuple[Command, ...] = (
                 _CONFIRM, _WAIT, _motion_timeout("distance_mm", "speed_mm_s")), motion="moves"),
     Command("robot.turn", "turn on the spot (positive: counter-clockwise)", "operator", cli=("robot", "turn"),
             result="as robot.move", args=(
-                Arg("angle_deg", "float", "angle to turn", unit="°", default=REQUIRED, lo=-360, hi=360, cli=POS,
-                    metavar="DEG"),
+                Arg("angle_deg", "float", "angle to turn", unit="°", default=REQUIRED, lo=-360, hi=360,
+                    cli=POS, metavar="DEG"),
                 Arg("speed_deg_s", "float", "turn rate (limit: config [robot] max_turn_speed_deg_s)",
                     unit="°/s", default=20.0, lo=0, lo_open=True, cli="--speed", metavar="DEG_S"),
                 _CONFIRM, _WAIT, _motion_timeout("angle_deg", "speed_deg_s")), motion="moves"),
-    Command("robot.stop", "stop the base now and latch: every job that drives is stopped, every motion refused "
-            "until robot.release (any key may stop; no confirmation)", "viewer",
+    Command("robot.stop", "stop the base now and latch: every job that drives is stopped, every motion "
+            "refused until robot.release (any key may stop; no confirmation)", "viewer",
             cli=("robot", "stop"), result="{stopped, latched, jobs_stopped}", motion="stops"),
     Command("robot.release", "clear a latched stop: motions and robot jobs are allowed again (stopped jobs "
             "continue only on calib.resume)", "operator", cli=("robot", "release"),
@@ -171,47 +185,59 @@ TABLE: tuple[Command, ...] = (
                 _CONFIRM)),
     Command("robot.status", "base state, odometry, inclination, battery", cli=("robot", "status"),
             result="RobotState: state IDLE/MOVING/FAULT, x_mm y_mm heading_deg, roll_deg pitch_deg (with an "
-                   "inclinometer), battery_v, fault, host_time_ns, t_us (the base's clock, protocol 2; else null); "
-                   "streams: the sample topics the base sends (robot.odometry, robot.incl; [] from a version-1 "
-                   "base); clock: the base clock's mapping onto the host's from its samples, as in tracker.status",
+                   "inclinometer), battery_v, fault, host_time_ns, t_us (the base's clock, protocol 2; else "
+                   "null); streams: the sample topics the base sends (robot.odometry, robot.incl; [] from a "
+                   "version-1 base); clock: the base clock's mapping onto the host's from its samples, as in "
+                   "tracker.status",
             polled=True),
     Command("capture", "image + tracker point + robot state, stored as a dataset entry", "operator",
-            verb="capture", result="{path, header, tracker, robot, at_exposure}: tracker is a stationary measurement, null "
-            "while the tracker streams; at_exposure holds the tracker's stream, the base's pose and its tilt at "
-            "the frame's exposure (interpolated, with the gap bridged)",
+            verb="capture",
+            result="{path, header, tracker, robot, at_exposure}: tracker is a stationary measurement, null "
+                   "while the tracker streams; at_exposure holds the tracker's stream, the base's pose and "
+                   "its tilt at the frame's exposure (interpolated, with the gap bridged)",
             args=(
                 Arg("label", "str", "name of the entry", default="capture", cli="--label"),
-                Arg("dataset", "str", "dataset folder name", default_text="today's captures", cli="--dataset"))),
+                Arg("dataset", "str", "dataset folder name", default_text="today's captures",
+                    cli="--dataset"))),
     Command("data.dir", "the daemon's data folder", result="{data_dir}", polled=True),
     Command("files.list", "regular files under a data-dir folder (secrets never listed)", verb="fetch",
-            result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; at most "
-                   "20000 entries", args=(
-                Arg("path", "str", "folder or file relative to the data dir", default_text="the whole data dir"),), polled=True),
+            result="{root, files: [{path, size, mtime_ns}], truncated}: paths relative to data_dir with /; "
+                   "at most 20000 entries",
+            args=(Arg("path", "str", "folder or file relative to the data dir",
+                      default_text="the whole data dir"),),
+            polled=True),
     Command("files.read", "one chunk of a data-dir file; the bytes follow as an attachment", verb="fetch",
-            result="{path, offset, length, size, mtime_ns, eof}; fewer than length bytes at the end of the file", args=(
+            result="{path, offset, length, size, mtime_ns, eof}; fewer than length bytes at the end of the "
+                   "file",
+            args=(
                 Arg("path", "str", "file relative to the data dir", default=REQUIRED),
                 Arg("offset", "int", "first byte", unit="B", default=0, lo=0),
-                Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576)), polled=True),
+                Arg("length", "int", "bytes to read", unit="B", default=1048576, lo=0, hi=1048576)),
+            polled=True),
     Command("files.hash", "sha256 of the first length bytes of a data-dir file", verb="fetch",
             result="{path, length, size, sha256}", args=(
                 Arg("path", "str", "file relative to the data dir", default=REQUIRED),
-                Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file")), polled=True),
+                Arg("length", "int", "bytes to hash", unit="B", lo=0, default_text="the whole file")),
+            polled=True),
     Command("calib.results", "active calibration and every stored result", verb="results",
             result="{active, history}", polled=True),
-    Command("calib.plate.upload", "store a plate definition (e.g. surveyed on the laptop) as calibration/NAME on the "
-            "robot, checked against plate.schema.json first; a file it replaces is kept in calibration/history/plates/",
-            "operator", verb="plate upload", result="{path, sha256, size, replaced, unchanged}: data-dir paths", args=(
+    Command("calib.plate.upload", "store a plate definition (e.g. surveyed on the laptop) as "
+            "calibration/NAME on the robot, checked against plate.schema.json first; a file it replaces is "
+            "kept in calibration/history/plates/",
+            "operator", verb="plate upload",
+            result="{path, sha256, size, replaced, unchanged}: data-dir paths",
+            args=(
                 Arg("plate", "map", "the plate definition (the object of a plate.json)", default=REQUIRED),
                 Arg("name", "str", "file name in the robot's calibration folder", default="plate.json"))),
     Command("calib.resume", "queue a failed, cancelled or stopped job again; the worker continues from its "
             "checkpoint (a stopped one only after robot.release)",
             "operator", verb="resume", result="{job, worker_seen_s_ago}", args=(_job(),)),
-    Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator", verb="calibrate",
-            result="{job, worker_seen_s_ago}", args=(
+    Command("calib.start", "post a calibration job (an existing job id resumes it)", "operator",
+            verb="calibrate", result="{job, worker_seen_s_ago}", args=(
                 Arg("procedure", "str", "what to run", default=REQUIRED, choices=PROCEDURES),
                 Arg("params", "map", "the procedure's parameters, checked against its table in "
-                    "daemon/bus/procedure_params.py (types, ranges, names; a definition file as the JSON object)",
-                    default={}),
+                    "daemon/bus/procedure_params.py (types, ranges, names; a definition file as the JSON "
+                    "object)", default={}),
                 Arg("job", "str", "job id", default_text="generated"))),
     Command("calib.answer", "answer a job's prompt", "operator", verb="answer",
             result="{delivered}; answer must be one of the prompt's choices",
@@ -226,26 +252,31 @@ TABLE: tuple[Command, ...] = (
             result="the job, or null on timeout",
             args=(
         Arg("timeout_s", "float", "long-poll time", unit="s", default=10.0, lo=0, hi=60),), polled=True),
-    Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator", worker_only=True,
-            result="{answer} or {cancel: true}, or null on timeout",
-            args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60)), polled=True),
-    Command("calib.report", "worker: progress, prompt, result or error of a job", "operator", worker_only=True,
+    Command("calib.inbox", "worker: long-poll for answers and cancels of a job", "operator",
+            worker_only=True, result="{answer} or {cancel: true}, or null on timeout",
+            args=(_job(), Arg("timeout_s", "float", "long-poll time", unit="s", default=0.0, lo=0, hi=60)),
+            polled=True),
+    Command("calib.report", "worker: progress, prompt, result or error of a job", "operator",
+            worker_only=True,
             result="{ok}; republished as calib.progress, calib.prompt or calib.result telemetry",
             args=(_job(), Arg("kind", "str", "report kind", default=REQUIRED,
                               choices=("progress", "result", "prompt", "error")),
                   Arg("data", "any", "the report", default_text="{}"),
-                  Arg("procedure", "str", "procedure of a resumed job", default_text="the posted job's")), polled=True),
-    Command("keys.list", "the allow-list: names, roles and public keys of the CURVE keys", "admin", verb="keys",
-            result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
-    Command("keys.allow", "allow a CURVE key with a role (replaces an entry of that name)", "admin", verb="keys",
-            result="{name, role, public_key}", args=(
-                _KEY_NAME, Arg("public_key", "str", "the client's public key (z85, 40 characters)", default=REQUIRED),
+                  Arg("procedure", "str", "procedure of a resumed job",
+                      default_text="the posted job's")),
+            polled=True),
+    Command("keys.list", "the allow-list: names, roles and public keys of the CURVE keys", "admin",
+            verb="keys", result="{dir, keys: [{name, role, public_key}], unreadable: {file: why}}"),
+    Command("keys.allow", "allow a CURVE key with a role (replaces an entry of that name)", "admin",
+            verb="keys", result="{name, role, public_key}", args=(
+                _KEY_NAME,
+                Arg("public_key", "str", "the client's public key (z85, 40 characters)", default=REQUIRED),
                 Arg("role", "str", "what the key may do", default="viewer", choices=ROLES))),
     Command("keys.role", "change the role of an allowed key", "admin", verb="keys",
             result="{name, role, public_key}", args=(
                 _KEY_NAME, Arg("role", "str", "what the key may do", default=REQUIRED, choices=ROLES))),
-    Command("keys.revoke", "remove a key from the allow-list (its open connections too)", "admin", verb="keys",
-            result="{revoked}", args=(_KEY_NAME,)),
+    Command("keys.revoke", "remove a key from the allow-list (its open connections too)", "admin",
+            verb="keys", result="{revoked}", args=(_KEY_NAME,)),
 )
 
 assert len({c.name for c in TABLE}) == len(TABLE), "duplicate command in TABLE"
@@ -317,7 +348,7 @@ def _bad(cmd: str, text: str) -> CommandError:
 
 
 def check_arg(cmd: str, arg: Arg, value: Any) -> Any:
-    """``value`` checked against ``arg`` (:meth:`Arg.checked`); ``bad_args`` names the command and argument."""
+    """``value`` checked against ``arg`` (:meth:`Arg.checked`); ``bad_args`` names command and argument."""
     try:
         return arg.checked(value)
     except BadValue as exc:

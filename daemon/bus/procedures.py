@@ -64,7 +64,8 @@ class Procedure:
     def __post_init__(self) -> None:
         names = [p.name for p in self.params]
         for i, p in enumerate(self.params):  # resolve() applies defaults in order
-            assert not p.default_of or p.default_of in names[:i], f"{self.name}.{p.name} before {p.default_of}"
+            ordered = not p.default_of or p.default_of in names[:i]
+            assert ordered, f"{self.name}.{p.name} before {p.default_of}"
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
@@ -128,10 +129,11 @@ REFERENCING = Procedure(
     inputs={"camera_model": "camera_model", "plate": "plate"}, params=(
         Param("plate", "file", "plate definition (plate.json)", installed="calibration/plate.json",
               default_text="the installed plate"),
-        Param("camera_model", "file", "camera model (camera_model.json)", installed="calibration/camera_model.json",
-              default_text="the installed camera model"),
+        Param("camera_model", "file", "camera model (camera_model.json)",
+              installed="calibration/camera_model.json", default_text="the installed camera model"),
         Param("nests_approx_trk", "file", "approximate nests {red|green|blue: [x, y, z]}, tracker frame, mm",
-              content="xyz_map", default_text="none: the worker asks for each nest", aliases=("--nests-approx",)),
+              content="xyz_map", default_text="none: the worker asks for each nest",
+              aliases=("--nests-approx",)),
         Param("robot_approx_trk", "vec", "approximate robot reflector, tracker frame", unit="mm", length=3,
               default_text="none: the worker asks", aliases=("--robot-approx",)),
         Param("reversal", "bool", "second referencing turned 180° (instrument reversal; it also measures the "
@@ -140,8 +142,8 @@ REFERENCING = Procedure(
 INTRINSICS = Procedure(
     "intrinsics", "intrinsics", "camera model from a hand-held board, view by view as the prompts say",
     moves=False, view="camera_model", inputs={"camera_model": "initial_model", "plate": "plate"}, params=(
-        Param("board", "file", "the hand-held board's definition (board.json)", installed="calibration/board.json",
-              default_text="the installed board"),))
+        Param("board", "file", "the hand-held board's definition (board.json)",
+              installed="calibration/board.json", default_text="the installed board"),))
 MEASURE_MARK = Procedure(
     "measure-mark", "measure-mark", "one floor mark's ACS position with the active calibration", moves=True,
     view="mark", inputs={"calibration": "calibration"}, params=(
@@ -156,8 +158,8 @@ EXPERIMENT = Procedure(
         Param("directions", "int", "approach directions", default=8, lo=1),
         Param("repetitions", "int", "repetitions per direction", default=5, lo=1, aliases=("--reps",)),
         Param("seed", "int", "seed of the approach order and offsets", default=1, lo=0),
-        Param("psi0_deg", "float", "heading of the first direction, ACS", unit="°", default=0.0, lo=-360, hi=360,
-              aliases=("--psi0",)),
+        Param("psi0_deg", "float", "heading of the first direction, ACS", unit="°", default=0.0,
+              lo=-360, hi=360, aliases=("--psi0",)),
         Param("offset_mm", "float", "largest random offset of the mark from the image centre", unit="mm",
               default=3.0, lo=0),
         MARK_SIZE, CALIBRATION, DISTANCE, SPEED, SIGMA_T, *_COMPENSATIONS,
@@ -280,12 +282,12 @@ def schema() -> dict[str, list[dict[str, Any]]]:
 
 def describe() -> dict[str, dict[str, Any]]:
     """What a client shows of each procedure besides its form: verb, help, whether it drives, its view."""
-    return {p.name: {"verb": p.verb, "help": p.help, "moves": p.moves, "view": p.view, "inputs": sorted(p.inputs)}
-            for p in ALL}
+    return {p.name: {"verb": p.verb, "help": p.help, "moves": p.moves, "view": p.view,
+                     "inputs": sorted(p.inputs)} for p in ALL}
 
 
 def cli_flags(p: Param) -> tuple[str, ...]:
-    """A parameter's ritactl options: ``--name-with-dashes`` first (a bool also ``--no-name``), then its aliases."""
+    """A parameter's ritactl options: ``--name-with-dashes`` (a bool also ``--no-name``), then its aliases."""
     name = p.name.replace('_', '-')
     return (f"--{name}", *((f"--no-{name}",) if p.type == "bool" else ()), *p.aliases)
 
@@ -295,13 +297,16 @@ def _rows() -> Iterator[str]:
     yield "|---|---|---|---|---|---|---|---|"
     for proc in ALL:
         for i, p in enumerate(proc.params):
-            head = (f"`{proc.name}`", f"`ritactl {proc.verb}`", "yes" if proc.moves else "no") if i == 0 else ("",) * 3
+            first = (f"`{proc.name}`", f"`ritactl {proc.verb}`", "yes" if proc.moves else "no")
+            head = first if i == 0 else ("",) * 3  # the procedure's cells on its first row only
             bar = "\\|"  # a bar inside a cell would split it
-            kind = p.type + (f", {p.unit}" if p.unit else "") + (f", {p.range_text()}" if p.range_text() else "")
+            kind = p.type + (f", {p.unit}" if p.unit else "")
+            kind += f", {p.range_text()}" if p.range_text() else ""
             kind += (", " + f" {bar} ".join(p.choices)) if p.choices else ""
             default = "**required**" if p.required else (p.default_text or json.dumps(p.default))
             flags = ", ".join(f"`{f}`" for f in cli_flags(p))
-            yield f"| {' | '.join(head)} | `{p.name}` | {flags} | {kind} | {default} | {p.help.replace('|', bar)} |"
+            what = p.help.replace('|', bar)
+            yield f"| {' | '.join(head)} | `{p.name}` | {flags} | {kind} | {default} | {what} |"
 
 
 def markdown_table() -> str:

@@ -98,8 +98,9 @@ def read_entry(path: Path) -> KeyEntry:
 def write_entry(directory: Path, name: str, public: bytes, role: str) -> KeyEntry:
     """Allow ``public`` as ``name`` with ``role`` (replacing an entry of that name)."""
     entry = KeyEntry(_check_name(name), public, check_role(role))
-    if len(public) != 40 or not set(public.decode(errors="replace")) <= _Z85:
-        raise ValueError(f"public key {public.decode(errors='replace')!r} is not a 40-character z85 CURVE key")
+    shown = public.decode(errors="replace")
+    if len(public) != 40 or not set(shown) <= _Z85:
+        raise ValueError(f"public key {shown!r} is not a 40-character z85 CURVE key")
     text = ("#   ZeroMQ CURVE public certificate: a client allowed by ritad, with its role\n"
             f"metadata\n    role = \"{role}\"\ncurve\n    public-key = \"{public.decode()}\"\n")
     atomic_write_text(Path(directory) / f"{name}.key", text, mode=0o644)

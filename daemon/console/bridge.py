@@ -61,7 +61,8 @@ class Bridge:
         """One bus command from a pool thread (raises CommandError / ClientTimeout like Client)."""
         return self._client().call_raw(cmd, args or {}, timeout)[0]
 
-    def call_raw(self, cmd: str, args: dict[str, Any], timeout: float | None = None) -> tuple[Any, list[bytes]]:
+    def call_raw(self, cmd: str, args: dict[str, Any],
+                 timeout: float | None = None) -> tuple[Any, list[bytes]]:
         result, frames = self._client().call_raw(cmd, args, timeout)
         return result, [f.bytes for f in frames]
 

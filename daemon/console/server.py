@@ -3,8 +3,8 @@
 aiohttp serves the static page and one WebSocket per tab on 127.0.0.1 only. The
 page pulls camera pictures (it sends ``next`` after drawing one; the console then
 pulls a small JPEG of the newest frame with ``camera.preview``, so a slow tab just gets
-fewer pictures, each the newest, and costs the robot nothing while it lags) and receives telemetry as the latest value per
-topic every ``STATE_PERIOD_S`` (coalesced: a slow tab skips intermediate values but
+fewer pictures, each the newest, and costs the robot nothing while it lags) and receives telemetry as the
+latest value per topic every ``STATE_PERIOD_S`` (coalesced: a slow tab skips intermediate values but
 always ends on the current state) plus the calibration and motion events in order.
 Commands from the page go to the bus unchanged; the daemon checks the key's role,
 and the page disables what the role may not send. The WebSocket protocol is in
@@ -58,7 +58,8 @@ PAGE_COMMANDS = sorted(n for n, c in COMMANDS.items() if not c.worker_only)
 
 def _error(exc: BaseException) -> dict[str, str]:
     if isinstance(exc, CommandError):  # ``field``: the form field a bad procedure parameter came from
-        return {"code": exc.code, "message": exc.args[0] if exc.args else exc.code, "field": getattr(exc, "field", "")}
+        message = exc.args[0] if exc.args else exc.code
+        return {"code": exc.code, "message": message, "field": getattr(exc, "field", "")}
     return {"code": "internal", "message": f"{type(exc).__name__}: {exc}"}
 
 
@@ -130,16 +131,16 @@ class Console:
         path = request.match_info["path"]
         args = {"path": path} if path else {}
         try:
-            r = await asyncio.get_running_loop().run_in_executor(self.bridge.pool, self.bridge.call, "files.list",
-                                                                 args, 30.0)
+            r = await asyncio.get_running_loop().run_in_executor(
+                self.bridge.pool, self.bridge.call, "files.list", args, 30.0)
         except (CommandError, ClientTimeout) as exc:
             return web.Response(status=404, text=f"{path}: {_error(exc)['message']}")
         rows = "".join(f'<li><a href="/files/{quote(f["path"])}?download=1">{html.escape(f["path"])}</a> '
                        f'{f["size"]} B</li>' for f in r["files"])
         more = "<p>(list truncated)</p>" if r.get("truncated") else ""
-        return web.Response(content_type="text/html", text=f"<!doctype html><meta charset=utf-8><title>{html.escape(path)}"
-                                                           f"</title><h1>{html.escape(path or 'data dir')}</h1>"
-                                                           f"<ul>{rows}</ul>{more}")
+        page = (f"<!doctype html><meta charset=utf-8><title>{html.escape(path)}</title>"
+                f"<h1>{html.escape(path or 'data dir')}</h1><ul>{rows}</ul>{more}")
+        return web.Response(content_type="text/html", text=page)
 
     async def download(self, request: web.Request) -> web.StreamResponse:
         """A data-dir file of the robot (dataset, report, plot), copied chunk by chunk with files.read."""
@@ -221,7 +222,7 @@ class Console:
         try:
             result = await asyncio.get_running_loop().run_in_executor(pool or self.bridge.pool, fn, *args)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
-        except Exception as exc:  # noqa: BLE001 - every failure goes back to the page, the console keeps serving
+        except Exception as exc:  # noqa: BLE001 - any failure goes to the page, the console keeps serving
             msg = {"type": "reply", "id": req.get("id"), "ok": False, "error": _error(exc)}
         if not tab.ws.closed:
             await tab.ws.send_str(json.dumps(msg, default=str))
@@ -229,7 +230,8 @@ class Console:
     async def _call(self, tab: Tab, req: dict[str, Any]) -> None:
         cmd, args = req.get("cmd"), req.get("args") or {}
         if cmd not in PAGE_COMMANDS or not isinstance(args, dict):
-            err = {"code": "bad_args", "message": f"the console does not send {cmd!r} (or its args are not a map)"}
+            err = {"code": "bad_args",
+                   "message": f"the console does not send {cmd!r} (or its args are not a map)"}
             await tab.ws.send_json({"type": "reply", "id": req.get("id"), "ok": False, "error": err})
             return
         timeout = req.get("timeout")
@@ -241,21 +243,21 @@ class Console:
         await self._reply(tab, req, self.bridge.call, cmd, args, timeout, pool=pool)
 
     async def _survey(self, tab: Tab, req: dict[str, Any]) -> None:
-        """Start, cancel or upload the plate survey (on this laptop; daemon/console/survey.py); an operator's control."""
+        """Start, cancel or upload the laptop's plate survey (daemon/console/survey.py); operators only."""
         try:
             role = self.bridge.role
             if role not in ROLES or ROLES.index(role) < ROLES.index("operator"):
-                raise CommandError(ErrorCode.FORBIDDEN, f"the plate survey is an operator's control; this console's "
-                                                        f"key has the role {role!r}")
+                raise CommandError(ErrorCode.FORBIDDEN, "the plate survey is an operator's control; "
+                                   f"this console's key has the role {role!r}")
             action = req.get("action")
-            if action == "upload":  # a plate file on this laptop to the robot's calibration folder (the daemon checks)
+            if action == "upload":  # a local plate file to the robot's calibration folder (the daemon checks)
                 args = {"plate": read_plate_file(req.get("out")), "name": req.get("name") or "plate.json"}
                 result = await asyncio.get_running_loop().run_in_executor(self.bridge.pool, self.bridge.call,
                                                                           "calib.plate.upload", args, 30.0)
             else:
                 result = self.survey.cancel() if action == "cancel" else await self.survey.start(req)
             msg = {"type": "reply", "id": req.get("id"), "ok": True, "result": result}
-        except Exception as exc:  # noqa: BLE001 - every failure goes back to the page, the console keeps serving
+        except Exception as exc:  # noqa: BLE001 - any failure goes to the page, the console keeps serving
             err = _error(exc) if not isinstance(exc, OSError) else {"code": "failed", "message": str(exc)}
             msg = {"type": "reply", "id": req.get("id"), "ok": False, "error": err}
         if not tab.ws.closed:
@@ -266,7 +268,8 @@ class Console:
 
     def _capture_sync(self, label: str) -> dict[str, Any]:
         """A full-resolution frame from the robot (also stored there), saved as PNG on this laptop."""
-        result, frames = self.bridge.call_raw("camera.capture", {"pixels": True, "save": True, "label": label}, 60.0)
+        args = {"pixels": True, "save": True, "label": label}
+        result, frames = self.bridge.call_raw("camera.capture", args, 60.0)
         header = result["header"]
         png = frame_png(header, frames[0])  # at the frame's own depth and channels, as ritactl capture --out
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)[:40] or "frame"
@@ -298,16 +301,16 @@ class Console:
         loop = asyncio.get_running_loop()
         while not tab.ws.closed:
             await tab.credit.wait()
-            wait = tab.sent_at + 0.9 / tab.view["fps"] - time.monotonic()  # 0.9: camera jitter never halves the rate
+            wait = tab.sent_at + 0.9 / tab.view["fps"] - time.monotonic()  # 0.9: jitter never halves the rate
             if wait > 0:
                 await asyncio.sleep(wait)
             roi = tab.view["roi"]
             args = {"width": tab.view["width"], "after": tab.frame_id,
                     **(dict(zip(("roi_x", "roi_y", "roi_w", "roi_h"), roi)) if roi else {})}
             try:
-                meta, parts = await loop.run_in_executor(self.bridge.pool, self.bridge.call_raw, "camera.preview",
-                                                         args, 10.0)
-            except (CommandError, ClientTimeout) as exc:  # no stream yet, camera gone, link down: ask again later
+                meta, parts = await loop.run_in_executor(
+                    self.bridge.pool, self.bridge.call_raw, "camera.preview", args, 10.0)
+            except (CommandError, ClientTimeout) as exc:  # no stream yet, camera gone, link down: retry later
                 tab.preview_error = _error(exc)["message"]
                 await asyncio.sleep(0.5)
                 continue
@@ -339,8 +342,9 @@ def _checked_view(req: dict[str, Any]) -> View:
 
 
 async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Callable[[str], object] | None = None,
-                duration: float | None = None, allow_hosts: tuple[str, ...] = (), token: str | None = None) -> None:
-    """Serve until cancelled (or for ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one).
+                duration: float | None = None, allow_hosts: tuple[str, ...] = (),
+                token: str | None = None) -> None:
+    """Serve until cancelled (or ``duration`` s); ``on_ready(url)`` once the port is bound (0: a free one).
 
     The URL carries this launch's secret token (docs/operations.md, "Operator console": security)."""
     console = Console(bridge, captures, token=token, allow_hosts=allow_hosts)

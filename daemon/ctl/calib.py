@@ -42,7 +42,8 @@ def final_of(j: dict[str, Any]) -> dict[str, Any] | None:
     """
     state = j.get("state")
     if isinstance(j.get("result"), dict) and j["result"]:  # also a failure's, with failed/cancelled set
-        return {"job": j["job"], **j["result"], **({"cancelled": True} if state == JobState.CANCELLED else {})}
+        cancelled = {"cancelled": True} if state == JobState.CANCELLED else {}
+        return {"job": j["job"], **j["result"], **cancelled}
     err = j.get("error")
     if err or state in (JobState.FAILED, JobState.CANCELLED, JobState.STOPPED):
         msg = err.get("message") if isinstance(err, dict) else (err or f"job {state}")
@@ -104,7 +105,7 @@ def _follow(c: Client, sub: Any, j: dict[str, Any] | None, job: str, interactive
 
 
 def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> int:
-    """Ctrl-C while following: detach, or stop the robot with a motion procedure (asked; a second Ctrl-C: yes)."""
+    """Ctrl-C while following: detach, or stop the robot in a motion procedure (asked; Ctrl-C again: yes)."""
     reattach = f"`ritactl follow {job}` re-attaches"
     if procedure not in MOVING_PROCEDURES:
         say(f"\ndetached; job {job} goes on. {reattach}, `ritactl cancel {job}` stops it.", as_json)
@@ -115,13 +116,13 @@ def _interrupted(c: Client, job: str, procedure: str | None, as_json: bool) -> i
         say(f"\nrobot {halted}; stopped job(s): {', '.join(r.get('jobs_stopped') or []) or 'none'}. "
             f"`ritactl robot release`, then `ritactl resume {job}` continues it.", as_json)
     else:
-        say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl robot stop` stops the robot and "
-            f"the job, `ritactl cancel {job}` cancels it after its current step; {reattach}.", as_json)
+        say(f"detached; job {job} goes on AND MAY STILL MOVE THE ROBOT. `ritactl robot stop` stops the robot "
+            f"and the job, `ritactl cancel {job}` cancels it after its current step; {reattach}.", as_json)
     return Exit.INTERRUPTED
 
 
 def follow(c: Client, job: str, interactive: bool = True, as_json: bool = False) -> int:
-    """Print the progress of ``job`` until its end and exit with its verdict; answer prompts from the keyboard.
+    """Print ``job``'s progress until its end and exit with its verdict; answer prompts from the keyboard.
 
     Returns at once for a job that has ended; an unknown job raises ``not_found``.
     """
@@ -171,7 +172,8 @@ def show_result(d: dict[str, Any], as_json: bool = False) -> int:
         print(f"  {line}")
     comp = d.get("compensation")
     if comp:  # which compensations took effect, and why not
-        done = ", ".join(f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"]) or "none"
+        counts = (f"{n} {comp['applied'].get(n, 0)}/{comp['stops']}" for n in comp["requested"])
+        done = ", ".join(counts) or "none"
         print(f"  compensations (stops applied): {done}")
         # counted over the stops (a result from before the counts: each reason once)
         for n, why in (comp.get("skipped") or {}).items():
@@ -222,7 +224,8 @@ def cmd_results(c: Client, a: argparse.Namespace) -> int:
         return Exit.OK
     act = r.get("active")
     if act:
-        print(f"active calibration: job {act.get('job')} ({act.get('created')}), verdict {act.get('verdict')}")
+        print(f"active calibration: job {act.get('job')} ({act.get('created')}), "
+              f"verdict {act.get('verdict')}")
         show_result(act)
     else:
         print("no active calibration yet (run `ritactl calibrate`)")
@@ -281,8 +284,9 @@ def add_parsers(sub: Any) -> None:
     add_procedure_parsers(sub, common, _start)  # one verb per declared procedure
     sub.add_parser("results", help="active calibration and history").set_defaults(fn=cmd_results)
     sub.add_parser("jobs", help="calibration jobs and their state").set_defaults(fn=cmd_jobs)
-    for name, fn, what in (("follow", cmd_follow, "print a job's progress until it ends; exit with its verdict"),
-                           ("resume", cmd_resume, "continue a failed or cancelled job from its last step")):
+    for name, fn, what in (
+            ("follow", cmd_follow, "print a job's progress until it ends; exit with its verdict"),
+            ("resume", cmd_resume, "continue a failed or cancelled job from its last step")):
         p = sub.add_parser(name, help=what)
         p.add_argument("job_id", metavar="JOB", help="job id (`ritactl jobs` lists them)")
         if name == "resume":

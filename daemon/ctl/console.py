@@ -1,4 +1,4 @@
-"""``ritactl console``: serve the operator console page on 127.0.0.1 (docs/operations.md, "Operator console")."""
+"""``ritactl console``: serve the operator console on 127.0.0.1 (docs/operations.md, "Operator console")."""
 from __future__ import annotations
 
 import argparse
@@ -25,7 +25,8 @@ def cmd_console(c: Client, a: argparse.Namespace) -> int:
     from daemon.console.run import run
 
     if a.duration is not None and not 0 < a.duration < 1e7:
-        raise CtlError(Exit.USAGE, "usage", f"console: --duration {a.duration:g} must be between 0 and 1e7 seconds")
+        raise CtlError(Exit.USAGE, "usage",
+                       f"console: --duration {a.duration:g} must be between 0 and 1e7 seconds")
 
     def make_client() -> Client:
         return Client(c.endpoint, timeout=c.timeout, curve=c.curve, key_id=c.key_id)
@@ -44,15 +45,17 @@ def cmd_console(c: Client, a: argparse.Namespace) -> int:
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("console", help="operator console in the browser (http://127.0.0.1:PORT)",
-                       description="Serve the operator console on 127.0.0.1 for this computer's browser: live "
-                                   "camera, tracker/robot/daemon panels, STOP, procedures, results. Runs until "
-                                   "Ctrl-C. The URL it prints carries this launch's secret token (needed by the "
-                                   "page). Needs pip install 'rita[console]'.")
-    p.add_argument("--port", type=_port, default=8765, help="TCP port on 127.0.0.1 (default 8765; 0: any free)")
+                       description="Serve the operator console on 127.0.0.1 for this computer's browser: "
+                                   "live camera, tracker/robot/daemon panels, STOP, procedures, results. "
+                                   "Runs until Ctrl-C. The URL it prints carries this launch's secret token "
+                                   "(needed by the page). Needs pip install 'rita[console]'.")
+    p.add_argument("--port", type=_port, default=8765,
+                   help="TCP port on 127.0.0.1 (default 8765; 0: any free)")
     p.add_argument("--captures", default="rita-captures", metavar="DIR",
                    help="folder for frames captured from the page (default ./rita-captures)")
     p.add_argument("--open", action="store_true", help="open the page in the default browser")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="stop after S seconds (default: run until Ctrl-C)")
     p.add_argument("--token", help="use this token instead of a new one (a restarted console that open pages "
                                    "reconnect to); the default is a new secret token per launch")
     p.add_argument("--allow-host", action="append", metavar="NAME",

@@ -64,7 +64,8 @@ def _run(a: argparse.Namespace) -> tuple[dict[str, Any], Difference | None]:
 
     return recompute(Path(a.dataset), camera_model=_input_file(a.camera_model, "camera model"),
                      plate=_input_file(a.plate, "plate definition"),
-                     calibration=_input_file(a.calibration, "calibration result"), compensation=a.compensation)
+                     calibration=_input_file(a.calibration, "calibration result"),
+                     compensation=a.compensation)
 
 
 def _store_bias(a: argparse.Namespace, result: dict[str, Any]) -> dict[str, Any]:
@@ -112,7 +113,7 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
     except DatasetInvalid as exc:
         lines = "".join(f"\n  {p}" for p in exc.problems)
         return fail(Exit.BAD_INPUT, "invalid_dataset", f"cannot recompute {a.dataset}: {len(exc.problems)} "
-                                                       f"problem(s) in its files or the given inputs:{lines}", a.json)
+                    f"problem(s) in its files or the given inputs:{lines}", a.json)
     except CalibrationError as exc:
         return fail(Exit.FAIL, "calibration_failed", f"calibration failed on {a.dataset}: {exc}", a.json)
     except ComputationFailed as exc:
@@ -124,7 +125,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
         what = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
         return fail(Exit.BAD_INPUT, "bad_input", f"cannot recompute {a.dataset}: {what}", a.json)
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
-        return fail(Exit.FAIL, "failed", f"recompute of {a.dataset} failed: {type(exc).__name__}: {exc}", a.json)
+        why = f"{type(exc).__name__}: {exc}"
+        return fail(Exit.FAIL, "failed", f"recompute of {a.dataset} failed: {why}", a.json)
     if a.json:
         print(json.dumps(result if not a.store_bias else {**result, "stored_calibration": a.store_bias},
                          indent=2, default=str))
@@ -133,7 +135,8 @@ def cmd_recompute(c: Any, a: argparse.Namespace) -> int:
 
         _show_result({**result, "dataset": a.out or a.dataset})
         if diff is not None and diff.mismatches:
-            print(f"\nthe stored result differs ({len(diff.mismatches)}):" + "".join(f"\n  {m}" for m in diff.mismatches))
+            listed = "".join(f"\n  {m}" for m in diff.mismatches)
+            print(f"\nthe stored result differs ({len(diff.mismatches)}):{listed}")
         elif diff is not None:
             print(f"\nlargest difference to the stored result: {diff:.3g}")
         if a.store_bias:
@@ -150,15 +153,17 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("recompute", help="re-run a procedure offline from its dataset folder")
     p.add_argument("dataset", metavar="DATASET",
                    help="a procedure's dataset folder (its state.json), e.g. one `ritactl fetch` copied")
-    p.add_argument("--out", metavar="DIR", help="write result.json, result.yaml (+ experiment report, plot) here")
-    p.add_argument("--camera-model", metavar="FILE", help="camera_model.json to use instead of the stored one")
+    p.add_argument("--out", metavar="DIR",
+                   help="write result.json, result.yaml (+ experiment report, plot) here")
+    p.add_argument("--camera-model", metavar="FILE",
+                   help="camera_model.json to use instead of the stored one")
     p.add_argument("--plate", metavar="FILE", help="plate.json to use instead of the stored one")
     p.add_argument("--calibration", metavar="FILE",
                    help="referencing result.json to use instead of the stored one (experiment, measure-mark)")
     p.add_argument("--compensation", metavar="NAMES",
                    help="compensations: none, all, or a comma list of tilt,heading_fit,bias,mount "
-                        "(experiment, measure-mark; default: the job's own, the procedure table's when it named none). "
-                        "A bad name exits 5")
+                        "(experiment, measure-mark; default: the job's own, the procedure table's when it "
+                        "named none). A bad name exits 5")
     p.add_argument("--store-bias", metavar="OUT.json",
                    help="(experiment) write the calibration the live store_bias would store: the "
                         "calibration the experiment used with its fitted b, heading_fit weight and σ check "

@@ -23,8 +23,9 @@ from daemon.bus.storage import atomic_write_bytes, atomic_write_json
 
 # options that act on this computer only, not sent to the daemon
 LOCAL_OPTIONS: dict[str, tuple[tuple[str, dict[str, Any]], ...]] = {
-    "camera.capture": (("--out", {"metavar": "FILE.png", "help": "save the frame here, on this computer, as a "
-                                  "lossless PNG (+ FILE.json metadata) instead of storing it on the robot"}),),
+    "camera.capture": (("--out", {"metavar": "FILE.png",
+                                  "help": "save the frame here, on this computer, as a lossless PNG "
+                                          "(+ FILE.json metadata) instead of storing it on the robot"}),),
 }
 
 
@@ -37,8 +38,8 @@ def _detect_text(r: dict[str, Any]) -> tuple[str, Exit]:
             return f"no corners of plate {r.get('plate_id')} found ({where})", Exit.FAIL
         uv = r["uv"]
         box = [min(p[0] for p in uv), min(p[1] for p in uv), max(p[0] for p in uv), max(p[1] for p in uv)]
-        return (f"{r['n']} corners of plate {r.get('plate_id')} ({where}); within u {box[0]:.0f}–{box[2]:.0f}, "
-                f"v {box[1]:.0f}–{box[3]:.0f} px"), Exit.OK
+        return (f"{r['n']} corners of plate {r.get('plate_id')} ({where}); "
+                f"within u {box[0]:.0f}–{box[2]:.0f}, v {box[1]:.0f}–{box[3]:.0f} px"), Exit.OK
     if not r.get("found"):
         return f"no {r.get('target')} mark found ({where}): {r.get('message', '')}", Exit.FAIL
     u, v = r["uv"]
@@ -89,7 +90,8 @@ def number_type(arg: Arg) -> Callable[[str], float]:
         try:
             value = float(text) if arg.type == "float" else int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {'a number' if arg.type == 'float' else 'an integer'}")
+            what = "a number" if arg.type == "float" else "an integer"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}")
         if not math.isfinite(value):
             raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
         why = arg.check(value)
@@ -128,7 +130,8 @@ def add_table_args(p: argparse.ArgumentParser, cmd: Command) -> None:
         if arg.cli == POS:
             p.add_argument(_dest(arg), metavar=arg.metavar or arg.name.upper(), **kind)
         elif arg.type == "bool":
-            p.add_argument(arg.cli, dest=_dest(arg), action="store_const", const=not arg.default, help=kind["help"])
+            p.add_argument(arg.cli, dest=_dest(arg), action="store_const", const=not arg.default,
+                           help=kind["help"])
         else:
             p.add_argument(arg.cli, dest=_dest(arg), metavar=arg.metavar or None, **kind)
 
@@ -148,7 +151,8 @@ def with_cli_names(cmd: Command, message: str) -> str:
     for arg in cmd.args:
         if arg.cli:
             shown = (arg.metavar or arg.name.upper()) if arg.cli == POS else arg.cli
-            message = re.sub(rf"\b{re.escape(arg.name)}\b", f"{arg.name} (ritactl: {shown})", message, count=1)
+            word = rf"\b{re.escape(arg.name)}\b"
+            message = re.sub(word, f"{arg.name} (ritactl: {shown})", message, count=1)
     return message
 
 
@@ -160,8 +164,9 @@ def add_device_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None
             path = cmd.cli[:depth]
             if path not in nodes:
                 words = sorted({c.cli[depth] for c in TABLE if c.cli[:depth] == path})
-                p = nodes[path[:-1]].add_parser(path[-1], parents=parents, help=f"{' '.join(path)}: "
-                                                f"{', '.join(words)}", description=f"{' '.join(path)} commands")
+                group = " ".join(path)
+                p = nodes[path[:-1]].add_parser(path[-1], parents=parents, description=f"{group} commands",
+                                                help=f"{group}: {', '.join(words)}")
                 p.set_defaults(fn=None, parser_=p)
                 nodes[path] = p.add_subparsers(title="commands", metavar="COMMAND")
         if cmd.cli:
@@ -177,9 +182,11 @@ def _check_out(out: str) -> None:
     """Refuse an unusable --out before the camera is triggered (exit 5)."""
     path = Path(out)
     if not path.name or path.name in (".", "..") or path.is_dir():
-        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r} is a folder: give a file name like frame.png")
+        raise CtlError(Exit.BAD_INPUT, "bad_input",
+                       f"--out {out!r} is a folder: give a file name like frame.png")
     if not path.parent.is_dir():
-        raise CtlError(Exit.BAD_INPUT, "bad_input", f"--out {out!r}: folder {str(path.parent)!r} does not exist")
+        raise CtlError(Exit.BAD_INPUT, "bad_input",
+                       f"--out {out!r}: folder {str(path.parent)!r} does not exist")
 
 
 def _save_png(out: str, result: dict[str, Any], extra: list[Any]) -> None:
@@ -217,8 +224,8 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
         raise
     except CommandError as exc:
         if exc.code == ErrorCode.CONFIRM_REQUIRED:  # the daemon's message speaks of the bus argument
-            raise CommandError(exc.code, f"`ritactl {' '.join(cmd.cli)}` moves the robot: add --yes to confirm "
-                                         f"that it may move") from None
+            raise CommandError(exc.code, f"`ritactl {' '.join(cmd.cli)}` moves the robot: "
+                               "add --yes to confirm that it may move") from None
         raise CommandError(exc.code, with_cli_names(cmd, exc.args[0])) from None
     if out:
         _save_png(out, result, extra)

@@ -8,9 +8,9 @@ with ``files.list`` / ``files.read`` / ``files.hash`` (docs/protocol.md), in chu
 Each file goes to a hidden ``.NAME.part`` next to its target, is fsynced, checked
 against the robot's sha256 and renamed into place, so an interrupted fetch never
 leaves a half file under the real name. (Not daemon/bus/storage.py's atomic_write_bytes:
-the ``.part`` keeps its name across runs so a large copy resumes; the folder fsync is shared.) Running the same fetch again resumes: a
-file already here with the robot's size and sha256 is skipped, a ``.part`` whose
-bytes match the start of the robot's file is continued from where it stopped.
+the ``.part`` keeps its name across runs so a large copy resumes; the folder fsync is shared.)
+Running the same fetch again resumes: a file already here with the robot's size and sha256 is skipped,
+a ``.part`` whose bytes match the start of the robot's file is continued from where it stopped.
 """
 from __future__ import annotations
 
@@ -58,8 +58,8 @@ class Progress:
             self._last = now
             frac = self.done / self.total if self.total else 1.0
             bar = "#" * int(frac * 30)
-            sys.stderr.write(f"\r[{bar:30s}] {frac * 100:5.1f}% {self.done / 1e6:8.1f}/{self.total / 1e6:.1f} MB "
-                             f"{name[-40:]:40s}")
+            sys.stderr.write(f"\r[{bar:30s}] {frac * 100:5.1f}% "
+                             f"{self.done / 1e6:8.1f}/{self.total / 1e6:.1f} MB {name[-40:]:40s}")
             sys.stderr.flush()
 
     def end(self) -> None:
@@ -70,7 +70,8 @@ class Progress:
 def local_target(dest: Path, rel: str) -> Path:
     """Where a robot path lands here; refuses names that would leave ``dest`` (a bad daemon's listing)."""
     p = PurePosixPath(rel)
-    if p.is_absolute() or not p.parts or any(part in ("..", "") or ":" in part or "\\" in part for part in p.parts):
+    unsafe = any(part in ("..", "") or ":" in part or "\\" in part for part in p.parts)
+    if p.is_absolute() or not p.parts or unsafe:
         raise FetchError(f"refusing the robot's path {rel!r}: it would leave {dest}")
     return dest.joinpath(*p.parts)
 

@@ -41,7 +41,7 @@ def _configured(d: Path, key_name: str | None, keys_dir: Path | None, server_key
 
 def client_curve(endpoint: str, keys_dir: Path | None = None, key_name: str | None = None,
                  server_key: Path | None = None) -> tuple[dict[str, bytes] | None, str | None]:
-    """``(curve, key_id)`` for :class:`daemon.bus.client.Client` (``Client(ep, curve=(curve, key_id))`` works too).
+    """``(curve, key_id)`` for :class:`daemon.bus.client.Client` (``curve=(curve, key_id)`` works too).
 
     ``curve`` is ``{"public", "secret", "server"}`` from ``KEYS_DIR/NAME.key_secret`` and
     ``server_key`` (default ``KEYS_DIR/server.key``); ``key_id`` is ``"NAME (public key)"``,
@@ -61,8 +61,8 @@ def client_curve(endpoint: str, keys_dir: Path | None = None, key_name: str | No
     server = Path(server_key).expanduser() if server_key is not None else d / "server.key"
     if not secret.exists():
         init = "ritactl keys init" + ("" if name == DEFAULT_KEY else f" --name {name}")
-        raise KeyConfigError(f"CURVE key {secret} does not exist: create it with `{init}` (then have it allowed "
-                             f"on the robot), or choose another with --key NAME")
+        raise KeyConfigError(f"CURVE key {secret} does not exist: create it with `{init}` "
+                             "(then have it allowed on the robot), or choose another with --key NAME")
     if not server.exists():
         raise KeyConfigError(f"the robot's public key {server} does not exist: copy the robot's "
                              f"/etc/ritad/keys/server.key to it")
@@ -81,7 +81,8 @@ def client_curve(endpoint: str, keys_dir: Path | None = None, key_name: str | No
     return {"public": public, "secret": sec, "server": server_public}, f"{name} ({public.decode()})"
 
 
-def resolve_connection(endpoint: str | None = None, key: str | None = None, keys_dir: str | Path | None = None,
+def resolve_connection(endpoint: str | None = None, key: str | None = None,
+                       keys_dir: str | Path | None = None,
                        config_path: str | Path | None = None) -> dict[str, Any]:
     """Where and how ritactl connects: the command line beats the environment, which beats ritactl.toml.
 
@@ -139,7 +140,8 @@ def _init(a: argparse.Namespace) -> int:
     public, secret = create_keypair(d, name)
     print(f"created {public} (public, share it) and {secret} (secret, mode 600)")
     if not a.server:
-        select = "" if name == DEFAULT_KEY else f"; select this key with --key {name} or key = \"{name}\" in ritactl.toml"
+        select = ("" if name == DEFAULT_KEY
+                  else f"; select this key with --key {name} or key = \"{name}\" in ritactl.toml")
         print(f"now copy the robot's server.key into {d} and have the robot allow {public}{select}")
     return 0
 
@@ -194,7 +196,8 @@ def _local(a: argparse.Namespace, auth: Path) -> int:
             if not auth.is_dir():
                 return _err(f"{auth} does not exist (no key allowed yet)", Exit.BAD_INPUT)
             entries, broken = roles.list_entries(auth)
-            _show([{"name": e.name, "role": e.role, "public_key": e.public.decode()} for e in entries], broken)
+            rows = [{"name": e.name, "role": e.role, "public_key": e.public.decode()} for e in entries]
+            _show(rows, broken)
     except (LookupError, ValueError) as exc:
         return _err(str(exc.args[0]) if isinstance(exc, LookupError) else str(exc), Exit.BAD_INPUT)
     return Exit.OK
@@ -222,7 +225,8 @@ def _remote(c: Any, a: argparse.Namespace) -> int:
 
 def cmd_keys(c: Any, a: argparse.Namespace) -> int:
     if a.action == "init":
-        return _init(a) if c is None else _err("keys init makes files on this computer: drop --bus", Exit.USAGE)
+        local = "keys init makes files on this computer: drop --bus"
+        return _init(a) if c is None else _err(local, Exit.USAGE)
     if a.action in ("revoke", "role") and not a.name:
         return _err(f"keys {a.action} needs --name", Exit.USAGE)
     if a.action == "role" and not a.role:

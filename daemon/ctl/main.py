@@ -134,7 +134,8 @@ def _global_options(p: argparse.ArgumentParser, top: bool) -> None:
     p.add_argument("--endpoint", help=f"daemon command endpoint, tcp://HOST:PORT or ipc:///PATH "
                                       f"(now: {default_endpoint()})", **keep)
     p.add_argument("--timeout", type=_seconds, help="seconds to wait for an answer", **keep)
-    p.add_argument("--json", action="store_true", help="JSON on stdout, errors too (docs/operations.md)", **keep)
+    p.add_argument("--json", action="store_true", help="JSON on stdout, errors too (docs/operations.md)",
+                   **keep)
 
 
 def _offline_only(p: argparse.ArgumentParser) -> bool:
@@ -165,20 +166,21 @@ def build_parser() -> argparse.ArgumentParser:
     from daemon.ctl.replay import add_parser as add_replay_parser
 
     ap = _Parser(prog="ritactl", description="Operator client for ritad",
-                 epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ritactl.toml, else ipc:///run/ritad/cmd. "
-                        "Exit codes: docs/operations.md.")
+                 epilog="Endpoint: --endpoint, else $RITA_ENDPOINT, else ritactl.toml, else "
+                        "ipc:///run/ritad/cmd. Exit codes: docs/operations.md.")
     ap.add_argument("--version", action="version", version=f"ritactl {__version__}")
     _global_options(ap, top=True)
-    ap.add_argument("--key", metavar="NAME", help="CURVE key NAME.key_secret for tcp endpoints (default: `key` in "
-                                                  "ritactl.toml, else client)")
-    ap.add_argument("--keys", metavar="DIR", help="CURVE keys folder (default $RITA_KEYS, else ritactl.toml's "
-                                                  "keys_dir, else ~/.config/rita)")
+    ap.add_argument("--key", metavar="NAME", help="CURVE key NAME.key_secret for tcp endpoints "
+                                                  "(default: `key` in ritactl.toml, else client)")
+    ap.add_argument("--keys", metavar="DIR", help="CURVE keys folder (default $RITA_KEYS, else "
+                                                  "ritactl.toml's keys_dir, else ~/.config/rita)")
     ap.add_argument("--config", metavar="FILE", help="ritactl.toml to read (default $RITA_CONFIG, else "
                                                      "~/.config/rita/ritactl.toml)")
     ap.set_defaults(fn=None, parser_=ap)
     sub = ap.add_subparsers(title="verbs", metavar="VERB")
-    sub.add_parser("status", help="device states at a glance (exit 4 if one is not READY/BUSY)",
-                   description="device states; exit 4 when a device is not READY or BUSY").set_defaults(fn=cmd_status)
+    status = sub.add_parser("status", help="device states at a glance (exit 4 if one is not READY/BUSY)",
+                            description="device states; exit 4 when a device is not READY or BUSY")
+    status.set_defaults(fn=cmd_status)
     ctl_watch.add_parser(sub)
     cap = sub.add_parser("capture", help=COMMANDS["capture"].help)
     add_table_args(cap, COMMANDS["capture"])
@@ -244,8 +246,8 @@ def _parse(argv: list[str], as_json: bool) -> argparse.Namespace | int:
         if not as_json:
             exc.parser.print_usage(sys.stderr)
         where = prog.removeprefix("ritactl").strip()
-        return fail(Exit.USAGE, "usage", f"{where + ': ' if where else ''}{exc.args[0]} (see `{prog} --help`)",
-                    as_json)
+        return fail(Exit.USAGE, "usage", f"{where + ': ' if where else ''}{exc.args[0]} "
+                    f"(see `{prog} --help`)", as_json)
     except SystemExit as exc:  # --help and --version print and "exit" 0
         return Exit.OK if exc.code in (0, None) else Exit.USAGE
     if a.fn is None:  # bare `ritactl` or a group without its verb (`ritactl tracker`)
@@ -266,7 +268,8 @@ def _main(argv: list[str], as_json: bool) -> int:
 
     try:  # the command line beats the environment, which beats ritactl.toml (docs/operations.md, Keys)
         conn = resolve_connection(a.endpoint, a.key, a.keys, a.config)
-        check_endpoint(conn["endpoint"], "--endpoint" if a.endpoint else "$RITA_ENDPOINT, ritactl.toml or the default")
+        source = "--endpoint" if a.endpoint else "$RITA_ENDPOINT, ritactl.toml or the default"
+        check_endpoint(conn["endpoint"], source)
     except CtlError as exc:
         return fail(exc.exit, exc.code, exc.args[0], a.json)
     except (OSError, ValueError) as exc:  # CtlConfigError, KeyConfigError: they name the file

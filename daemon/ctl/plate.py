@@ -1,4 +1,4 @@
-"""``ritactl plate survey FOLDER`` (offline, on this computer) and ``ritactl plate upload FILE`` (to the robot).
+"""``ritactl plate survey FOLDER`` (offline, on this computer) and ``plate upload FILE`` (to the robot).
 
 ``plate upload`` sends a plate definition, e.g. the surveyed one, to the robot's calibration
 folder over the bus (``calib.plate.upload``, an operator's command; the daemon checks it
@@ -46,7 +46,8 @@ def _show(plate: dict[str, Any], out: str) -> None:
     for v in rep["views"]:
         rings = ", ".join(f"{c} {r:.2f}" for c, r in v["ring_residual_px"].items())
         missing = f"; missing: {', '.join(v['rings_missing'])}" if v["rings_missing"] else ""
-        print(f"  {v['image']}: {v['corners']} corners, RMS {v['corner_rms_px']:.3f} px; rings (px) {rings}{missing}")
+        print(f"  {v['image']}: {v['corners']} corners, RMS {v['corner_rms_px']:.3f} px; "
+              f"rings (px) {rings}{missing}")
     for name, why in rep["skipped"].items():
         print(f"  {name}: skipped, {why}")
     print(f"wrote {out}")
@@ -60,11 +61,11 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
     from daemon.bus.storage import atomic_write_json
     from daemon.compute.survey import CalibrationError, survey_plate
     if Path(a.out).resolve() == Path(a.plate).resolve():  # the design file is the survey's input: keep it
-        return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file --plate {a.plate}: "
-                                                 f"write the surveyed plate to another file", a.json)
+        return fail(Exit.BAD_INPUT, "bad_input", f"--out {a.out} would overwrite the design file "
+                    f"--plate {a.plate}: write the surveyed plate to another file", a.json)
     try:
         plate = survey_plate(Path(a.folder), _read_plate(a.plate), a.plate,
-                             lambda pct, step: say(f"[{pct:5.1f}%] {step}", a.json))  # the console parses these
+                             lambda pct, step: say(f"[{pct:5.1f}%] {step}", a.json))  # parsed by the console
         atomic_write_json(Path(a.out), plate)
     except KeyboardInterrupt:
         return Exit.INTERRUPTED
@@ -73,7 +74,8 @@ def cmd_survey(c: Any, a: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         return fail(Exit.BAD_INPUT, "bad_input", f"plate survey of {a.folder}: {exc}", a.json)
     except Exception as exc:  # noqa: BLE001 - e.g. cv2.error on a pathological image: still no traceback
-        return fail(Exit.FAIL, "failed", f"plate survey of {a.folder} failed: {type(exc).__name__}: {exc}", a.json)
+        why = f"{type(exc).__name__}: {exc}"
+        return fail(Exit.FAIL, "failed", f"plate survey of {a.folder} failed: {why}", a.json)
     if a.json:
         print(json.dumps(plate, indent=2))
     else:
@@ -97,7 +99,8 @@ def cmd_upload(c: Any, a: argparse.Namespace) -> int:
     what = "already there, unchanged" if r.get("unchanged") else "stored"
     print(f"{a.file} {what} on the robot as {r['path']} (sha256 {r['sha256'][:12]}…){kept}")
     if r["path"] == "calibration/plate.json":
-        print("referencing uses it by default (ritactl calibrate without --plate; the console's plate field empty)")
+        print("referencing uses it by default "
+              "(ritactl calibrate without --plate; the console's plate field empty)")
     else:
         print(f"the console's referencing form: plate {r['path']}")
     return Exit.OK
@@ -108,19 +111,22 @@ def add_parsers(sub: Any) -> None:
                          help="plate definitions: survey (offline, on this computer), upload (to the robot)")
     grp.set_defaults(fn=None, parser_=grp)
     gsub = grp.add_subparsers(title="plate verbs", metavar="VERB")
-    p = gsub.add_parser("survey", help="nest seats from photographs of the whole plate (offline, on this computer)",
+    p = gsub.add_parser("survey",
+                        help="nest seats from photographs of the whole plate (offline, on this computer)",
                         description="Survey the three nest seats in PCS from colour photographs of the whole "
                                     "plate taken with any camera (calibrated here from the plate's patches). "
                                     "Writes plate.json with per-nest 1σ and the survey report.")
-    p.add_argument("folder", help="folder of photographs (.png .jpg .jpeg .tif .tiff), >= 3, whole plate in each")
+    p.add_argument("folder",
+                   help="folder of photographs (.png .jpg .jpeg .tif .tiff), >= 3, whole plate in each")
     p.add_argument("--plate", required=True, metavar="FILE",
                    help="the plate's design plate.json (board, survey patches, smr_offset_mm)")
-    p.add_argument("--out", default="plate.json", metavar="FILE", help="surveyed plate definition (default plate.json)")
+    p.add_argument("--out", default="plate.json", metavar="FILE",
+                   help="surveyed plate definition (default plate.json)")
     p.set_defaults(fn=cmd_survey, offline=True, parser_=p)
-    u = gsub.add_parser("upload", help="send a plate definition (e.g. the surveyed one) to the robot's calibration "
-                                       "folder (calib.plate.upload; operator)",
-                        description="Store a plate definition on the robot as calibration/NAME, checked against "
-                                    "the plate schema first; a file it replaces is kept in "
+    u = gsub.add_parser("upload", help="send a plate definition (e.g. the surveyed one) to the robot's "
+                                       "calibration folder (calib.plate.upload; operator)",
+                        description="Store a plate definition on the robot as calibration/NAME, checked "
+                                    "against the plate schema first; a file it replaces is kept in "
                                     "calibration/history/plates/.")
     u.add_argument("file", help="plate.json on this computer")
     u.add_argument("--name", metavar="NAME", help="file name on the robot (default: the file's own name)")

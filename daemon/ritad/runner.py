@@ -117,6 +117,11 @@ class DeviceRunner(threading.Thread):
                 "queued": self._jobs.qsize(), "heartbeat_age_s": round(time.monotonic() - self.heartbeat, 3),
                 "info": self.info}
 
+    @property
+    def stopping(self) -> bool:
+        """The daemon is stopping this runner (a long job may end early: the robot's kit halts the base)."""
+        return self._stop_evt.is_set()
+
     def stop(self, timeout: float = 3.0) -> None:
         self._stop_evt.set()
         if self.ident is not None:  # a runner never started has no thread to wait for

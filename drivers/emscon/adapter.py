@@ -24,7 +24,8 @@ import math
 import time
 from typing import Any
 
-from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint, no_emit
+from drivers.base import (DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Tracker, TrackerPoint,
+                          no_emit)
 from drivers.emscon.client import EmsconClient, EmsconStatusError
 from drivers.emscon.codec import Packet
 from drivers.emscon.enums import (
@@ -188,7 +189,8 @@ class EmsconTracker(Tracker):
                 c.request(ES_Command.SetReflector, reflector_id=r["reflector_id"])
                 return
         names = [f"{r['reflector_id']}:{r['name']}" for r in known]
-        raise DeviceError(f"tracker has no reflector {wanted!r} (known: {names})", code="tracker_no_reflector")
+        raise DeviceError(f"tracker has no reflector {wanted!r} (known: {names})",
+                          code="tracker_no_reflector")
 
     def close(self) -> None:
         c, self._client = self._client, None
@@ -241,8 +243,9 @@ class EmsconTracker(Tracker):
     def find_reflector(self, approx_distance_mm: float | None = None) -> None:
         if approx_distance_mm is None:
             if self._last_aim is None:
-                raise ValueError("find needs to know roughly where to look: aim first (`ritactl tracker aim X Y Z`, "
-                                 "tracker frame, mm) or give the distance (`ritactl tracker find --distance MM`)")
+                raise ValueError("find needs to know roughly where to look: aim first "
+                                 "(`ritactl tracker aim X Y Z`, tracker frame, mm) or give the distance "
+                                 "(`ritactl tracker find --distance MM`)")
             approx_distance_mm = math.dist((0.0, 0.0, 0.0), self._last_aim)
         if not (math.isfinite(approx_distance_mm) and approx_distance_mm > 0):
             raise ValueError(f"find_reflector: approx_distance_mm={approx_distance_mm!r} must be > 0")
@@ -250,7 +253,7 @@ class EmsconTracker(Tracker):
             self._conn().request(ES_Command.FindReflector, approx_distance=float(approx_distance_mm))
         except EmsconStatusError as exc:
             exc.args = (f"{exc.args[0]}: no reflector within the search radius of the beam; aim closer "
-                        f"(`ritactl tracker aim X Y Z`, tracker frame, mm) or hold the reflector in the beam",)
+                        "(`ritactl tracker aim X Y Z`, tracker frame, mm) or hold the reflector in the beam",)
             raise
 
     def start_stream(self, rate_hz: float) -> float:

@@ -10,19 +10,23 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 from typing import Any, Callable
 
 import pytest
 
 from daemon.bus.client import Client
+from daemon.bus.protocol import CommandError
 from daemon.bus.datasets import validate_folder
 from daemon.bus.procedures import COMMISSION
 from daemon.compute.commission import compute_commission
 from daemon.ctl.main import main as ritactl
 from daemon.ritad import config
 from daemon.worker.__main__ import run_job
+from tests.drivers.test_robot_conformance_stop import is_moving, record_lines
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
+from tools.harness.stop_rig import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]  # whole procedures through ritad (~5-15 s each)
 
@@ -195,3 +199,61 @@ def test_a_device_that_is_down_is_one_failed_check_naming_why() -> None:
         {"device": "tracker", "name": "measured", "verdict": "fail",
          "value": "tracker is FAULT: connection refused",
          "detail": "fix this first: no other check of it ran"}]
+
+
+def _kit_moving(endpoint: str, fake: Any, out: dict[str, Any]) -> threading.Thread:
+    """``robot.commission allow_motion confirm`` from a client of its own (its reply or error in ``out``),
+    returned once the kit's first MOVE is under way."""
+    def run() -> None:
+        with Client(endpoint, timeout=120) as k:
+            try:
+                out["reply"] = k.call("robot.commission", allow_motion=True, clock_s=0.5, confirm=True)
+            except CommandError as exc:
+                out["error"] = exc
+
+    kit = threading.Thread(target=run, daemon=True)
+    kit.start()
+    wait_for(lambda: is_moving(fake), 60, "the kit's MOVE under way")
+    return kit
+
+
+def test_a_stop_from_another_client_halts_the_base_during_the_kits_motions(tmp_path: Path) -> None:
+    """``robot.commission allow_motion confirm`` from one client, ``robot.stop`` from another while the kit's
+    MOVE runs: the base hears STOP and no motion line after it, the STOP's reply says it was acknowledged,
+    the commission's reply names the stop, and motions are refused while latched."""
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", robot=BASE) as (d, c):
+        fake = d.rigs.robot.runner.device.fake
+        heard, out = record_lines(fake), {}
+        kit = _kit_moving(d.server.endpoints[0], fake, out)
+        t_stop = time.monotonic()
+        reply = c.call("robot.stop", timeout=30)
+        kit.join(timeout=60)
+        after = [kind for t, kind in list(heard) if t >= t_stop]
+        assert reply["stopped"] is True and reply["latched"] is True, reply  # the base acknowledged it
+        assert not is_moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
+        assert not kit.is_alive() and "error" not in out, out
+        checks = {ch["name"]: ch for ch in out["reply"]["checks"]}
+        assert checks["watchdog"]["verdict"] == "fail", checks["watchdog"]
+        assert checks["watchdog"]["value"] == "STOP during the kit: not run", checks["watchdog"]
+        assert "an operator's STOP" in checks["watchdog"]["detail"], checks["watchdog"]
+        with pytest.raises(CommandError) as exc:
+            c.call("robot.move", distance_mm=10, confirm=True)
+        assert exc.value.code == "stopped"
+        assert c.call("robot.status")["state"] == "IDLE"
+
+
+def test_ritad_stopping_during_the_kits_motions_halts_the_base_first(tmp_path: Path) -> None:
+    """SIGTERM's path (the daemon stops the robot's owner thread first) while the kit's MOVE runs: the kit
+    writes STOP, aborts, and the owner thread ends; no motion line after."""
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", robot=BASE) as (d, _):
+        fake = d.rigs.robot.runner.device.fake
+        heard, out = record_lines(fake), {}
+        kit = _kit_moving(d.server.endpoints[0], fake, out)
+        t_stop = time.monotonic()
+        d.rigs.robot.runner.stop(timeout=30)  # what Daemon.stop does first
+        assert not d.rigs.robot.runner.is_alive()
+        after = [kind for t, kind in list(heard) if t >= t_stop]
+        assert not is_moving(fake) and "STOP" in after and not {"MOVE", "TURN"} & set(after), after
+        kit.join(timeout=60)
+        checks = {ch["name"]: ch for ch in out["reply"]["checks"]}
+        assert "ritad exiting" in checks["watchdog"]["detail"], checks["watchdog"]
