@@ -149,7 +149,8 @@ def reasons(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         if r["verdict"] != "ok":
             for m in r["messages"]:
-                if not m.startswith("heading_fit: "):  # the weight's own report, not a reason
+                # the weight's own report, and a σ factor within the checks, are no reason
+                if not m.startswith("heading_fit: ") and "within the checks" not in m:
                     c[m.split("(")[0].split(":")[0][:90]] += 1
     return "\n".join(f"- {n} × {m}" for m, n in c.most_common(8)) or "- none"
 

@@ -10,7 +10,9 @@ learns its own weight from its own stops and compares (:func:`recheck`):
 * the two weights, z = (w_own − w_applied) / √(σ_own² + σ_applied²), a disagreement beyond
   :data:`RECHECK_Z` (each σ covers the spread between experiments, calibration/heading_weight.py);
 * the conditions: each a tolerance of its own (:data:`TOLERANCE`); the slopes' rms by a z of its
-  log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)).
+  log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)); the bend model when the
+  one chosen now is the richer (a simpler one chosen now only means the richer was not shown
+  significantly here, calibration/weight_cv.py).
 
 Either makes the experiment's verdict ``warn``, naming both weights and what differs. When this
 experiment's own weight has no σ (its bend was fitted at too few stops, or its headings do not
@@ -23,6 +25,8 @@ from __future__ import annotations
 
 import math
 from typing import Any
+
+from calibration.heading_weight import MODELS
 
 #: two weights disagree beyond this many standard errors of their difference
 RECHECK_Z = 3.0
@@ -70,6 +74,19 @@ def _slopes_differ(a: dict[str, Any], b: dict[str, Any]) -> str | None:
             f"(z {z:.1f} > {SLOPE_Z:g}: the paths bend differently)")
 
 
+def _model_differs(learned: Any, now: Any) -> bool:
+    """A bend model chosen now differs from the learned one as evidence of a changed path only when it is
+    the richer one: an experiment keeps a richer model only when its held-out directions show it
+    significantly (calibration/weight_cv.py), so a simpler one chosen now means "not shown here", which
+    says nothing against the richer model learned."""
+    order = list(MODELS)
+    if learned == now:
+        return False
+    if learned in order and now in order:
+        return order.index(now) > order.index(learned)
+    return True
+
+
 def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> list[str]:
     """Each condition of ``now`` that differs from those the weight was ``learned`` under, named."""
     if learned is None:
@@ -78,7 +95,7 @@ def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> li
     if learned.get("tilt") != now.get("tilt"):
         out.append(f"tilt compensation {'on' if learned.get('tilt') else 'off'} learned, "
                    f"{'on' if now.get('tilt') else 'off'} now")
-    if learned.get("model") != now.get("model"):
+    if _model_differs(learned.get("model"), now.get("model")):
         out.append(f"bend model {learned.get('model')!r} learned, {now.get('model')!r} now")
     out.append(_slopes_differ(learned, now))
     return [d for d in out if d]

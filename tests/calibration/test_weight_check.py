@@ -128,3 +128,15 @@ def test_a_weight_that_could_not_be_re_estimated_here_is_named_so():
             "needs >= 8))") in r["message"]
     same = recheck(w, replace(none, conditions=w.conditions), none)
     assert same["ok"] and same["message"] is None and same["z"] is None
+
+
+def test_a_simpler_bend_model_chosen_now_is_no_changed_condition_a_richer_one_is():
+    """The cubic is kept only when the held-out directions show it significantly: an experiment that keeps
+    the lowest has not shown the cubic, which says nothing against a cubic learned (no warn on that alone);
+    one that keeps the cubic where the lowest was learned has shown a shape the learning did not need."""
+    w = learned("arc", 1)
+    cubic = {**w.conditions, "model": "cubic"}
+    assert conditions_differ(cubic, w.conditions) == []
+    assert conditions_differ(w.conditions, cubic) == ["bend model 'lowest' learned, 'cubic' now"]
+    assert conditions_differ({**w.conditions, "model": None}, w.conditions) == [
+        "bend model None learned, 'lowest' now"]
