@@ -19,6 +19,7 @@ from drivers.base import DeviceLost  # noqa: E402
 from fakes.robot import SimRobot  # noqa: E402
 from fakes.world import World, WorldParams  # noqa: E402
 from fakes.worlds import sim_url  # noqa: E402
+from tools.harness.robot import wait_idle  # noqa: E402
 
 
 def _robot(query: str) -> SimRobot:
@@ -61,7 +62,7 @@ def bench_round_trips(n: int) -> list[tuple[str, str]]:
             t = time.perf_counter()
             robot.move(1.0, 100.0)
             ack.append(time.perf_counter() - t)
-            robot.wait_idle(5.0)
+            wait_idle(robot, 5.0)
             whole.append(time.perf_counter() - t)
         rows += [(f"STATUS round trip, p50/p95/p99 (n={n})", _ms(status) + " ms"),
                  (f"MOVE → ACK, p50/p95/p99 (n={n // 4})", _ms(ack) + " ms"),

@@ -100,7 +100,7 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
     yy, xx = np.mgrid[y0:y0 + 200, x0:x0 + 200]
     dot[y0:y0 + 200, x0:x0 + 200][(xx - c[0]) ** 2 + (yy - c[1]) ** 2 < r_px ** 2] = 30
     t_dot, _ = _timed(lambda: locate_mark(dot, "dot", approx_uv=c + 2, size_px=r_px), repeats)
-    from calibration.frames import inv_H, rotation_error_deg
+    from calibration.frames import inv_H, rotation_angle
 
     true = inv_H(world.abs_H_cam()) @ world.abs_H_ref
 
@@ -112,7 +112,7 @@ def pose_group(path: str, size: tuple[int, int], repeats: int, q: mp.Queue) -> N
     q.put({"fast": t_fast, "opencv": t_ocv, "scs": t_scs, "dot": t_dot, "rss": _rss_mb(),
            "live": {w: (t, len(ids)) for w, (t, (ids, _)) in live.items()},
            "n": pose.n_corners, "ratio": pose.ambiguity_ratio,
-           "rot": rotation_error_deg(pose.cam_H_ref[:3, :3], true[:3, :3]),
+           "rot": float(np.degrees(rotation_angle(pose.cam_H_ref[:3, :3].T @ true[:3, :3]))),
            "foot": float(np.linalg.norm(foot(pose.cam_H_ref) - foot(true))) * 1000})
 
 

@@ -44,8 +44,8 @@ class Board:
 
     def __post_init__(self) -> None:
         if self.board_cols < 3 or self.board_rows < 3:
-            raise ValueError(f"board {self.board_id!r}: {self.board_cols}x{self.board_rows} squares is too small "
-                             f"(need at least 3x3)")
+            raise ValueError(f"board {self.board_id!r}: {self.board_cols}x{self.board_rows} squares "
+                             f"is too small (need at least 3x3)")
         if not 0.1 <= self.square_mm <= 100:
             raise ValueError(f"board {self.board_id!r}: square_mm={self.square_mm} is not in 0.1..100")
         if not 0 < self.marker_mm < self.square_mm:
@@ -60,8 +60,8 @@ class Board:
                              f"dictionary name (e.g. 'DICT_4X4_100')") from None
         needed = self.board_cols * self.board_rows // 2
         if needed > size:  # checked here, not at the first capture after the operator set up
-            raise ValueError(f"board {self.board_id!r}: {self.board_cols}x{self.board_rows} squares need {needed} "
-                             f"markers, {self.aruco_dict} has {size}")
+            raise ValueError(f"board {self.board_id!r}: {self.board_cols}x{self.board_rows} squares need "
+                             f"{needed} markers, {self.aruco_dict} has {size}")
 
     def board_size_mm(self) -> tuple[float, float]:
         return self.board_cols * self.square_mm, self.board_rows * self.square_mm
@@ -107,6 +107,3 @@ def detect_board_corners(image: np.ndarray, board: BoardLayout) -> tuple[np.ndar
     from calibration.target import detect_corners
 
     return detect_corners(image, board, fast=False)
-
-
-__all__ = ["BOARD_SCHEMA", "Board", "DEFAULT_BOARD", "detect_board_corners"]

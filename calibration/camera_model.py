@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-#: undistortPoints criteria: 100 iterations or 1e-12 change (the default's error: docs/accuracy.md, "Image side")
+#: undistortPoints: 100 iterations or 1e-12 change (the default's error: docs/accuracy.md, "Image side")
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MODEL_SCHEMA = 1
 
@@ -63,7 +63,8 @@ class CameraModel:
         """Project CCS points (N, 3) with z > 0 to distorted pixel coordinates (N, 2)."""
         P = _points(P_cam, 3, "P_cam")
         if np.any(P[:, 2] <= 0):
-            raise ValueError(f"P_cam: {int(np.sum(P[:, 2] <= 0))} point(s) not in front of the camera (z <= 0)")
+            behind = int(np.sum(P[:, 2] <= 0))
+            raise ValueError(f"P_cam: {behind} point(s) not in front of the camera (z <= 0)")
         uv, _ = cv2.projectPoints(P.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K, self.dist)
         return uv.reshape(-1, 2)
 
@@ -79,17 +80,6 @@ class CameraModel:
         d = np.column_stack([xy, np.ones(len(xy))])
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def scaled(self, size: tuple[int, int]) -> "CameraModel":
-        """The same lens on a resampled sensor of ``size`` (same field of view)."""
-        s = size[0] / self.size[0]
-        K = self.K.copy()
-        K[0, 0] *= s
-        K[1, 1] *= s
-        # pixel centres: continuous coordinate x maps to (x + 0.5)·s − 0.5
-        K[0, 2] = (K[0, 2] + 0.5) * s - 0.5
-        K[1, 2] = (K[1, 2] + 0.5) * s - 0.5
-        return CameraModel(K, self.dist.copy(), size)
-
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:
@@ -104,12 +94,14 @@ class CameraModel:
             raise ValueError(f"{source}: expected a JSON object (camera model), got {type(d).__name__}")
         schema = d.get("schema", MODEL_SCHEMA)
         if schema != MODEL_SCHEMA or isinstance(schema, bool):
-            raise ValueError(f"{source}: camera model schema {schema!r} is not supported (expected {MODEL_SCHEMA})")
+            raise ValueError(f"{source}: camera model schema {schema!r} is not supported "
+                             f"(expected {MODEL_SCHEMA})")
         missing = [k for k in ("K", "dist", "size") if k not in d]
         if missing:
             raise ValueError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")
         arrays = {}
-        for key, shape, what in (("K", (3, 3), "a 3x3 matrix"), ("dist", (5,), "5 coefficients (k1 k2 p1 p2 k3)"),
+        for key, shape, what in (("K", (3, 3), "a 3x3 matrix"),
+                                 ("dist", (5,), "5 coefficients (k1 k2 p1 p2 k3)"),
                                  ("size", (2,), "[width, height] in pixels")):
             try:
                 a = np.array(d[key], dtype=float)

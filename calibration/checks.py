@@ -40,9 +40,9 @@ def stream_ends_check(stream: np.ndarray, abs_P_prev: np.ndarray, abs_P_at: np.n
     limit = CHECK_Z * max(sigma_mm, 0.001) + 0.010  # 10 µm for the bend near the ends
     if max(gaps) <= limit:
         return None
-    return (f"the tracker's stream does not run between the standstill points (its ends lie {gaps[0]:.3f} and "
-            f"{gaps[1]:.3f} mm beside the chord, allowed {limit:.3f} mm): its timing or frame is off; the chord "
-            f"is used")
+    return (f"the tracker's stream does not run between the standstill points (its ends lie "
+            f"{gaps[0]:.3f} and {gaps[1]:.3f} mm beside the chord, allowed {limit:.3f} mm): its timing "
+            f"or frame is off; the chord is used")
 
 
 def stream_tilt_check(stream_tilt: np.ndarray, tilt_prev: Sequence[float], tilt_at: Sequence[float],
@@ -73,7 +73,8 @@ def bias_model_check(xy: np.ndarray, labels: Sequence[Any], fit_rms_mm: float | 
     names = list(dict.fromkeys(str(g) for g in labels))
     idx = [np.array([i for i, g in enumerate(labels) if str(g) == n]) for n in names]
     k = len(names)
-    out: dict[str, Any] = {"residual_rms_mm": fit_rms_mm, "expected_rms_mm": None, "ok": True, "message": None}
+    out: dict[str, Any] = {"residual_rms_mm": fit_rms_mm, "expected_rms_mm": None,
+                           "ok": True, "message": None}
     if fit_rms_mm is None or k < 4:  # 4 unknowns: with 3 directions the fit is exact
         return out
     within = [xy[i] - xy[i].mean(axis=0) for i in idx if len(i) >= 2]
@@ -89,11 +90,8 @@ def bias_model_check(xy: np.ndarray, labels: Sequence[Any], fit_rms_mm: float | 
     out["expected_rms_mm"] = expected
     if fit_rms_mm > CHECK_Z * expected + 0.002:
         out["ok"] = False
-        out["message"] = (f"the cluster means do not follow M + R(ψ)·b: the fit leaves {fit_rms_mm:.4f} mm RMS where "
-                          f"{source} expects {expected:.4f} mm; an error that depends on the heading other than a "
-                          f"robot-frame bias (floor, tracker line of sight, reflector mount) is present, and a "
-                          f"stored bias would not remove it")
+        out["message"] = (f"the cluster means do not follow M + R(ψ)·b: the fit leaves {fit_rms_mm:.4f} mm "
+                          f"RMS where {source} expects {expected:.4f} mm; an error that depends on the "
+                          f"heading other than a robot-frame bias (floor, tracker line of sight, reflector "
+                          f"mount) is present, and a stored bias would not remove it")
     return out
-
-
-__all__ = ["bias_model_check", "stream_ends_check", "stream_tilt_check"]

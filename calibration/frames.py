@@ -94,8 +94,3 @@ def rotation_angle(R: np.ndarray) -> float:
     c = (np.trace(R) - 1.0) / 2.0
     s = np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
     return float(np.arctan2(s, np.clip(c, -1.0, 1.0)))
-
-
-def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
-    """Angle of ``R_estᵀ R_true`` in degrees."""
-    return float(np.degrees(rotation_angle(R_est.T @ R_true)))

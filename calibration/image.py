@@ -90,6 +90,3 @@ def to_rgb(image: np.ndarray, pixel_format: str | None = None) -> np.ndarray:
         raise ValueError(f"image: pixel format {fmt} carries no colour; colour identification "
                          "needs a Bayer or RGB image")
     return to_8bit(np.ascontiguousarray(_rgb_full(img, fmt)))
-
-
-__all__ = ["OPENCV_BAYER", "infer_format", "to_8bit", "to_grey", "to_rgb"]

@@ -62,8 +62,9 @@ class ImuMount:
     messages: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, object]:
-        return {"imu_offset_deg": self.offset_deg, "imu_yaw_deg": self.yaw_deg, "imu_yaw_sigma_deg": self.yaw_sigma_deg,
-                "runs": self.runs_offset_deg, "verdict": self.verdict, "messages": list(self.messages)}
+        return {"imu_offset_deg": self.offset_deg, "imu_yaw_deg": self.yaw_deg,
+                "imu_yaw_sigma_deg": self.yaw_sigma_deg, "runs": self.runs_offset_deg,
+                "verdict": self.verdict, "messages": list(self.messages)}
 
 
 def _single(off: np.ndarray, t: np.ndarray, height_mm: float) -> ImuMount:
@@ -73,9 +74,9 @@ def _single(off: np.ndarray, t: np.ndarray, height_mm: float) -> ImuMount:
     if bound_um > YAW_WARN_UM:
         out.verdict = "warn"
         out.messages.append(
-            f"inclinometer yaw not resolved by a single run: on this plate, tilted {tilt:.2f}°, a sensor yawed "
-            f"{MAX_MOUNT_YAW_DEG:g}° in the body would leave {bound_um:.0f} µm of lean at the reflector wherever "
-            f"the floor is level; run the referencing with --reversal to measure the yaw")
+            f"inclinometer yaw not resolved by a single run: on this plate, tilted {tilt:.2f}°, a sensor "
+            f"yawed {MAX_MOUNT_YAW_DEG:g}° in the body would leave {bound_um:.0f} µm of lean at the "
+            f"reflector wherever the floor is level; run the referencing with --reversal to measure the yaw")
     return out
 
 
@@ -98,8 +99,9 @@ def imu_mount(body_tilts: Sequence[Sequence[float]], readings: Sequence[Sequence
     agree = float(np.hypot(*d)) <= 3.0 * sd
     if spread < MIN_TILT_SPREAD_DEG:
         msg = [] if agree else [f"the runs' inclinometer offsets disagree by {np.hypot(*d):.4f}° (3σ "
-                                f"{3 * sd:.4f}°) although the body's tilt hardly differed between them: the "
-                                f"inclinometer is not read as modelled; the tilt compensation is not calibrated"]
+                                f"{3 * sd:.4f}°) although the body's tilt hardly differed between them: "
+                                f"the inclinometer is not read as modelled; the tilt compensation is not "
+                                f"calibrated"]
         return ImuMount(offs.mean(axis=0).tolist() if agree else None, None, None, offs.tolist(),
                         "ok" if agree else "warn", msg)
     # reading = [[c, s], [−s, c]]·t + o: linear in (o_r, o_p, c, s); weighted by each run's σ
@@ -125,9 +127,7 @@ def imu_mount(body_tilts: Sequence[Sequence[float]], readings: Sequence[Sequence
         if implausible:  # that fit's σ describes no yaw
             out.yaw_sigma_deg = None
     else:
-        out.messages.append(f"the inclinometer is yawed {yaw:.2f}° ± {yaw_sigma:.2f}° in the body (from the runs' "
-                            f"offsets, which disagree by {np.hypot(*d):.4f}°): the tilt is compensated with it")
+        out.messages.append(f"the inclinometer is yawed {yaw:.2f}° ± {yaw_sigma:.2f}° in the body (from the "
+                            f"runs' offsets, which disagree by {np.hypot(*d):.4f}°): the tilt is compensated "
+                            f"with it")
     return out
-
-
-__all__ = ["ImuMount", "MAX_MOUNT_YAW_DEG", "SEATING_SIGMA_DEG", "body_tilt", "imu_mount", "rot2"]

@@ -109,8 +109,8 @@ def _jackknife(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple
     views accounts for. A set that leans on a single view shows it as a large σ.
     """
     n = len(obj_pts)
-    thetas = [_params(_fit(obj_pts[:i] + obj_pts[i + 1:], img_pts[:i] + img_pts[i + 1:], size, fit["k3"], fit))
-              for i in range(n)]
+    thetas = [_params(_fit(obj_pts[:i] + obj_pts[i + 1:], img_pts[:i] + img_pts[i + 1:],
+                           size, fit["k3"], fit)) for i in range(n)]
     t = np.array(thetas)
     return np.sqrt((n - 1) / n * ((t - t.mean(axis=0)) ** 2).sum(axis=0))
 
@@ -130,7 +130,7 @@ def _uncertainty(fit: dict[str, Any], jack: np.ndarray) -> dict[str, Any]:
 
 def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple[int, int],
                reject_factor: float | None) -> tuple[dict[str, Any], dict[str, Any], list[np.ndarray], int]:
-    """Fit without k3, drop outlier corners once, decide on k3; returns (fit, k3 decision, keep masks, n rejected)."""
+    """Fit without k3, drop outlier corners once, decide on k3: (fit, k3 decision, keep masks, n rejected)."""
     first = _fit(obj_pts, img_pts, size, k3=False)
     keep = [np.ones(len(o), bool) for o in obj_pts]
     if reject_factor is not None:
@@ -149,8 +149,8 @@ def _calibrate(obj_pts: list[np.ndarray], img_pts: list[np.ndarray], size: tuple
     return best, decision, keep, n_rejected
 
 
-def calibrate_intrinsics(images: Sequence[np.ndarray], board: BoardLayout, size: tuple[int, int], min_corners: int = 20,
-                         min_views: int = 6, reject_factor: float | None = 3.0
+def calibrate_intrinsics(images: Sequence[np.ndarray], board: BoardLayout, size: tuple[int, int],
+                         min_corners: int = 20, min_views: int = 6, reject_factor: float | None = 3.0
                          ) -> tuple[CameraModel, dict[str, Any]]:
     """Estimate K and the distortion from ChArUco ``images`` of ``size`` (w, h) of ``board``.
 
@@ -163,11 +163,12 @@ def calibrate_intrinsics(images: Sequence[np.ndarray], board: BoardLayout, size:
     w, h = int(size[0]), int(size[1])
     obj_pts, img_pts, views = _collect_views(images, board, (w, h), min_corners)
     if len(obj_pts) < min_views:
-        raise CalibrationError(f"only {len(obj_pts)} of {len(views)} views have >= {min_corners} board corners; "
-                               f"need at least {min_views} views at different tilts (docs/operations.md, "
-                               f"Intrinsic calibration)")
+        raise CalibrationError(f"only {len(obj_pts)} of {len(views)} views have >= {min_corners} board "
+                               f"corners; need at least {min_views} views at different tilts "
+                               f"(docs/operations.md, Intrinsic calibration)")
     fit, decision, keep, n_rejected = _calibrate(obj_pts, img_pts, (w, h), reject_factor)
-    jack = _jackknife([o[k] for o, k in zip(obj_pts, keep)], [i[k] for i, k in zip(img_pts, keep)], (w, h), fit)
+    jack = _jackknife([o[k] for o, k in zip(obj_pts, keep)], [i[k] for i, k in zip(img_pts, keep)],
+                      (w, h), fit)
     used = [v for v in views if v["used"]]
     for v, e, rv, k in zip(used, fit["per_view"], fit["rvecs"], keep):
         tilt, axis = view_geometry(rv)

@@ -39,8 +39,8 @@ class ViewSpec:
         where = _where(self.aim_x_deg, self.aim_y_deg)
         parts.append(f"with its centre {where}")
         if self.rot_deg:
-            parts.append(f"turned {abs(self.rot_deg):.0f}° {'clockwise' if self.rot_deg > 0 else 'anticlockwise'} "
-                         f"in the image")
+            sense = "clockwise" if self.rot_deg > 0 else "anticlockwise"
+            parts.append(f"turned {abs(self.rot_deg):.0f}° {sense} in the image")
         if self.tilt_x_deg:
             parts.append(f"tilted ~{abs(self.tilt_x_deg):.0f}° about the image x axis (top edge "
                          f"{'towards' if self.tilt_x_deg > 0 else 'away from'} the camera)")
@@ -131,11 +131,11 @@ def tilt_findings(rvecs: list[np.ndarray]) -> list[str]:
     add_both = "add views tilted ~35° about the image x axis and about the image y axis (recipe views " \
                "tilt-x+35, tilt-y+35)"
     if not tilted:
-        return [f"all views are near square-on (largest tilt {largest:.0f}° < {MIN_TILT_DEG:.0f}°): the focal "
-                f"length cannot be told from the distance; {add_both}"]
+        return [f"all views are near square-on (largest tilt {largest:.0f}° < {MIN_TILT_DEG:.0f}°): the "
+                f"focal length cannot be told from the distance; {add_both}"]
     if len(tilted) < MIN_TILTED_VIEWS:
-        return [f"only {len(tilted)} view(s) tilted by {MIN_TILT_DEG:.0f}° or more (need {MIN_TILTED_VIEWS}): "
-                f"{add_both}"]
+        return [f"only {len(tilted)} view(s) tilted by {MIN_TILT_DEG:.0f}° or more "
+                f"(need {MIN_TILTED_VIEWS}): {add_both}"]
     S = sum(np.sin(np.radians(t)) ** 2 * np.outer(a, a) for t, a in tilted)
     lam, vec = np.linalg.eigh(S)
     if lam[0] < MIN_AXIS_SPREAD * lam[1]:
@@ -161,10 +161,7 @@ def reaches_corner(uv: np.ndarray, size: tuple[int, int], corner: str) -> bool:
 
 def coverage_findings(uv_all: np.ndarray, size: tuple[int, int]) -> list[str]:
     """Warnings for image corners without board corners (the distortion is extrapolated there)."""
-    return [f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: the distortion "
-            f"there is extrapolated; add a view with the board in the {name} corner (recipe view {name})"
+    return [f"no board corner within {100 * CORNER_REGION:.0f} % of the image's {name} corner: "
+            f"the distortion there is extrapolated; add a view with the board in the {name} corner "
+            f"(recipe view {name})"
             for name in CORNERS if not reaches_corner(uv_all, size, name)]
-
-
-__all__ = ["CORNERS", "RECIPE", "SAME_VIEW_FRACTION", "SPECS", "ViewSpec", "coverage_findings", "reaches_corner",
-           "same_as", "tilt_findings", "view_geometry"]

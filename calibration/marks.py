@@ -161,8 +161,9 @@ def _locate_cross(img: np.ndarray, approx_uv: np.ndarray | None, size_px: float 
     pts = (start + [x0, y0]).astype(np.float32).reshape(1, 1, 2)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
     refined = cv2.cornerSubPix(img, pts, (win, win), (-1, -1), crit).reshape(2).astype(float)
-    if np.linalg.norm(refined - pts.reshape(2)) > win:
-        raise CalibrationError(f"cross refinement ran off by {np.linalg.norm(refined - pts.reshape(2)):.1f} px")
+    off = np.linalg.norm(refined - pts.reshape(2))
+    if off > win:
+        raise CalibrationError(f"cross refinement ran off by {off:.1f} px")
     # score: strength of the two-cycle (X-junction) pattern on a circle around the point,
     # relative to an ideal checker of the same contrast; independent of the mark's rotation
     r = max(2.0, min(size * 0.6, 15.0))

@@ -76,18 +76,6 @@ def min_enclosing_circle(points: Any, seed: int = 0) -> tuple[np.ndarray, float]
     return origin + c * span, r * span
 
 
-def min_enclosing_circle_brute(points: Any) -> tuple[np.ndarray, float]:
-    """Reference O(N⁴) solution over all pair and triple circles (for tests on small sets)."""
-    P = np.asarray(points, dtype=float)
-    best: tuple[np.ndarray, float] = (P[0], 0.0) if len(P) == 1 else (P[0], np.inf)
-    cands = [_circle2(P[i], P[j]) for i, j in itertools.combinations(range(len(P)), 2)]
-    cands += [_circle3(P[i], P[j], P[k]) for i, j, k in itertools.combinations(range(len(P)), 3)]
-    for c, r in cands:
-        if r < best[1] and np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-9) + 1e-12):
-            best = (c, r)
-    return best
-
-
 def wrap_deg(a: Any) -> Any:
     """Angle(s) wrapped to [−180, 180)."""
     return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
@@ -113,6 +101,11 @@ class ClusterStats:
     angle_range_deg: list[float] | None  # [min, max] approach heading
 
 
+def mean_heading_deg(h: np.ndarray) -> float:
+    """Circular mean: headings either side of ±180° average to ±180°, not to 0."""
+    return float(np.degrees(np.arctan2(np.sin(np.radians(h)).mean(), np.cos(np.radians(h)).mean())))
+
+
 def cluster_stats(name: str, xy: np.ndarray, headings: np.ndarray | None) -> ClusterStats:
     """Table row for one cluster: mean, distances from it, enclosing radius, heading range."""
     m = xy.mean(axis=0)
@@ -120,7 +113,7 @@ def cluster_stats(name: str, xy: np.ndarray, headings: np.ndarray | None) -> Clu
     _, r = min_enclosing_circle(xy)
     rng = None
     if headings is not None:
-        ref = float(np.degrees(np.arctan2(np.sin(np.radians(headings)).mean(), np.cos(np.radians(headings)).mean())))
+        ref = mean_heading_deg(headings)
         dev = wrap_deg(headings - ref)
         rng = [ref + float(dev.min()), ref + float(dev.max())]
     return ClusterStats(name, len(xy), m.tolist(), float(d.max()), float(d.mean()), r, rng)
@@ -187,9 +180,9 @@ class ExperimentMetrics:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
         return {"clusters": [asdict(c) for c in self.clusters], "all": asdict(self.all),
-                "enclosing_diameter_mm": self.enclosing_diameter_mm, "pairwise_mean_mm": self.pairwise_mean_mm,
-                "centroid_mean_mm": self.centroid_mean_mm, "fit": None if self.fit is None else asdict(self.fit),
-                **self.extra}
+                "enclosing_diameter_mm": self.enclosing_diameter_mm,
+                "pairwise_mean_mm": self.pairwise_mean_mm, "centroid_mean_mm": self.centroid_mean_mm,
+                "fit": None if self.fit is None else asdict(self.fit), **self.extra}
 
     def rows(self) -> list[list[str]]:
         """Table rows (header first), numbers formatted as in the paper."""
@@ -267,7 +260,8 @@ def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> Ex
     xy = P[:, :2]
     h = np.asarray(headings_deg, dtype=float).reshape(-1)
     if len(h) != len(xy) or not np.all(np.isfinite(h)) or not np.all(np.isfinite(xy)):
-        raise ValueError(f"experiment_metrics: need {len(xy)} finite headings and points, got {len(h)} headings")
+        raise ValueError(f"experiment_metrics: need {len(xy)} finite headings and points, "
+                         f"got {len(h)} headings")
     if groups is None:
         nominal = wrap_deg(np.round(h / 45.0) * 45.0)
         nominal[nominal == -180.0] = 180.0
@@ -278,8 +272,7 @@ def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> Ex
             raise ValueError(f"experiment_metrics: {len(labels)} group labels for {len(xy)} points")
     order = list(dict.fromkeys(labels))
     members = [np.array([i for i, g in enumerate(labels) if g == name]) for name in order]
-    mean_h = [float(np.degrees(np.arctan2(np.sin(np.radians(h[idx])).mean(), np.cos(np.radians(h[idx])).mean())))
-              for idx in members]
+    mean_h = [mean_heading_deg(h[idx]) for idx in members]
     if groups is not None:
         # given groups (e.g. direction indices) get the paper's names when their mean
         # headings are distinct multiples of 45°; otherwise the labels are kept
@@ -291,7 +284,7 @@ def experiment_metrics(points: Any, headings_deg: Any, groups: Any = None) -> Ex
     means = [xy[idx].mean(axis=0) for idx in members]
     allc = cluster_stats("All", xy, None)
     means_a = np.array(means)
-    pairs = [np.linalg.norm(means_a[i] - means_a[j]) for i, j in itertools.combinations(range(len(means_a)), 2)]
+    pairs = [np.linalg.norm(a - b) for a, b in itertools.combinations(means_a, 2)]
     pairwise = float(np.mean(pairs)) if pairs else 0.0
     centroid = float(np.mean(np.linalg.norm(means_a - means_a.mean(axis=0), axis=1)))
     fit = fit_bias(means_a, np.array(mean_h)) if len(means_a) >= 3 else None

@@ -19,8 +19,8 @@ the reflector; m turns nothing), gives it in ACS:
 
 A plate-fixed translation (nest coordinates, the tracker's pattern at the plate) enters m̂ with
 the opposite sign and cannot be told apart by one reversal; the referencings' covariance
-(nests, P0, P1, the camera's pose; :func:`half_diff_cov`) states its share. m̂ is applied only when the data show it:
-significant against that σ and within the mount's sub-mm.
+(nests, P0, P1, the camera's pose; :func:`half_diff_cov`) states its share. m̂ is applied only
+when the data show it: significant against that σ and within the mount's sub-mm.
 """
 from __future__ import annotations
 
@@ -45,8 +45,8 @@ def los_R(abs_P: Any, abs_t_trk: Any) -> np.ndarray:
     d = np.asarray(abs_t_trk, dtype=float).reshape(3) - np.asarray(abs_P, dtype=float).reshape(3)
     h = float(np.hypot(d[0], d[1]))
     if not np.isfinite(h) or h < 1.0:
-        raise ValueError(f"los_R: the tracker at {np.round(abs_t_trk, 3).tolist()} is not beside the reflector "
-                         f"at {np.round(abs_P, 3).tolist()} (horizontal distance {h:.3f} mm)")
+        raise ValueError(f"los_R: the tracker at {np.round(abs_t_trk, 3).tolist()} is not beside the "
+                         f"reflector at {np.round(abs_P, 3).tolist()} (horizontal distance {h:.3f} mm)")
     x = np.array([d[0] / h, d[1] / h, 0.0])
     R = np.column_stack([x, [-x[1], x[0], 0.0], [0.0, 0.0, 1.0]])
     assert_rotation(R, "abs_R_los")
@@ -92,9 +92,9 @@ class MountOffset:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form (result.schema.json ``reflector_mount``)."""
         sd = np.sqrt(np.diag(self.cov_los_mm2))
-        return {"los_mm": self.los_mm.tolist(), "cov_los_mm2": self.cov_los_mm2.tolist(), "sigma_los_mm": sd.tolist(),
-                "magnitude_mm": float(np.hypot(*self.los_mm)), "chi2": self.chi2, "significant": self.significant,
-                "why": self.why, "warn": self.warn}
+        return {"los_mm": self.los_mm.tolist(), "cov_los_mm2": self.cov_los_mm2.tolist(),
+                "sigma_los_mm": sd.tolist(), "magnitude_mm": float(np.hypot(*self.los_mm)),
+                "chi2": self.chi2, "significant": self.significant, "why": self.why, "warn": self.warn}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "reflector_mount") -> "MountOffset":
@@ -105,9 +105,10 @@ class MountOffset:
             sig = bool(d["significant"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: not a reflector mount offset ({exc})") from None
-        if not (np.all(np.isfinite(m)) and np.all(np.isfinite(C))) or np.linalg.eigvalsh((C + C.T) / 2)[0] <= 0:
-            raise ValueError(f"{source}: los_mm {m.tolist()} / cov_los_mm2 {C.tolist()} are not an offset and a "
-                             f"positive-definite covariance")
+        finite = np.all(np.isfinite(m)) and np.all(np.isfinite(C))
+        if not finite or np.linalg.eigvalsh((C + C.T) / 2)[0] <= 0:  # eigvalsh only of finite numbers
+            raise ValueError(f"{source}: los_mm {m.tolist()} / cov_los_mm2 {C.tolist()} are not an offset "
+                             f"and a positive-definite covariance")
         return cls(m, C, sig, str(d.get("why") or ""), bool(d.get("warn", False)))
 
 
@@ -170,7 +171,8 @@ def from_reversal(rev: Any, runs: Sequence[_Run], abs_t_trk: Any) -> tuple[Mount
     if len(runs) != 2 or rev.half_diff_t_mm is None or rev.half_diff_rot_deg is None:
         return None, f"the reversal has {len(runs)} runs; the offset needs two, 180° apart"
     if len(covs) != 2:
-        return None, "the runs state no covariance (Monte Carlo off): the offset's significance cannot be tested"
+        return None, ("the runs state no covariance (Monte Carlo off): the offset's significance "
+                      "cannot be tested")
     if abs_t_trk is None:
         return None, "P0 carries no abs_H_trk: the line of sight to the tracker is unknown"
     return estimate(rev.half_diff_t_mm, rev.half_diff_rot_deg, rev.rob_H_scn, runs[0].abs_H_rob, abs_t_trk,
@@ -180,10 +182,7 @@ def from_reversal(rev: Any, runs: Sequence[_Run], abs_t_trk: Any) -> tuple[Mount
 def message(m: MountOffset) -> str:
     """The referencing result's line about the offset."""
     sd = np.sqrt(np.diag(m.cov_los_mm2)) * 1000
-    fig = (f"reflector mount offset {1000 * m.los_mm[0]:+.0f} µm toward the tracker, {1000 * m.los_mm[1]:+.0f} µm "
-           f"left of it (±{sd[0]:.0f}, ±{sd[1]:.0f} µm)")
-    return f"{fig}: marks measured with compensation 'mount' correct it" if m.significant else f"{fig}: {m.why}"
-
-
-__all__ = ["MAX_OFFSET_MM", "MountOffset", "SIGNIFICANT_CHI2", "estimate", "from_reversal", "half_diff_cov", "los_R",
-           "message"]
+    fig = (f"reflector mount offset {1000 * m.los_mm[0]:+.0f} µm toward the tracker, "
+           f"{1000 * m.los_mm[1]:+.0f} µm left of it (±{sd[0]:.0f}, ±{sd[1]:.0f} µm)")
+    why = "marks measured with compensation 'mount' correct it" if m.significant else m.why
+    return f"{fig}: {why}"

@@ -88,37 +88,43 @@ def _patch(d: Any, where: str) -> Patch:
         if isinstance(v, bool) or not isinstance(v, kind):
             raise ValueError(f"{where}.{k} has the wrong type: {v!r}")
     o = d["origin_mm"]
-    if len(o) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in o):
+    if len(o) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                              for v in o):
         raise ValueError(f"{where}.origin_mm must be 2 finite numbers [x, y] in mm, got {o!r}")
     p = Patch(d["name"], d["cols"], d["rows"], float(d["square_mm"]), float(d["marker_mm"]), d["first_id"],
               (float(o[0]), float(o[1])))
     if p.cols < 3 or p.rows < 3 or not 0 < p.marker_mm < p.square_mm or not 1 <= p.square_mm <= 100:
-        raise ValueError(f"{where} ({p.name}): board {p.cols}x{p.rows}, square {p.square_mm} mm, marker "
-                         f"{p.marker_mm} mm is not a usable ChArUco patch (>= 3x3, 1..100 mm, marker < square)")
+        raise ValueError(f"{where} ({p.name}): board {p.cols}x{p.rows}, square {p.square_mm} mm, "
+                         f"marker {p.marker_mm} mm is not a usable ChArUco patch "
+                         f"(>= 3x3, 1..100 mm, marker < square)")
     return p
 
 
 def parse_patches(items: Any, main_markers: int, aruco_dict: str, source: str) -> list[Patch]:
-    """Validated patches; their marker ids must not overlap the main board's (0..main_markers−1) or each other."""
+    """Validated patches; marker ids must not overlap the main board's (0..main_markers−1) or each other."""
     if not isinstance(items, list):
         raise ValueError(f"{source}: patches must be a JSON list, got {items!r}")
     out = [_patch(d, f"{source}: patches[{i}]") for i, d in enumerate(items)]
     size = dictionary_size(aruco_dict)
-    spans = [(0, main_markers, "the main board")] + [(p.first_id, p.first_id + p.n_markers, p.name) for p in out]
+    spans = [(0, main_markers, "the main board")]
+    spans += [(p.first_id, p.first_id + p.n_markers, p.name) for p in out]
     for i, (a0, a1, na) in enumerate(spans):
         if a1 > size or a0 < 0:
-            raise ValueError(f"{source}: marker ids {a0}..{a1 - 1} of {na} are outside {aruco_dict} (0..{size - 1})")
+            raise ValueError(f"{source}: marker ids {a0}..{a1 - 1} of {na} are outside {aruco_dict} "
+                             f"(0..{size - 1})")
         for b0, b1, nb in spans[i + 1:]:
             if a0 < b1 and b0 < a1:
-                raise ValueError(f"{source}: marker ids of {na} ({a0}..{a1 - 1}) and {nb} ({b0}..{b1 - 1}) overlap")
+                raise ValueError(f"{source}: marker ids of {na} ({a0}..{a1 - 1}) and "
+                                 f"{nb} ({b0}..{b1 - 1}) overlap")
     if len({p.name for p in out}) != len(out):
         raise ValueError(f"{source}: patch names must be unique, got {[p.name for p in out]}")
     return out
 
 
 def default_patches(nests_xy: dict[str, Any], centre_xy: Any, first_id: int, distance_mm: float = 90.0,
-                    cols: int = 7, rows: int = 5, square_mm: float = 15.0, marker_mm: float = 11.0) -> list[Patch]:
-    """The layout of docs/operations.md: one patch per nest, centred ``distance_mm`` from it toward ``centre_xy``."""
+                    cols: int = 7, rows: int = 5, square_mm: float = 15.0,
+                    marker_mm: float = 11.0) -> list[Patch]:
+    """One patch per nest, centred ``distance_mm`` from it toward ``centre_xy`` (docs/operations.md)."""
     out, fid = [], first_id
     c = np.asarray(centre_xy, dtype=float)[:2]
     for name, xy in nests_xy.items():

@@ -65,38 +65,39 @@ class Plate:
 
     def validate(self) -> None:
         """Raise ValueError naming the bad field."""
+        at = f"plate {self.plate_id!r}"
         if self.board_cols < 3 or self.board_rows < 3:
-            raise ValueError(f"plate {self.plate_id!r}: board {self.board_cols}x{self.board_rows} is too small")
+            raise ValueError(f"{at}: board {self.board_cols}x{self.board_rows} is too small")
         if not 0 < self.marker_mm < self.square_mm:
-            raise ValueError(f"plate {self.plate_id!r}: marker_mm={self.marker_mm} must be in (0, square_mm="
+            raise ValueError(f"{at}: marker_mm={self.marker_mm} must be in (0, square_mm="
                              f"{self.square_mm})")
         if not 0.1 <= self.square_mm <= 100:
-            raise ValueError(f"plate {self.plate_id!r}: square_mm={self.square_mm} is not a sensible size")
+            raise ValueError(f"{at}: square_mm={self.square_mm} is not a sensible size")
         missing = [n for n in NEST_NAMES if n not in self.nests_ref_nst]
         if missing or len(self.nests_ref_nst) != 3:
-            raise ValueError(f"plate {self.plate_id!r}: nests must be exactly {NEST_NAMES}, "
+            raise ValueError(f"{at}: nests must be exactly {NEST_NAMES}, "
                              f"got {sorted(self.nests_ref_nst)}")
         for n, p in self.nests_ref_nst.items():
             if len(p) != 3 or not all(np.isfinite(p)):
-                raise ValueError(f"plate {self.plate_id!r}: nest {n!r} must be 3 finite numbers, got {p}")
+                raise ValueError(f"{at}: nest {n!r} must be 3 finite numbers, got {p}")
             if max(abs(float(v)) for v in p) > 10_000:
-                raise ValueError(f"plate {self.plate_id!r}: nest {n!r} at {p} mm is not on a plate (beyond ±10 m)")
+                raise ValueError(f"{at}: nest {n!r} at {p} mm is not on a plate (beyond ±10 m)")
         if not 0 <= self.smr_offset_mm <= 100:
-            raise ValueError(f"plate {self.plate_id!r}: smr_offset_mm={self.smr_offset_mm} out of range 0..100")
+            raise ValueError(f"{at}: smr_offset_mm={self.smr_offset_mm} out of range 0..100")
         P = self.ref_P_smr()
         sides = [np.linalg.norm(P[i] - P[j]) for i, j in ((0, 1), (1, 2), (2, 0))]
         if min(sides) < 50.0:
-            raise ValueError(f"plate {self.plate_id!r}: nests only {min(sides):.1f} mm apart (need >= 50)")
+            raise ValueError(f"{at}: nests only {min(sides):.1f} mm apart (need >= 50)")
         area2 = np.linalg.norm(np.cross(P[1] - P[0], P[2] - P[0]))
         # height of the triangle over its longest side: near zero means collinear nests
         if area2 / max(sides) < 0.1 * max(sides):
-            raise ValueError(f"plate {self.plate_id!r}: nests are (nearly) collinear "
+            raise ValueError(f"{at}: nests are (nearly) collinear "
                              f"(triangle height {area2 / max(sides):.1f} mm over a {max(sides):.1f} mm side)")
         if self.patches:
             self.survey_patches()
         for n, s in self.nests_sigma_mm.items():
             if not (n in NEST_NAMES and _three_sigmas(s)):
-                raise ValueError(f"plate {self.plate_id!r}: nests_sigma_mm.{n} must be a nest name with "
+                raise ValueError(f"{at}: nests_sigma_mm.{n} must be a nest name with "
                                  f"3 finite numbers >= 0 (mm), got {s!r}")
 
     # ------------------------------------------------------------------ files

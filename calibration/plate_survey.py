@@ -27,7 +27,7 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
 from calibration.plate import NEST_NAMES, Plate
-from calibration.survey import MIN_RAY_ANGLE_DEG, intersect_rays
+from calibration.survey import intersect_rays
 from calibration.survey_bundle import Bundle, adjust
 from calibration.survey_detect import RingEdges, check_rgb, detect_patch_corners, find_rings
 
@@ -55,8 +55,8 @@ def detect_views(images: dict[str, np.ndarray], plate: Plate,
     """Detections of every photograph with enough corners, and {name: why skipped} for the others."""
     patches = plate.survey_patches()
     if not patches:
-        raise ValueError(f"plate {plate.plate_id!r} has no survey patches: the survey needs a plate definition "
-                         f"with `patches` (docs/datasets.md)")
+        raise ValueError(f"plate {plate.plate_id!r} has no survey patches: the survey needs a plate "
+                         f"definition with `patches` (docs/datasets.md)")
     views, skipped = [], {}
     for i, (name, image) in enumerate(images.items()):
         if progress:
@@ -150,10 +150,7 @@ def initial_seats(views: list[View], model: CameraModel, poses: list[np.ndarray]
         if len(C) < 2:
             raise CalibrationError(f"the {colour} ring was found in {len(C)} photograph(s), need >= 2 "
                                    f"({_why_missing(views, colour)})")
-        X, _, ang = intersect_rays(np.array(C), np.array(d))
-        if ang < MIN_RAY_ANGLE_DEG:
-            raise CalibrationError(f"the {colour} ring's views are too close to parallel ({ang:.1f}°)")
-        out[colour] = X
+        out[colour] = intersect_rays(np.array(C), np.array(d))[0]  # too close to parallel: it raises
     return out
 
 
@@ -222,8 +219,9 @@ def run_survey(images: dict[str, np.ndarray], plate: Plate, progress: Progress |
     size = _same_size(images)
     views, skipped = detect_views(images, plate, progress)
     if len(views) < MIN_VIEWS:
-        raise CalibrationError(f"only {len(views)} usable photograph(s) of {len(images)} (need >= {MIN_VIEWS}): "
-                               + "; ".join(f"{n}: {why}" for n, why in list(skipped.items())[:4]))
+        skips = "; ".join(f"{n}: {why}" for n, why in list(skipped.items())[:4])
+        raise CalibrationError(f"only {len(views)} usable photograph(s) of {len(images)} "
+                               f"(need >= {MIN_VIEWS}): {skips}")
     if progress:
         progress(1.0, f"camera calibration and bundle adjustment over {len(views)} photographs")
     model, poses, rms0 = calibrate(views, size)
@@ -239,8 +237,9 @@ def run_survey(images: dict[str, np.ndarray], plate: Plate, progress: Progress |
     sig = {c: np.sqrt(np.diag(b.seat_cov[i])).tolist() for i, c in enumerate(NEST_NAMES)}
     report = _report(views, skipped, b, bias, k3_kept, rms0)
     seats_out = {c: b.seats[i].tolist() for i, c in enumerate(NEST_NAMES)}
+    note = f"nests surveyed from {len(views)} photographs"
     out = replace(plate, nests_ref_nst=seats_out, nests_sigma_mm=sig, survey=report,
-                  notes=(plate.notes + "; " if plate.notes else "") + f"nests surveyed from {len(views)} photographs")
+                  notes=(plate.notes + "; " if plate.notes else "") + note)
     return SurveyResult(out, report)
 
 
@@ -250,10 +249,11 @@ def _drop_outliers(views: list[View], b: Bundle) -> bool:
     dropped = False
     for v, rr in zip(views, b.ring_res):
         for i, r in rr.items():
-            if np.linalg.norm(r) > limit:
+            off = float(np.linalg.norm(r))
+            if off > limit:
                 colour = NEST_NAMES[i]
-                v.missing[colour] = f"{v.name}: {colour} ring dropped, {np.linalg.norm(r):.2f} px off the " \
-                                    f"other photographs' solution (limit {limit:.2f} px): another {colour} object?"
+                v.missing[colour] = f"{v.name}: {colour} ring dropped, {off:.2f} px off the other " \
+                                    f"photographs' solution (limit {limit:.2f} px): another {colour} object?"
                 del v.rings[colour]
                 dropped = True
     return dropped
@@ -275,6 +275,3 @@ def _report(views: list[View], skipped: dict[str, str], b: Bundle, bias: list[di
             "sigma_corner_px": b.sigma_corner_px, "sigma_ring_px": b.sigma_ring_px,
             "calibrate_camera_rms_px": rms0, "k3_fitted": bool(k3_kept),
             "camera_model": b.model.to_dict(), "intrinsics_sigma": b.intr_sigma.tolist()}
-
-
-__all__ = ["SurveyResult", "View", "calibrate", "detect_views", "initial_seats", "ring_observation", "run_survey"]

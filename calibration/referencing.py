@@ -88,8 +88,9 @@ def robot_poses(P: np.ndarray, v: np.ndarray, n: np.ndarray, min_move_mm: float 
     if not (np.all(np.isfinite(P)) and np.all(np.isfinite(v))):
         raise ValueError("robot_pose: the reflector positions contain non-finite values")
     n_len = np.linalg.norm(n, axis=1)
-    if np.any(np.abs(n_len - 1.0) > 1e-6):
-        raise ValueError(f"robot_pose: abs_n must be a unit vector, has length {n_len[np.abs(n_len - 1.0) > 1e-6][0]}")
+    bad = np.abs(n_len - 1.0) > 1e-6
+    if np.any(bad):
+        raise ValueError(f"robot_pose: abs_n must be a unit vector, has length {n_len[bad][0]}")
     v_perp = v - np.sum(v * n, axis=1)[:, None] * n
     length = np.linalg.norm(v_perp, axis=1)
     if np.any(length < min_move_mm):
@@ -113,7 +114,8 @@ def chain(ref_P_smr: np.ndarray, scn_H_cam: np.ndarray) -> Chain:
         abs_P = np.asarray(abs_P, dtype=float)
         one = abs_P.ndim == 2
         if one:
-            abs_P, P0, P1, cam_H_ref = abs_P[None], np.reshape(P0, (1, 3)), np.reshape(P1, (1, 3)), cam_H_ref[None]
+            abs_P, cam_H_ref = abs_P[None], cam_H_ref[None]
+            P0, P1 = np.reshape(P0, (1, 3)), np.reshape(P1, (1, 3))
         scn_H_ref = scn_H_cam @ np.asarray(cam_H_ref, dtype=float)
         scn_P = ref_P_smr @ np.swapaxes(scn_H_ref[:, :3, :3], 1, 2) + scn_H_ref[:, None, :3, 3]
         abs_H_scn = kabsch_many(scn_P, abs_P)
@@ -254,17 +256,17 @@ def reference_pose(cam_H_ref: np.ndarray, scn_H_cam: np.ndarray, ref_P_smr: Any,
     v = P1 - P0
     move = float(np.linalg.norm(v - (v @ abs_n) * abs_n))
     climb = float(np.degrees(np.arcsin(min(1.0, abs(v @ abs_n) / max(np.linalg.norm(v), 1e-12)))))
-    verdict, messages = _verdict(gates, fit.rms_mm, sigma, move, climb, seat_tilt_deg(ref_P), n_corners, rms_px,
-                                 ambiguity_ratio)
+    verdict, messages = _verdict(gates, fit.rms_mm, sigma, move, climb, seat_tilt_deg(ref_P), n_corners,
+                                 rms_px, ambiguity_ratio)
     if fit.label_check != "unique":
         messages.append(f"nest labels: {fit.label_check}")
     unc = None
     if mc_samples:
         unc = monte_carlo(chain(ref_P, scn_H_cam), abs_P, P0, P1, cam_H_ref, sigma_t_mm,
                           cov_cam_H_ref, mc_samples, seed)
-    return ReferencingResult(rob_H_cam, rob_H_scn, abs_H_scn, scn_H_cam, np.asarray(cam_H_ref, float), abs_H_rob,
-                             abs_n, fit.residuals_mm, fit.rms_mm, fit.label_check, n_corners, rms_px,
-                             ambiguity_ratio, unc, verdict, messages)
+    return ReferencingResult(rob_H_cam, rob_H_scn, abs_H_scn, scn_H_cam, np.asarray(cam_H_ref, float),
+                             abs_H_rob, abs_n, fit.residuals_mm, fit.rms_mm, fit.label_check, n_corners,
+                             rms_px, ambiguity_ratio, unc, verdict, messages)
 
 
 def board_corners_ref(plate: Plate, ids: Any) -> np.ndarray:
@@ -281,7 +283,8 @@ def board_corners_ref(plate: Plate, ids: Any) -> np.ndarray:
 def reference(model: CameraModel, plate: Plate, abs_P_nests: Any, abs_P_rob0: Any, abs_P_rob1: Any, *,
               image: np.ndarray | None = None, cam_ref: Any = None, sigma_t_mm: float = 0.010,
               sigma_plate_mm: float = 0.005, sigma_px: float | None = None, gates: Gates | None = None,
-              mc_samples: int = 200, seed: int = 0, model_dict: dict[str, Any] | None = None) -> ReferencingResult:
+              mc_samples: int = 200, seed: int = 0, model_dict: dict[str, Any] | None = None
+              ) -> ReferencingResult:
     """Referencing from raw observations: an image (or a ``CamRefPose`` / 4x4 ``cam_H_ref``).
 
     The image is turned into ``cam_H_ref`` by :func:`calibration.target.estimate_cam_H_ref`
@@ -297,7 +300,8 @@ def reference(model: CameraModel, plate: Plate, abs_P_nests: Any, abs_P_rob0: An
     if (image is None) == (cam_ref is None):
         raise ValueError("reference: give exactly one of image= or cam_ref=")
     if plate.nests_sigma_mm:  # a surveyed plate states its seats' 1σ: the nest fit cannot beat it
-        sigma_plate_mm = max(sigma_plate_mm, float(np.sqrt(np.mean(np.square(list(plate.nests_sigma_mm.values()))))))
+        seats_rms = float(np.sqrt(np.mean(np.square(list(plate.nests_sigma_mm.values())))))
+        sigma_plate_mm = max(sigma_plate_mm, seats_rms)
     if image is not None:
         cam_ref = estimate_cam_H_ref(image, model, plate)
     n_corners = rms_px = ambiguity = None
@@ -312,9 +316,11 @@ def reference(model: CameraModel, plate: Plate, abs_P_nests: Any, abs_P_rob0: An
         cov = pnp_covariance(model.K, model.dist, cam_H_ref, board_corners_ref(plate, cam_ref.ids), s_px)
     scs = make_scs(model, cam_H_ref)
     res = reference_pose(cam_H_ref, scs.scn_H_cam, plate.ref_P_smr(), abs_P_nests, abs_P_rob0, abs_P_rob1,
-                         sigma_t_mm, sigma_plate_mm, cov, n_corners, rms_px, ambiguity, gates, mc_samples, seed)
+                         sigma_t_mm, sigma_plate_mm, cov, n_corners, rms_px, ambiguity, gates,
+                         mc_samples, seed)
     if n_corners is not None:
-        mc = check_camera_model(model, board_corners_ref(plate, cam_ref.ids), cam_ref.uv, cam_H_ref, model_dict)
+        mc = check_camera_model(model, board_corners_ref(plate, cam_ref.ids), cam_ref.uv, cam_H_ref,
+                                model_dict)
         cov_f = camera_height(mc, float(abs(cam_H_ref[:3, 2] @ cam_H_ref[:3, 3])), res.rob_H_cam)
         if res.uncertainty is not None:  # the stated t_z covers what the model's f leaves open
             res.uncertainty.cov_rob_H_cam[:3, :3] += cov_f

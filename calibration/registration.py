@@ -98,7 +98,8 @@ def kabsch_many(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     s = np.linalg.svd(a, compute_uv=False)
     bad = s[:, 1] < 1e-6 * np.maximum(s[:, 0], 1e-12)
     if np.any(bad):
-        raise CalibrationError(f"kabsch: points are collinear (singular values {s[bad][0].round(6).tolist()}); "
+        sv = s[bad][0].round(6).tolist()
+        raise CalibrationError(f"kabsch: points are collinear (singular values {sv}); "
                                "the rotation about their line is undetermined")
     U, _, Vt = np.linalg.svd(np.swapaxes(a, 1, 2) @ b)
     V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
@@ -175,8 +176,8 @@ def fit_plate(scn_P: Any, abs_P: Any, sigma_mm: float, abs_up: Any | None = None
         why = ("needs the plate upside down (SCS z away from the robot)" if not up0
                else f"RMS {f0.rms:.4f} mm > {limit:.4f} mm ({rms_factor:g}·σ)")
         if best is not None and others[best] <= limit:
-            fitting = " or ".join(describe_permutation(p) for p, r in sorted(others.items(), key=lambda x: x[1])
-                                  if r <= limit)
+            by_rms = sorted(others.items(), key=lambda x: x[1])
+            fitting = " or ".join(describe_permutation(p) for p, r in by_rms if r <= limit)
             raise CalibrationError(
                 f"nest labels look swapped ({fitting}): the fit as labelled {why}; "
                 f"relabelled it fits with RMS {others[best]:.4f} mm. Check which SMR sits in which nest.")

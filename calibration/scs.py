@@ -15,21 +15,18 @@ Convention (paper, "Scene (SCS, scn)"), all in mm:
 ``scn_H_cam`` is fixed in the camera (and so in the robot): once made from one
 referencing image it maps every later image onto the floor under the robot,
 assuming the floor is the plane the robot stands on. Points are mapped analytically
-(undistort → ray → plane), never through a resampled image; ``rectified_image`` is
-only for people to look at.
+(undistort → ray → plane), never through a resampled image.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 
-from calibration.camera_model import CameraModel, _points
+from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError
-from calibration.frames import apply_H, check_H, inv_H, make_H
+from calibration.frames import check_H, inv_H, make_H
 
 SCS_SCHEMA = 1
 
@@ -46,17 +43,13 @@ class Scs:
     def __post_init__(self) -> None:
         self.scn_H_cam = check_H(np.asarray(self.scn_H_cam, dtype=float), "scn_H_cam")
         if self.scn_H_cam[2, 3] <= 0:
-            raise ValueError(f"scn_H_cam: the camera must be above the plane (z = {self.scn_H_cam[2, 3]:.3f} mm)")
+            raise ValueError(f"scn_H_cam: the camera must be above the plane "
+                             f"(z = {self.scn_H_cam[2, 3]:.3f} mm)")
 
     @property
     def size(self) -> tuple[int, int]:
         """Image size (w, h) of the camera model."""
         return self.model.size
-
-    @property
-    def cam_H_scn(self) -> np.ndarray:
-        """Inverse of ``scn_H_cam``."""
-        return inv_H(self.scn_H_cam)
 
     def image_to_scn(self, uv: np.ndarray) -> np.ndarray:
         """Map pixel coordinates (N, 2) of the distorted image to SCS xy (N, 2) on z = 0."""
@@ -71,36 +64,6 @@ class Scs:
                              f"the camera, e.g. uv={np.asarray(uv, float).reshape(-1, 2)[bad][0]}")
         return C[:2] + s[:, None] * d[:, :2]
 
-    def scn_to_image(self, xy: np.ndarray) -> np.ndarray:
-        """Map SCS xy points (N, 2) on z = 0 to distorted pixel coordinates (N, 2)."""
-        a = _points(xy, 2, "xy")
-        P = np.column_stack([a, np.zeros(len(a))])
-        return self.model.project(apply_H(self.cam_H_scn, P))
-
-    def rectified_image(self, image: np.ndarray, gsd_mm: float | None = None) -> np.ndarray:
-        """The image resampled onto the SCS plane (row 0 at y = y_max; x to the right)."""
-        img = np.asarray(image)
-        if img.shape[:2] != (self.size[1], self.size[0]):
-            raise ValueError(f"rectified_image: image is {img.shape[1]}x{img.shape[0]}, "
-                             f"the model is for {self.size[0]}x{self.size[1]}")
-        g = float(gsd_mm if gsd_mm is not None else self.gsd_mm)
-        if not g > 0:
-            raise ValueError(f"rectified_image: gsd_mm={gsd_mm} must be positive")
-        w, h = math.ceil(self.extent_mm[0] / g), math.ceil(self.extent_mm[1] / g)
-        if w * h > 100_000_000:
-            raise ValueError(f"rectified_image: gsd_mm={g} gives a {w}x{h} image; choose a coarser gsd")
-        out = np.zeros((h, w) + img.shape[2:], img.dtype)
-        x = (np.arange(w) + 0.5) * g
-        step = max(1, 1_000_000 // w)
-        for r0 in range(0, h, step):
-            y = self.extent_mm[1] - (np.arange(r0, min(h, r0 + step)) + 0.5) * g
-            xx, yy = np.meshgrid(x, y)
-            uv = self.scn_to_image(np.column_stack([xx.ravel(), yy.ravel()])).astype(np.float32)
-            mu = uv[:, 0].reshape(xx.shape)
-            mv = uv[:, 1].reshape(xx.shape)
-            out[r0:r0 + len(y)] = cv2.remap(img, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        return out
-
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict[str, Any]:
@@ -112,7 +75,8 @@ class Scs:
     def from_dict(cls, d: dict[str, Any], source: str = "scs") -> "Scs":
         """Inverse of :meth:`to_dict`; errors name ``source``."""
         if d.get("schema", SCS_SCHEMA) != SCS_SCHEMA:
-            raise ValueError(f"{source}: SCS schema {d.get('schema')} is not supported (expected {SCS_SCHEMA})")
+            raise ValueError(f"{source}: SCS schema {d.get('schema')} is not supported "
+                             f"(expected {SCS_SCHEMA})")
         try:
             return cls(np.array(d["scn_H_cam"], float), CameraModel.from_dict(d["model"], source),
                        float(d["gsd_mm"]), (float(d["extent_mm"][0]), float(d["extent_mm"][1])))

@@ -52,8 +52,9 @@ def _project(P: np.ndarray, pose: np.ndarray, intr: np.ndarray) -> tuple[np.ndar
     return uv.reshape(-1, 2), jac
 
 
-def _system(intr: np.ndarray, poses: list[np.ndarray], seats: np.ndarray, corners: list[tuple[np.ndarray, np.ndarray]],
-            rings: list[dict[int, np.ndarray]], cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _system(intr: np.ndarray, poses: list[np.ndarray], seats: np.ndarray,
+            corners: list[tuple[np.ndarray, np.ndarray]], rings: list[dict[int, np.ndarray]],
+            cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals, Jacobian (over the free columns ``cols``) and a group flag (0 corner, 1 ring) per row."""
     V = len(poses)
     N_ALL = 9 + 6 * V + 9

@@ -36,7 +36,6 @@ class RingEdges:
     colour: str
     outer: np.ndarray  # (N, 2)
     inner: np.ndarray  # (M, 2)
-    score_dn: float  # ring chroma contrast
 
 
 def check_rgb(image: np.ndarray, name: str) -> np.ndarray:
@@ -85,7 +84,7 @@ def find_ring(rgb: np.ndarray, colour: str, name: str) -> RingEdges:
         if len(p) < MIN_EDGE_POINTS:
             raise CalibrationError(f"{name}: the {colour} ring's {what} edge has only {len(p)} points "
                                    f"(need >= {MIN_EDGE_POINTS}): ring cut off, covered or too small")
-    return RingEdges(colour, outer, inner, ring_level)
+    return RingEdges(colour, outer, inner)
 
 
 def _crossings(s: np.ndarray, level: float, near: np.ndarray) -> np.ndarray:

@@ -36,7 +36,8 @@ LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
 @lru_cache(maxsize=8)
-def _board(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: str) -> cv2.aruco.CharucoBoard:
+def _board(cols: int, rows: int, square_mm: float, marker_mm: float,
+           dict_name: str) -> cv2.aruco.CharucoBoard:
     code = getattr(cv2.aruco, dict_name, None)
     if not isinstance(code, int) or not dict_name.startswith("DICT_"):
         raise ValueError(f"unknown ArUco dictionary {dict_name!r} (expected e.g. 'DICT_5X5_1000')")
@@ -76,7 +77,8 @@ def make_board(plate: BoardLayout) -> cv2.aruco.CharucoBoard:
 
 
 @lru_cache(maxsize=8)
-def _detector(cols: int, rows: int, square_mm: float, marker_mm: float, dict_name: str) -> cv2.aruco.CharucoDetector:
+def _detector(cols: int, rows: int, square_mm: float, marker_mm: float,
+              dict_name: str) -> cv2.aruco.CharucoDetector:
     board = _board(cols, rows, square_mm, marker_mm, dict_name)
     return cv2.aruco.CharucoDetector(board)
 
@@ -106,8 +108,8 @@ def _marker_codes(board: cv2.aruco.CharucoBoard) -> tuple[np.ndarray, int, int, 
     d = board.getDictionary()
     n = d.markerSize
     weights = 1 << np.arange(n * n, dtype=np.int64)
-    codes = np.array([int(d.getBitsFromByteList(d.bytesList[k:k + 1], n).reshape(-1).astype(np.int64) @ weights)
-                      for k in range(d.bytesList.shape[0])])
+    codes = np.array([int(d.getBitsFromByteList(d.bytesList[k:k + 1], n).reshape(-1).astype(np.int64)
+                          @ weights) for k in range(d.bytesList.shape[0])])
     # a one-marker dictionary: OpenCV then finds and returns all square candidates
     # quickly, and the identification below matches them against the board's markers
     finder = cv2.aruco.ArucoDetector(cv2.aruco.Dictionary(d.bytesList[:1].copy(), n, 0))
@@ -306,12 +308,13 @@ def pose_from_corners(ids: np.ndarray, uv: np.ndarray, model: CameraModel, plate
     if len(ids) != len(uv):
         raise ValueError(f"pose_from_corners: {len(ids)} ids but {len(uv)} points")
     if len(ids) < max(min_corners, 4):
-        raise CalibrationError(f"only {len(ids)} ChArUco corner(s) found, need at least {max(min_corners, 4)}: "
-                               f"is the target in view, lit and in focus?")
+        raise CalibrationError(f"only {len(ids)} ChArUco corner(s) found, need at least "
+                               f"{max(min_corners, 4)}: is the target in view, lit and in focus?")
     board = make_board(plate)
     obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)
     if ids.min() < 0 or ids.max() >= len(obj):
-        raise ValueError(f"pose_from_corners: corner ids must be in 0..{len(obj) - 1}, got {ids.min()}..{ids.max()}")
+        raise ValueError(f"pose_from_corners: corner ids must be in 0..{len(obj) - 1}, "
+                         f"got {ids.min()}..{ids.max()}")
     obj = obj[ids].reshape(-1, 1, 3)
     img = uv.reshape(-1, 1, 2)
     n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, model.K, model.dist, flags=cv2.SOLVEPNP_IPPE)

@@ -189,10 +189,6 @@ class TrackerPoint:
     host_monotonic_ns: int = field(default_factory=time.monotonic_ns)
     device_time_us: int | None = None  # continuous records only
 
-    @property
-    def xyz(self) -> np.ndarray:
-        return np.array([self.x, self.y, self.z])
-
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["std"] = list(self.std)

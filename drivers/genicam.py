@@ -137,20 +137,6 @@ class GenICamCamera(Camera):
             except Exception as exc:
                 log.warning("harvester reset failed: %s", exc)
 
-    def configure(self, settings: CameraSettings) -> None:
-        """Change the desired settings; applied now when open, and at every later open."""
-        self.settings = settings
-        if self._ia is None:
-            return
-        streaming = self._streaming
-        self._stop_acquisition()
-        self._streaming = False
-        self._apply()
-        if streaming:
-            self.start_stream()
-        elif self._software:
-            self._start_acquisition()
-
     def _warn(self, message: str) -> None:
         if message not in self._logged:  # once per adapter, not at every reconnect
             self._logged.add(message)

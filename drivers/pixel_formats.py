@@ -184,6 +184,3 @@ def encode(image: np.ndarray, pixel_format: str, padding_x: int = 0) -> bytes:
     if padding_x:
         rows = np.concatenate([rows, np.zeros((h, padding_x), np.uint8)], axis=1)
     return np.ascontiguousarray(rows).tobytes()
-
-
-__all__ = ["BY_CODE", "FORMATS", "PixelFormat", "by_code", "decode", "encode", "line_bytes", "lookup"]

@@ -29,7 +29,7 @@ from urllib.parse import urlencode
 import serial
 
 from drivers import robot_protocol as rp
-from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceTimeout, DeviceURL, Emit, Robot
+from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Robot
 from drivers.base import RobotState, no_emit
 from drivers.motion_gate import MotionGate
 from drivers.robot_line import READ_SLICE_S, NoReply, RobotLine
@@ -93,7 +93,6 @@ class SerialRobot(RobotLine, Robot):
         self._port_lock = threading.Lock()  # wake() (any thread) against close()
         self._starting = False  # a MOVE/TURN written, its ACK not yet read
         self._target = ""
-        self._last_state: RobotState | None = None
         self._last_state_emit = 0.0
         self._version: dict[str, Any] = {}
         self._opened_at = 0.0
@@ -289,7 +288,6 @@ class SerialRobot(RobotLine, Robot):
             raise DeviceError(f"robot base reports unknown state {state.state!r}", code="robot_protocol")
         if state.state != "MOVING" and self._moving_seq is not None:
             self._recover_event(state)
-        self._last_state = state
         now = time.monotonic()
         if self.state_hz > 0 and now - self._last_state_emit >= 1.0 / self.state_hz:
             self._last_state_emit = now
@@ -326,11 +324,6 @@ class SerialRobot(RobotLine, Robot):
     def _clock(self) -> bool:
         return rp.CAP_CLOCK in self._version.get("capabilities", ())
 
-    @property
-    def last_state(self) -> RobotState | None:
-        """The most recent STATUS reply (no I/O)."""
-        return self._last_state
-
     def park(self) -> None:
         """Before the daemon exits: a base that may be moving is halted (STOP; the gate's owed halt too)."""
         if self._port is None or self._moving_seq is None and not self.gate.pending:
@@ -354,28 +347,6 @@ class SerialRobot(RobotLine, Robot):
             for msg in self._receive(min(deadline, now + READ_SLICE_S), wakeable=True):
                 self._count_stray(msg)
 
-    def wait_idle(self, timeout: float) -> RobotState:
-        """Pump until the current motion is over; returns the final state.
-
-        Raises DeviceTimeout when the base is still moving after ``timeout`` s, and
-        DeviceError (code ``robot_fault``) when the motion ended in a FAULT.
-        """
-        deadline = time.monotonic() + timeout
-        next_check = 0.0
-        while True:
-            now = time.monotonic()
-            if self._moving_seq is None or now >= next_check:
-                state = self.status()
-                if state.state == "FAULT":
-                    raise DeviceError(f"robot base FAULT: {state.fault or 'no reason given'}",
-                                      code="robot_fault")
-                if state.state == "IDLE":
-                    return state
-                next_check = time.monotonic() + 0.1
-            if time.monotonic() >= deadline:
-                raise DeviceTimeout(f"robot base still moving after {timeout:.3g} s")
-            for msg in self._receive(min(deadline, next_check, time.monotonic() + 0.05)):
-                self._count_stray(msg)
 
 def _check(name: str, value: float, low: float, high: float) -> None:
     """Refuse a motion argument outside the protocol limits before it is sent."""

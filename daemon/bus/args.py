@@ -97,6 +97,3 @@ def _is_of_type(value: Any, type_name: str) -> bool:
 
 _TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
                "map": "a JSON object", "any": "anything"}
-
-
-__all__ = ["POS", "REQUIRED", "Arg", "BadValue"]

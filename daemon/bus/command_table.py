@@ -397,17 +397,6 @@ def help_entry(cmd: Command) -> dict[str, Any]:
                       "help": a.help} for a in cmd.args]}
 
 
-def _arg_cell(arg: Arg) -> str:
-    facts = [arg.type + (f", {arg.unit}" if arg.unit else "")]
-    if arg.range_text():
-        facts.append(arg.range_text())
-    if arg.choices:
-        facts.append(" \\| ".join(f"`{c}`" for c in arg.choices))
-    if not arg.required:
-        facts.append(f"default {_default_text(arg)}")
-    return f"`{arg.name}`{'' if arg.required else '?'} ({'; '.join(facts)})"
-
-
 def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
     """The command table of docs/protocol.md, generated from ``TABLE`` (or a plugin's commands)."""
     rows = ["| command | role | args | result | what it does |", "|---|---|---|---|---|"]
@@ -419,9 +408,16 @@ def markdown_table(commands: tuple[Command, ...] = TABLE) -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Arg", "BadValue", "Command", "CommandTable", "COMMANDS", "POS", "MOVING_PROCEDURES", "PROCEDURES",
-           "REQUIRED", "ROLES", "TABLE", "check_arg", "check_args", "help_entry", "markdown_table", "moves",
-           "validate"]
+def _arg_cell(arg: Arg) -> str:
+    facts = [arg.type + (f", {arg.unit}" if arg.unit else "")]
+    if arg.range_text():
+        facts.append(arg.range_text())
+    if arg.choices:
+        facts.append(" \\| ".join(f"`{c}`" for c in arg.choices))
+    if not arg.required:
+        facts.append(f"default {_default_text(arg)}")
+    return f"`{arg.name}`{'' if arg.required else '?'} ({'; '.join(facts)})"
+
 
 if __name__ == "__main__":
     import sys
@@ -429,4 +425,3 @@ if __name__ == "__main__":
     if sys.argv[1:] != ["--markdown"]:
         sys.exit("usage: python -m daemon.bus.command_table --markdown")
     sys.stdout.write(markdown_table())
-

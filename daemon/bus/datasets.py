@@ -410,7 +410,3 @@ def check_file(doc: Any, name: str, file: str) -> list[Problem]:
     if name in ("plate", "board"):
         out += _plate_problems(doc, file, ())
     return out + (_model_problems(doc, file, ()) if name == "camera_model" else [])
-
-
-__all__ = ["DatasetInvalid", "Problem", "check_file", "check_schema", "check_values", "png_info",
-           "schema_text", "validate_folder"]

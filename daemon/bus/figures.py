@@ -165,7 +165,3 @@ def worse_lines(label: str, without: float, with_: float, comp: dict[str, Any], 
     why += not_applied(comp) or ["every requested compensation was applied at every stop: this run does "
                                  "not show why"]
     return [head] + [f"  - {w}" for w in lines + ["possible reasons:"]] + [f"    - {w}" for w in why]
-
-
-__all__ = ["ACCURACY_GOALS_MM", "EXPERIMENT_GOALS", "Goal", "counted", "counted_from",
-           "experiment_goal_lines", "goal_cell", "goal_text", "not_applied", "verdict", "worse_lines"]

@@ -66,6 +66,3 @@ class JobState(StrEnum):
     FAILED = "failed"
     CANCELLED = "cancelled"
     STOPPED = "stopped"      # the robot's STOP ended its run; resumable after robot.release
-
-
-__all__ = ["KINDS", "ROLES", "JobState", "Kind", "Role", "Topic"]

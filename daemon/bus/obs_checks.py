@@ -32,6 +32,3 @@ def stream_problems(obs: dict[str, Any]) -> list[tuple[tuple[Any, ...], str]]:
                 out.append(((*parts, "stream", key), f"{len(rows)} rows but abs_xyz has {len(pts)}: one per "
                                                      f"stream point"))
     return out
-
-
-__all__ = ["stream_problems"]

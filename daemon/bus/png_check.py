@@ -63,6 +63,3 @@ def png_info(path: Path) -> tuple[int, int, int, int]:
         raise ValueError(f"image data has {len(raw)}{'' if inflate.eof else '+'} bytes, "
                          f"a {w}x{h} image needs {want}")
     return w, h, _PNG_CHANNELS[colour], depth
-
-
-__all__ = ["MAX_IMAGE_BYTES", "png_info"]

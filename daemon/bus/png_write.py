@@ -37,6 +37,3 @@ def frame_png(header: dict[str, Any], data: bytes) -> bytes:
         words.byteswap()
         data = words.tobytes()
     return png_bytes(data, int(shape[1]), int(shape[0]), int(shape[2]) if len(shape) == 3 else 1, depth)
-
-
-__all__ = ["frame_png", "png_bytes"]

@@ -126,8 +126,3 @@ class ParamError(CommandError):
         super().__init__(ErrorCode.BAD_ARGS, message)
         self.field = field
         self.fields = fields or ((field,) if field else ())
-
-
-__all__ = ["APPROACH_SPEED", "CALIBRATION", "COMPENSATION", "DISTANCE", "IMU_INTERVAL", "IMU_READINGS",
-           "KIND", "MARK_SIZE", "MARK_XY", "SIGMA_T", "SPEED", "STREAM_RATE", "Param", "ParamError",
-           "xyz_map"]

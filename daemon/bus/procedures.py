@@ -314,11 +314,6 @@ def markdown_table() -> str:
     return "\n".join(_rows()) + "\n"
 
 
-__all__ = ["ALL", "BY_NAME", "COMMISSION",
-           "EXPERIMENT", "INTRINSICS", "MEASURE_MARK", "MOVING_PROCEDURES", "PARAMS",
-           "PROCEDURES", "REFERENCING", "VIEWS", "Hooks", "Procedure", "Resolved", "check_params",
-           "cli_flags", "describe", "get", "load_files", "markdown_table", "schema"]
-
 if __name__ == "__main__":
     import sys
 

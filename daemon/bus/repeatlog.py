@@ -49,6 +49,3 @@ class RepeatGate(Generic[K]):
 def times(n: int, window_s: float) -> str:
     """The suffix a rate-limited line carries: `` (x37 in the last 60 s)``."""
     return f" (x{n} in the last {window_s:g} s)"
-
-
-__all__ = ["RepeatGate", "times"]

@@ -133,7 +133,3 @@ def list_entries(directory: Path) -> tuple[list[KeyEntry], dict[str, str]]:
         except (OSError, ValueError) as exc:
             broken[f.name] = str(exc)
     return entries, broken
-
-
-__all__ = ["DEFAULT_ROLE", "KEY_NAME", "KeyEntry", "check_role", "entry_path", "list_entries", "may",
-           "read_entry", "refusal", "required_role", "revoke", "set_role", "write_entry"]

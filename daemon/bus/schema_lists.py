@@ -94,7 +94,5 @@ def main(argv: list[str]) -> int:
     return 1 if stale and argv == ["--check"] else 0
 
 
-__all__ = ["STATUSES", "blanked", "generated", "ident", "rules"]
-
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

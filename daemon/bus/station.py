@@ -63,6 +63,3 @@ def abs_H_trk(configured: list[list[float]] | None, data_dir: Path) -> tuple[lis
         raise StationError(f"{path}: expected an object with abs_H_trk")
     said = data.get("source")  # who surveyed it, as the writer put it: shown wherever the pose is reported
     return checked(data["abs_H_trk"], str(path)), f"{path}" + (f" ({said})" if isinstance(said, str) else "")
-
-
-__all__ = ["IDENTITY", "STATION_FILE", "StationError", "abs_H_trk", "checked"]

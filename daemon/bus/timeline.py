@@ -116,6 +116,3 @@ class TimeSeries:
         """(first, last) sample time, None when empty."""
         with self._lock:
             return (self._t[0], self._t[-1]) if self._t else None
-
-
-__all__ = ["At", "DEFAULT_SPAN_S", "TimeSeries"]

@@ -15,10 +15,9 @@ from typing import Any, Iterator
 from calibration import __version__ as calib_version
 from daemon.bus.clockmap import ClockMap
 from daemon.bus.procedures import COMMISSION
-from daemon.compute.commission_camera import camera_checks
+from daemon.compute.commission_camera import Check, camera_checks
 
 RESULT_SCHEMA = 1
-Check = dict[str, str]
 #: record-time steps within this share of the rate's period count as on time (a record's own jitter)
 STEP_TOL = 0.10
 #: the median step may differ from the period by this share (1 %: the tracker's clock against the rate)
@@ -215,6 +214,3 @@ def compute_commission(obs: dict[str, Any], load: Any = None) -> dict[str, Any]:
     messages = [message(c) for c in checks if c["verdict"] in ("fail", "warn")]
     return {"schema": RESULT_SCHEMA, "procedure": COMMISSION.name, "software": calib_version,
             "verdict": verdict, "messages": messages, "checks": checks, "table_markdown": table(checks)}
-
-
-__all__ = ["compute_commission", "device_checks", "table"]

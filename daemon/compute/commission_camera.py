@@ -157,6 +157,3 @@ def camera_checks(cam: dict[str, Any]) -> Iterator[Check]:
     for fn in (ptp_role, ptp_offset, timestamp_unit, timestamp_latch, link_speed, packet_size, resends,
                pixel_format):
         yield fn(cam)
-
-
-__all__ = ["camera_checks"]

@@ -17,7 +17,8 @@ def write_yaml(path: Path, result: dict[str, Any]) -> None:
     import cv2
 
     # built in memory, so the file itself goes through the one atomic write
-    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    flags = cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML
+    fs = cv2.FileStorage(".yaml", flags)
     try:
         for key in ("job", "procedure", "software", "plate_id", "verdict", "created"):
             if result.get(key) is not None:
@@ -77,7 +78,8 @@ EXTRA_FILES.on(EXPERIMENT)(_experiment_report)
 _NAMES = {EXPERIMENT.name: REPORT_FILES}
 
 
-def write_result_files(root: Path, result: dict[str, Any], dataset: Path | str | None = None) -> dict[str, Any]:
+def write_result_files(root: Path, result: dict[str, Any],
+                       dataset: Path | str | None = None) -> dict[str, Any]:
     """result.json, result.yaml and the procedure's own files (an experiment: :data:`REPORT_FILES`).
 
     The same files for a live run and for ``ritactl recompute --out``; returns the

@@ -55,6 +55,3 @@ def grey_loader(root: Path) -> Callable[[str], np.ndarray]:
         return _grey(root, file, *read_image(root, file))
 
     return load
-
-
-__all__ = ["grey_loader", "pixel_format_of", "read_image"]

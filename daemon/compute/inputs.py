@@ -77,7 +77,8 @@ def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | Non
     """(imu_offset_deg, robot_bias_mm) a calibration holds, each None when absent."""
     off = calib.get("imu_offset_deg")
     b = calib.get("robot_bias_mm")
-    return (None if off is None else (float(off[0]), float(off[1]))), (None if b is None else [float(v) for v in b])
+    offset = None if off is None else (float(off[0]), float(off[1]))
+    return offset, (None if b is None else [float(v) for v in b])
 
 
 def imu_yaw(calib: dict[str, Any]) -> float:
@@ -131,7 +132,8 @@ def stop_record(comp: Compensation, applied: Any) -> dict[str, Any]:
     return {"requested": comp.names(), "applied": list(applied.applied), "skipped": dict(applied.skipped)}
 
 
-def compensation_summary(comp: Compensation, records: list[dict[str, Any]], calib: dict[str, Any]) -> dict[str, Any]:
+def compensation_summary(comp: Compensation, records: list[dict[str, Any]],
+                         calib: dict[str, Any]) -> dict[str, Any]:
     """Over all stops: per compensation how many stops applied it and why the others skipped it."""
     offset, bias = calibration_inputs(calib)
     out: dict[str, Any] = {"requested": comp.names(), "stops": len(records), "applied": {}, "skipped": {},
@@ -149,9 +151,3 @@ def compensation_summary(comp: Compensation, records: list[dict[str, Any]], cali
             # how many stops gave each reason: a reader sees "reason ×7", not seven copies or one
             out["skipped_stops"][name] = {r: reasons.count(r) for r in dict.fromkeys(reasons)}
     return out
-
-
-__all__ = ["calibration_inputs", "compensation_summary", "heading_weight", "imu_yaw",
-           "parse_compensation",
-           "plate_imu_offset", "reflector_mount", "stop_of", "stop_record", "tracker_distance_mm",
-           "tracker_position"]

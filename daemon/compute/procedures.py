@@ -32,8 +32,8 @@ from daemon.bus.procedures import (COMMISSION, EXPERIMENT, INTRINSICS, MEASURE_M
 from daemon.compute.commission import compute_commission
 from daemon.compute.experiment_checks import sigma_check, weight_checks
 from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
-                                   parse_compensation, plate_imu_offset, reflector_mount, stop_of, stop_record,
-                                   tracker_distance_mm, tracker_position)
+                                   parse_compensation, plate_imu_offset, reflector_mount, stop_of,
+                                   stop_record, tracker_distance_mm, tracker_position)
 
 LoadImage = Callable[[str], np.ndarray]
 RESULT_SCHEMA = 1
@@ -96,7 +96,8 @@ def compute_referencing(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     out["residuals_mm"] = first_d.get("nest_residuals_mm")
     out["verdict"] = "fail" if "fail" in verdicts else ("warn" if "warn" in verdicts else "ok")
     out["messages"] = messages
-    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs], reflector_height_mm(np.array(out["rob_H_scn"])))
+    height_mm = reflector_height_mm(np.array(out["rob_H_scn"]))
+    imu = plate_imu_offset(obs["runs"], [r.abs_H_rob for r in runs], height_mm)
     if imu is not None:  # the inclinometer's mounting, part of the calibration like rob_H_scn
         if imu["imu_offset_deg"] is not None:
             out.update(imu_offset_deg=imu["imu_offset_deg"], imu_yaw_deg=imu["imu_yaw_deg"])
@@ -193,7 +194,8 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm, roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
-                      cov_rob_H_scn=None if cov is None else np.array(cov), cov_mount_xy_mm2=a.cov_mount_xy_mm2)
+                      cov_rob_H_scn=None if cov is None else np.array(cov),
+                      cov_mount_xy_mm2=a.cov_mount_xy_mm2)
     if learn is not None:
         learn.append(stop_marks(a, m.rob_P))
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
@@ -202,8 +204,9 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
              "heading_rad": a.sigma_heading_rad, "heading_source": a.heading_source,
              "heading_sigma_basis": a.heading_sigma_basis, "pixel_px": MARK_SIGMA_PX,
              "calibration": cov is not None, "parts_mm": m.std_parts_mm}
-    return {"abs_xyz": m.abs_P.tolist(), "uv": m.uv.tolist(), "std_mm": float(m.std_mm), "heading_deg": heading,
-            **({"k": stop["k"]} if "k" in stop else {}), "sigma": sigma, "compensation": stop_record(comp, a)}
+    return {"abs_xyz": m.abs_P.tolist(), "uv": m.uv.tolist(), "std_mm": float(m.std_mm),
+            "heading_deg": heading, **({"k": stop["k"]} if "k" in stop else {}), "sigma": sigma,
+            "compensation": stop_record(comp, a)}
 
 
 def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
@@ -242,8 +245,10 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     groups = np.array([s["k"] for s in obs["stops"]])
     metrics = experiment_metrics(xy, headings, groups)
     # the mount's share is the same offset at every stop: no scatter between the cluster means
-    scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0)) for m in marks]
-    check = bias_model_check(xy, groups.tolist(), None if metrics.fit is None else metrics.fit.rms_mm, scatter)
+    scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0))
+               for m in marks]
+    fit_rms_mm = None if metrics.fit is None else metrics.fit.rms_mm
+    check = bias_model_check(xy, groups.tolist(), fit_rms_mm, scatter)
     checks: dict[str, Any] = {"bias_model": check, "sigma": sigma_check(marks, xy, headings)}
     messages = [m for m in (check["message"], (checks["sigma"] or {}).get("message")) if m]
     out: dict[str, Any] = {"heading_weight": None}
@@ -275,8 +280,8 @@ def weight_message(weight: dict[str, Any]) -> str:
     """The experiment's line about heading_fit's learned weight (stored with the bias)."""
     if not weight["applied"]:
         return f"heading_fit: later jobs keep the chord: {weight['why']}"
-    return (f"heading_fit: the stream's fitted bend makes the marks agree best at weight {weight['weight']:.2f} "
-            f"± {weight['sigma']:.2f} ({weight['n_stops']} stops; heading σ left "
+    return (f"heading_fit: the stream's fitted bend makes the marks agree best at weight "
+            f"{weight['weight']:.2f} ± {weight['sigma']:.2f} ({weight['n_stops']} stops; heading σ left "
             f"{weight['sigma_heading_rad'] * 1e6:.0f} µrad); later jobs apply it")
 
 
@@ -292,7 +297,8 @@ def _intrinsics_verdict(model: CameraModel, report: dict[str, Any]) -> tuple[str
     f_std = max(report["std"]["fx"], report["std"]["fy"])
     if f_std > MAX_F_STD_FRACTION * model.f:
         messages.append(f"focal length only known to ±{f_std:.2f} px ({100 * f_std / model.f:.3f} % > "
-                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views (recipe views tilt-x+35, tilt-y+35)")
+                        f"{100 * MAX_F_STD_FRACTION:.1f} %): add tilted views "
+                        f"(recipe views tilt-x+35, tilt-y+35)")
     return ("warn" if messages else "ok"), messages
 
 

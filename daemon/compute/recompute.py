@@ -62,7 +62,8 @@ def _number(v: Any) -> bool:
 def compare(a: Any, b: Any, path: str = "result") -> tuple[float, list[str]]:
     """(largest numeric difference, mismatches) between a recomputed value ``a`` and the stored ``b``."""
     if isinstance(a, dict) and isinstance(b, dict):
-        out, bad = 0.0, [f"{path}.{k}: missing from the recomputed result" for k in sorted(b.keys() - a.keys())]
+        out = 0.0
+        bad = [f"{path}.{k}: missing from the recomputed result" for k in sorted(b.keys() - a.keys())]
         bad += [f"{path}.{k}: not in the stored result" for k in sorted(a.keys() - b.keys())]
         for k in sorted(a.keys() & b.keys()):
             d, m = compare(a[k], b[k], f"{path}.{k}")
@@ -101,7 +102,8 @@ def apply_overrides(root: Path, proc: str, obs: dict[str, Any], overrides: dict[
                              f"(it applies to {', '.join(takers)})")
         problems = check_file(doc, _OVERRIDE_SCHEMA[name], f"--{name.replace('_', '-')}")
         if name == "calibration" and not problems and doc.get("procedure") != REFERENCING.name:
-            raise ValueError(f"--calibration must be a referencing result, got procedure {doc.get('procedure')!r}")
+            raise ValueError(f"--calibration must be a referencing result, "
+                             f"got procedure {doc.get('procedure')!r}")
         if problems:
             raise DatasetInvalid(root, problems)
         obs[key] = doc
@@ -114,7 +116,8 @@ def apply_compensation(proc: str, obs: dict[str, Any], compensation: str | None)
         return obs
     takers = [p.name for p in ALL if any(q.name == "compensation" for q in p.params)]
     if proc not in takers:
-        raise ValueError(f"--compensation does not apply to {_a(proc)} dataset (it applies to {', '.join(takers)})")
+        raise ValueError(f"--compensation does not apply to {_a(proc)} dataset "
+                         f"(it applies to {', '.join(takers)})")
     parse_compensation(compensation)
     return {**obs, "compensation": compensation}
 

@@ -79,18 +79,29 @@ def _applied_value(name: str, comp: dict[str, Any]) -> str:
     return ""
 
 
+def bias_applied(comp: dict[str, Any]) -> str:
+    """What the b fitted to the marks is, by where the calibration's b was applied (one rule for report.md
+    and report_metrics.csv): ``every`` stop (the fit is what is left after it), ``some`` stops only (the
+    fit mixes both) or ``none`` (the fit is the whole bias)."""
+    n, stops = (comp.get("applied") or {}).get("bias", 0), comp.get("stops", 0)
+    if n and n == stops and comp.get("robot_bias_mm") is not None:
+        return "every"
+    return "some" if n else "none"
+
+
 def bias_lines(result: dict[str, Any]) -> list[str]:
     """The robot-frame bias under names that say what each is (one number, one meaning): the calibration's
     b applied at every stop and what is left after it, or the b fitted to these marks; and the b fitted
     jointly with heading_fit's weight, the one ``store_bias`` stores (added to an applied b)."""
     comp, fit = result.get("compensation") or {}, (result.get("metrics") or {}).get("fit") or {}
     n, stops = (comp.get("applied") or {}).get("bias", 0), comp.get("stops", 0)
-    out = []
-    if n and n == stops and comp.get("robot_bias_mm") is not None:
+    out: list[str] = []
+    applied = bias_applied(comp)
+    if applied == "every":
         out.append(f"the calibration's b {_xy(comp['robot_bias_mm'])} applied at every stop; left after it, "
                    f"fitted to these marks: {_xy(fit.get('b'))}")
     elif fit:
-        mixed = f" (b applied at {n} of {stops} stops only: the fit mixes both)" if n else ""
+        mixed = f" (b applied at {n} of {stops} stops only: the fit mixes both)" if applied == "some" else ""
         out.append(f"fitted to these marks: {_xy(fit.get('b'))}{mixed}")
     joint = (result.get("heading_weight") or {}).get("b_mm")
     if joint is not None:
@@ -180,8 +191,3 @@ def header_markdown(result: dict[str, Any], compared: dict[str, Any] | None = No
             lines.append(f"- **{name}**:")
             lines += [_bullet(v) for v in values]
     return "\n".join(lines) + "\n"
-
-
-__all__ = ["ANGLE_CONVENTION", "NOT_RECORDED", "bias_lines", "compensation_lines", "dataset_id", "header",
-           "header_markdown",
-           "mark_text", "verdict_lines"]

@@ -137,6 +137,3 @@ def left_out_metrics(result: dict[str, Any], effects: Effects) -> dict[str, dict
         xy = full - np.array([s.get(name, (0.0, 0.0)) for s in effects.shifts], dtype=float)
         out[name] = experiment_metrics(xy, headings, groups).to_dict()
     return out
-
-
-__all__ = ["SAME_MM", "Effects", "Shifts", "compensation_effects", "left_out_metrics", "plain_metrics"]

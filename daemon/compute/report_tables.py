@@ -17,6 +17,7 @@ from typing import Any, Iterable
 import numpy as np
 from calibration.compensation import names_known
 from daemon.bus.figures import EXPERIMENT_GOALS, verdict
+from daemon.compute.report_header import bias_applied
 
 METRICS_COLUMNS = ["metric", "value", "unit", "goal_op", "goal_limit", "goal_verdict"]
 #: σ's parts per stop (docs/datasets.md, "Units and conventions": ``sigma.parts_mm``)
@@ -57,14 +58,12 @@ def _bias_rows(result: dict[str, Any]) -> list[list[Any]]:
     fit, comp = (result.get("metrics") or {}).get("fit"), result.get("compensation") or {}
     if not fit:
         return []
-    n, stops = (comp.get("applied") or {}).get("bias", 0), comp.get("stops", 0)
-    held = comp.get("robot_bias_mm")
+    applied = bias_applied(comp)
     rows: list[list[Any]] = []
-    if n and n == stops and held is not None:
+    if applied == "every":  # so the calibration's b is there
+        held = comp["robot_bias_mm"]
         rows += [["bias_applied_x", float(held[0]), "mm"], ["bias_applied_y", float(held[1]), "mm"]]
-        name = "bias_left_fitted"
-    else:
-        name = "bias_fitted_mixed" if n else "bias_fitted"
+    name = {"every": "bias_left_fitted", "some": "bias_fitted_mixed", "none": "bias_fitted"}[applied]
     rows += [[f"{name}_x", fit["b"][0], "mm"], [f"{name}_y", fit["b"][1], "mm"]]
     rows.append([f"{name}_norm", fit["b_norm_mm"], "mm"])
     joint = (result.get("heading_weight") or {}).get("b_mm")
@@ -141,6 +140,3 @@ def stops_csv(result: dict[str, Any], shifts: list[dict[str, list[float]]] | Non
                     *_comp_cells(m.get("compensation")),
                     *_shift_cells(shifts[i] if shifts else {})])
     return _csv(out)
-
-
-__all__ = ["METRICS_COLUMNS", "SIGMA_PARTS", "STOPS_FIXED", "metrics_csv", "stops_columns", "stops_csv"]

@@ -23,7 +23,7 @@ SIGMA_OK_MM = 0.05
 
 
 def load_images(folder: Path, progress: Progress | None = None) -> dict[str, np.ndarray]:
-    """``{file name: RGB image}`` of every photograph in ``folder`` (sorted); ValueError naming the bad file."""
+    """``{file name: RGB image}`` of each photograph in ``folder`` (sorted); ValueError names a bad file."""
     import cv2
 
     if not folder.is_dir():
@@ -65,6 +65,3 @@ def survey_plate(folder: Path, plate: dict[str, Any], source: str = "plate",
                                 + ("" if verdict == "ok" else ": add photographs from more directions"))
     result.report["source_folder"] = str(folder)
     return result.plate.to_dict()
-
-
-__all__ = ["IMAGE_EXTS", "SIGMA_OK_MM", "load_images", "survey_plate"]

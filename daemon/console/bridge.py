@@ -148,6 +148,3 @@ class Bridge:
             t.join(2.0)
         self.pool.shutdown(wait=False, cancel_futures=True)
         self.urgent.shutdown(wait=False, cancel_futures=True)
-
-
-__all__ = ["Bridge", "ClientTimeout", "EVENT_TOPICS"]

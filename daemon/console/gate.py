@@ -74,6 +74,3 @@ class Gate:
         if from_query and not response.prepared:
             response.set_cookie(COOKIE, self.token, httponly=True, samesite="Strict", path="/")
         return response
-
-
-__all__ = ["COOKIE", "Gate", "new_token"]

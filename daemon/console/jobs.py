@@ -44,6 +44,3 @@ def start_job(bridge: Bridge, args: dict[str, Any], timeout: float = 30.0) -> An
     if isinstance(args.get("job"), str) and args["job"]:
         start["job"] = args["job"]
     return bridge.call("calib.start", start, timeout)
-
-
-__all__ = ["MAX_DEFINITION_BYTES", "read_robot_file", "start_job"]

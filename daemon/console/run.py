@@ -33,6 +33,3 @@ def run(make_client: Callable[[], Client], port: int, captures: Path, open_brows
     finally:
         bridge.stop()
     return 0
-
-
-__all__ = ["run"]

@@ -117,6 +117,3 @@ class Series:
         """Kept points numbered after ``no``, oldest first."""
         with self._lock:
             return [p for p in self._points if p["no"] > no]
-
-
-__all__ = ["KEEP", "SERIES", "Series", "rows"]

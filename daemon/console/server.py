@@ -363,6 +363,3 @@ async def serve(bridge: Bridge, port: int, captures: Path, on_ready: Callable[[s
     finally:
         console.survey.close()
         await runner.cleanup()
-
-
-__all__ = ["Console", "PAGE_COMMANDS", "serve"]

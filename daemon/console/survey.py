@@ -128,6 +128,3 @@ def _summary(plate: dict[str, Any]) -> dict[str, Any]:
                       for v in rep.get("views", [])],
             "skipped": rep.get("skipped", {}), "sigma_corner_px": rep.get("sigma_corner_px"),
             "sigma_ring_px": rep.get("sigma_ring_px")}
-
-
-__all__ = ["SURVEY_ARGV", "Survey"]

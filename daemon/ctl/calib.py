@@ -296,6 +296,3 @@ def add_parsers(sub: Any) -> None:
         p = sub.add_parser(verb, help=COMMANDS[cmd].help)
         add_table_args(p, COMMANDS[cmd])
         p.set_defaults(fn=fn)
-
-
-__all__ = ["add_parsers", "final_of", "follow", "show_result"]

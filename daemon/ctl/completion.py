@@ -181,6 +181,3 @@ def add_parser(sub: Any) -> None:
                                    "~/.config/fish/completions/ritactl.fish`.")
     p.add_argument("shell", choices=SHELLS, help="the shell: bash (≥ 4), zsh or fish")
     p.set_defaults(fn=cmd_completion, offline=True)
-
-
-__all__ = ["SHELLS", "Node", "add_parser", "bash_script", "fish_script", "tree", "zsh_script"]

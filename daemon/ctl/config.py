@@ -113,6 +113,3 @@ def load_ctl_config(path: str | Path | None = None) -> dict[str, Any]:
         except ValueError as exc:
             raise CtlConfigError(f"{file}: {key} = {value!r} {exc}") from None
     return out
-
-
-__all__ = ["CtlConfigError", "config_dir", "config_path", "default_keys_dir", "load_ctl_config"]

@@ -62,6 +62,3 @@ def add_parser(sub: Any) -> None:
                    help="a host name the page may be opened under besides 127.0.0.1/localhost (repeatable; "
                         "anything else is refused with 403)")
     p.set_defaults(fn=cmd_console)
-
-
-__all__ = ["add_parser", "cmd_console"]

@@ -169,6 +169,3 @@ def add_parsers(sub: Any) -> None:
                         "calibration the experiment used with its fitted b, heading_fit weight and σ check "
                         "(docs/datasets.md)")
     p.set_defaults(fn=cmd_recompute, offline=True)
-
-
-__all__ = ["add_parsers", "cmd_recompute", "cmd_validate"]

@@ -237,6 +237,3 @@ def cmd_device(c: Client, a: argparse.Namespace) -> int:
         return code
     print_result(result, a.json)
     return Exit.OK
-
-
-__all__ = ["add_device_parsers", "add_table_args", "cmd_device", "motion_text", "option_help", "table_args"]

@@ -49,6 +49,3 @@ def missing_extra(what: str, extra: str, packages: str, exc: ImportError) -> Ctl
     missing = f"{exc.name} is not installed" if exc.name else str(exc)
     return CtlError(Exit.BAD_INPUT, "missing_package",
                     f"{what} needs {packages} on this computer ({missing}): pip install 'rita[{extra}]'")
-
-
-__all__ = ["CtlError", "Exit", "bad_input", "for_verdict", "missing_extra"]

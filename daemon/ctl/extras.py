@@ -43,6 +43,3 @@ def require(verb: str, extra: Extra) -> None:
             importlib.import_module(module)
         except ImportError as exc:
             raise missing_extra(verb, extra.name, extra.packages, exc) from None
-
-
-__all__ = ["CONSOLE", "EXTRAS", "LAPTOP", "Extra", "require"]

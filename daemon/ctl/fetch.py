@@ -230,6 +230,3 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no line per file: only the summary and failures")
     p.set_defaults(fn=cmd_fetch)
-
-
-__all__ = ["DEFAULT_PATHS", "FetchError", "add_parser", "cmd_fetch", "fetch", "fetch_file", "local_target"]

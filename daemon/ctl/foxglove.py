@@ -82,8 +82,3 @@ def log_record(entry: dict[str, Any]) -> dict[str, Any]:
     t = int(ts.get("sec", 0)) + int(ts.get("nsec", 0)) / 1e9
     return {"level": LEVEL_NAMES.get(int(entry.get("level", 0)), "NOTSET"), "logger": entry.get("name", ""),
             "message": entry.get("message", ""), "t": t}
-
-
-__all__ = ["LEVEL_NAMES", "LOG_LEVELS", "LOG_SCHEMA", "LOG_TOPIC", "ODOM_FRAME", "POSE_SCHEMA",
-           "ROBOT_POSE_TOPIC", "TRACKER_FRAME", "TRACKER_POSE_TOPIC", "log_entry", "log_record", "robot_pose",
-           "pose_in_frame", "stamp", "tracker_poses"]

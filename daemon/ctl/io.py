@@ -84,5 +84,3 @@ def subparsers_of(p: argparse.ArgumentParser) -> dict[str, argparse.ArgumentPars
         if isinstance(action, argparse._SubParsersAction):
             return dict(action.choices)
     return {}
-
-__all__ = ["ask", "fail", "print_result", "quiet_stdout", "say", "subparsers_of", "yes_after_ctrl_c"]

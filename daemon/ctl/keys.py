@@ -294,7 +294,3 @@ def add_parser(sub: Any) -> None:
                     "List the allow-list's keys and roles.")
     p.add_argument("--dir", metavar="DIR", help=allow_list)
     _bus_option(p)
-
-
-__all__ = ["DEFAULT_AUTH_DIR", "DEFAULT_KEY", "KeyConfigError", "add_parser", "client_curve", "cmd_keys",
-           "resolve_connection"]

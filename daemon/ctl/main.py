@@ -308,8 +308,5 @@ def main(argv: list[str] | None = None) -> int:
         return fail(Exit.INTERRUPTED, "interrupted", "interrupted (Ctrl-C)", as_json)
 
 
-__all__ = ["GLOBAL_OPTIONS", "build_parser", "check_endpoint", "main", "print_result", "subparsers_of"]
-
-
 if __name__ == "__main__":
     sys.exit(main())

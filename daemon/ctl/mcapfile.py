@@ -331,11 +331,3 @@ def pixels_of(raw: bytes | memoryview) -> memoryview:
     _, off = word(off)      # step
     n, off = word(off)      # data
     return view[off:off + n]
-
-
-__all__ = ["BATCHED", "COMMAND_SCHEMA", "COMPRESSED_IMAGE_ROS2MSG", "COMPRESSED_IMAGE_SCHEMA",
-           "END_METADATA_NAME", "FRAME_CHANNEL", "FRAME_HEADER_CHANNEL", "FRAME_HEADER_TOPIC",
-           "FRAME_TOPIC", "METADATA_NAME", "PROFILE", "RAW_IMAGE_ROS2MSG", "RAW_IMAGE_SCHEMA", "SEQ_MOD",
-           "UnsupportedFrame", "bus_topic", "compressed_data", "compressed_image", "drop_typed_nulls",
-           "infer_schema", "mcap_topic", "pixels_of", "raw_image", "raw_image_encoding", "restore_nulls",
-           "sample_time", "sample_times", "to_json"]

@@ -131,6 +131,3 @@ def add_parsers(sub: Any) -> None:
     u.add_argument("file", help="plate.json on this computer")
     u.add_argument("--name", metavar="NAME", help="file name on the robot (default: the file's own name)")
     u.set_defaults(fn=cmd_upload, parser_=u)
-
-
-__all__ = ["add_parsers", "cmd_survey", "cmd_upload"]

@@ -76,6 +76,3 @@ def add_procedure_parsers(sub: Any, common: argparse.ArgumentParser,
         for param in proc.params:
             _add_option(p, param)
         p.set_defaults(fn=lambda c, a, proc=proc: start(c, a, proc.name, params_of(proc, a)))
-
-
-__all__ = ["add_procedure_parsers", "params_of"]

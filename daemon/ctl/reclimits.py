@@ -83,6 +83,3 @@ class Limits:
             return f"the file reached --max-size {(self.max_size or 0) / 1e6:.1f} MB"
         return (f"free space on {self.folder} fell to the floor (--min-free {self.min_free / 1e6:.1f} MB; "
                 f"{self._free / 1e6:.1f} MB free at the last probe)")
-
-
-__all__ = ["DEFAULT_MIN_FREE", "Limits", "MIN_MAX_SIZE", "PROBE_BYTES", "RESERVE", "free_bytes", "parse_size"]

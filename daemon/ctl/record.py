@@ -328,7 +328,3 @@ def add_parser(sub: Any) -> None:
                    f"under SIZE (default {DEFAULT_MIN_FREE // 10**9}G)")
     p.add_argument("--force", action="store_true", help="replace FILE.mcap if it exists")
     p.set_defaults(fn=cmd_record)
-
-
-__all__ = ["COMPRESSIONS", "Counts", "Recorder", "add_parser", "sim_metadata", "check_out", "cmd_record",
-           "parse_frames", "partial_name", "progress_line"]

@@ -219,6 +219,3 @@ class Recorder:
                 "frames_dropped": str(c.frames_missed), "telemetry_missed": str(c.missed),
                 "frames_unsupported": str(c.unsupported)})
         self.writer.finish()  # type: ignore[no-untyped-call]  # mcap 1.6 leaves finish() unannotated
-
-
-__all__ = ["Counts", "FRAME_FORMATS", "IMAGE_OVERHEAD", "Recorder", "image_encoder"]

@@ -349,7 +349,3 @@ def add_parser(sub: Any) -> None:
                    help="keep answering for S seconds after the last message (default 1)")
     p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     p.set_defaults(fn=cmd_replay, offline=True)
-
-
-__all__ = ["ANSWERED", "DERIVED", "ReplayServer", "add_parser", "cmd_replay", "default_endpoint", "endpoints",
-           "messages", "play"]

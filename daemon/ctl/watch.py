@@ -286,6 +286,3 @@ def add_parser(sub: Any) -> None:
                    help="only telemetry topics starting with PREFIX (repeatable; e.g. calib.)")
     w.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     w.set_defaults(fn=cmd_watch)
-
-
-__all__ = ["LiveStatus", "NO_FRAMES", "Screen", "add_parser", "cmd_watch", "watch_frames", "watch_status"]

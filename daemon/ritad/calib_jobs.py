@@ -109,7 +109,7 @@ class CalibJobs:
         # ritad passes its own; alone (tests, tools) the mailbox has one of its own
         self._timeouts = timeouts if timeouts is not None else Timeouts("calib-timeouts")
         self.latch = latch if latch is not None else StopLatch(publish)
-        self._data_dir = Path(data_dir) if data_dir is not None else None  # finds jobs of an earlier daemon run
+        self._data_dir = Path(data_dir) if data_dir is not None else None  # finds an earlier run's jobs
         self._queue = _Mailbox(self._timeouts)
         self._inboxes: dict[str, _Mailbox] = collections.defaultdict(lambda: _Mailbox(self._timeouts))
         self.jobs: dict[str, dict[str, Any]] = {}
@@ -118,8 +118,8 @@ class CalibJobs:
     def _job_id(self, req: Request) -> str:
         job_id = req.args.get("job")
         if not isinstance(job_id, str) or not JOB_ID.fullmatch(job_id):
-            raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: 'job' must be a job id (letters, digits, . _ -), "
-                                                   f"got {job_id!r}")
+            raise CommandError(ErrorCode.BAD_ARGS,
+                               f"{req.cmd}: 'job' must be a job id (letters, digits, . _ -), got {job_id!r}")
         return job_id
 
     def _need_job(self, req: Request) -> dict[str, Any]:
@@ -164,8 +164,8 @@ class CalibJobs:
             check_params(proc, params, required=False, paths=False)
             job = self._resumable(req.cmd, self.jobs[job_id])
             if job["procedure"] != proc:
-                raise CommandError(ErrorCode.BAD_ARGS, f"calib.start: job {job_id!r} is a {job['procedure']} job, "
-                                                       f"not {proc}")
+                raise CommandError(ErrorCode.BAD_ARGS,
+                                   f"calib.start: job {job_id!r} is a {job['procedure']} job, not {proc}")
             return self._enqueue(job, "queued (resumed)")
         params = get(proc).resolve(params).to_dict()
         return self._enqueue(self._new_job(job_id, proc, params, req.peer, JobState.QUEUED), "queued")
@@ -185,11 +185,12 @@ class CalibJobs:
             raise CommandError(ErrorCode.BUSY, f"{cmd}: the worker has not yet ended the stopped run of job "
                                                f"{job['job']!r}; try again in a few seconds")
         if state == JobState.DONE:
-            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is done; there is nothing to resume "
-                                                   f"(start a new job to measure again)")
+            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is done; there is nothing "
+                                                   f"to resume (start a new job to measure again)")
         if state not in RESUMABLE:
-            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is still {state}; `ritactl follow "
-                                                   f"{job['job']}` to watch it or `ritactl cancel {job['job']}`")
+            raise CommandError(ErrorCode.BAD_ARGS, f"{cmd}: job {job['job']!r} is still {state}; "
+                                                   f"`ritactl follow {job['job']}` to watch it or "
+                                                   f"`ritactl cancel {job['job']}`")
         return job
 
     def _from_disk(self, cmd: str, job_id: str) -> dict[str, Any]:
@@ -211,13 +212,13 @@ class CalibJobs:
         job = self._need_job(req)
         prompt = job.get("prompt")
         if job["state"] != JobState.WAITING or not isinstance(prompt, dict):
-            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: job {job['job']!r} is {job['state']} and is not "
-                                                   f"asking anything now")
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: job {job['job']!r} is {job['state']} "
+                                                   f"and is not asking anything now")
         answer = req.args.get("answer")
         choices = [str(c) for c in prompt.get("choices") or ["ok"]]
         if not isinstance(answer, str) or answer.strip() not in choices:
-            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: answer {answer!r} is not one of the choices "
-                                                   f"{choices} (question: {prompt.get('question')})")
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.answer: answer {answer!r} is not one of the "
+                                                   f"choices {choices} (question: {prompt.get('question')})")
         self._inboxes[job["job"]].put({"answer": answer.strip()})
         job.update(prompt=None, state=JobState.RUNNING)
         return {"delivered": True}
@@ -225,8 +226,8 @@ class CalibJobs:
     def cancel(self, req: Request) -> Any:
         job = self._need_job(req)
         if job["state"] in (*FINAL_STATES, JobState.STOPPED):
-            raise CommandError(ErrorCode.BAD_ARGS, f"calib.cancel: job {job['job']!r} is already {job['state']}; "
-                                                   f"there is nothing to cancel")
+            raise CommandError(ErrorCode.BAD_ARGS, f"calib.cancel: job {job['job']!r} is already "
+                                                   f"{job['state']}; there is nothing to cancel")
         self._inboxes[job["job"]].put({"cancel": True})
         return {"cancel_requested": True, "state": job["state"]}
 
@@ -294,12 +295,13 @@ class CalibJobs:
             job.update(prompt=data, state=JobState.WAITING)
             self._publish(Topic.CALIB_PROMPT, {"job": job_id, **data})
         else:
-            # a run the latched stop ended is "stopped" (resumable after release), also for a job adopted above
+            # a run the latched stop ended is "stopped" (resumable after release), also a job adopted above
             stopped = kind == "error" and bool(data.get("stopped"))
             state = (JobState.DONE if kind == "result" else JobState.CANCELLED if data.get("cancelled") else
                      JobState.STOPPED if stopped else JobState.FAILED)
             payload = {"job": job_id, **data, "state": state, **({"failed": True} if kind == "error" else {})}
-            job.update(state=state, result=payload, prompt=None, run_ended=True if stopped else job.get("run_ended"),
+            job.update(state=state, result=payload, prompt=None,
+                       run_ended=True if stopped else job.get("run_ended"),
                        error=str(data.get("message", "failed")) if kind == "error" else None)
             log.info("job %s %s", job_id, state)
             self._publish(Topic.CALIB_RESULT, payload)

@@ -62,4 +62,5 @@ def insecure_tcp(cfg: config_mod.Config) -> list[str]:
     if cfg.security.curve:
         return []
     d = cfg.daemon
-    return [e for e in d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints if e.startswith("tcp://")]
+    eps = d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints
+    return [e for e in eps if e.startswith("tcp://")]

@@ -33,8 +33,6 @@ from daemon.ritad.timelines import COVER_WAIT_S, Timelines, frame_time
 from daemon.ritad.timeouts import Timeouts
 from drivers.base import DeviceError, Frame, Robot, Tracker, TrackerPoint
 
-__all__ = ["build_handlers", "chain", "gather"]
-
 
 def _point_dict(p: TrackerPoint, abs_H_trk: list[list[float]]) -> dict[str, Any]:
     return tracker_point_dict(p.to_dict(), abs_H_trk)  # abs_xyz + abs_H_trk: datasets cross-check them
@@ -107,8 +105,8 @@ def _check_motion(req: Request, amount: str, limit: float, speed: str, max_speed
     """Config limits (the table's ranges cannot know them), then the confirmation."""
     a, v = req.args[amount], req.args[speed]
     if abs(a) > limit:
-        raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: |{amount}|={abs(a):g} exceeds the configured limit "
-                                               f"{limit:g}")
+        raise CommandError(ErrorCode.BAD_ARGS,
+                           f"{req.cmd}: |{amount}|={abs(a):g} exceeds the configured limit {limit:g}")
     if v > max_speed:
         raise CommandError(ErrorCode.BAD_ARGS, f"{req.cmd}: {speed}={v:g} must be in (0, {max_speed:g}] "
                                                f"(the configured limit)")
@@ -125,7 +123,7 @@ def _robot(rob: RobotRig, calib: CalibJobs) -> dict[str, Handler]:
         a, v = req.args[amount], req.args[speed]
         timeout = req.args["timeout_s"] or 60.0 + 2 * abs(a) / v  # the table's default_text says the same
 
-        def guarded(robot: Robot) -> Any:  # again in the owner thread: a STOP may have come while this was queued
+        def guarded(robot: Robot) -> Any:  # again in the owner thread: a STOP may have come while queued
             latch.guard(req.cmd, _who(req))
             return fn(robot, a, v)
 
@@ -236,16 +234,17 @@ def _files(s: Services) -> dict[str, Handler]:
 
         return s.storage.submit(chunk)
 
-    return {"files.list": lambda req: s.storage.submit(files.list_files, root, req.args["path"] or "", private),
+    return {"files.list": lambda req: s.storage.submit(
+                files.list_files, root, req.args["path"] or "", private),
             "files.read": read,
-            "files.hash": lambda req: s.storage.submit(files.hash_file, root, req.args["path"], req.args["length"],
-                                                       private)}
+            "files.hash": lambda req: s.storage.submit(
+                files.hash_file, root, req.args["path"], req.args["length"], private)}
 
 
 def _plates(s: Services) -> dict[str, Handler]:
     """A plate surveyed on the laptop into the robot's calibration folder (checked, atomic, nothing lost)."""
-    return {"calib.plate.upload": lambda req: s.storage.submit(plates.store_plate, s.data_dir, req.args["plate"],
-                                                               req.args["name"], _who(req))}
+    return {"calib.plate.upload": lambda req: s.storage.submit(
+        plates.store_plate, s.data_dir, req.args["plate"], req.args["name"], _who(req))}
 
 
 def _keys(s: Services) -> dict[str, Handler]:
@@ -261,7 +260,8 @@ def _frames(cam: CameraRig, s: Services) -> dict[str, Handler]:
 
 
 def validated(cmd: str, handler: Handler, s: Services) -> Handler:
-    """``handler`` seeing ``req.args`` checked and defaulted by the command table; motions refused when latched."""
+    """``handler`` seeing ``req.args`` checked and defaulted by the command table;
+    motions refused when latched."""
     declared = s.table[cmd]
 
     def run(req: Request) -> Any:

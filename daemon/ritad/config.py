@@ -37,9 +37,10 @@ class ConfigError(ValueError):
 
 #: keys that were accepted once and are now refused with a pointer to what replaced them
 REMOVED_KEYS = {
-    "security.server_secret_key": "the server key is read from $CREDENTIALS_DIRECTORY/ritad-server.key_secret "
-                                  "(systemd LoadCredential=) or else <data_dir>/keys/server.key_secret; "
-                                  "delete this key (see docs/operations.md, Keys)",
+    "security.server_secret_key":
+        "the server key is read from $CREDENTIALS_DIRECTORY/ritad-server.key_secret "
+        "(systemd LoadCredential=) or else <data_dir>/keys/server.key_secret; "
+        "delete this key (see docs/operations.md, Keys)",
 }
 
 
@@ -211,15 +212,18 @@ def _validate(cfg: Config) -> None:
             raise ConfigError(f"{src}: daemon.{key} must name at least one endpoint")
         for ep in eps:
             if not ep.startswith(("tcp://", "ipc://", "inproc://")):
-                raise ConfigError(f"{src}: daemon.{key}: {ep!r} is not a tcp://, ipc:// or inproc:// endpoint")
+                raise ConfigError(f"{src}: daemon.{key}: {ep!r} is not a tcp://, ipc:// or "
+                                  f"inproc:// endpoint")
             if ep.startswith("tcp://") and not cfg.security.curve and not cfg.security.insecure_tcp:
                 raise ConfigError(f"{src}: daemon.{key}: {ep!r} is a tcp endpoint without CURVE: anyone who "
                                   f"reaches the port could move the robot. Set [security] curve = true "
                                   f"(docs/operations.md, Keys), use ipc only, or accept the risk with "
                                   f"[security] insecure_tcp = true")
-    positive = {"daemon.health_interval_s": d.health_interval_s, "daemon.max_message_bytes": d.max_message_bytes,
+    positive = {"daemon.health_interval_s": d.health_interval_s,
+                "daemon.max_message_bytes": d.max_message_bytes,
                 "daemon.frame_hwm": d.frame_hwm, "daemon.telemetry_hwm": d.telemetry_hwm,
-                "daemon.reconnect_min_s": d.reconnect_min_s, "daemon.heartbeat_timeout_s": d.heartbeat_timeout_s,
+                "daemon.reconnect_min_s": d.reconnect_min_s,
+                "daemon.heartbeat_timeout_s": d.heartbeat_timeout_s,
                 "daemon.open_timeout_s": d.open_timeout_s,
                 "tracker.stream_rate_hz": cfg.tracker.stream_rate_hz,
                 "robot.max_distance_mm": cfg.robot.max_distance_mm,
@@ -248,9 +252,10 @@ def _validate_camera(c: CameraSettings, src: str) -> None:
     if c.trigger not in ("software", "free"):
         raise ConfigError(f"{src}: camera.trigger {c.trigger!r} must be 'software' or 'free'")
     if isinstance(c.packet_size, str) and c.packet_size != "auto":
-        raise ConfigError(f"{src}: camera.packet_size {c.packet_size!r} must be \"auto\" or a number of bytes")
+        raise ConfigError(f'{src}: camera.packet_size {c.packet_size!r} must be "auto" or a number of bytes')
     if isinstance(c.packet_size, int) and not c.packet_size >= MIN_PACKET_BYTES:
-        raise ConfigError(f"{src}: camera.packet_size must be >= {MIN_PACKET_BYTES} bytes, got {c.packet_size}")
+        raise ConfigError(f"{src}: camera.packet_size must be >= {MIN_PACKET_BYTES} bytes, "
+                          f"got {c.packet_size}")
     if c.throughput_limit_bytes_s is not None and c.throughput_limit_bytes_s < 0:
         raise ConfigError(f"{src}: camera.throughput_limit_bytes_s must be >= 0 (0 = no limit), "
                           f"got {c.throughput_limit_bytes_s}")
@@ -286,8 +291,8 @@ def _validate_security(cfg: Config) -> None:
     if role not in ROLES:
         raise ConfigError(f"{cfg.source}: security.ipc_role {role!r} is not one of {', '.join(ROLES)}")
     if cfg.daemon.start_worker and role == "viewer":
-        raise ConfigError(f"{cfg.source}: security.ipc_role = \"viewer\" with daemon.start_worker = true: the "
-                          f"calibration worker connects over ipc and needs operator")
+        raise ConfigError(f'{cfg.source}: security.ipc_role = "viewer" with daemon.start_worker = true: '
+                          f"the calibration worker connects over ipc and needs operator")
 
 
 def _plugin_sections(data: dict[str, Any], source: str) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:

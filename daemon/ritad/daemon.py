@@ -17,9 +17,9 @@ import os
 import sys
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import zmq
 
@@ -188,10 +188,6 @@ class Daemon:
 
     def _devices(self) -> dict[str, dict[str, Any]]:
         return {rig.kind: rig.runner.snapshot() for rig in self.rigs}
-
-    def job(self, kind: str, fn: Callable[[Any], Any], *, timeout: float = 60.0) -> Future:
-        """``fn(device)`` in the owner thread of ``kind`` (tests, tools; handlers use their rig)."""
-        return next(rig for rig in self.rigs if rig.kind == kind).job(fn, timeout=timeout)
 
     def save_capture(self, parts: dict[str, Any], label: str, dataset: str | None = None) -> Path:
         """Store a capture (called in the storage thread, never in a device or bus thread)."""

@@ -54,7 +54,8 @@ def _downscaled(img: np.ndarray, width: int | None) -> tuple[np.ndarray, float]:
 
 def _to_sensor(uv: np.ndarray, scale: float) -> list[list[float]]:
     # pixel centres are integers (docs/datasets.md): scale about the half-pixel edge
-    return [[round(float(u), 2), round(float(v), 2)] for u, v in (np.asarray(uv).reshape(-1, 2) + 0.5) * scale - 0.5]
+    uv_s = (np.asarray(uv).reshape(-1, 2) + 0.5) * scale - 0.5
+    return [[round(float(u), 2), round(float(v), 2)] for u, v in uv_s]
 
 
 class Detections:
@@ -80,7 +81,8 @@ class Detections:
         plate = self._plate(a["plate_file"]) if a["target"] == "plate" else None  # a bad file first: named
         frame = self._latest()
         if frame is None:
-            raise CommandError(ErrorCode.NOT_FOUND, f"{CMD}: no streamed frame yet (camera.stream.start first)")
+            raise CommandError(ErrorCode.NOT_FOUND,
+                               f"{CMD}: no streamed frame yet (camera.stream.start first)")
         if not self._running.acquire(blocking=False):
             raise CommandError(ErrorCode.BUSY, f"{CMD}: a detection is already running (one at a time)")
         try:
@@ -94,8 +96,9 @@ class Detections:
             t0 = time.perf_counter()
             img = _gray8(frame)
             small, scale = _downscaled(img, a["width"])
-            out: dict[str, Any] = {"target": a["target"], "frame_id": frame.frame_id, "full_w": img.shape[1],
-                                   "full_h": img.shape[0], "searched_w": small.shape[1], "searched_h": small.shape[0]}
+            out: dict[str, Any] = {"target": a["target"], "frame_id": frame.frame_id,
+                                   "full_w": img.shape[1], "full_h": img.shape[0],
+                                   "searched_w": small.shape[1], "searched_h": small.shape[0]}
             out.update(self._corners(small, plate, scale) if plate is not None
                        else self._mark(small, a["target"], a["size_px"], scale))
             out["took_s"] = round(time.perf_counter() - t0, 3)
@@ -108,8 +111,8 @@ class Detections:
         from calibration.target import detect_corners
 
         ids, uv = detect_corners(img, plate, fast=True)
-        return {"found": len(ids) > 0, "n": int(len(ids)), "ids": [int(i) for i in ids], "uv": _to_sensor(uv, scale),
-                "plate_id": plate.plate_id}
+        return {"found": len(ids) > 0, "n": int(len(ids)), "ids": [int(i) for i in ids],
+                "uv": _to_sensor(uv, scale), "plate_id": plate.plate_id}
 
     @staticmethod
     def _mark(img: np.ndarray, kind: str, size_px: float | None, scale: float) -> dict[str, Any]:
@@ -122,7 +125,7 @@ class Detections:
             raise CommandError(ErrorCode.BAD_ARGS, f"{CMD}: {exc}") from None
         except CalibrationError as exc:
             return {"found": False, "n": 0, "message": str(exc)}
-        return {"found": True, "n": 1, "uv": _to_sensor(obs.uv, scale)[0]}  # one point: [u, v] (docs/protocol.md)
+        return {"found": True, "n": 1, "uv": _to_sensor(obs.uv, scale)[0]}  # one [u, v] (docs/protocol.md)
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -131,6 +134,3 @@ class Detections:
 def detect_handlers(latest: Callable[[], Frame | None], data_dir: Path,
                     private: tuple[str, ...] = PRIVATE_DIRS) -> dict[str, Callable[[Request], Any]]:
     return {CMD: Detections(latest, data_dir, private).handle}
-
-
-__all__ = ["Detections", "detect_handlers"]

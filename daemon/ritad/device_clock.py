@@ -107,7 +107,8 @@ class DeviceClock:
                 t, sigma = self._map.map_many(device_ns)
             except (ValueError, OverflowError):  # a sample the map cannot take must not stop the publishing
                 return payload
-        return {**payload, "t_ns": t, "t_sigma_ns": sigma} if batch else {**payload, "t_ns": t[0], "t_sigma_ns": sigma[0]}
+        return ({**payload, "t_ns": t, "t_sigma_ns": sigma} if batch
+                else {**payload, "t_ns": t[0], "t_sigma_ns": sigma[0]})
 
     def _add(self, device_ns: int, host_ns: int) -> bool:
         try:
@@ -161,9 +162,10 @@ class DeviceClock:
             if self._source == "ptp":
                 out.update(offset_ns=-TAI_MINUS_UTC_NS, drift_ppm=0.0, sigma_ns=self._sigma_ns,
                            clockmap={k: st[k] for k in ("offset_ns", "drift_ppm", "sigma_ns")})
-                if st["offset_ns"] is not None and abs(st["offset_ns"] + TAI_MINUS_UTC_NS) > PTP_MAP_DISAGREE_NS:
-                    out["note"] = (f"PTP time and the clock map disagree by {(st['offset_ns'] + TAI_MINUS_UTC_NS) / 1e9:+.3f}"
-                                   " s: is the host's clock on the camera's PTP master? (docs/operations.md)")
+                gap_ns = None if st["offset_ns"] is None else st["offset_ns"] + TAI_MINUS_UTC_NS
+                if gap_ns is not None and abs(gap_ns) > PTP_MAP_DISAGREE_NS:
+                    out["note"] = (f"PTP time and the clock map disagree by {gap_ns / 1e9:+.3f} s: is the "
+                                   "host's clock on the camera's PTP master? (docs/operations.md)")
             elif self._source == "host":
                 out.update(sigma_ns=self._sigma_ns,
                            note="the camera gives no device time; frames are timed by their arrival")
@@ -174,6 +176,7 @@ def _device_times(payload: Any) -> list[int] | None:
     """A packet's records' device times (ns; the tracker stamps s + µs), None when it has none."""
     dt = payload.get("device_time") if isinstance(payload, dict) else None
     try:
-        return [int(s) * 1_000_000_000 + int(us) * 1000 for s, us in zip(dt[0], dt[1], strict=True)]  # type: ignore[index]
+        return [int(s) * 1_000_000_000 + int(us) * 1000
+                for s, us in zip(dt[0], dt[1], strict=True)]  # type: ignore[index]
     except (TypeError, IndexError, KeyError, ValueError, OverflowError):
         return None

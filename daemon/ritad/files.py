@@ -142,6 +142,3 @@ def hash_file(root: Path, path: str, length: int | None = None,
     except OSError as exc:
         raise _unreadable("files.hash", path, exc) from None
     return {"path": path, "length": n - left, "size": size, "sha256": h.hexdigest()}
-
-
-__all__ = ["CHUNK_MAX", "LIST_MAX", "PRIVATE_DIRS", "confine", "hash_file", "list_files", "read_chunk"]

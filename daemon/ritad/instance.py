@@ -27,7 +27,8 @@ class AlreadyRunning(Exception):
 
 def ipc_paths(endpoints: list[str]) -> list[Path]:
     """File system paths of the ``ipc://`` endpoints (abstract ``ipc://@name`` has none)."""
-    return [Path(e[len("ipc://"):]) for e in endpoints if e.startswith("ipc://") and not e.startswith("ipc://@")]
+    return [Path(e[len("ipc://"):]) for e in endpoints
+            if e.startswith("ipc://") and not e.startswith("ipc://@")]
 
 
 def lock_dirs(cfg: Config) -> list[Path]:

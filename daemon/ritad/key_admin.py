@@ -45,7 +45,8 @@ def _guard(req: Request, fn: Callable[[], Any]) -> Any:
     return result
 
 
-def key_handlers(auth_dir: Path, submit: Callable[[Callable[[], Any]], Future]) -> dict[str, Callable[[Request], Any]]:
+def key_handlers(auth_dir: Path, submit: Callable[[Callable[[], Any]], Future]
+                 ) -> dict[str, Callable[[Request], Any]]:
     """Handlers of keys.list, keys.allow, keys.role, keys.revoke on the allow-list ``auth_dir``.
 
     ``submit`` runs file work off the server thread (the daemon's storage executor).
@@ -72,4 +73,5 @@ def key_handlers(auth_dir: Path, submit: Callable[[Callable[[], Any]], Future]) 
         name = _text(req, "name")
         return submit(lambda: _guard(req, lambda: roles.revoke(auth_dir, name)) or {"revoked": name})
 
-    return {"keys.list": keys_list, "keys.allow": keys_allow, "keys.role": keys_role, "keys.revoke": keys_revoke}
+    return {"keys.list": keys_list, "keys.allow": keys_allow, "keys.role": keys_role,
+            "keys.revoke": keys_revoke}

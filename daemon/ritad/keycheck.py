@@ -37,7 +37,8 @@ def server_key_candidates(cfg: Config, env: Mapping[str, str] = os.environ, unit
     return out + [Path(cfg.daemon.data_dir) / "keys" / "server.key_secret"]
 
 
-def key_problems(cfg: Config, env: Mapping[str, str] = os.environ, unit: Path = UNIT) -> tuple[list[str], list[str]]:
+def key_problems(cfg: Config, env: Mapping[str, str] = os.environ,
+                 unit: Path = UNIT) -> tuple[list[str], list[str]]:
     """(errors, warnings) about the configured key files; nothing to check without CURVE."""
     if not cfg.security.curve:
         return [], []
@@ -46,9 +47,9 @@ def key_problems(cfg: Config, env: Mapping[str, str] = os.environ, unit: Path = 
     errors, warnings = [], []
     if found is None:
         keys_dir = candidates[-1].parent
-        errors.append(f"security.curve is on but the server key file {candidates[-1]} does not exist (looked "
-                      f"in: {', '.join(map(str, candidates))}): create it with `ritactl keys init --server --dir "
-                      f"{keys_dir}`")
+        errors.append(f"security.curve is on but the server key file {candidates[-1]} does not exist "
+                      f"(looked in: {', '.join(map(str, candidates))}): create it with "
+                      f"`ritactl keys init --server --dir {keys_dir}`")
     else:
         try:
             load_keypair(found)
@@ -57,9 +58,7 @@ def key_problems(cfg: Config, env: Mapping[str, str] = os.environ, unit: Path = 
     auth = Path(cfg.security.authorized_keys_dir)
     auth = auth if auth.is_absolute() else Path(cfg.daemon.data_dir) / auth
     if not auth.is_dir():
-        warnings.append(f"security.authorized_keys_dir {auth} does not exist yet: no CURVE client can connect "
-                        f"until a key is allowed (`ritactl keys allow FILE.key --name NAME --role operator`)")
+        warnings.append(f"security.authorized_keys_dir {auth} does not exist yet: no CURVE client can "
+                        f"connect until a key is allowed "
+                        f"(`ritactl keys allow FILE.key --name NAME --role operator`)")
     return errors, warnings
-
-
-__all__ = ["UNIT", "key_problems", "server_key_candidates"]

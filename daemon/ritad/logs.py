@@ -38,7 +38,7 @@ class BusLogHandler(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
-            self._publish(Topic.LOG, {"level": record.levelname, "logger": record.name, "message": record.getMessage(),
-                                  "t": record.created})
+            self._publish(Topic.LOG, {"level": record.levelname, "logger": record.name,
+                                      "message": record.getMessage(), "t": record.created})
         except Exception:  # logging must never raise into the caller
             pass

@@ -42,8 +42,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     src.add_argument("--config", help="TOML config file (see systemd/ritad.toml)")
     src.add_argument("--sim", action="store_true", help="run on the simulated world (built-in config)")
     src.add_argument("--check-config", metavar="FILE",
-                     help="validate FILE (keys, values, endpoints, device URLs and their options) and exit; binds "
-                          "nothing, opens no device, safe beside a running ritad")
+                     help="validate FILE (keys, values, endpoints, device URLs and their options) and exit; "
+                          "binds nothing, opens no device, safe beside a running ritad")
     ap.add_argument("--runtime-dir", help="--sim: directory for the ipc endpoints (default: a temp dir)")
     ap.add_argument("--data-dir", help="override daemon.data_dir")
     ap.add_argument("--seed", type=int, default=1, help="--sim: world seed")
@@ -60,7 +60,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def load_config(args: argparse.Namespace) -> config_mod.Config:
     if args.sim:
-        runtime = args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR") or tempfile.mkdtemp(prefix="ritad-sim-")
+        runtime = (args.runtime_dir or os.environ.get("RITA_RUNTIME_DIR")
+                   or tempfile.mkdtemp(prefix="ritad-sim-"))
         return config_mod.sim_config(runtime, args.data_dir, seed=args.seed, profile=args.profile or "ideal")
     cfg = config_mod.load(args.config or args.check_config)
     if args.data_dir:
@@ -78,7 +79,8 @@ def serve(cfg: config_mod.Config, notifier: Notifier) -> int:
     except (zmq.ZMQError, OSError, ValueError) as exc:
         log.error("cannot start: %s", exc)  # on stderr (the journal) once: logging writes there
         d = cfg.daemon
-        remove_socket_files(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)  # ours: we hold the lock
+        # ours: we hold the lock
+        remove_socket_files(d.command_endpoints + d.telemetry_endpoints + d.frame_endpoints)
         return RitadExit.CANNOT_START
     daemon.start()
     from daemon.ritad.logs import BusLogHandler

@@ -73,7 +73,8 @@ class MotionWaiters:
 
         def expire() -> None:
             if self._forget(done):
-                done.set_exception(CommandError(ErrorCode.TIMEOUT, f"robot motion not done after {timeout:.0f} s"))
+                done.set_exception(CommandError(ErrorCode.TIMEOUT,
+                                                f"robot motion not done after {timeout:.0f} s"))
 
         self._submit(fn).add_done_callback(started)
         pending = self._timeouts.call_later(timeout, expire)

@@ -31,11 +31,12 @@ RESERVED = frozenset({"active.json", "camera_model.json", "tracker_station.json"
 
 def _checked_name(name: str) -> str:
     if not NAME.match(name) or ".." in name:
-        raise CommandError(ErrorCode.BAD_ARGS, f"calib.plate.upload: name={name!r} must be a file name like "
-                                               f"plate.json (letters, digits, _ . -; ending .json; no folders)")
+        raise CommandError(ErrorCode.BAD_ARGS,
+                           f"calib.plate.upload: name={name!r} must be a file name like plate.json "
+                           f"(letters, digits, _ . -; ending .json; no folders)")
     if name in RESERVED:
-        raise CommandError(ErrorCode.BAD_ARGS, f"calib.plate.upload: name={name!r} is the worker's own file in the "
-                                               f"calibration folder: choose another name")
+        raise CommandError(ErrorCode.BAD_ARGS, f"calib.plate.upload: name={name!r} is the worker's own "
+                                               f"file in the calibration folder: choose another name")
     return name
 
 
@@ -44,8 +45,9 @@ def _checked_plate(plate: dict[str, Any], name: str) -> bytes:
     if problems:
         listed = "; ".join(f"{p.path}: {p.message}" for p in problems[:8])
         more = f" (and {len(problems) - 8} more)" if len(problems) > 8 else ""
-        raise CommandError(ErrorCode.BAD_ARGS, f"calib.plate.upload: the plate is not a valid plate definition "
-                                               f"(docs/datasets.md, plate.schema.json): {listed}{more}")
+        raise CommandError(ErrorCode.BAD_ARGS,
+                           f"calib.plate.upload: the plate is not a valid plate definition "
+                           f"(docs/datasets.md, plate.schema.json): {listed}{more}")
     return (json.dumps(plate, indent=2) + "\n").encode("utf-8")
 
 
@@ -61,7 +63,7 @@ def store_plate(data_dir: Path, plate: dict[str, Any], name: str, who: str) -> d
             return _answer(data_dir, target, data, None, unchanged=True)
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
         kept = cdir / "history" / "plates" / f"{target.stem}-{stamp}-{time.time_ns() % 1_000_000:06d}.json"
-        atomic_write_bytes(kept, target.read_bytes())  # a copy first: the old plate survives any failure below
+        atomic_write_bytes(kept, target.read_bytes())  # a copy first: the old plate survives a failure below
     atomic_write_bytes(target, data)
     log.info("plate %s stored by %s (plate_id %s%s)", target, who, plate.get("plate_id"),
              f"; the previous one kept as {kept}" if kept else "")
@@ -74,6 +76,3 @@ def _answer(data_dir: Path, target: Path, data: bytes, kept: Path | None, unchan
 
     return {"path": rel(target), "sha256": hashlib.sha256(data).hexdigest(), "size": len(data),
             "replaced": rel(kept) if kept else None, "unchanged": unchanged}
-
-
-__all__ = ["store_plate"]

@@ -60,7 +60,8 @@ class Plugin(Protocol):
     commands: tuple[Command, ...]
 
     def check_config(self, table: Mapping[str, Any], where: str) -> dict[str, Any]: ...
-    def start(self, section: Mapping[str, Any], data_dir: Path, urls: Mapping[str, str]) -> Session | None: ...
+    def start(self, section: Mapping[str, Any], data_dir: Path,
+              urls: Mapping[str, str]) -> Session | None: ...
 
 
 @runtime_checkable
@@ -88,7 +89,8 @@ def installed(table: CommandTable | None = None) -> dict[str, Plugin]:
         try:
             plugin = load_target(target, f"plugin {name!r}")
         except Exception as exc:  # a broken third-party install: name it, never a traceback
-            raise PluginError(f"plugin {name!r} ({target}) cannot be loaded: {type(exc).__name__}: {exc}") from exc
+            raise PluginError(f"plugin {name!r} ({target}) cannot be loaded: "
+                              f"{type(exc).__name__}: {exc}") from exc
         if getattr(plugin, "name", None) != name:
             raise PluginError(f"entry point plugin.{name} = {target} names a plugin called "
                                f"{getattr(plugin, 'name', None)!r}")
@@ -121,8 +123,9 @@ class Running:
             given = session.handlers(services) if session is not None else {}
             for c in plugin.commands:
                 def absent(req: Request, _name: str = name) -> Any:
-                    raise CommandError(ErrorCode.NOT_FOUND, f"{req.cmd}: plugin {_name!r} is not running in "
-                                                            f"this daemon (no device of its URLs is configured)")
+                    raise CommandError(ErrorCode.NOT_FOUND,
+                                       f"{req.cmd}: plugin {_name!r} is not running in this daemon "
+                                       f"(no device of its URLs is configured)")
                 out[c.name] = given.get(c.name, absent)
         return out
 
@@ -153,7 +156,8 @@ def start(plugins: Mapping[str, Plugin], sections: Mapping[str, Mapping[str, Any
 
 def markdown() -> str:
     """The installed plugins' command tables (docs/protocol.md)."""
-    return "".join(f"\n`{name}` plugin:\n\n{markdown_table(tuple(p.commands))}" for name, p in installed().items())
+    return "".join(f"\n`{name}` plugin:\n\n{markdown_table(tuple(p.commands))}"
+                   for name, p in installed().items())
 
 
 if __name__ == "__main__":

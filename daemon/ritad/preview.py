@@ -35,7 +35,8 @@ def display_grey(frame: Frame) -> np.ndarray:
     if fmt.startswith("Bayer"):
         from calibration.image import OPENCV_BAYER
 
-        return cv2.cvtColor(np.ascontiguousarray(img), getattr(cv2, f"COLOR_Bayer{OPENCV_BAYER[fmt[5:7]]}2GRAY"))
+        code = getattr(cv2, f"COLOR_Bayer{OPENCV_BAYER[fmt[5:7]]}2GRAY")
+        return cv2.cvtColor(np.ascontiguousarray(img), code)
     if img.ndim == 3:
         return cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
     if img.ndim != 2:
@@ -74,8 +75,9 @@ class Previews:
         ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, a["quality"]])
         if not ok:
             raise CommandError(ErrorCode.INTERNAL, "camera.preview: JPEG encoding failed")
-        reply = Reply({"header": frame.header(), "format": "jpeg", "x": x, "y": y, "w": w, "h": h, "step": step,
-                       "out_w": small.shape[1], "out_h": small.shape[0], "full_w": W, "full_h": H},
+        reply = Reply({"header": frame.header(), "format": "jpeg", "x": x, "y": y, "w": w, "h": h,
+                       "step": step, "out_w": small.shape[1], "out_h": small.shape[0],
+                       "full_w": W, "full_h": H},
                       [jpeg.tobytes()])
         with self._lock:
             self._cache = (key, reply)
@@ -87,6 +89,3 @@ class Previews:
 
 def preview_handlers(latest: Callable[[], Frame | None]) -> dict[str, Callable[[Request], Any]]:
     return {"camera.preview": Previews(latest).handle}
-
-
-__all__ = ["Previews", "preview_handlers"]

@@ -178,7 +178,6 @@ class FramePublisher(_Publisher):
         super().__init__("pub-frames", ctx, endpoints, hwm, queue_size, security)
         self._drops_lock = threading.Lock()  # the camera's thread and this one both count drops
         self._dropped = 0  # frames dropped (publisher or subscriber could not keep up)
-        self.last_header: dict[str, Any] | None = None
         self.last_frame: Frame | None = None  # camera.preview makes live-view pictures from it
 
     def _drop(self) -> None:
@@ -212,5 +211,4 @@ class FramePublisher(_Publisher):
             except zmq.Again:
                 self._drop()
         self.sent += 1
-        self.last_header = header
         self.last_frame = frame

@@ -145,6 +145,3 @@ class Rigs:
     def info(self, kind: str) -> dict[str, Any]:
         """What the device of ``kind`` said about itself when it opened (plugins read the camera's size)."""
         return next(r.runner.info for r in self if r.kind == kind)
-
-
-__all__ = ["CameraRig", "Rig", "Rigs", "RobotRig", "TrackerRig"]

@@ -93,8 +93,8 @@ class DeviceRunner(threading.Thread):
         gate's halt goes out ahead of any job, drivers/motion_gate.py)."""
         fut: Future = Future()
         if self.state not in (DeviceState.READY, DeviceState.BUSY):
-            fut.set_exception(CommandError(
-                ErrorCode.NOT_READY, f"{self.kind} is {self.state.value}" + (f": {self.reason}" if self.reason else "")))
+            why = f": {self.reason}" if self.reason else ""
+            fut.set_exception(CommandError(ErrorCode.NOT_READY, f"{self.kind} is {self.state.value}{why}"))
             return fut
         self._jobs.put(_Job(fn, fut, timeout))
         device = self.device
@@ -229,7 +229,8 @@ class DeviceRunner(threading.Thread):
         except Exception as exc:
             self.jobs_failed += 1
             log.exception("%s: job failed", self.kind)
-            job.future.set_exception(CommandError(ErrorCode.INTERNAL, f"{self.kind}: {type(exc).__name__}: {exc}"))
+            job.future.set_exception(CommandError(ErrorCode.INTERNAL,
+                                                  f"{self.kind}: {type(exc).__name__}: {exc}"))
         else:
             self.jobs_done += 1
             job.future.set_result(result)

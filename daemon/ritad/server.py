@@ -188,7 +188,8 @@ class CommandServer(threading.Thread):
     def _caller(self, sock: zmq.Socket, frames: list[zmq.Frame]) -> Caller | None:
         """Who sent ``frames`` and their role; None for a CURVE key that is no longer allowed."""
         if sock not in self._curve_socks:
-            return Caller(f"local peer-{bytes(frames[0].bytes).hex()[:10]}", "local client", self.plain_role, None)
+            peer = f"local peer-{bytes(frames[0].bytes).hex()[:10]}"
+            return Caller(peer, "local client", self.plain_role, None)
         try:
             user_id = frames[-1].get("User-Id")  # the z85 public key ZAP accepted at the handshake
         except (zmq.ZMQError, AttributeError):
@@ -213,7 +214,8 @@ class CommandServer(threading.Thread):
             return None
         why = refusal(cmd, caller.role, caller.who, self.table)
         if why is not None:  # a WARNING naming the sender (rate-limited like every refusal)
-            self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd, f"from {caller.peer}, role {caller.role}")
+            self._error(envelope, req_id, ErrorCode.FORBIDDEN, why, cmd,
+                        f"from {caller.peer}, role {caller.role}")
             self._audit(audit(caller), ErrorCode.FORBIDDEN, why)
             return None
         return caller

@@ -28,7 +28,7 @@ class Reports:
 
 @dataclass(frozen=True)
 class Services:
-    storage: Executor                    # the one storage thread: file work never holds up a device or the bus
+    storage: Executor                    # the one storage thread: file work never holds up a device or bus
     data_dir: Path
     private_dirs: tuple[str, ...]        # top-level data-dir folders files.* never serve
     auth_dir: Path                       # the CURVE allow-list folder (keys.* commands, admin)

@@ -54,7 +54,8 @@ class StopLatch:
 
     def _load(self) -> None:
         try:
-            st = json.loads(self._path.read_text()) if self._path is not None and self._path.exists() else None
+            st = (json.loads(self._path.read_text())
+                  if self._path is not None and self._path.exists() else None)
         except (OSError, ValueError) as exc:  # unreadable: fail safe, stay stopped
             st = {"latched": True, "by": "ritad", "reason": f"latch file unreadable ({exc})"}
         if isinstance(st, dict) and st.get("latched"):

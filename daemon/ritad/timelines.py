@@ -43,7 +43,8 @@ class Timelines:
     """The streams a capture looks up, fed by each device's rig (daemon/ritad/rigs.py) with its own clock."""
 
     def __init__(self) -> None:
-        self.streams = {name: TimeSeries(name, fields, angles=angles) for name, (fields, angles) in STREAMS.items()}
+        self.streams = {name: TimeSeries(name, fields, angles=angles)
+                        for name, (fields, angles) in STREAMS.items()}
         self._arrived = threading.Condition()
 
     def observe(self, topic: str, payload: Any, clock: DeviceClock) -> Any:
@@ -125,6 +126,3 @@ def frame_time(header: dict[str, Any]) -> tuple[int, int] | None:
     """A frame's exposure mid-time on the host's timeline and its sigma, None when it has none."""
     t = header.get("t_ns")
     return None if t is None else (int(t), int(header.get("t_sigma_ns") or 0))
-
-
-__all__ = ["ARRIVAL_SIGMA_NS", "COVER_WAIT_S", "LIVE_NS", "REACH_NS", "STREAMS", "Timelines", "frame_time"]

@@ -88,6 +88,3 @@ class Timeouts:
                     fn()
                 except Exception:  # one bad callback must not end every other timeout
                     log.exception("timeout callback failed")
-
-
-__all__ = ["Timeout", "Timeouts"]

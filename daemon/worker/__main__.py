@@ -64,8 +64,8 @@ def _compute(ctx: JobContext, before: dict[str, Any]) -> dict[str, Any]:
         if before.get("step") == ctx.step and before.get("obs") == _digest(ctx.obs):
             # resuming re-ran the calculation on exactly the data that failed before
             raise StepFailed("the calculation failed again on the same stored data (nothing was re-measured "
-                             f"since the last attempt): {operator_message(exc)}. Start a new job after fixing "
-                             f"the cause", resumable=False) from exc
+                             f"since the last attempt): {operator_message(exc)}. Start a new job after "
+                             f"fixing the cause", resumable=False) from exc
         raise
 
 
@@ -108,7 +108,8 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
                 if getattr(exc, "resumable", True) else f"The data is kept in {ctx.root}.")
         msg = f"{ctx.step}: {operator_message(exc)}. {hint}"
         log.error("job %s failed: %s", ctx.job_id, msg)
-        if not isinstance(exc, (CommandError, ValueError, TimeoutError, OSError, CalibrationError, StepFailed)):
+        expected = (CommandError, ValueError, TimeoutError, OSError, CalibrationError, StepFailed)
+        if not isinstance(exc, expected):  # a bug: its traceback goes to the log
             log.error("%s", traceback.format_exc())
         ctx.report("error", {"message": msg, "step": ctx.step})
         return None
@@ -147,11 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m daemon.worker", description="Rita calibration worker")
     ap.add_argument("--endpoint", help="ritad command endpoint (default $RITA_ENDPOINT)")
     ap.add_argument("--data-dir", help="where datasets and results go (default: the daemon's data_dir)")
-    ap.add_argument("--once", action="store_true", help="exit after one job (tests)")
     ap.add_argument("--parent-pid", type=int, help="exit when this process (ritad) is gone")
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
     def on_term(*_: object) -> None:
         # leave at once, even from inside a long poll or a job: every completed step is
@@ -174,8 +175,6 @@ def main(argv: list[str] | None = None) -> int:
             continue
         log.info("resuming job %s (%s)", job["job"], job["procedure"])
         run_job(client, job, data_dir)
-        if args.once:
-            return 0
     log.info("waiting for jobs from %s", client.endpoint)
     while True:
         if args.parent_pid and os.getppid() != args.parent_pid:
@@ -187,8 +186,6 @@ def main(argv: list[str] | None = None) -> int:
             continue  # the daemon may be restarting: keep trying
         if job:
             run_job(client, job, data_dir)
-            if args.once:
-                return 0
 
 
 if __name__ == "__main__":

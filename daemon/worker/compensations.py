@@ -56,8 +56,8 @@ def store_bias(data_dir: Path, result: dict[str, Any]) -> str:
         return "robot-frame bias NOT stored: there is no active calibration"
     active = json.loads(path.read_text())
     if active.get("job") != result.get("calibration_job"):
-        return (f"robot-frame bias NOT stored: the experiment used calibration {result.get('calibration_job')!r} "
-                f"but {active.get('job')!r} is active now")
+        return (f"robot-frame bias NOT stored: the experiment used calibration "
+                f"{result.get('calibration_job')!r} but {active.get('job')!r} is active now")
     try:
         new = biased_calibration(active, result, time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
     except ValueError as exc:

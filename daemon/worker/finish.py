@@ -46,6 +46,3 @@ def finish(ctx: JobContext, result: dict[str, Any]) -> dict[str, Any]:
     """The procedure's finish, if it has one; the result as finally stored."""
     step = FINISH.get(ctx.procedure)
     return result if step is None else step(ctx, result)
-
-
-__all__ = ["FINISH", "finish"]

@@ -98,6 +98,3 @@ def guided_intrinsics(ctx: JobContext) -> None:
             views.append(entry)
         ctx.mark_done(name)
     ctx.progress("calibrate the camera", 92, "")
-
-
-__all__ = ["MIN_VIEW_CORNERS", "SETUP", "guided_intrinsics"]

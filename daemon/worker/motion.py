@@ -90,7 +90,3 @@ def confirm_done(ctx: JobContext, kind: str, commanded: float, start: dict[str, 
     except MotionIncomplete:
         ctx.check_cancel()
         raise
-
-
-__all__ = ["HEADING_TOL_DEG", "ODOMETRY_TOL_MM", "MotionIncomplete", "check_motion", "confirm_done",
-           "odometry_delta"]

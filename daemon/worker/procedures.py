@@ -182,12 +182,12 @@ def measure_stop(ctx: JobContext, nav: Navigator, name: str, mark_xy: np.ndarray
     P_prev, P_at = nav.last_points  # both frames + abs_H_trk, as tracker.measure returned them
     file, header, _ = ctx.capture_image(name)
     robot = ctx.call("robot.status")
-    # the compensations' inputs: the inclinometer at both stops and the stream between them, when the base/tracker give them
+    # the compensations' inputs: inclinometer at both stops, stream between them (when base/tracker give them)
     imu_at = read_tilt(ctx.call, ctx.params.imu_readings, ctx.params.imu_interval_s)
     rec = {"imu_at": imu_at, **nav.last_record}
-    return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot, "heading_cmd_deg": heading,
-            "offset_mm": offset.tolist(), "move_mm": float(ctx.params.distance_mm),
-            **{k: v for k, v in rec.items() if v}}
+    return {"image": file, "header": header, "P_prev": P_prev, "P_at": P_at, "robot": robot,
+            "heading_cmd_deg": heading, "offset_mm": offset.tolist(),
+            "move_mm": float(ctx.params.distance_mm), **{k: v for k, v in rec.items() if v}}
 
 
 def _calibration(ctx: JobContext) -> dict[str, Any]:

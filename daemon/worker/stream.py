@@ -19,7 +19,7 @@ record's ``tilt_source`` says which.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -97,6 +97,16 @@ def _abs_points(msgs: list[dict[str, Any]], abs_H_trk: np.ndarray
     return P[order] @ abs_H_trk[:3, :3].T + abs_H_trk[:3, 3], t[order], sigma
 
 
+def _datas(sub: Subscriber, wait_s: float) -> Iterator[dict[str, Any]]:
+    """The ``data`` of each message ``sub`` receives within ``wait_s`` s."""
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
+        data = got[1].get("data") if got is not None and isinstance(got[1], dict) else None
+        if isinstance(data, dict):
+            yield data
+
+
 def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, wait_s: float) -> None:
     """Read tracker.point messages (their ``data``) until one holds a record after ``t_end_ns``.
 
@@ -104,13 +114,8 @@ def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, w
     up on the way (a busy host) arrives late too. Its records' own times, on the host clock
     through the clock map, must reach ``t_end_ns``.
     """
-    end = time.monotonic() + wait_s
-    while time.monotonic() < end:
-        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
-        if got is None:
-            continue
-        data = got[1].get("data") if isinstance(got[1], dict) else None
-        if isinstance(data, dict) and data.get("n"):
+    for data in _datas(sub, wait_s):
+        if data.get("n"):
             msgs.append(data)
             if int(data["host_time_ns"]) >= t_end_ns and int(_host_times(msgs)[0].max()) >= t_end_ns:
                 return
@@ -119,11 +124,8 @@ def _collect_until(sub: Subscriber, msgs: list[dict[str, Any]], t_end_ns: int, w
 def _collect_incl(sub: Subscriber, t_end_ns: int, wait_s: float) -> list[dict[str, Any]]:
     """The ``robot.incl`` batches read until one holds a sample at or after ``t_end_ns`` (host timeline)."""
     msgs: list[dict[str, Any]] = []
-    end = time.monotonic() + wait_s
-    while time.monotonic() < end:
-        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
-        data = got[1].get("data") if got is not None and isinstance(got[1], dict) else None
-        if isinstance(data, dict) and data.get("n") and data.get("t_ns"):
+    for data in _datas(sub, wait_s):
+        if data.get("n") and data.get("t_ns"):
             msgs.append(data)
             if max(data["t_ns"]) >= t_end_ns:
                 break
@@ -167,13 +169,7 @@ def _thin(n: int, most: int) -> np.ndarray:
 
 def _done_event(sub: Subscriber, wait_s: float) -> dict[str, Any] | None:
     """The move's DONE event (its ``result`` says whether the base executed all of it), or None."""
-    end = time.monotonic() + wait_s
-    while time.monotonic() < end:
-        got = sub.recv(timeout=min(0.1, max(0.0, end - time.monotonic())))
-        data = got[1].get("data") if got is not None and isinstance(got[1], dict) else None
-        if isinstance(data, dict) and data.get("event") == "DONE":
-            return data
-    return None
+    return next((data for data in _datas(sub, wait_s) if data.get("event") == "DONE"), None)
 
 
 def _drive_polling_tilt(ctx: JobContext, distance_mm: float, speed_mm_s: float, timeout_s: float

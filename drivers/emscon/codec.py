@@ -41,13 +41,12 @@ class ProtocolError(Exception):
 #: result packets: data type -> fields after the 12-byte ReturnDataT prefix
 _STD = parse_fields("std1:d std2:d std3:d std_total:d")
 _APRIORI = parse_fields("apriori_std1:d apriori_std2:d apriori_std3:d apriori_std_total:d")
-_ENV_TAIL = ENV_FIELDS
 RESULTS: dict[ES_DataType, Fields] = {
     ES_DataType.SingleMeasResult: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
-    + parse_fields("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + _ENV_TAIL,
+    + parse_fields("pointing_error1:d pointing_error2:d pointing_error3:d") + _APRIORI + ENV_FIELDS,
     ES_DataType.SingleMeasResult2: parse_fields("meas_mode:i is_try_mode:i") + XYZ_FIELDS + _STD
     + parse_fields("covar12:d covar13:d covar23:d pointing_error_h:d pointing_error_v:d pointing_error_d:d")
-    + _APRIORI + parse_fields("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + _ENV_TAIL,
+    + _APRIORI + parse_fields("apriori_covar12:d apriori_covar13:d apriori_covar23:d") + ENV_FIELDS,
     ES_DataType.MultiMeasResult: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
     ES_DataType.MultiMeasResult2: parse_fields("number_of_results:i meas_mode:i is_try_mode:i") + ENV_FIELDS,
     ES_DataType.ReflectorPosResult: XYZ_FIELDS,
@@ -78,15 +77,6 @@ _CODES = {"i": "i", "d": "d", "s": f"{2 * STRING_UNITS}s"}
 def fields_struct(prefix: str, fields: Fields) -> struct.Struct:
     """The ``struct.Struct`` of a whole packet: prefix format plus the fields."""
     return struct.Struct("<" + prefix + "".join(_CODES[code] for _, code in fields))
-
-
-def field_offsets(prefix_size: int, fields: Fields) -> dict[str, int]:
-    """Byte offset of each field (for golden tests against the header tables)."""
-    out, pos = {}, prefix_size
-    for name, code in fields:
-        out[name] = pos
-        pos += struct.calcsize("<" + _CODES[code])
-    return out
 
 
 # prefixes: CT = size,type,command; RT/error = size,type,command,status;

@@ -6,8 +6,20 @@ import itertools
 import numpy as np
 import pytest
 
-from calibration.metrics import (direction_name, experiment_metrics, fit_bias, min_enclosing_circle,
-                                 min_enclosing_circle_brute)
+from calibration.metrics import (_circle2, _circle3, direction_name, experiment_metrics, fit_bias,
+                                 min_enclosing_circle)
+
+
+def min_enclosing_circle_brute(points) -> tuple[np.ndarray, float]:
+    """Reference O(N⁴) solution over all pair and triple circles (small sets only)."""
+    P = np.asarray(points, dtype=float)
+    best = (P[0], 0.0) if len(P) == 1 else (P[0], np.inf)
+    cands = [_circle2(P[i], P[j]) for i, j in itertools.combinations(range(len(P)), 2)]
+    cands += [_circle3(P[i], P[j], P[k]) for i, j, k in itertools.combinations(range(len(P)), 3)]
+    for c, r in cands:
+        if r < best[1] and np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-9) + 1e-12):
+            best = (c, r)
+    return best
 
 
 def test_enclosing_circle_matches_brute_force_on_random_small_sets():

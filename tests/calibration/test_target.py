@@ -6,11 +6,16 @@ import pytest
 
 from calibration import target
 from calibration.errors import CalibrationError
-from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_z, rotation_error_deg
+from calibration.frames import apply_H, inv_H, make_H, rot_x, rot_z, rotation_angle
 from calibration.target import (_consistent, _detect_markers, _marker_codes, detect_corners, estimate_cam_H_ref,
                                 make_board, pose_from_corners)
 from fakes.render import Renderer, world_camera_model
 from fakes.world import World, WorldParams
+
+
+def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
+    """Angle of ``R_estᵀ R_true`` in degrees."""
+    return float(np.degrees(rotation_angle(R_est.T @ R_true)))
 
 
 def footprint_ref(cam_H_ref: np.ndarray) -> np.ndarray:

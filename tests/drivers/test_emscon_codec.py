@@ -13,7 +13,7 @@ import pytest
 from drivers.emscon import codec as C
 from drivers.emscon.codec import (COMMANDS, MEAS_VALUE, MEAS_VALUE2, RESULTS, TO_CLIENT, TO_SERVER,
                                   ProtocolError, decode, encode, encode_answer, encode_error,
-                                  encode_request, encode_result, encode_status_change, field_offsets)
+                                  encode_request, encode_result, encode_status_change, fields_struct)
 from drivers.emscon.enums import ES_Command as Cmd
 from drivers.emscon.enums import ES_DataType, ES_ResultStatus, ES_SystemStatusChange
 from drivers.emscon.framer import Framer
@@ -75,6 +75,12 @@ def test_command_sizes(cmd: Cmd) -> None:
     assert len(encode_request(cmd)) == ct
     assert len(encode_answer(cmd, 0)) == rt
     assert struct.unpack_from("<i", encode_request(cmd))[0] == ct
+
+
+def field_offsets(prefix_size: int, fields) -> dict[str, int]:
+    """Byte offset of each field in the struct the codec packs: the size of the fields before it."""
+    prefix = "i" * (prefix_size // 4)
+    return {name: fields_struct(prefix, fields[:i]).size for i, (name, _) in enumerate(fields)}
 
 
 @pytest.mark.parametrize("key", list(OFFSETS), ids=lambda k: f"{k[0].name}-{k[1]}")

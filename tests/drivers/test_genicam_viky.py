@@ -21,6 +21,21 @@ from drivers.camera_settings import CameraSettings
 from drivers.genicam import GenICamCamera, select_device
 from tools.harness.load import hang_s
 
+
+def configure(cam: GenICamCamera, settings: CameraSettings) -> None:
+    """New desired settings applied to the open camera now, as a reconnect would apply them (ritad never
+    changes them while running: they come from its config)."""
+    cam.settings = settings
+    streaming = cam._streaming
+    cam._stop_acquisition()
+    cam._streaming = False
+    cam._apply()
+    if streaming:
+        cam.start_stream()
+    elif cam._software:
+        cam._start_acquisition()
+
+
 pytestmark = pytest.mark.timeout(60)
 
 
@@ -190,7 +205,7 @@ def test_warnings_for_features_viky_lacks(cam: GenICamCamera) -> None:
     assert "trigger() takes the next free-run frame" in warnings
     assert "PtpEnable" not in warnings  # ptp=None: left alone
     assert cam.status()["software_trigger"] is False
-    cam.configure(CameraSettings(pixel_format="Mono8", ptp=True, exposure_us=None, gain_db=None,
+    configure(cam, CameraSettings(pixel_format="Mono8", ptp=True, exposure_us=None, gain_db=None,
                                  frame_rate_hz=None, trigger="free"))
     warnings = cam.status()["warnings"]
     assert warnings == ["camera has no PtpEnable; PtpEnable=True not applied"]
@@ -198,17 +213,17 @@ def test_warnings_for_features_viky_lacks(cam: GenICamCamera) -> None:
 
 def test_unchanged_settings_are_not_rewritten(cam: GenICamCamera) -> None:
     before = cam.status()
-    cam.configure(SMALL)
+    configure(cam, SMALL)
     after = cam.status()
     assert after["applies"] == before["applies"] + 1
     assert after["writes"] == before["writes"]
-    cam.configure(CameraSettings(pixel_format="Mono8", width=300, height=240, frame_rate_hz=200.0))
+    configure(cam, CameraSettings(pixel_format="Mono8", width=300, height=240, frame_rate_hz=200.0))
     assert cam.status()["writes"] == after["writes"] + 1
     assert cam.trigger(timeout=2.0).pixels.shape == (240, 300)
 
 
 def test_rgba_frames_have_a_channel_axis(cam: GenICamCamera) -> None:
-    cam.configure(CameraSettings(pixel_format="RGBa8", width=200, height=100, frame_rate_hz=200.0))
+    configure(cam, CameraSettings(pixel_format="RGBa8", width=200, height=100, frame_rate_hz=200.0))
     frame = cam.trigger(timeout=2.0)
     assert frame.pixels.shape == (100, 200, 4)
     assert frame.pixel_format == "RGBa8"
@@ -216,14 +231,14 @@ def test_rgba_frames_have_a_channel_axis(cam: GenICamCamera) -> None:
 
 def test_bad_settings_raise_clear_errors(cam: GenICamCamera) -> None:
     with pytest.raises(DeviceError, match=r"Width=5000 is outside the camera's range 100\.\.800"):
-        cam.configure(CameraSettings(width=5000))
+        configure(cam, CameraSettings(width=5000))
     with pytest.raises(DeviceError, match=r"no PixelFormat 'Mono16' \(it offers RGBa8, Mono8\)"):
-        cam.configure(CameraSettings(pixel_format="Mono16"))
+        configure(cam, CameraSettings(pixel_format="Mono16"))
     with pytest.raises(DeviceError, match=r"PixelFormat 'BayerRG10' cannot be decoded \(supported: Mono8, "):
-        cam.configure(CameraSettings(pixel_format="BayerRG10"))
+        configure(cam, CameraSettings(pixel_format="BayerRG10"))
     with pytest.raises(DeviceError, match="trigger setting 'hardware'"):
-        cam.configure(CameraSettings(trigger="hardware"))
-    cam.configure(CameraSettings(frame_rate_hz=500.0))
+        configure(cam, CameraSettings(trigger="hardware"))
+    configure(cam, CameraSettings(frame_rate_hz=500.0))
     assert cam.status()["applied"]["AcquisitionFrameRate"] == pytest.approx(200.0)
     assert any("AcquisitionFrameRate=500" in w and "using 200" in w for w in cam.status()["warnings"])
 
@@ -263,7 +278,7 @@ def test_free_run_streaming(cam: GenICamCamera, frames: list[Frame]) -> None:
 
 
 def test_frames_are_copies_that_survive_requeue(cam: GenICamCamera, frames: list[Frame]) -> None:
-    cam.configure(CameraSettings(pixel_format="Mono8", width=400, height=400, frame_rate_hz=200.0))
+    configure(cam, CameraSettings(pixel_format="Mono8", width=400, height=400, frame_rate_hz=200.0))
     cam.start_stream()
     pump_until(cam, frames, 3)
     kept = frames[:3]
@@ -366,7 +381,7 @@ def test_incomplete_buffer_callback_is_counted(cam: GenICamCamera, frames: list[
 
 def test_viky_reports_ptp_unavailable_and_missing_transport_nodes(cam: GenICamCamera) -> None:
     assert cam.status()["ptp"] == {"available": False}
-    cam.configure(CameraSettings(pixel_format="Mono8", exposure_us=None, gain_db=None, frame_rate_hz=None,
+    configure(cam, CameraSettings(pixel_format="Mono8", exposure_us=None, gain_db=None, frame_rate_hz=None,
                                  trigger="free", packet_size=9000, throughput_limit_bytes_s=100_000_000,
                                  packet_resend=True, stream_buffers=6, chunks=False))
     warnings = cam.status()["warnings"]

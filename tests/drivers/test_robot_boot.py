@@ -23,6 +23,7 @@ from fakes.robot_base import FakeBase
 from fakes.robot_boot import Boot
 from fakes.robot_rfc2217 import Rfc2217Base
 from fakes.world import World, WorldParams
+from tools.harness.robot import wait_idle
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -43,7 +44,7 @@ def test_an_open_holds_dtr_low_so_an_auto_reset_base_keeps_its_state(rfc2217_bas
     robot = SerialRobot(DeviceURL.parse(url))
     robot.open()  # pyserial's defaults assert DTR here: the base would reset, and miss this HELLO
     robot.move(100.0, 100.0)
-    assert robot.wait_idle(5.0).x_mm == 100.0
+    assert wait_idle(robot, 5.0).x_mm == 100.0
     robot.close()
     robot.open()  # a reconnect: still no reset, the odometry is the base's memory
     assert robot.status().x_mm == 100.0
@@ -98,7 +99,7 @@ def test_a_base_that_restarted_mid_session_ends_the_session_and_a_reconnect_rest
         robot = SerialRobot(DeviceURL.parse(f"serial://{server.path}?state_hz=0&timeout=0.3&stream_hz=0"))
         robot.open()
         robot.move(50.0, 100.0)
-        robot.wait_idle(5.0)
+        wait_idle(robot, 5.0)
         server.base.reset()  # a brown-out: the base forgot the session (version 1 until a HELLO)
         with pytest.raises(DeviceLost, match="restarted"):
             robot.status()

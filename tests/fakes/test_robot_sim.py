@@ -15,6 +15,7 @@ from fakes.robot import SimRobot, _param
 from fakes.robot_base import FakeBase
 from fakes.world import RobotPose, World, WorldParams
 from fakes.worlds import sim_url
+from tools.harness.robot import wait_idle
 
 pytestmark = pytest.mark.timeout(60)
 START = (3000.0, 3000.0, 30.0)  # well off the plate: the support height stays 0
@@ -48,16 +49,16 @@ def _wrap(a: float) -> float:
 def test_error_free_drive_is_exact(sim: Any) -> None:
     robot = sim()
     robot.move(200.0, 100.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     p = _pose(robot)
     h = math.radians(30.0)
     assert abs(p.x_mm - (3000.0 + 200.0 * math.cos(h))) < 1e-9
     assert abs(p.y_mm - (3000.0 + 200.0 * math.sin(h))) < 1e-9
     robot.turn(-75.0, 30.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     assert abs(_wrap(_pose(robot).heading_deg - (-45.0))) < 1e-9
     robot.move(-100.0, 100.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     q = _pose(robot)
     assert abs(q.x_mm - (p.x_mm - 100.0 * math.cos(math.radians(-45.0)))) < 1e-9
     assert abs(q.y_mm - (p.y_mm - 100.0 * math.sin(math.radians(-45.0)))) < 1e-9
@@ -71,7 +72,7 @@ def test_drive_errors_follow_the_configured_sigmas(sim: Any) -> None:
     for _ in range(n):
         p0 = _pose(robot)
         robot.move(d, 200.0)
-        robot.wait_idle(5.0)
+        wait_idle(robot, 5.0)
         p1 = _pose(robot)
         h = math.radians(p0.heading_deg)
         dx, dy = p1.x_mm - p0.x_mm, p1.y_mm - p0.y_mm
@@ -93,11 +94,11 @@ def test_scale_error_is_systematic_and_odometry_stays_nominal(sim: Any) -> None:
     robot = sim(drive_scale_error=0.002)
     p0 = _pose(robot)
     robot.move(500.0, 250.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     p1 = _pose(robot)
     assert math.dist((p0.x_mm, p0.y_mm), (p1.x_mm, p1.y_mm)) == pytest.approx(501.0, abs=1e-9)
     robot.turn(90.0, 90.0)
-    st = robot.wait_idle(5.0)
+    st = wait_idle(robot, 5.0)
     assert _wrap(_pose(robot).heading_deg - p1.heading_deg) == pytest.approx(90.18, abs=1e-9)
     assert (st.x_mm, st.heading_deg) == (500.0, 90.0)
 
@@ -111,7 +112,7 @@ def test_drive_errors_are_seeded() -> None:
             robot.open()
             for _ in range(3):
                 robot.move(100.0, 100.0)
-                robot.wait_idle(5.0)
+                wait_idle(robot, 5.0)
             p = world.robot
             return (p.x_mm, p.y_mm, p.heading_deg)
         finally:
@@ -126,7 +127,7 @@ def test_floor_tilt_is_drawn_at_each_stop_and_reported_by_the_inclinometer(sim: 
     tilts = []
     for _ in range(3):
         robot.move(50.0, 100.0)
-        st = robot.wait_idle(5.0)
+        st = wait_idle(robot, 5.0)
         p = _pose(robot)
         tilts.append((p.roll_rad, p.pitch_rad))
         assert st.roll_deg == pytest.approx(math.degrees(p.roll_rad), abs=2e-6)
@@ -134,7 +135,7 @@ def test_floor_tilt_is_drawn_at_each_stop_and_reported_by_the_inclinometer(sim: 
     assert len(set(tilts)) == 3 and all(0 < abs(r) < 0.012 for r, _ in tilts)
     blind = sim(floor_tilt_sigma_mrad=2.0)
     blind.move(50.0, 100.0)
-    st = blind.wait_idle(5.0)
+    st = wait_idle(blind, 5.0)
     assert _pose(blind).roll_rad != 0.0 and st.roll_deg is None and st.pitch_deg is None
 
 
@@ -144,7 +145,7 @@ def test_the_reflector_the_tracker_sees_moves_with_the_robot(sim: Any) -> None:
     before = world.reflectors_abs()
     before_trk = world.reflectors_trk()
     robot.move(200.0, 100.0)
-    robot.wait_idle(5.0)
+    wait_idle(robot, 5.0)
     after = world.reflectors_abs()
     h = math.radians(START[2])
     moved = after["robot"] - before["robot"]
@@ -190,7 +191,7 @@ def test_world_created_when_none_given_and_bad_options_rejected() -> None:
         robot.open()
         p0 = robot.world.robot
         robot.move(10.0, 10.0)
-        robot.wait_idle(5.0)
+        wait_idle(robot, 5.0)
         assert robot.world.robot != p0
     finally:
         robot.shutdown()

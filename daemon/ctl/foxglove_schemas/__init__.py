@@ -28,6 +28,3 @@ def schema(name: str) -> dict[str, Any]:
     """The same, parsed."""
     parsed: dict[str, Any] = json.loads(schema_bytes(name))
     return parsed
-
-
-__all__ = ["FOLDER", "schema", "schema_bytes"]

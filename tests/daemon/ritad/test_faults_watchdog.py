@@ -74,7 +74,7 @@ def test_hung_owner_thread_stops_the_pings(tmp_path: Path, monkeypatch: pytest.M
             c.wait_ready(timeout=30)
             assert count_pings(sock, 1.6) >= 2
             # the job may take 0.5 s; the runner counts as alive until 5 s past that
-            hang = d.job("camera", lambda cam: release.wait(60), timeout=0.5)
+            hang = d.rigs.camera.job(lambda cam: release.wait(60), timeout=0.5)
             t_hang = time.monotonic()
             wait_for(lambda: not d.alive(), 10, "the hung camera thread to be noticed")
             noticed = time.monotonic() - t_hang
