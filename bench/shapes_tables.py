@@ -107,7 +107,8 @@ def _share(k: int, n: int) -> str:
 def cv_table(rows: list[dict[str, Any]], before: list[dict[str, Any]] | None) -> str:
     """The stored b/w against the better of the chord with its own b and the joint fit (the default as it
     was ``before`` a change, else this run's default), on the cases learned and scored on one shape."""
-    joint = {_key(r): r for r in (before or rows) if r["comp"] == "default"}
+    own = [r for r in rows if r["comp"] == "joint"]  # a --joint run: its own joint fit
+    joint = {_key(r): r for r in (own or before or rows) if r["comp"] == ("joint" if own else "default")}
     out = ["| cases | stored b/w > 10 % worse than the better of chord-own-b and joint fit (goal 0) "
            "| on enclosing | on abs. RMS | worst excess |", "|---:|---:|---:|---:|---:|"]
     n = worse = enc = rms = 0
