@@ -52,7 +52,7 @@ import threading
 import time
 import weakref
 from dataclasses import asdict
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -77,6 +77,15 @@ NOMINAL_EXPOSURE_US = 2000.0
 # shared per world and size, across reconnects and camera instances.
 _RENDERERS: "weakref.WeakKeyDictionary[World, dict[tuple, Renderer]]" = weakref.WeakKeyDictionary()
 _RENDERERS_LOCK = threading.Lock()
+
+
+class Pacing(Protocol):
+    """The clock the free-run schedule keeps (``time`` unless a test counts virtual time): one per camera,
+    so a virtual clock never reaches another camera pumped in another thread of the same process."""
+
+    def monotonic(self) -> float: ...
+
+    def sleep(self, seconds: float, /) -> None: ...
 
 
 def renderer_for(world: World, size: tuple[int, int], colour: bool = False) -> Renderer:
@@ -119,8 +128,9 @@ class SimCamera(Camera):
                          "disconnect_after", "packet_loss", "path_mtu", worlds.OPTION, *camera_clock.OPTIONS})
 
     def __init__(self, url: DeviceURL, *, emit: Emit = no_emit,
-                 settings: CameraSettings | None = None) -> None:
+                 settings: CameraSettings | None = None, pacing: Pacing = time) -> None:
         super().__init__(url, emit=emit, settings=settings)
+        self.pacing = pacing  # the free run's schedule only; the frames' stamps keep the real clocks
         self.world = worlds.world_for(url)
         self.size = parse_size(url, self.world)
         self.fps: float | None = url.option("fps", None, float)
@@ -315,7 +325,7 @@ class SimCamera(Camera):
         self._want_stream = True
         if not self._streaming:
             self._streaming = True
-            self._next_due = time.monotonic()
+            self._next_due = self.pacing.monotonic()
 
     def stop_stream(self) -> None:
         self._want_stream = False
@@ -323,11 +333,11 @@ class SimCamera(Camera):
 
     def pump(self, timeout: float) -> None:
         """Emit the free-run frames that fall due within ``timeout`` s (a render may overrun)."""
-        deadline = time.monotonic() + timeout
+        deadline = self.pacing.monotonic() + timeout
         if self._lost:
             self._require_open()
         while True:
-            now = time.monotonic()
+            now = self.pacing.monotonic()
             if self._streaming and self._next_due <= now < deadline:
                 period = 1.0 / self._applied["AcquisitionFrameRate"]
                 # no catch-up bursts after a slow render: the next frame is due one period on
@@ -340,7 +350,7 @@ class SimCamera(Camera):
             if now >= deadline:
                 return
             wake = min(self._next_due, deadline) if self._streaming else deadline
-            time.sleep(max(0.0, wake - now))
+            self.pacing.sleep(max(0.0, wake - now))
 
     def _publish_link(self, now: float) -> None:
         """``camera.link`` at most once a second, when a link counter changed (as the GenICam adapter)."""

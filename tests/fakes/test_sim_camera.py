@@ -5,6 +5,7 @@ rest use a small image with the same field of view to stay fast.
 """
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -14,8 +15,7 @@ import pytest
 from daemon.ritad.registry import adapter_class, build_device
 from drivers.base import DeviceError, DeviceLost, DeviceTimeout, DeviceURL, Frame
 from drivers.camera_settings import CameraSettings
-from fakes import camera as camera_module
-from fakes.camera import SimCamera, renderer_for
+from fakes.camera import Pacing, SimCamera, renderer_for
 from fakes.world import RobotPose, World, WorldParams
 from fakes.worlds import sim_url
 
@@ -25,14 +25,14 @@ SMALL = "size=200x151"
 
 
 def make(query: str, world: World | None = None, settings: CameraSettings | None = None,
-         sink: list[Frame] | None = None) -> SimCamera:
+         sink: list[Frame] | None = None, pacing: Pacing = time) -> SimCamera:
     def emit(topic: str, payload: Any) -> None:
         assert topic == "camera.frame"
         if sink is not None:
             sink.append(payload)
 
     url = sim_url(world, query) if world is not None else DeviceURL.parse(f"sim:?{query}")
-    return SimCamera(url, emit=emit, settings=settings)
+    return SimCamera(url, emit=emit, settings=settings, pacing=pacing)
 
 
 @pytest.fixture(scope="module")
@@ -153,13 +153,13 @@ def pump_for(cam: SimCamera, seconds: float, clock: Any = time) -> None:
 
 
 class VirtualTime:
-    """``time`` as fakes/camera.py's free-run schedule sees it: ``monotonic()`` moves only when the
-    pump sleeps, so the rate it keeps is counted exactly, however busy the machine is (a render takes
-    no virtual time; with the wall clock a loaded machine's late wake-ups cost frames, by design: the
-    camera does not catch up). The frames' own stamps still come from the real clocks."""
-
-    time_ns = staticmethod(time.time_ns)
-    monotonic_ns = staticmethod(time.monotonic_ns)
+    """A camera's free-run pacing (``SimCamera(pacing=...)``): ``monotonic()`` moves only when its pump
+    sleeps, so the rate it keeps is counted exactly, however busy the machine is (a render takes no
+    virtual time; with the wall clock a loaded machine's late wake-ups cost frames, by design: the
+    camera does not catch up). The frames' own stamps still come from the real clocks. Given to one
+    camera, not patched into fakes.camera's ``time``: that reached every camera of the process, and an
+    idle one pumped by a thread an earlier test left (a ritad's camera runner) slept its timeouts in no
+    real time, racing this clock a second ahead between two frames (1 frame counted where 20 were due)."""
 
     def __init__(self) -> None:
         self.now = 1000.0
@@ -172,15 +172,13 @@ class VirtualTime:
 
 
 @pytest.fixture
-def vtime(monkeypatch: pytest.MonkeyPatch) -> VirtualTime:
-    vt = VirtualTime()
-    monkeypatch.setattr(camera_module, "time", vt)
-    return vt
+def vtime() -> VirtualTime:
+    return VirtualTime()
 
 
 def test_free_run_rate(world: World, vtime: VirtualTime) -> None:
     frames: list[Frame] = []
-    cam = make(f"{SMALL}&fps=20", world, sink=frames)
+    cam = make(f"{SMALL}&fps=20", world, sink=frames, pacing=vtime)
     cam.open()
     cam.pump(0.1)
     assert frames == []  # nothing before start_stream
@@ -195,9 +193,37 @@ def test_free_run_rate(world: World, vtime: VirtualTime) -> None:
     assert len(frames) == n
 
 
+def test_virtual_rate_holds_beside_another_camera_pumped_in_a_thread(world: World,
+                                                                     vtime: VirtualTime) -> None:
+    """The flake's mechanism, made certain: an idle camera pumped by another thread of the process on
+    the real clock (as a ritad's camera runner an earlier test left) leaves this camera's count exact."""
+    idle = make(SMALL, world)
+    idle.open()
+    stop = threading.Event()
+
+    def runner() -> None:
+        while not stop.is_set():
+            idle.pump(0.2)  # not streaming: pump sleeps its whole timeout
+
+    thread = threading.Thread(target=runner, daemon=True)
+    thread.start()
+    try:
+        frames: list[Frame] = []
+        cam = make(f"{SMALL}&fps=20", world, sink=frames, pacing=vtime)
+        cam.open()
+        cam.start_stream()
+        pump_for(cam, 1.0, vtime)
+        assert 20 <= len(frames) <= 21
+        assert vtime.now == pytest.approx(1001.0, abs=0.06)  # only this camera's sleeps moved its clock
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
 def test_settings_frame_rate_used_without_fps_option(vtime: VirtualTime) -> None:
     frames: list[Frame] = []
-    cam = make(SMALL, settings=CameraSettings(frame_rate_hz=8.0), sink=frames)
+    cam = make(SMALL, settings=CameraSettings(frame_rate_hz=8.0), sink=frames, pacing=vtime)
     cam.open()
     cam.start_stream()
     pump_for(cam, 1.0, vtime)
@@ -206,7 +232,7 @@ def test_settings_frame_rate_used_without_fps_option(vtime: VirtualTime) -> None
 
 def test_prerender_cycles_frames(world: World, vtime: VirtualTime) -> None:
     frames: list[Frame] = []
-    cam = make(f"{SMALL}&prerender=2&fps=200", world, sink=frames)
+    cam = make(f"{SMALL}&prerender=2&fps=200", world, sink=frames, pacing=vtime)
     cam.open()
     assert cam.status()["renders"] == 2
     cam.start_stream()

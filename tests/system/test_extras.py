@@ -4,9 +4,10 @@ Real installs, as an operator's laptop makes them: ``pip install 'rita[EXTRA]'``
 from this checkout, requirements resolved by pip from the package index (CI: .ci/run on a fresh
 machine with registry access; pip's own cache keeps repeats cheap). The venvs are cached across
 runs under ``$RITA_VENV_CACHE`` (default ~/.cache/rita-venvs), keyed by pyproject.toml's content
-and the Python version: a changed requirement builds them again. Each session reinstalls only
-this checkout's wheel into them (``--no-deps --force-reinstall``: the requirements did not change
-with the key), so the code tested is the code here. Nothing of the test venv is visible to them.
+and the Python version: a changed requirement builds them again (the three side by side, without
+pip in them: the test venv's ``pip --python`` installs into each, ``--no-compile``). Each session
+installs only this checkout's wheel beside them (``--no-deps --target``: the requirements did not
+change with the key), so the code tested is the code here. Nothing of the test venv is visible to them.
 
 Each offline verb then runs with the venv's own ``ritactl`` against a ``ritad`` on the simulated
 world (in this process, ipc in a temp dir): ``validate``; ``recompute`` of one dataset per
@@ -27,6 +28,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -118,44 +120,57 @@ def _wheel(tmp: Path) -> Path:
     return wheel
 
 
+def _pip(venv: Path, *argv: object, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """This test venv's pip acting on ``venv`` (``pip --python``): the clean venvs need no pip of their own
+    (``venv --without-pip`` skips ensurepip's install, seconds per venv), and pip still resolves for the
+    venv's interpreter, as the operator's own pip would."""
+    python = venv / "bin" / "python"
+    return _run(sys.executable, "-m", "pip", "--python", python, *argv, cwd=cwd, timeout=timeout)
+
+
 def _install(venv: Path, wheel: Path, extra: str, cwd: Path) -> None:
     """A fresh venv with ``rita[extra]``'s requirements: a real pip install, checked, then rita itself
-    removed (each session installs its own checkout beside the venv)."""
+    removed (each session installs its own checkout beside the venv). ``--no-compile``: Python compiles
+    what a verb imports on its first run, not every module of numpy, OpenCV and matplotlib at install."""
     shutil.rmtree(venv, ignore_errors=True)
-    res = _run(sys.executable, "-m", "venv", venv, cwd=cwd)
+    res = _run(sys.executable, "-m", "venv", "--without-pip", venv, cwd=cwd)
     assert res.returncode == 0, res.stderr
     spec = f"rita{'' if extra == 'base' else f'[{extra}]'} @ {wheel.as_uri()}"
-    res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", spec, cwd=cwd, timeout=1200)
+    res = _pip(venv, "install", "-q", "--no-compile", spec, cwd=cwd, timeout=1200)
     assert res.returncode == 0, f"pip install {spec} failed:\n{res.stdout[-3000:]}{res.stderr[-3000:]}"
-    res = _run(venv / "bin" / "python", "-m", "pip", "check", cwd=cwd)  # without --no-deps: nothing broken
+    res = _pip(venv, "check", cwd=cwd)  # without --no-deps: nothing broken
     assert res.returncode == 0, f"{extra}: {res.stdout}{res.stderr}"
-    res = _run(venv / "bin" / "python", "-m", "pip", "uninstall", "-q", "-y", "rita", cwd=cwd)
+    res = _pip(venv, "uninstall", "-q", "-y", "rita", cwd=cwd)
     assert res.returncode == 0, res.stderr
     (venv / ".ready").write_text(spec + "\n")
 
 
+def _session_install(venv: Path, wheel: Path, site: Path, cwd: Path) -> Install:
+    """This checkout's wheel into a folder of this session (the requirements did not change with the key)."""
+    res = _pip(venv, "install", "-q", "--no-deps", "--no-compile", "--target", site, wheel, cwd=cwd)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return Install(venv, site)
+
+
 @pytest.fixture(scope="session")
 def venvs(tmp_path_factory) -> dict[str, Install]:
-    """{extra: its install}: the venvs built once per pyproject.toml, this checkout installed per session."""
+    """{extra: its install}: the venvs built once per pyproject.toml, this checkout installed per session.
+    The three venvs are independent: built side by side (pip waits on the index and the disk as much as
+    on the CPU), each still from nothing."""
     tmp = tmp_path_factory.mktemp("wheel")
     wheel = _wheel(tmp)
     root = _cache_root()
     root.mkdir(parents=True, exist_ok=True)
-    out = {}
     with open(root.with_suffix(".lock"), "w") as lock:  # another pytest run on this machine waits here
         fcntl.flock(lock, fcntl.LOCK_EX)
         _prune(root)  # the lock file's time is this key's last use: "w" just set it
-        for extra in EXTRAS:
-            venv = root / extra
-            if not (venv / ".ready").exists():  # first run with this pyproject.toml, or a build cut short
-                _install(venv, wheel, extra, tmp)
-    for extra in EXTRAS:  # the requirements did not change with the key: only this checkout's code
-        venv, site = root / extra, tmp / extra
-        res = _run(venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-deps", "--target", site,
-                   wheel, cwd=tmp)
-        assert res.returncode == 0, res.stderr[-3000:]
-        out[extra] = Install(venv, site)
-    return out
+        missing = [e for e in EXTRAS if not (root / e / ".ready").exists()]  # first run, or a build cut short
+        with ThreadPoolExecutor(len(EXTRAS)) as pool:
+            for done in [pool.submit(_install, root / e, wheel, e, tmp) for e in missing]:
+                done.result()  # re-raises a build's failure, naming pip's error
+    with ThreadPoolExecutor(len(EXTRAS)) as pool:
+        jobs = {e: pool.submit(_session_install, root / e, wheel, tmp / e, tmp) for e in EXTRAS}
+        return {e: job.result() for e, job in jobs.items()}
 
 
 @pytest.fixture(scope="session")
