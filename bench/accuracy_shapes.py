@@ -30,11 +30,14 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from typing import Any
+from unittest.mock import patch
 
 import numpy as np
 
 from bench.shapes_data import calibration_record, experiment_obs, image_loader
+from calibration.heading_weight import MODELS, learn_model
 from daemon.bus.procedure_params import COMPENSATION
+from daemon.compute import experiment_checks
 from daemon.compute.procedures import compute_experiment
 from daemon.worker.compensations import biased_calibration
 from fakes import profiles
@@ -45,6 +48,9 @@ from fakes.world import World, WorldParams
 
 #: the compensations compared: the product's default and the chord with its own b
 COMPS = {"default": COMPENSATION.default, "chord": "tilt,bias,mount"}
+#: ``--joint``: also the default with the weight and its joint b stored as fitted in-sample (the bend model
+#: whose weight leaves the smaller scatter, no cross-validated choice): the b/w goal's other comparator
+JOINT = "joint"
 #: (learned on, scored on): every shape as itself, then the arc's weight used on every other shape
 CASES = tuple((s, s) for s in SHAPES) + tuple(("arc", s) for s in SHAPES if s != "arc")
 PROFILE = "paper+imu"
@@ -52,12 +58,24 @@ PROFILE = "paper+imu"
 MOVE_MM = SimConfig().move_mm
 
 
-def _learn(world: World, cfg: SimConfig, calib: dict[str, Any], shape: str, comp: str) -> dict[str, Any]:
+def joint_from_stops(stops: list[Any], headings: Any, groups: Any = None) -> Any:
+    """The in-sample joint fit of w and b (the comparator, not the product's choice): of the bend models whose
+    weight is shown, the one leaving the marks' smaller residual rms; else the lowest's record."""
+    found = [learn_model(stops, headings, groups, m) for m in MODELS]
+    shown = [w for w in found if w.applied]
+    return min(shown, key=lambda w: w.rms_mm) if shown else found[0]
+
+
+def _learn(world: World, cfg: SimConfig, calib: dict[str, Any], shape: str, comp: str,
+           joint: bool = False) -> dict[str, Any]:
     """The learning experiment over M2 on ``shape``; the calibration the live store_bias would write
-    (``stored``), or the unchanged one and the store's refusal (``refused``)."""
+    (``stored``), or the unchanged one and the store's refusal (``refused``); ``joint``: the weight learned
+    by :func:`joint_from_stops` instead of the product's cross-validated choice."""
     val = Simulation(world, replace(cfg, mark="M2", path_shape=shape)).validation("learn-bias")
     load = image_loader(val, calib["scs"]["gsd_mm"], cfg.size)
-    res = compute_experiment(experiment_obs(val, calib, comp, world.abs_H_trk, MOVE_MM), load)
+    with patch.object(experiment_checks, "learn_from_stops", joint_from_stops if joint
+                      else experiment_checks.learn_from_stops):
+        res = compute_experiment(experiment_obs(val, calib, comp, world.abs_H_trk, MOVE_MM), load)
     try:
         return {"stored": biased_calibration(calib, res), "refused": None, "verdict": res["verdict"]}
     except ValueError as exc:
@@ -80,7 +98,7 @@ def _score(res: dict[str, Any], mark_abs: np.ndarray) -> dict[str, Any]:
 
 
 def run_seed(seed: int, cases: tuple[tuple[str, str], ...] = CASES, repetitions: int = 5,
-             envelope: Case | None = None) -> list[dict[str, Any]]:
+             envelope: Case | None = None, comps: dict[str, str] = COMPS) -> list[dict[str, Any]]:
     """Every case of one seed (rows as written to the JSON lines file); ``repetitions`` per direction
     (5: the documented flow; fewer only for a quick smoke test); ``envelope``: a world of the accuracy
     envelope (bench/accuracy_envelope.py: its profile and tweak) instead of ``paper+imu``."""
@@ -90,13 +108,13 @@ def run_seed(seed: int, cases: tuple[tuple[str, str], ...] = CASES, repetitions:
     cfg = SimConfig(seed=seed, pnp_sigma_px=0.05, report_tilt=world.params.base_has_inclinometer,
                     repetitions=repetitions)
     calib = calibration_record(referencing(Simulation(world, cfg), True))
-    learned = {(shape, name): _learn(world, cfg, calib, shape, comp)
-               for shape in sorted({c[0] for c in cases}) for name, comp in COMPS.items()}
+    learned = {(shape, name): _learn(world, cfg, calib, shape, comp, name == JOINT)
+               for shape in sorted({c[0] for c in cases}) for name, comp in comps.items()}
     rows = []
     for learn_shape, shape in cases:
         val = Simulation(world, replace(cfg, path_shape=shape)).validation()
         load = image_loader(val, calib["scs"]["gsd_mm"], cfg.size)
-        for name, comp in COMPS.items():
+        for name, comp in comps.items():
             lr = learned[(learn_shape, name)]
             res = compute_experiment(experiment_obs(val, lr["stored"], comp, world.abs_H_trk, MOVE_MM), load)
             applied = lr["stored"].get("heading_weight") or {}
@@ -120,8 +138,11 @@ def envelope_worlds() -> tuple[Case, ...]:
 
 
 def _job(job: tuple[int, int]) -> list[dict[str, Any]]:
-    """One seed's cases (``job[1]`` < 0), or the arc in envelope world ``job[1]``."""
+    """One seed's cases (``job[1]`` -1), the shapes learned and scored on themselves with the joint fit too
+    (-2), or the arc in envelope world ``job[1]``."""
     seed, env = job
+    if env == -2:
+        return run_seed(seed, tuple((s, s) for s in SHAPES), comps={**COMPS, JOINT: COMPS["default"]})
     return run_seed(seed) if env < 0 else run_seed(seed, (("arc", "arc"),), envelope=envelope_worlds()[env])
 
 
@@ -141,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--envelope", action="store_true",
                     help="the arc in each envelope world instead of the shapes")
     ap.add_argument("--before", help="with --table: the run before a change, for the joint fit's figures")
+    ap.add_argument("--joint", action="store_true",
+                    help="each shape learned and scored on itself, with the joint fit as a third compensation")
     a = ap.parse_args(argv)
     from bench.shapes_tables import tables
 
@@ -148,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         before = None if not a.before else _read(a.before)
         print(tables(_read(a.table), before))
         return 0
-    envs = range(len(envelope_worlds())) if a.envelope else [-1]
+    envs = range(len(envelope_worlds())) if a.envelope else [-2 if a.joint else -1]
     jobs = [(seed, e) for seed in range(a.start, a.start + a.seeds) for e in envs]
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max(1, a.jobs)) as pool:

@@ -25,7 +25,8 @@ from calibration.registration import as_points
 
 #: the fewest stream points and the shortest span a heading fit accepts
 MIN_FIT_POINTS, MIN_FIT_SPAN_MM = 5, 20.0
-#: an end slope is applied only beyond this many standard errors (a straight drive passes 3σ 0.3 % of the time)
+#: an end slope is applied only beyond this many standard errors (a straight drive passes 3σ 0.3 % of the
+#: time)
 SIGNIFICANCE = 3.0
 #: the highest polynomial degree of the path's lateral offset; beyond it the chord is kept
 MAX_DEGREE = 5
@@ -74,7 +75,8 @@ def _frame(points: object, abs_P_prev: object, abs_P_at: object) -> tuple[np.nda
     x, e = (P - a) @ u / L, (P - a) @ n
     inside = (x > 0.02) & (x < 0.98)  # the ends carry no bend information
     if np.count_nonzero(inside) < MIN_FIT_POINTS + 1:
-        raise ValueError(f"fit_heading: only {np.count_nonzero(inside)} stream points lie between the two stops")
+        raise ValueError(f"fit_heading: only {np.count_nonzero(inside)} stream points lie between the two "
+                         f"stops")
     return x[inside], e[inside], u, n, L
 
 
@@ -152,8 +154,9 @@ def bend_fit(points: object, abs_P_prev: object, abs_P_at: object, anchor_sigma_
         top = min(MAX_DEGREE, len(x) - 2)
         slope, var = _end_slope(x, e, top, sig_s, anchor_sigma_mm, L) if top >= 2 else (0.0, np.inf)
         return BendFit(np.array([u[0], u[1], 0.0]), slope, float(np.sqrt(var)), shape, sig_s, False,
-                       f"the path along the move has a shape the fit does not model (no polynomial up to degree "
-                       f"{MAX_DEGREE} leaves only the stream's noise of {sig_s * 1000:.1f} µm): the chord is used")
+                       f"the path along the move has a shape the fit does not model (no polynomial up to "
+                       f"degree {MAX_DEGREE} leaves only the stream's noise of {sig_s * 1000:.1f} µm): the "
+                       f"chord is used")
     slope, var = _end_slope(x, e, deg, sig_s, anchor_sigma_mm, L)
     for more in (1, 2):  # the slope must not hinge on the model: richer models must agree (a Hausman test)
         slope2, var2 = _end_slope(x, e, deg + more, sig_s, anchor_sigma_mm, L)

@@ -116,7 +116,8 @@ def imu_offset_deg(abs_H_rob_ref: np.ndarray, roll_deg: float, pitch_deg: float)
     """Inclinometer offset: its reading on the plate minus the plate-derived tilt of the robot."""
     for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
         if not np.isfinite(a) or abs(a) > 10:
-            raise ValueError(f"imu_offset_deg: {name}={a} is not a plausible inclinometer reading (|a| <= 10°)")
+            raise ValueError(f"imu_offset_deg: {name}={a} is not a plausible inclinometer reading "
+                             f"(|a| <= 10°)")
     roll_ref, pitch_ref = tilt_of_pose(abs_H_rob_ref)
     return roll_deg - roll_ref, pitch_deg - pitch_ref
 
@@ -158,7 +159,8 @@ def ground_chord(abs_P_prev: Any, abs_P_at: Any, tilt_prev: tuple[float, float],
     v = P_at - P_prev
     for _ in range(2):  # the heading only orients the tilt: one refinement takes its error to 2nd order
         heading = math.degrees(math.atan2(sign * v[1], sign * v[0]))
-        v = ground_point(P_at, heading, *tilt_at, height_mm) - ground_point(P_prev, heading, *tilt_prev, height_mm)
+        v = (ground_point(P_at, heading, *tilt_at, height_mm)
+             - ground_point(P_prev, heading, *tilt_prev, height_mm))
     return P_at - sign * v
 
 
@@ -176,7 +178,8 @@ def apply_bias(rob_H_scn: np.ndarray, b_mm: Any) -> np.ndarray:
     if b.shape != (2,) or not np.all(np.isfinite(b)):
         raise ValueError(f"apply_bias: b must be 2 finite values (mm), got {b.tolist()}")
     if np.hypot(*b) > 5.0:
-        raise ValueError(f"apply_bias: |b| = {np.hypot(*b):.3f} mm is not a plausible calibration bias (<= 5 mm)")
+        raise ValueError(f"apply_bias: |b| = {np.hypot(*b):.3f} mm is not a plausible calibration bias "
+                         f"(<= 5 mm)")
     H[:2, 3] -= b
     return H
 
@@ -211,7 +214,8 @@ class Applied:
     #: what it rests on: "a_priori" (the chord's 250 µrad path deviation), "stop_fit" (the chord, from the
     #: stop's own fit), "fit" (the fit's σ), "weight" (the weight's σ); the last three with the end's misfit
     heading_sigma_basis: str = "a_priori"
-    #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no estimate
+    #: ACS xy covariance (mm²) the reflector mount leaves in the mark (calibration/mount.py), None: no
+    #: estimate
     cov_mount_xy_mm2: np.ndarray | None = None
     #: heading_fit asked for: the chord's equivalent previous point and, per bend model whose fit succeeded
     #: (calibration/heading_weight.py MODELS), the whole fitted slope's (point, slope, its stated σ in rad),
@@ -221,13 +225,16 @@ class Applied:
 
 
 def _standstill_tilts(stop: Stop) -> tuple[tuple[float, float], tuple[float, float]]:
-    """``(tilt_prev, tilt_at)`` of a stop whose tilt is compensated (:func:`compensate` checked both are there)."""
+    """``(tilt_prev, tilt_at)`` of a stop whose tilt is compensated (:func:`compensate` checked both are
+    there)."""
     if stop.tilt_prev is None or stop.tilt_at is None:
-        raise ValueError("the tilt is compensated at a stop without both inclinometer readings (tilt_prev, tilt_at)")
+        raise ValueError("the tilt is compensated at a stop without both inclinometer readings (tilt_prev, "
+                         "tilt_at)")
     return stop.tilt_prev, stop.tilt_at
 
 
-def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0) -> np.ndarray:
+def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, yaw_deg: float = 0.0
+                   ) -> np.ndarray:
     """The stream's points moved down the tilted z axis, with the inclinometer read along the stream."""
     tilt_prev, tilt_at = _standstill_tilts(stop)
     P = as_points(stop.stream, "stream")
@@ -251,14 +258,14 @@ def _ground_stream(stop: Stop, offset: tuple[float, float], height_mm: float, ya
 
 
 #: why heading_fit is skipped when the tilt is compensated but was not read along the stream
-NO_STREAM_TILT = ("the inclinometer was not read along the stream: the reflector's lean (tilt × height, which "
-                  "the floor changes along the move) would read as a bend; the ground chord is used")
+NO_STREAM_TILT = ("the inclinometer was not read along the stream: the reflector's lean (tilt × height, "
+                  "which the floor changes along the move) would read as a bend; the ground chord is used")
 
 
 #: why heading_fit is skipped when the tilt is not compensated but the floor's tilt changes along the move
-LEAN_NOT_COMPENSATED = ("the tilt is not compensated and the reflector's lean changes by {lean:.0f} µm across "
-                        "the move (inclinometer {d:.4f}° × {h:.0f} mm): a bend fit would read the lean as a turn; "
-                        "the chord is used")
+LEAN_NOT_COMPENSATED = ("the tilt is not compensated and the reflector's lean changes by {lean:.0f} µm "
+                        "across the move (inclinometer {d:.4f}° × {h:.0f} mm): a bend fit would read the "
+                        "lean as a turn; the chord is used")
 
 
 def _tilt_applied(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray, offset: tuple[float, float],
@@ -297,7 +304,8 @@ def _heading_fit(out: Applied, stop: Stop, P_prev: np.ndarray, P_at: np.ndarray,
         return np.asarray(P_at - sign * length * np.array([t[0], t[1], 0.0]))
 
     out.chord_P_prev = out.abs_P_prev
-    out.fits = {m: (prev_at(f.slope_rad), f.slope_rad, f.sigma_rad) for m, f in fits.items() if f.shape != "other"}
+    out.fits = {m: (prev_at(f.slope_rad), f.slope_rad, f.sigma_rad) for m, f in fits.items()
+                if f.shape != "other"}
     fit = fits[weight.model if weight is not None else "lowest"]
     if weight is not None:
         slope, sigma, why = weighted_slope(weight, fit.slope_rad)
@@ -356,7 +364,8 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
         return stop, None
     if abs_t_trk is None:
         if comp.mount:
-            skipped["mount"] = "the stop's points carry no abs_H_trk: the offset cannot be turned to this line of sight"
+            skipped["mount"] = ("the stop's points carry no abs_H_trk: the offset cannot be turned to this "
+                                "line of sight")
         return stop, None
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
     apply = comp.mount and mount.significant
@@ -366,7 +375,8 @@ def _mount_applied(comp: Compensation, stop: Stop, mount: MountOffset | None, ab
     if not apply:
         return stop, cov
     stream = None if stop.stream is None else mount.corrected(as_points(stop.stream, "stream"), abs_t_trk)
-    return replace(stop, abs_P_prev=mount.corrected(as_points(stop.abs_P_prev, "abs_P_prev", 1)[0], abs_t_trk),
+    return replace(stop,
+                   abs_P_prev=mount.corrected(as_points(stop.abs_P_prev, "abs_P_prev", 1)[0], abs_t_trk),
                    abs_P_at=mount.corrected(P_at, abs_t_trk), stream=stream), cov
 
 
@@ -384,8 +394,8 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
     stop, cov_mount = _mount_applied(comp, stop, mount, abs_t_trk, skipped)
     P_at = as_points(stop.abs_P_at, "abs_P_at", 1)[0]
     P_prev = as_points(stop.abs_P_prev, "abs_P_prev", 1)[0]
-    out = Applied(forward_prev(P_prev, P_at, stop.reverse), P_at, None, None, check_H(rob_H_scn, "rob_H_scn"), [],
-                  skipped, cov_mount_xy_mm2=cov_mount)
+    out = Applied(forward_prev(P_prev, P_at, stop.reverse), P_at, None, None, check_H(rob_H_scn, "rob_H_scn"),
+                  [], skipped, cov_mount_xy_mm2=cov_mount)
     if comp.mount and "mount" not in skipped:
         out.applied.append("mount")
     tilt_ok = stop.tilt_at is not None and stop.tilt_prev is not None and imu_offset is not None
@@ -412,7 +422,8 @@ def compensate(comp: Compensation, stop: Stop, rob_H_scn: np.ndarray, *,
         elif lean is not None and lean[0] > 3.0 * anchor_sigma_mm * 1000.0:
             out.skipped["heading_fit"] = LEAN_NOT_COMPENSATED.format(lean=lean[0], d=lean[1], h=height)
         else:
-            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg, heading_weight)
+            _heading_fit(out, stop, P_prev, P_at, offset, height, anchor_sigma_mm, imu_yaw_deg,
+                         heading_weight)
     if comp.bias:
         _bias_applied(out, bias_b_mm)
     for name, step in STEPS.items():
@@ -435,5 +446,6 @@ def _bias_applied(out: Applied, bias_b_mm: Any) -> None:
 
 __all__ = ["Applied", "BUILT_IN", "Compensation", "LEAN_NOT_COMPENSATED", "NO_STREAM_TILT", "STEPS", "Step",
            "Stop", "apply_bias", "names_known", "register",
-           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord", "ground_point",
+           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord",
+           "ground_point",
            "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]

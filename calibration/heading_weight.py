@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from calibration.measure import robot_pose_at
-from calibration.weight_cv import cross_validate, design, with_weight
+from calibration.weight_cv import better, cross_validate, design, with_weight
 
 #: the weight is applied only beyond this many standard errors above 0
 SIGNIFICANCE = 3.0
@@ -42,7 +42,8 @@ SIGNIFICANCE = 3.0
 SLOPE_LIMIT = 4.0
 #: the fewest stops with a fitted bend the weight is learned from
 MIN_STOPS = 8
-#: the bend fit's models an experiment chooses between, by their least polynomial degree (calibration/bend_fit.py):
+#: the bend fit's models an experiment chooses between, by their least polynomial degree
+#: (calibration/bend_fit.py):
 #: the lowest degree the stream's noise allows (an arc is a parabola), or at least a cubic (an S-curve's end
 #: slope is in its asymmetry, which the stream's noise can hide from the lack-of-fit test)
 MODELS = {"lowest": 2, "cubic": 3}
@@ -74,7 +75,8 @@ class HeadingWeight:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
-        d = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+        d = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+             for k, v in asdict(self).items()}
         d["b_mm"] = None if self.b_mm is None else list(self.b_mm)
         return d
 
@@ -85,10 +87,13 @@ class HeadingWeight:
             raise ValueError(f"{source}: expected an object, got {type(d).__name__}")
         try:
             b = d.get("b_mm")
-            w = cls(float(d["weight"]), float(d["weight_fit"]), math.inf if d["sigma"] is None else float(d["sigma"]),
+            w = cls(float(d["weight"]), float(d["weight_fit"]),
+                    math.inf if d["sigma"] is None else float(d["sigma"]),
                     int(d["n_stops"]),
-                    float(d["slope_rms_rad"]), float(d["sigma_heading_rad"]), bool(d["applied"]), str(d["why"]),
-                    str(d.get("model", "lowest")), math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
+                    float(d["slope_rms_rad"]), float(d["sigma_heading_rad"]), bool(d["applied"]),
+                    str(d["why"]),
+                    str(d.get("model", "lowest")),
+                    math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
                     math.inf if d.get("slope_limit_rad") is None else float(d["slope_limit_rad"]),
                     None if b is None else (float(b[0]), float(b[1])), _record(d.get("conditions")),
                     _record(d.get("cv")))
@@ -97,9 +102,11 @@ class HeadingWeight:
         if w.model not in MODELS:
             raise ValueError(f"{source}: model={w.model!r} is not a bend model ({', '.join(MODELS)})")
         if not (0.0 <= w.weight <= 1.0) or not all(math.isfinite(v) and v >= 0 for v in
-                                                   (w.slope_rms_rad, w.sigma_heading_rad)) or not w.sigma >= 0:
+                                                   (w.slope_rms_rad, w.sigma_heading_rad)) \
+                or not w.sigma >= 0:
             raise ValueError(f"{source}: weight={w.weight} must lie in [0, 1] and sigma={w.sigma}, "
-                             f"slope_rms_rad={w.slope_rms_rad}, sigma_heading_rad={w.sigma_heading_rad} be >= 0")
+                             f"slope_rms_rad={w.slope_rms_rad}, "
+                             f"sigma_heading_rad={w.sigma_heading_rad} be >= 0")
         return w
 
 
@@ -110,10 +117,12 @@ def _record(d: Any) -> dict[str, Any] | None:
     raise TypeError(f"expected an object or null, got {type(d).__name__}")
 
 
-#: what a calibration without a learned weight gives: the chord (a single stop cannot show which heading is better)
+#: what a calibration without a learned weight gives: the chord (a single stop cannot show which heading
+#: is better)
 NOT_LEARNED = HeadingWeight(0.0, 0.0, math.inf, 0, 0.0, 0.0, False,
-                            "the calibration holds no learned weight for the bend fit (an 8-direction experiment "
-                            "with heading_fit learns it and stores it with the bias): the chord is used")
+                            "the calibration holds no learned weight for the bend fit (an 8-direction "
+                            "experiment with heading_fit learns it and stores it with the bias): the chord "
+                            "is used")
 
 
 def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
@@ -182,21 +191,22 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     A, y = design(psi, np.where(fitted[:, None], F - P, 0.0)), P.reshape(-1)
 
     def chord(w_fit: float, sigma: float, why: str) -> HeadingWeight:
-        return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model, math.nan,
-                             limit, _bias_with(A, y, 0.0) if len(y) else None)
+        return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model,
+                             math.nan, limit, _bias_with(A, y, 0.0) if len(y) else None)
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
     # as fit_bias; then its four columns (with_weight) are at most as ill-conditioned
     if np.linalg.cond(A) > 1e6:
-        return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark and "
-                                    "the robot-frame bias")
+        return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark "
+                                    "and the robot-frame bias")
     theta, cov = _solve(A, y)
     g = None if groups is None else np.asarray(groups).reshape(-1)
     w_fit, sigma = float(theta[4]), float(np.sqrt(max(cov[4, 4], _jackknife_var(A, y, g))))
     if not w_fit > SIGNIFICANCE * sigma:
-        return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than the "
-                                   f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {SIGNIFICANCE:g}σ)")
+        return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than "
+                                   f"the chord (weight {w_fit:.2f} ± {sigma:.2f}, not above "
+                                   f"{SIGNIFICANCE:g}σ)")
     w = min(w_fit, 1.0)
     fixed = with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
     assert fixed is not None
@@ -230,21 +240,26 @@ def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
 
 
 def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> HeadingWeight:
-    """The weight of the model that predicts held-out directions best, or the chord when its own b predicts
-    them better (:func:`learn_heading_weight` per model from each stop's :func:`stop_marks`, compared by
-    calibration/weight_cv.py); when no model's weight is shown, the lowest's reason. ``groups``: each stop's
-    direction (default: its heading to the nearest 45°, the paper's eight)."""
+    """The weight of the bend model that predicts held-out directions best, or the chord with its own b when
+    that predicts them better (calibration/weight_cv.py); the cubic replaces the lowest model only when it
+    predicts significantly better (weight_cv.py ``better``). :func:`learn_heading_weight` per model from
+    each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
+    stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
     found = [learn_model(stops, psi, groups, model) for model in MODELS]
-    shown = [w for w in found if w.applied]
+    shown = [w for w in found if w.applied]  # in MODELS' order: the simplest first
     if not shown:
         return found[0]
-    best = min(shown, key=lambda w: (w.cv or {})["weight_rms_mm"])
+    best = shown[0]
+    for richer in shown[1:]:
+        if better((best.cv or {})["weight_fold_ms_mm2"], (richer.cv or {})["weight_fold_ms_mm2"])[0]:
+            best = richer
     cv = best.cv or {}
+    p = better(cv["chord_fold_ms_mm2"], cv["weight_fold_ms_mm2"])[1]
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
-        return replace(best, cv={**cv, "chosen": "weight"})
-    return _chord_instead(best, {**cv, "chosen": "chord"}, chord, psi, (
+        return replace(best, cv={**cv, "chosen": "weight", "p": p})
+    return _chord_instead(best, {**cv, "chosen": "chord", "p": p}, chord, psi, (
         f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
         f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
 
@@ -278,7 +293,8 @@ def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarra
 
 
 def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:
-    """(slope to apply, the heading's 1σ, why the chord is kept instead or "") for one stop's fitted end slope.
+    """(slope to apply, the heading's 1σ, why the chord is kept instead or "") for one stop's fitted end
+    slope.
 
     A slope beyond the learning experiment's limit (:data:`SLOPE_LIMIT` × its slopes' robust scale) is not
     one of the bends the weight was learned on (the fit read something else there: a lean, a jolt); that
@@ -286,8 +302,8 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
     """
     if abs(slope_rad) > weight.slope_limit_rad:
         return 0.0, 0.0, (f"the fitted end slope {slope_rad * 1e6:.0f} µrad is beyond the "
-                          f"{weight.slope_limit_rad * 1e6:.0f} µrad ({SLOPE_LIMIT:g}× the robust scale) of the "
-                          f"slopes the weight was learned on: the chord is used")
+                          f"{weight.slope_limit_rad * 1e6:.0f} µrad ({SLOPE_LIMIT:g}× the robust scale) of "
+                          f"the slopes the weight was learned on: the chord is used")
     return weight.weight * slope_rad, weight.sigma_heading_rad, ""
 
 

@@ -39,7 +39,8 @@ DEFAULT_SIGMA_T_MM = 0.010
 AT901_MPE_A_MM, AT901_MPE_B_MM_PER_M = 0.015, 0.006
 #: typical = ½ MPE (Leica, AT500 manual p. 39), taken as 1σ
 MPE_TO_SIGMA = 0.5
-#: the drive's lateral path deviation over the approach it refers to (mm; docs/accuracy.md, "Error magnitudes")
+#: the drive's lateral path deviation over the approach it refers to (mm; docs/accuracy.md, "Error
+#: magnitudes")
 PATH_DEVIATION_MM, APPROACH_MM = 0.050, 200.0
 #: the chord P_prev → P_at's 1σ heading error from that deviation: 50 µm / 200 mm = 250 µrad
 CHORD_HEADING_SIGMA_RAD = PATH_DEVIATION_MM / APPROACH_MM
@@ -83,7 +84,8 @@ def robot_pose_at(abs_P_prev: Any, abs_P_at: Any, abs_n: Any = None, roll_deg: f
     n = np.array([0.0, 0.0, 1.0]) if abs_n is None else as_points(abs_n, "abs_n", 1)[0]
     H = robot_pose(P_at, P_at - P_prev, n)
     if (roll_deg is None) != (pitch_deg is None):
-        raise ValueError(f"robot_pose_at: give both roll and pitch or neither (roll={roll_deg}, pitch={pitch_deg})")
+        raise ValueError(f"robot_pose_at: give both roll and pitch or neither (roll={roll_deg}, "
+                         f"pitch={pitch_deg})")
     if roll_deg is not None and pitch_deg is not None:
         for name, a in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)):
             if not np.isfinite(a) or abs(a) > 10:
@@ -118,9 +120,11 @@ class MarkMeasurement:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
-        return {"abs_P_mm": self.abs_P.tolist(), "rob_P_mm": self.rob_P.tolist(), "scn_xy_mm": self.scn_xy.tolist(),
+        return {"abs_P_mm": self.abs_P.tolist(), "rob_P_mm": self.rob_P.tolist(),
+                "scn_xy_mm": self.scn_xy.tolist(),
                 "uv_px": self.uv.tolist(), "abs_H_rob": self.abs_H_rob.tolist(),
-                "cov_xy_mm2": self.cov_xy_mm2.tolist(), "std_xy_mm": self.std_xy_mm.tolist(), "std_mm": self.std_mm,
+                "cov_xy_mm2": self.cov_xy_mm2.tolist(), "std_xy_mm": self.std_xy_mm.tolist(),
+                "std_mm": self.std_mm,
                 "std_parts_mm": dict(self.std_parts_mm)}
 
 
@@ -190,7 +194,8 @@ def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
     abs_H_rob = robot_pose_at(P_prev, P_at, abs_n, roll_deg, pitch_deg)
     abs_P, rob_P, scn_xy = mark_to_abs(uv, scs, rob_H_scn, abs_H_rob)
 
-    steps = np.array([_STEP_MM] * 6 + [_STEP_PX] * 2 + [_STEP_MM] * 3 + [_STEP_RAD] * 3 + [1e-4] * 2 + [_STEP_RAD])
+    steps = np.array([_STEP_MM] * 6 + [_STEP_PX] * 2 + [_STEP_MM] * 3 + [_STEP_RAD] * 3 + [1e-4] * 2
+                     + [_STEP_RAD])
     J = np.zeros((2, 17))
     for k in [k for k in range(17) if tilt or k not in (14, 15)]:
         dx = np.zeros(17)

@@ -48,10 +48,12 @@ class ModelCheckGates:
     """Limits of the camera-model checks (derivations in docs/architecture.md)."""
 
     min_significance: float = 5.0  # |Δf|/σ_f of the refit; two-sided Gaussian false alarm 6e-7
-    warn_height_mm: float = 0.015  # implied camera-height change: 1/3 of the nominal t_z limit (docs/accuracy.md)
+    # implied camera-height change: 1/3 of the nominal t_z limit (docs/accuracy.md)
+    warn_height_mm: float = 0.015
     fail_height_mm: float = 0.045  # the nominal t_z limit (docs/accuracy.md, "Acceptance thresholds")
     radial_min_f_ratio: float = 10.0  # F(3, N) above 10: chance ~1e-6 under corner noise alone
-    radial_warn_plate_mm: float = 0.005  # peak radial pattern on the plate: the noise-free footprint limit (docs/accuracy.md)
+    # peak radial pattern on the plate: the noise-free footprint limit (docs/accuracy.md)
+    radial_warn_plate_mm: float = 0.005
     model_k_sigma: float = 3.0  # the model's own 3σ focal error, as a height error, against the t_z limit
 
 
@@ -65,7 +67,8 @@ class FocalRefit:
     height_change_mm: float  # refitted minus given
     rms_px: float  # reprojection RMS after the refit
 
-    resolvable_height_mm: float = float("nan")  # height change at the significance gate: what this image can see
+    # height change at the significance gate: what this image can see
+    resolvable_height_mm: float = float("nan")
 
     @property
     def significance(self) -> float:
@@ -100,14 +103,16 @@ class ModelCheck:
         if self.focal is not None:
             f = self.focal
             out["focal_refit"] = {k: _num(v) for k, v in (
-                ("scale", f.scale), ("sigma", f.sigma), ("significance", f.significance), ("height_mm", f.height_mm),
+                ("scale", f.scale), ("sigma", f.sigma), ("significance", f.significance),
+                ("height_mm", f.height_mm),
                 ("height_change_mm", f.height_change_mm), ("rms_px", f.rms_px),
                 ("resolvable_height_mm", f.resolvable_height_mm))}
         if self.radial is not None:
             r = self.radial
             out["radial_pattern"] = {k: _num(v) for k, v in (("f_ratio", r.f_ratio), ("peak_px", r.peak_px),
                                                                ("peak_plate_mm", r.peak_plate_mm),
-                                                               ("sigma_px", r.sigma_px), ("model_peak_px", r.model_peak_px))}
+                                                               ("sigma_px", r.sigma_px),
+                                                               ("model_peak_px", r.model_peak_px))}
         return out
 
 
@@ -165,7 +170,8 @@ def focal_refit(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_H_ref: 
                       _plane_distance(H) - h0, float(np.sqrt(2 * s2)))
 
 
-def radial_pattern(model: CameraModel, uv: np.ndarray, residuals: np.ndarray, height_mm: float) -> RadialPattern:
+def radial_pattern(model: CameraModel, uv: np.ndarray, residuals: np.ndarray, height_mm: float
+                   ) -> RadialPattern:
     """Fit the radial residual component (about the principal point) by odd powers of ρ.
 
     The tangential component carries the same corner noise but no radial-distortion
@@ -216,18 +222,19 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     f = check.focal
     if f is not None and f.significance >= gates.min_significance:
         text = (f"camera model: with its distortion, the target corners fit a focal length "
-                f"{100 * (f.scale - 1):+.2f} % ± {100 * f.sigma:.2f} % from the model's, which moves the camera "
-                f"height by {1000 * f.height_change_mm:+.0f} µm")
+                f"{100 * (f.scale - 1):+.2f} % ± {100 * f.sigma:.2f} % from the model's, which moves the "
+                f"camera height by {1000 * f.height_change_mm:+.0f} µm")
         if abs(f.height_change_mm) >= gates.fail_height_mm:
             fails.append(f"{text} (limit {1000 * gates.fail_height_mm:.0f} µm); {ADVICE}")
         elif abs(f.height_change_mm) >= gates.warn_height_mm:
             warns.append(f"{text} (> {1000 * gates.warn_height_mm:.0f} µm); {ADVICE}")
     r = check.radial
-    if (r is not None and r.f_ratio >= gates.radial_min_f_ratio and r.peak_plate_mm >= gates.radial_warn_plate_mm
+    if (r is not None and r.f_ratio >= gates.radial_min_f_ratio
+            and r.peak_plate_mm >= gates.radial_warn_plate_mm
             and r.peak_px > gates.model_k_sigma * r.model_peak_px):  # beyond what the model's 3σ allows
         warns.append(f"camera model: radial pattern in the corner residuals, up to {r.peak_px:.3f} px "
-                     f"({1000 * r.peak_plate_mm:.1f} µm on the plate, F = {r.f_ratio:.0f}): the distortion does "
-                     f"not fit this camera; {ADVICE}")
+                     f"({1000 * r.peak_plate_mm:.1f} µm on the plate, F = {r.f_ratio:.0f}): the distortion "
+                     f"does not fit this camera; {ADVICE}")
     if check.model_sigma_f is not None and f is not None:
         dz = gates.model_k_sigma * check.model_sigma_f * f.height_mm
         if dz >= gates.fail_height_mm:
@@ -241,8 +248,8 @@ def _findings(check: ModelCheck, gates: ModelCheckGates) -> None:
     elif f is not None and f.resolvable_height_mm >= gates.fail_height_mm:
         # too few or too noisy corners to vouch for the model: say so, but it is no finding against it
         notes.append(f"camera model (note): this image checks the focal length only to ±"
-                     f"{100 * gates.min_significance * f.sigma:.2f} % ({gates.min_significance:g}σ), i.e. a camera "
-                     f"height error below {1000 * f.resolvable_height_mm:.0f} µm would go unseen")
+                     f"{100 * gates.min_significance * f.sigma:.2f} % ({gates.min_significance:g}σ), i.e. a "
+                     f"camera height error below {1000 * f.resolvable_height_mm:.0f} µm would go unseen")
     check.messages = fails + warns + notes
     check.verdict = "fail" if fails else ("warn" if warns else "ok")
 
@@ -262,15 +269,18 @@ def camera_height(check: ModelCheck, height_mm: float, rob_H_cam: np.ndarray) ->
     if sigma_f is None:
         sigma_f = UNSTATED_F_REL
         check.messages.append(
-            f"camera model (note): camera height not resolved by this model: ±{sigma_f * height_mm * 1000:.0f} µm "
-            f"(1σ, in rob_H_cam's stated uncertainty) — camera_model.json states no focal-length σ (std.fx, "
-            f"std.fy), so ±{100 * sigma_f:g} % of f is assumed, and a view of the flat plate cannot tell a focal "
-            f"length wrong with its distortion from the distance (floor marks are not affected); a model from "
-            f"`ritactl intrinsics` states its σ")
+            f"camera model (note): camera height not resolved by this model: "
+            f"±{sigma_f * height_mm * 1000:.0f} µm (1σ, in rob_H_cam's stated uncertainty) — "
+            f"camera_model.json states no focal-length σ (std.fx, std.fy), so ±{100 * sigma_f:g} % of f is "
+            f"assumed, and a view of the flat plate cannot tell a focal length wrong with its distortion "
+            f"from the distance (floor marks are not affected); a model from `ritactl intrinsics` states "
+            f"its σ")
     return (sigma_f * height_mm) ** 2 * np.outer(axis, axis)
 
 #: where each uncertain parameter of camera_model.json's ``std`` sits: (row, col) of K, or a dist index
-_STD_SLOTS: dict[str, tuple[str, tuple[int, int] | int]] = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)), "k1": ("dist", 0), "k2": ("dist", 1), "p1": ("dist", 2),
+_STD_SLOTS: dict[str, tuple[str, tuple[int, int] | int]] = {"cx": ("K", (0, 2)), "cy": ("K", (1, 2)),
+                                                           "k1": ("dist", 0), "k2": ("dist", 1),
+                                                           "p1": ("dist", 2),
               "p2": ("dist", 3), "k3": ("dist", 4)}
 
 
@@ -325,7 +335,8 @@ def check_camera_model(model: CameraModel, obj: np.ndarray, uv: np.ndarray, cam_
     obj = np.asarray(obj, float).reshape(-1, 3)
     uv = np.asarray(uv, float).reshape(-1, 2)
     if len(obj) != len(uv) or len(obj) < 8:
-        raise ValueError(f"check_camera_model: need >= 8 matching corners, got {len(obj)} points and {len(uv)} pixels")
+        raise ValueError(f"check_camera_model: need >= 8 matching corners, got {len(obj)} points and "
+                         f"{len(uv)} pixels")
     rvec, _ = cv2.Rodrigues(np.asarray(cam_H_ref, float)[:3, :3])
     proj, _ = cv2.projectPoints(obj, rvec, np.asarray(cam_H_ref, float)[:3, 3], model.K, model.dist)
     check = ModelCheck()

@@ -10,14 +10,23 @@ learns its own weight from its own stops and compares (:func:`recheck`):
 * the two weights, z = (w_own − w_applied) / √(σ_own² + σ_applied²), a disagreement beyond
   :data:`RECHECK_Z` (each σ covers the spread between experiments, calibration/heading_weight.py);
 * the conditions: each a tolerance of its own (:data:`TOLERANCE`); the slopes' rms by a z of its
-  log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)).
+  log ratio (the rms of n slopes has a relative standard error ≈ 1/√(2n)); the bend model when the
+  one chosen now is the richer (a simpler one chosen now only means the richer was not shown
+  significantly here, calibration/weight_cv.py).
 
-Either makes the experiment's verdict ``warn``, naming both weights and what differs.
+Either makes the experiment's verdict ``warn``, naming both weights and what differs. When this
+experiment's own weight has no σ (its bend was fitted at too few stops, or its headings do not
+separate the weight from M and b), z cannot be made: the conditions are still compared, a differing
+one still warns (the weight was learned on another robot state, and nothing here shows it holds),
+and the warning says that the weight itself could not be re-checked, and why; with the same
+conditions the verdict stays ``ok`` (nothing contradicts the weight).
 """
 from __future__ import annotations
 
 import math
 from typing import Any
+
+from calibration.heading_weight import MODELS
 
 #: two weights disagree beyond this many standard errors of their difference
 RECHECK_Z = 3.0
@@ -65,6 +74,19 @@ def _slopes_differ(a: dict[str, Any], b: dict[str, Any]) -> str | None:
             f"(z {z:.1f} > {SLOPE_Z:g}: the paths bend differently)")
 
 
+def _model_differs(learned: Any, now: Any) -> bool:
+    """A bend model chosen now differs from the learned one as evidence of a changed path only when it is
+    the richer one: an experiment keeps a richer model only when its held-out directions show it
+    significantly (calibration/weight_cv.py), so a simpler one chosen now means "not shown here", which
+    says nothing against the richer model learned."""
+    order = list(MODELS)
+    if learned == now:
+        return False
+    if learned in order and now in order:
+        return order.index(now) > order.index(learned)
+    return True
+
+
 def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> list[str]:
     """Each condition of ``now`` that differs from those the weight was ``learned`` under, named."""
     if learned is None:
@@ -73,10 +95,16 @@ def conditions_differ(learned: dict[str, Any] | None, now: dict[str, Any]) -> li
     if learned.get("tilt") != now.get("tilt"):
         out.append(f"tilt compensation {'on' if learned.get('tilt') else 'off'} learned, "
                    f"{'on' if now.get('tilt') else 'off'} now")
-    if learned.get("model") != now.get("model"):
+    if _model_differs(learned.get("model"), now.get("model")):
         out.append(f"bend model {learned.get('model')!r} learned, {now.get('model')!r} now")
     out.append(_slopes_differ(learned, now))
     return [d for d in out if d]
+
+
+def not_rechecked(same: Any) -> str:
+    """Why the experiment's own weight has no σ to compare with (its record's reason, else the stop count)."""
+    why = str(getattr(same, "why", "") or "").removesuffix(": the chord is used")
+    return why or f"its σ is not estimated from the {same.n_stops} stops whose bend was fitted"
 
 
 def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
@@ -96,6 +124,8 @@ def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
     both = (f"applied weight {applied.weight:.2f} (fit {applied.weight_fit:.2f} ± {applied.sigma:.2f}, "
             f"{applied.model}), this experiment's own {same.weight_fit:.2f} ± {same.sigma:.2f}")
     why = ([f"they differ by {z:.1f}σ (> {RECHECK_Z:g}σ)"] if disagree else []) + differs
+    if z is None:  # no σ here: only the conditions are compared, and the warning says so
+        why.append(f"the weight itself could not be re-checked here ({not_rechecked(same)})")
     message = None if ok else (f"heading_fit's stored weight may not hold for this robot any more: {both}; "
                                f"{'; '.join(why)}; the chord's figures are in the result (chord)")
     return {"applied_weight": applied.weight, "applied_weight_fit": applied.weight_fit,
@@ -104,4 +134,5 @@ def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
             "own_model": own.model, "z": z, "differs": differs, "ok": ok, "message": message}
 
 
-__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "recheck"]
+__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "not_rechecked",
+           "recheck"]

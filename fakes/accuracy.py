@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.compensation import Compensation, Stop, compensate, imu_offset_deg, reflector_height_mm, tilt_of_pose
+from calibration.compensation import (Compensation, Stop, compensate, imu_offset_deg, reflector_height_mm,
+                                      tilt_of_pose)
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight, learn_from_stops, stop_marks
 from calibration.imu_mount import imu_mount
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_mark, stated_tracker_sigma
@@ -94,16 +95,19 @@ def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
                 bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None,
                 mount: MountOffset | None = None, imu_yaw_deg: float = 0.0,
-                heading_weight: HeadingWeight | None = NOT_LEARNED, learn: list[Any] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                heading_weight: HeadingWeight | None = NOT_LEARNED, learn: list[Any] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
 
     σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
     from its MPE at its distance (``abs_t_trk``: the tracker's ACS position; None: the 10 µm
-    default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``, the reflector mount's share. Per stop:
+    default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``, the reflector
+    mount's share. Per stop:
     that std_mm; the mark variance per unit tracker variance (mm²/mm², to restate σ with another
     σ_t); the mark's lever arm from the reflector (mm); the std_mm the product first stated
     (10 µm, no heading or mount term); the heading term's share (mm); the tracker σ used (mm).
-    ``heading_weight``: the calibration's learned share of the fitted bend (as the product: none learned, the chord;
+    ``heading_weight``: the calibration's learned share of the fitted bend (as the product: none learned,
+    the chord;
     None: each stop's own significance test); ``learn``: a list each stop's
     chord and fitted marks are appended to (calibration/heading_weight.py ``stop_marks``), as the experiment
     the product learns the weight from records them.
@@ -142,7 +146,8 @@ def referencing(sim: Simulation, reversal: bool) -> Calibration:
     """The referencing as daemon/compute/procedures.py ``compute_referencing`` combines it (one run, or two
     180° apart), on the simulation's observations."""
     obs, res = _visit(sim, None, "calib")
-    scs = make_scs(sim.model, res.cam_H_ref)  # with a reversal: the SCS of the first run (calibration/reversal.py)
+    # with a reversal: the SCS of the first run (calibration/reversal.py)
+    scs = make_scs(sim.model, res.cam_H_ref)
     if not reversal:
         offset = imu_offset_deg(res.abs_H_rob, *obs.imu_deg) if obs.imu_deg is not None else None
         return Calibration(res.rob_H_scn, res.rob_H_cam, scs, None if res.uncertainty is None else
@@ -154,8 +159,9 @@ def referencing(sim: Simulation, reversal: bool) -> Calibration:
     assert mount is not None, why
     offset, yaw = None, 0.0
     if obs.imu_deg is not None and obs1.imu_deg is not None:
-        im = imu_mount([tilt_of_pose(res.abs_H_rob), tilt_of_pose(res1.abs_H_rob)], [obs.imu_deg, obs1.imu_deg],
-                       [obs.imu_sigma_deg or 0.0, obs1.imu_sigma_deg or 0.0], reflector_height_mm(rev.rob_H_scn))
+        im = imu_mount([tilt_of_pose(res.abs_H_rob), tilt_of_pose(res1.abs_H_rob)],
+                       [obs.imu_deg, obs1.imu_deg], [obs.imu_sigma_deg or 0.0, obs1.imu_sigma_deg or 0.0],
+                       reflector_height_mm(rev.rob_H_scn))
         offset = None if im.offset_deg is None else (im.offset_deg[0], im.offset_deg[1])
         yaw = im.yaw_deg or 0.0
     return Calibration(rev.rob_H_scn, rev.rob_H_cam, scs, rev.cov_rob_H_scn, offset, yaw, mount)
@@ -205,4 +211,5 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, tuple[float, float]]:
             for k in METRICS}
 
 
-__all__ = ["Calibration", "Case", "GOALS_MM", "METRICS", "PAPER_MM", "measure_all", "referencing", "run", "summarise"]
+__all__ = ["Calibration", "Case", "GOALS_MM", "METRICS", "PAPER_MM", "measure_all", "referencing", "run",
+           "summarise"]

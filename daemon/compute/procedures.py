@@ -223,7 +223,7 @@ def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]
     r["sigma"].update(stated_mm=r["std_mm"], scale=scale, scale_source=source)
     r["std_mm"] = r["std_mm"] * scale
     messages = [bad] if bad else ([f"σ scaled by {scale:.2f}: the calibration's last experiment ({source}) "
-                                   f"found its stated σ short of its scatter by that Birge ratio"]
+                                   f"found its stated σ short of its scatter by that factor"]
                                   if scale > 1.0 else [])
     return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,

@@ -113,3 +113,30 @@ def test_the_weights_sigma_covers_the_spread_between_experiments():
 
     by_direction, by_stop = rms_z(True), rms_z(False)
     assert by_direction < 1.15 < by_stop, (by_direction, by_stop)
+
+
+def test_a_weight_that_could_not_be_re_estimated_here_is_named_so():
+    """The rule for an own weight without σ (its bend fitted at too few stops): the conditions are still
+    compared, a differing one warns, and the warning says the weight itself could not be re-checked and
+    why; with the same conditions nothing contradicts the applied weight and the check is ok."""
+    w = learned("arc", 1)
+    none = replace(w, weight=0.0, weight_fit=0.0, sigma=math.inf, n_stops=3, applied=False,
+                   why="the bend was fitted at 3 stops (the weight needs >= 8): the chord is used")
+    r = recheck(w, replace(none, conditions={**w.conditions, "model": "cubic"}), none)
+    assert not r["ok"] and r["z"] is None and "bend model 'lowest' learned, 'cubic' now" in r["message"]
+    assert ("the weight itself could not be re-checked here (the bend was fitted at 3 stops (the weight "
+            "needs >= 8))") in r["message"]
+    same = recheck(w, replace(none, conditions=w.conditions), none)
+    assert same["ok"] and same["message"] is None and same["z"] is None
+
+
+def test_a_simpler_bend_model_chosen_now_is_no_changed_condition_a_richer_one_is():
+    """The cubic is kept only when the held-out directions show it significantly: an experiment that keeps
+    the lowest has not shown the cubic, which says nothing against a cubic learned (no warn on that alone);
+    one that keeps the cubic where the lowest was learned has shown a shape the learning did not need."""
+    w = learned("arc", 1)
+    cubic = {**w.conditions, "model": "cubic"}
+    assert conditions_differ(cubic, w.conditions) == []
+    assert conditions_differ(w.conditions, cubic) == ["bend model 'lowest' learned, 'cubic' now"]
+    assert conditions_differ({**w.conditions, "model": None}, w.conditions) == [
+        "bend model None learned, 'lowest' now"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.heading_weight import learn_from_stops
+from calibration.weight_cv import ALPHA_CHOICE, better, sign_flip_p
 from calibration.metrics import fit_bias
 from tests.calibration.weight_world import B_TRUE, experiment
 
@@ -38,3 +39,47 @@ def test_fewer_than_five_directions_cannot_be_cross_validated_and_keep_the_chord
     ex = experiment("arc", 1, n_dirs=4, reps=5)
     w = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
     assert not w.applied and w.cv is None and "fewer than 5 directions" in w.why and w.b_mm is not None
+
+
+def test_the_sign_flip_test_is_exact():
+    """Eight directions all favouring the richer model: p = 1/256, the least the test can give; one against
+    it: 9/256; a balanced pattern: not significant."""
+    assert sign_flip_p([1.0] * 8) == 1 / 256
+    assert sign_flip_p([1.0] * 7 + [-1.0]) == 9 / 256
+    assert sign_flip_p([1.0, -1.0] * 4) > 0.5 and sign_flip_p([-1.0] * 8) == 1.0
+    assert better([2.0] * 8, [1.0] * 8) == (True, 1 / 256)
+    assert better([2.0] * 4, [1.0] * 4) == (False, 1.0)  # fewer than MIN_FOLDS directions: no choice
+
+
+def test_the_record_carries_the_paired_test_and_the_per_direction_figures():
+    """Arcs with a floor offset per direction and a 60-point stream: held out, the weight's RMS is lower
+    than the chord's, though not significantly over the eight directions; the weight is kept (the smaller
+    RMS decides between chord and weight) and the record carries the test's p and each direction's
+    figures."""
+    ex = experiment("arc", 1, n_stream=60, floor_mm=0.02)
+    w = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
+    assert w.cv is not None and w.cv["weight_rms_mm"] < 0.8 * w.cv["chord_rms_mm"], w.cv
+    assert w.cv["chosen"] == "weight" and ALPHA_CHOICE <= w.cv["p"] < 0.1 and w.applied
+    assert len(w.cv["chord_fold_ms_mm2"]) == len(w.cv["weight_fold_ms_mm2"]) == 8
+    assert w.cv["p"] == better(w.cv["chord_fold_ms_mm2"], w.cv["weight_fold_ms_mm2"])[1]
+
+
+def test_the_cubic_replaces_the_lowest_model_only_when_it_predicts_significantly_better(monkeypatch):
+    """Both models shown, the cubic's held-out error a little smaller in most directions but not
+    significantly: the lowest is kept; smaller in every direction: the cubic."""
+    import calibration.heading_weight as hw
+
+    ex = experiment("arc", 1)
+    real = hw.learn_model
+
+    def fake(stops, psi, groups, model, cubic_ms):
+        w = real(stops, psi, groups, "lowest")
+        cv = {**(w.cv or {}), "weight_fold_ms_mm2": cubic_ms} if model == "cubic" else w.cv
+        return hw.replace(w, model=model, cv=cv)
+
+    lowest = real(ex["stops"], ex["heads"], ex["groups"], "lowest").cv["weight_fold_ms_mm2"]
+    slightly = [m * (0.97 if i % 3 else 1.03) for i, m in enumerate(lowest)]  # 5 of 8 smaller, not significant
+    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, slightly))
+    assert learn_from_stops(ex["stops"], ex["heads"], ex["groups"]).model == "lowest"
+    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, [0.9 * m for m in lowest]))
+    assert learn_from_stops(ex["stops"], ex["heads"], ex["groups"]).model == "cubic"

@@ -30,3 +30,16 @@ def test_one_changed_shape_case_is_scored_against_truth_with_the_products_verdic
     assert rows[0]["weight"] is not None and rows[1]["weight"] is None
     text = tables(rows)
     assert "arc → kink-end" in text and "Shape changed after learning" in text
+
+
+def test_the_joint_fit_comparator_keeps_the_in_sample_weight_where_the_product_keeps_the_chord():
+    """bench's b/w comparator: a kink near the stop whose weight passes in-sample but the held-out directions
+    prefer the chord: the product stores the chord, the comparator the weight with its joint b."""
+    from bench.accuracy_shapes import joint_from_stops
+    from calibration.heading_weight import learn_from_stops
+    from tests.calibration.weight_world import experiment
+
+    ex = experiment("kink", 2, n_stream=60)
+    product, joint = (f(ex["stops"], ex["heads"], ex["groups"]) for f in (learn_from_stops, joint_from_stops))
+    assert not product.applied and product.cv["chosen"] == "chord"
+    assert joint.applied and joint.weight > 0.0 and joint.b_mm != product.b_mm

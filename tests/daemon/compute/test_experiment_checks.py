@@ -70,8 +70,10 @@ def test_a_scatter_the_stated_sigma_does_not_cover_warns_with_the_ratio_and_scal
 
     result, _ = recompute(_copy(base[1], tmp_path, shift), compensation="none")
     check = result["checks"]["sigma"]
-    assert result["verdict"] == "warn" and not check["ok"] and check["scale"] == check["birge_ratio"] > 1.5
-    assert any(f"Birge ratio {check['birge_ratio']:.2f}" in m for m in result["messages"])
+    assert result["verdict"] == "warn" and not check["ok"] and check["birge_ratio"] > 1.5
+    assert check["scale"] == max(check["birge_ratio"], check["coverage_factor"])
+    assert any(f"Birge ratio {check['birge_ratio']:.2f}" in m and f"scaled by {check['scale']:.2f}" in m
+               for m in result["messages"])
     for m in result["marks"]:
         assert m["std_mm"] == pytest.approx(m["sigma"]["stated_mm"] * check["scale"])
         assert m["sigma"]["scale"] > 1.5
