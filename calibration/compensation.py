@@ -39,7 +39,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from calibration.bend_fit import (MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, chord_sigma, fit_heading,
+from calibration.bend_fit import (MIN_FIT_POINTS, bend_fit, chord_sigma, fit_heading,
                                   fit_heading_sigma)
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
