@@ -305,7 +305,3 @@ def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, floa
                           f"{weight.slope_limit_rad * 1e6:.0f} µrad ({SLOPE_LIMIT:g}× the robust scale) of "
                           f"the slopes the weight was learned on: the chord is used")
     return weight.weight * slope_rad, weight.sigma_heading_rad, ""
-
-
-__all__ = ["HeadingWeight", "MIN_STOPS", "MODELS", "NOT_LEARNED", "SIGNIFICANCE", "SLOPE_LIMIT", "StopMarks",
-           "learn_from_stops", "learn_heading_weight", "learn_model", "stop_marks", "weighted_slope"]

@@ -117,6 +117,3 @@ def better(simpler_ms: Any, richer_ms: Any) -> tuple[bool, float]:
         return False, 1.0
     p = sign_flip_p(a - b)
     return p < ALPHA_CHOICE, p
-
-
-__all__ = ["ALPHA_CHOICE", "MIN_FOLDS", "better", "cross_validate", "design", "sign_flip_p", "with_weight"]
