@@ -137,6 +137,21 @@ def test_too_few_fitted_stops_and_unseparable_headings_are_refused_with_a_reason
         learn_heading_weight(np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(3), np.zeros(4))
 
 
+def test_the_chords_reason_is_kept_apart_from_its_consequence():
+    """``reason`` is why the chord is kept, ``why`` adds what follows (the chord is used): a message that
+    states its own consequence quotes ``reason`` and parses nothing; the field round-trips, and a record
+    stored before it reads as ""."""
+    w = learn_heading_weight(np.zeros((5, 2)), np.ones((5, 2)), np.zeros(5), np.ones(5))
+    assert w.reason == "the bend was fitted at 5 stops (the weight needs >= 8)"
+    assert w.why == w.reason + ": the chord is used"
+    assert NOT_LEARNED.why == NOT_LEARNED.reason + ": the chord is used"
+    assert HeadingWeight.from_dict(w.to_dict()) == w
+    old = {k: v for k, v in w.to_dict().items() if k != "reason"}
+    assert HeadingWeight.from_dict(old).reason == ""
+    shown = learned("arc", 1)
+    assert shown.applied and shown.reason == "" and shown.why == ""
+
+
 def test_a_stored_record_round_trips_and_a_bad_one_names_its_field():
     w = learned("arc", 1)
     assert HeadingWeight.from_dict({**w.to_dict(), "job": "x"}) == w

@@ -31,6 +31,7 @@ def test_where_the_chord_with_its_own_b_predicts_better_it_is_stored_with_that_b
     assert w.cv is not None and w.cv["chosen"] == "chord" and w.cv["chord_rms_mm"] <= w.cv["weight_rms_mm"]
     assert not w.applied and w.weight == 0.0 and w.weight_fit > 0.0
     assert f"({w.cv['chord_rms_mm']:.4f} mm RMS)" in w.why and f"({w.cv['weight_rms_mm']:.4f} mm)" in w.why
+    assert w.why == w.reason + ": the chord is used"
     chord_b = fit_bias(np.array([c for c, _ in ex["stops"]]), ex["heads"]).b  # equal repetitions: the same b
     assert np.allclose(w.b_mm, chord_b, atol=1e-9), (w.b_mm, chord_b)
 
