@@ -210,8 +210,3 @@ def chord_sigma(fit: BendFit, anchor_sigma_mm: float, length_mm: float) -> float
     """
     own = float(np.sqrt(fit.slope_rad ** 2 + fit.sigma_rad ** 2 + fit.end_lack_of_fit_rad ** 2))
     return fit_heading_sigma(own, anchor_sigma_mm, length_mm) if np.isfinite(own) else 0.0
-
-
-__all__ = ["BendFit", "END_FRACTION", "MAX_DEGREE", "MIN_FIT_POINTS", "MIN_FIT_SPAN_MM", "SIGNIFICANCE",
-           "bend_fit", "chord_sigma", "fit_heading",
-           "fit_heading_sigma"]

@@ -39,8 +39,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from calibration.bend_fit import (MIN_FIT_POINTS, MIN_FIT_SPAN_MM, bend_fit, chord_sigma, fit_heading,
-                                  fit_heading_sigma)
+from calibration.bend_fit import MIN_FIT_POINTS, bend_fit, chord_sigma, fit_heading_sigma
 from calibration.checks import stream_ends_check, stream_tilt_check
 from calibration.frames import check_H, rot_x, rot_y, rot_z
 from calibration.heading_weight import MODELS, HeadingWeight, weighted_slope
@@ -442,10 +441,3 @@ def _bias_applied(out: Applied, bias_b_mm: Any) -> None:
         out.applied.append("bias")
     except ValueError as exc:  # a stored b that cannot be a calibration bias: measure without it
         out.skipped["bias"] = str(exc)
-
-
-__all__ = ["Applied", "BUILT_IN", "Compensation", "LEAN_NOT_COMPENSATED", "NO_STREAM_TILT", "STEPS", "Step",
-           "Stop", "apply_bias", "names_known", "register",
-           "body_z", "compensate", "fit_heading", "fit_heading_sigma", "forward_prev", "ground_chord",
-           "ground_point",
-           "imu_offset_deg", "reflector_height_mm", "tilt_of_pose"]

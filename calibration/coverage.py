@@ -154,7 +154,3 @@ def stored_scale(record: Any) -> tuple[float, str]:
     if not (math.isfinite(scale) and scale >= 1.0):
         return 1.0, f"calibration: sigma_check scale={scale} must be >= 1: σ not scaled"
     return scale, ""
-
-
-__all__ = ["ALPHA", "COMMON_PARTS", "P95_RADIUS", "P_BEYOND", "SigmaCheck", "binomial_tail", "check_sigma",
-           "chi2_quantile", "scatter_sigma", "stored_scale"]

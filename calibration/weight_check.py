@@ -132,7 +132,3 @@ def recheck(applied: Any, own: Any, same: Any = None) -> dict[str, Any]:
             "applied_sigma": applied.sigma if math.isfinite(applied.sigma) else None,
             "own_weight_fit": same.weight_fit, "own_sigma": same.sigma if math.isfinite(same.sigma) else None,
             "own_model": own.model, "z": z, "differs": differs, "ok": ok, "message": message}
-
-
-__all__ = ["RECHECK_Z", "SLOPE_Z", "TOLERANCE", "conditions_differ", "learning_conditions", "not_rechecked",
-           "recheck"]

@@ -19,7 +19,7 @@ from types import MappingProxyType
 from typing import Any, Iterator, Mapping
 
 from daemon.bus.args import POS, REQUIRED, Arg, BadValue
-from daemon.bus.procedures import MOVING_PROCEDURES, PROCEDURES
+from daemon.bus.procedures import PROCEDURES
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.names import ROLES
 

@@ -53,6 +53,3 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any],
             "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit_b), "fit_rms_mm": fit.get("rms_mm"),
                            "added_to_mm": held if applied else None, "compensation": used,
                            "stored": stored or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
-
-
-__all__ = ["biased_calibration"]

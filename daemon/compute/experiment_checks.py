@@ -74,6 +74,3 @@ def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[
         check = recheck(applied, own, same)
     chord_xy = np.array([c for c, _ in learn], dtype=float).reshape(-1, 2)
     return own.to_dict(), check, experiment_metrics(chord_xy, headings, groups).to_dict()
-
-
-__all__ = ["sigma_check", "weight_checks"]

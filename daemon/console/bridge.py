@@ -16,7 +16,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
-from daemon.bus.client import Client, ClientTimeout, Subscriber
+from daemon.bus.client import Client, Subscriber
 from daemon.bus.protocol import CommandError
 from daemon.bus.names import Topic
 from daemon.console.series import Series

@@ -26,11 +26,12 @@ from urllib.parse import quote
 from aiohttp import WSMsgType, web
 
 from daemon import __version__
-from daemon.bus.command_table import COMMANDS, PROCEDURES, ROLES
-from daemon.bus.procedures import describe as procedure_info, schema as procedure_schema
+from daemon.bus.client import ClientTimeout
+from daemon.bus.command_table import COMMANDS, ROLES
+from daemon.bus.procedures import PROCEDURES, describe as procedure_info, schema as procedure_schema
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.bus.storage import atomic_write_bytes
-from daemon.console.bridge import Bridge, ClientTimeout
+from daemon.console.bridge import Bridge
 from daemon.console.gate import Gate, new_token
 from daemon.console.jobs import start_job
 from daemon.console.series import SERIES

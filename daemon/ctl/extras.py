@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
-from daemon.ctl.exitcodes import CtlError, missing_extra
+from daemon.ctl.exitcodes import missing_extra
 
 
 @dataclass(frozen=True)

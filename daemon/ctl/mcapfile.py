@@ -37,7 +37,7 @@ import base64
 import json
 import math
 import struct
-from typing import Any, Callable
+from typing import Any
 
 from daemon.bus.names import Topic
 

@@ -21,8 +21,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable
 
-from daemon.bus.command_table import MOVING_PROCEDURES, PROCEDURES
-from daemon.bus.procedures import check_params, get
+from daemon.bus.procedures import MOVING_PROCEDURES, PROCEDURES, check_params, get
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.ritad.server import Request
 from daemon.ritad.stop_latch import StopLatch

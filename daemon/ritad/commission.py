@@ -131,6 +131,3 @@ def commission_handlers(rob: RobotRig) -> dict[str, Handler]:
         return rob.job(guarded, timeout=90.0 + 2 * clock_s)
 
     return {"robot.commission": run}
-
-
-__all__ = ["commission_handlers", "kit_checks", "run_on_port"]

@@ -11,7 +11,6 @@ The result is computed from the stored images by ``daemon.compute.procedures.com
 """
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from calibration import compensation
-from calibration.bend_fit import bend_fit
-from calibration.compensation import (Compensation, Stop, apply_bias, compensate, fit_heading, ground_chord,
+from calibration.bend_fit import bend_fit, fit_heading
+from calibration.compensation import (Compensation, Stop, apply_bias, compensate, ground_chord,
                                       ground_point, imu_offset_deg, reflector_height_mm, tilt_of_pose)
 from calibration.frames import apply_H, make_H, rot_x, rot_y, rot_z
 from calibration.measure import robot_pose_at

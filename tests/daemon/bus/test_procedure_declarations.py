@@ -16,7 +16,7 @@ import pytest
 
 from daemon.bus import procedures, schema_lists
 from daemon.bus.procedure_params import Param
-from daemon.bus.procedures import (ALL, EXPERIMENT, MEASURE_MARK, PROCEDURES, REFERENCING, Hooks, ParamError,
+from daemon.bus.procedures import (ALL, EXPERIMENT, PROCEDURES, REFERENCING, Hooks, ParamError,
                                    check_params, markdown_table)
 from daemon.compute.files import EXTRA_FILES
 from daemon.compute.procedures import COMPUTE

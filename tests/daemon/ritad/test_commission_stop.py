@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from daemon.ritad.commission import run_on_port
+from daemon.ritad.commission import KIT_CHECKS, run_on_port
 from drivers.base import DeviceError, DeviceURL
 from drivers.motion_gate import MotionGate
 from drivers.robot import SerialRobot
@@ -106,3 +106,13 @@ def test_a_stop_latched_before_the_kit_writes_no_motion_line(base: Base) -> None
         assert checks["latency"]["verdict"] == "pass"  # what needs no motion ran
     finally:
         robot.close()
+
+
+def test_a_whole_kit_run_reports_exactly_the_checks_a_stop_would_name(base: Base) -> None:
+    # KIT_CHECKS is what a STOP mid-kit reports as not run: a check missing from it would go unreported
+    robot = driver(base, MotionGate())
+    try:
+        out = run_on_port(robot, True, 0.5)
+    finally:
+        robot.close()
+    assert {c["name"] for c in out["checks"]} - {"t_us_width"} == set(KIT_CHECKS), out["checks"]

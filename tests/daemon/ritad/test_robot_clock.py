@@ -37,7 +37,7 @@ def _run(seed: int) -> tuple[np.ndarray, np.ndarray]:
     for line in (rp.encode("HELLO", 1, 2), rp.encode("STATE", 2, 50)):
         base.handle_line(line.strip())
     base.drain()
-    clock, host_now = DeviceClock(), [0]
+    clock = DeviceClock()
     mapped: list[tuple[int, int, int]] = []  # (t_us, t_ns, t_sigma_ns)
 
     def emit(topic: str, payload: dict) -> None:
