@@ -17,8 +17,9 @@ calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes t
 best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight leaves the marks' smaller
 scatter). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
 the fit's *actual* error: on straight drives w ≈ 0 (the fit only adds noise), on bent ones it
-approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when it is
-significantly above 0; else they keep the chord and say why.
+approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
+expected to err less than the chord (w above √2 of its standard errors, :data:`APPLY_Z`) and it predicts
+the directions left out better (calibration/weight_cv.py); else they keep the chord and say why.
 
 The heading's σ left after applying w is the shrinkage's own: with S² the stops' mean squared
 fitted slope (= var(bend) + var(fit error)), var(bend) = w·S² and what remains is
@@ -35,8 +36,12 @@ import numpy as np
 from calibration.measure import robot_pose_at
 from calibration.weight_cv import better, cross_validate, design, with_weight
 
-#: the weight is applied only beyond this many standard errors above 0
-SIGNIFICANCE = 3.0
+#: the weight is applied only beyond this many standard errors above 0: where its expected squared error is
+#: below the chord's. Applying v instead of the best w* costs (v − w*)²·S² of squared heading (the loss is a
+#: parabola in v); the estimate costs σ², the chord w*², whose unbiased estimate is w_fit² − σ², so the
+#: estimate wins when w_fit² − σ² > σ²: z > √2 (Mallows' Cp and Akaike's criterion for one parameter: the
+#: prediction error, which the cross-validation then estimates held out; not a significance test)
+APPLY_Z = math.sqrt(2.0)
 #: a stop's fitted slope beyond this many times the learning experiment's robust slope scale is not applied
 #: (a Gaussian's tail beyond 4σ: 6e-5)
 SLOPE_LIMIT = 4.0
@@ -170,7 +175,7 @@ def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
                          fit_sigmas_rad: Any = None, model: str = "lowest",
-                         groups: Any = None, gate_z: float = SIGNIFICANCE) -> HeadingWeight:
+                         groups: Any = None, gate_z: float = APPLY_Z) -> HeadingWeight:
     """The weight of the fitted slope from an experiment's stops; see the module's docstring.
 
     ``chord_xy`` (N, 2): each stop's mark with the chord's heading; ``fit_xy`` (N, 2): with the full
@@ -209,9 +214,10 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     g = None if groups is None else np.asarray(groups).reshape(-1)
     w_fit, sigma = float(theta[4]), float(np.sqrt(max(cov[4, 4], _jackknife_var(A, y, g))))
     if not w_fit > gate_z * sigma:
-        return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than "
-                                   f"the chord (weight {w_fit:.2f} ± {sigma:.2f}, not above "
-                                   f"{gate_z:g}σ)")
+        z = "√2" if gate_z == APPLY_Z else f"{gate_z:g}"
+        return chord(w_fit, sigma, f"the bend fit is not expected to make the marks agree better than the "
+                                   f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {z}σ: its own error "
+                                   f"would exceed what it corrects)")
     w = min(w_fit, 1.0)
     fixed = with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
     assert fixed is not None
