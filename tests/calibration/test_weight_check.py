@@ -14,8 +14,8 @@ import pytest
 
 from calibration.heading_weight import (HeadingWeight, bend_model, learn_from_stops, learn_heading_weight,
                                         learn_model)
-from calibration.weight_check import (RECHECK_Z, chord_predicts_better, conditions_differ, learning_conditions,
-                                      recheck)
+from calibration.weight_check import (RECHECK_Z, chord_predicts_better, conditions_differ,
+                                      learning_conditions, recheck)
 from calibration.weight_cv import design, with_weight
 from tests.calibration.weight_world import B_TRUE, L, M_TRUE, experiment, rms
 
@@ -138,8 +138,8 @@ def test_a_weight_that_could_not_be_re_estimated_here_is_named_so():
     assert same["ok"] and same["message"] is None and same["z"] is None and not same["chord_better"]
 
 
-MODEL_DIFFERS = ("bend model 'lowest' learned, 'cubic' now (the model the stops' bends are best read by, each "
-                 "model's weight ungated)")
+MODEL_DIFFERS = ("bend model 'lowest' learned, 'cubic' now (the model the stops' bends are best read by, "
+                 "each model's weight ungated)")
 
 
 def test_a_simpler_bend_model_chosen_now_is_no_changed_condition_a_richer_one_is():
@@ -179,9 +179,9 @@ def test_the_paths_bend_model_does_not_follow_the_gate():
     assert s["shape_model"] == "cubic" and MODEL_DIFFERS in s["differs"] and not s["ok"], s
 
 
-def _marks(w_true: float, noise_mm: float, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(chord marks, marks with the whole fitted slope, headings, slopes) built exactly by heading_weight's model,
-    P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5 stops (Δ_k: a 300 µrad slope over the lever arm L)."""
+def _marks(w_true: float, noise_mm: float, seed: int) -> tuple[np.ndarray, ...]:
+    """(chord marks, marks with the whole fitted slope, headings, slopes) built exactly by heading_weight's
+    model, P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5 stops (Δ_k: a 300 µrad slope over the lever arm L)."""
     rng = np.random.default_rng(seed)
     psi = np.repeat(45.0 * np.arange(8), 5) + rng.normal(0.0, 0.5, 40)
     slopes = rng.normal(0.0, 300e-6, 40)
@@ -210,15 +210,15 @@ def test_the_chord_beats_an_applied_weight_exactly_below_half_of_it():
 
 
 def test_an_applied_weight_the_chord_predicts_better_warns_though_within_3_sigma():
-    """Stop 38's remaining miss (arc → kink, seed 102): own 0.27 ± 0.16 against 0.72 ± 0.11 applied, z −2.3,
+    """Stop 38's remaining miss (arc → kink, seed 102): own 0.27 ± 0.16 against 0.72 ± 0.11 applied, z ≈ −2.3,
     the same conditions: the chord predicts the scored stops better (0.27 < 0.36), so the verdict warns,
     naming both weights; at 0.40 the applied weight predicts them better and the re-check is ok."""
     w = learned("arc", 1)
     applied = replace(w, weight=0.72, weight_fit=0.72, sigma=0.11)
     r = recheck(applied, replace(w, weight_fit=0.27, sigma=0.16))
     assert abs(r["z"]) < RECHECK_Z and r["differs"] == [] and r["chord_better"] and not r["ok"], r
-    assert ("the chord predicts this experiment's stops better than the applied weight: their own weight 0.27 "
-            "is below half the applied 0.72") in r["message"] and "own 0.27 ± 0.16" in r["message"]
+    assert ("the chord predicts this experiment's stops better than the applied weight: their own weight "
+            "0.27 is below half the applied 0.72") in r["message"] and "own 0.27 ± 0.16" in r["message"]
     fine = recheck(applied, replace(w, weight_fit=0.40, sigma=0.16))
     assert fine["ok"] and not fine["chord_better"] and fine["message"] is None, fine
     # no weight applied, or no σ for the own weight (its w_fit is then no estimate): not made
@@ -231,8 +231,8 @@ def test_the_chord_rules_false_alarm_rate_on_an_unchanged_robot_is_the_documente
     the second's stops flag it at Φ(−(w*/2) / √(σ² + σ²/4)) = Φ(−z/√5) (weight_check's docstring; σ here the
     weights' spread over the runs), not at a rate the derivation does not give."""
     groups = np.repeat(np.arange(8), 5)
-    pairs = [tuple(learn_heading_weight(*_marks(0.3, 0.045, s), None, "lowest", groups) for s in (k, k + 10_000))
-             for k in range(1, 301)]
+    pairs = [tuple(learn_heading_weight(*_marks(0.3, 0.045, s), None, "lowest", groups)
+                   for s in (k, k + 10_000)) for k in range(1, 301)]
     fired = [chord_predicts_better(replace(a, weight=a.weight_fit, applied=True), b) is not None
              for a, b in pairs if 0.0 < a.weight_fit <= 1.0]
     sd = float(np.std([w.weight_fit for pair in pairs for w in pair]))
