@@ -86,6 +86,26 @@ def _coverage(t: np.ndarray, width: np.ndarray | float) -> np.ndarray:
     return np.clip(0.5 - t / width, 0.0, 1.0)
 
 
+def _to_floor(Hf: np.ndarray, xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ray (x, y) → (valid, X, Y) on the floor in ACS, through the floor's ray→plane map ``Hf``."""
+    df = _affine(Hf[2], xf, yf)
+    okf = df > 1e-12
+    df = np.where(okf, df, 1.0)
+    X = _affine(Hf[0], xf, yf)
+    X /= df
+    Y = _affine(Hf[1], xf, yf)
+    Y /= df
+    return okf, X, Y
+
+
+def _affine(row: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``row[0]·x + row[1]·y + row[2]``, the same operations in the same order, in place (fewer passes)."""
+    out = np.multiply(x, row[0])
+    out += np.multiply(y, row[1])
+    out += row[2]
+    return out
+
+
 class Renderer:
     """Renders uint8 images of ``world`` for one image size; rays are cached once."""
 
@@ -272,42 +292,66 @@ class Renderer:
         return np.vstack([t[0] * R[2] - t[2] * R[0], t[1] * R[2] - t[2] * R[1], R[2]]) * -np.sign(t[2])
 
     def _albedo_rows(self, abs_H_cam: np.ndarray, j0: int, j1: int, k0: int, k1: int) -> np.ndarray:
-        """Albedo at the sub-samples of sub-sample rows j0..j1 and columns k0..k1."""
-        world, p = self.world, self.world.params
+        """Albedo at the sub-samples of sub-sample rows j0..j1 and columns k0..k1.
+
+        Work whose result is thrown away is skipped, the rest is computed as before (the same
+        elementwise operations on the same values: tests/fakes/test_render_identical.py keeps the
+        former version and checks equality bit for bit): a held board hides the scene, a chunk
+        without the plate needs no plate texture, one without floor no floor."""
+        world = self.world
         x, y = self._rays(j0, j1, k0, k1)
+        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
+        if held is not None:  # the board or the bench behind it: the scene is not in view
+            return held.overlay(x, y, np.empty(x.shape, np.float32))
         # plate top face = PCS z = 0 (the board frame), via a ray→plane homography
         ref_H_cam = inv_H(world.abs_H_ref) @ abs_H_cam
-        H = self._plane_homography(ref_H_cam)
-        den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-        ok = den > 1e-12
-        den = np.where(ok, den, 1.0)
-        qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
-        qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
         c = world.board_centre_ref()
-        half = p.plate_half_size_mm
-        plate = ok & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
-        alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
-        floor = ~plate
-        if floor.any():
-            Hf = self._plane_homography(world.effects.floor_view_H(abs_H_cam))  # floor at its local height
-
-            def to_floor(xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-                """Ray (x, y) → (valid, X, Y) on the floor in ACS."""
-                df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
-                okf = df > 1e-12
-                df = np.where(okf, df, 1.0)
-                X = (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df
-                return okf, X, (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
-
-            # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
-            # it once per pixel (middle sub-sample) rather than per sub-sample
-            ss, k = self.ss, self.ss // 2
-            _, Xc, Yc = to_floor(x[k::ss, k::ss], y[k::ss, k::ss])
-            tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
-            okf, X, Y = to_floor(x[floor], y[floor])
+        half = world.params.plate_half_size_mm
+        on_plate = self._plate_may_be_seen(ref_H_cam, c, half, x, y)
+        if on_plate:
+            H = self._plane_homography(ref_H_cam)
+            den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+            ok = den > 1e-12
+            den = np.where(ok, den, 1.0)
+            qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
+            qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
+            plate = ok & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
+            on_plate = bool(plate.any())
+        if on_plate:  # else every sub-sample gets the floor's albedo below
+            alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
+            floor = ~plate
+            if not floor.any():
+                return alb
+        # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
+        # it once per pixel (middle sub-sample) rather than per sub-sample
+        Hf = self._plane_homography(world.effects.floor_view_H(abs_H_cam))  # floor at its local height
+        ss, k = self.ss, self.ss // 2
+        _, Xc, Yc = _to_floor(Hf, x[k::ss, k::ss], y[k::ss, k::ss])
+        tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
+        if on_plate:
+            okf, X, Y = _to_floor(Hf, x[floor], y[floor])
             alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
-        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
-        return alb if held is None else held.overlay(x, y, alb)
+            return alb
+        # all floor: the same values in the same (C) order as the boolean selection, without copies
+        okf, X, Y = _to_floor(Hf, x.ravel(), y.ravel())
+        return np.where(okf, self._floor_marks(tex.ravel(), X, Y, abs_H_cam[2, 3]),
+                        FLOOR_MEAN).astype(np.float32).reshape(x.shape)
+
+    @staticmethod
+    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float, x: np.ndarray,
+                           y: np.ndarray) -> bool:
+        """False only if no ray (x, y, 1) of the chunk can meet the plate's top face.
+
+        With the plate, grown by 1 mm (far above any rounding), wholly in front of the camera, the rays
+        that meet it fill the convex quadrilateral of its projected corners; a chunk whose rays' box
+        misses that quadrilateral's box sees no plate. Else (a corner behind the camera) it may."""
+        g = half + 1.0
+        corners = np.array([[c[0] + sx * g, c[1] + sy * g, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+        cam = apply_H(inv_H(ref_H_cam), corners)
+        if np.any(cam[:, 2] <= 1e-6):
+            return True
+        u, v = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+        return not (x.max() < u.min() or x.min() > u.max() or y.max() < v.min() or y.min() > v.max())
 
     def _width_mm(self, height_mm: float) -> float:
         """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""
@@ -355,8 +399,14 @@ class Renderer:
         """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays)."""
         wd = self._width_mm(height_mm)
         alb = alb.astype(np.float64)
+        # the chunk's extent on the floor, to pass over marks out of it without a full pass each;
+        # the 1 mm margin dwarfs any rounding of X − x_mm, and a NaN bound skips nothing
+        lo_x, hi_x, lo_y, hi_y = X.min(), X.max(), Y.min(), Y.max()
         for mark in self.world.params.marks:
             reach = mark.size_mm * 1.5 + 0.5
+            if (hi_x < mark.x_mm - reach - 1.0 or lo_x > mark.x_mm + reach + 1.0
+                    or hi_y < mark.y_mm - reach - 1.0 or lo_y > mark.y_mm + reach + 1.0):
+                continue  # as `near` would be all False below
             dX, dY = X - mark.x_mm, Y - mark.y_mm
             near = (np.abs(dX) < reach) & (np.abs(dY) < reach)
             if not near.any():
