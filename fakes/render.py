@@ -17,13 +17,15 @@ rolling shutter, hot pixels or compression.
 
 The undistorted rays are cached per (lens, size, SS), shared by renderers of
 different worlds, as float32 *residuals* from the pinhole mapping (small numbers,
-so float32 keeps ~1e-8 relative precision). Above 16 M sub-samples the residual is
+so float32 keeps ~1e-8 relative precision); the large grids also on disk, for the
+next process with the same camera (fakes/ray_store.py). Above 16 M sub-samples the residual is
 computed at pixel centres only and interpolated bilinearly for the sub-samples
 (error < 1e-4 px at 4024×3036, far below what any detector resolves), which keeps
 a full-sensor render under 800 MB peak.
 """
 from __future__ import annotations
 
+import inspect
 import math
 import threading
 
@@ -33,6 +35,7 @@ import numpy as np
 from calibration.camera_model import UNDISTORT_CRITERIA, CameraModel
 from calibration.frames import apply_H, check_H, inv_H
 from calibration.target import make_board
+from fakes import ray_store
 from fakes.world import World
 
 #: albedo of the dark and white parts of printed targets and marks
@@ -169,12 +172,30 @@ class Renderer:
             if hit is not None:
                 _RAY_CACHE[key] = hit
         if hit is None:
-            hit = self._compute_residuals(m)
+            hit = self._stored_residuals(key, m)
             with _RAY_LOCK:
                 _RAY_CACHE[key] = hit
                 while len(_RAY_CACHE) > RAY_CACHE_SIZE:
                     _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
         self._dx, self._dy = hit
+
+    def _stored_residuals(self, key: tuple, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals from the file another process wrote (fakes/ray_store.py), else computed (and
+        written, for a grid worth it)."""
+        w, h = self.size
+        shape = (h * m + 2, w * m + 2)
+        if shape[0] * shape[1] < ray_store.MIN_NODES:
+            return self._compute_residuals(m)
+        try:  # the computation itself is part of the key: an edit to it never reads an older file
+            source = inspect.getsource(Renderer._compute_residuals)
+        except OSError:  # no source to key on (a frozen build): computed, as before
+            return self._compute_residuals(m)
+        name = ray_store.file_name((*key, repr(UNDISTORT_CRITERIA), source))
+        hit = ray_store.load(name, shape)
+        if hit is None:
+            hit = self._compute_residuals(m)
+            ray_store.store(name, *hit)
+        return hit
 
     def _compute_residuals(self, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Undistort the node grid (spacing 1/m px) and keep x, y minus the pinhole mapping."""
