@@ -32,7 +32,7 @@ from drivers import robot_protocol as rp
 from drivers.base import DeviceError, DeviceSettings, DeviceLost, DeviceURL, Emit, Robot
 from drivers.base import RobotState, no_emit
 from drivers.motion_gate import MotionGate
-from drivers.robot_line import READ_SLICE_S, NoReply, RobotLine
+from drivers.robot_line import READ_SLICE_S, RETRIES, NoReply, RobotLine
 from drivers.robot_port import open_error, open_port
 
 log = logging.getLogger(__name__)
@@ -66,7 +66,7 @@ class SerialRobot(RobotLine, Robot):
         super().__init__(url, emit=emit, settings=settings)
         self.baudrate: int = url.option("baudrate", 115200, int)
         self.reply_timeout: float = url.option("timeout", 0.5, float)
-        self.retries: int = url.option("retries", 2, int)
+        self.retries: int = url.option("retries", RETRIES, int)
         self.state_hz: float = url.option("state_hz", 2.0, float)
         self.protocol: int = url.option("protocol", rp.PROTOCOL_VERSION, int)
         self.stream_hz: float = url.option("stream_hz", DEFAULT_STREAM_HZ, float)

@@ -22,15 +22,15 @@ from typing import Any, Callable
 
 from drivers import robot_protocol as rp
 from drivers.motion_gate import MotionGate
-from drivers.robot_line import HALT_RESEND_S
+from drivers.robot_line import HALT_RESEND_S, RETRIES
 
 #: longest blocking read (s): every wait is a loop of these (and so the longest an owed STOP waits)
 SLICE_S = 0.005
 VERDICTS = ("pass", "fail", "warn", "skip")
 #: the value of each check a STOP kept from running (or cut short)
 STOPPED = "STOP during the kit: not run"
-#: tries of the reply timeout the kit waits for a STOP's ACK: the driver's default (``retries`` 2, plus 1)
-HALT_TRIES = 3
+#: tries of the reply timeout the kit waits for a STOP's ACK: the driver's default
+HALT_TRIES = RETRIES + 1
 
 
 class KitStopped(Exception):

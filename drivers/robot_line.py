@@ -25,6 +25,9 @@ READ_SLICE_S = 0.02
 #: how often an owed STOP is written again while its ACK is missing: a link that comes back carries it
 #: within this (STOP is safe to execute any number of times, and is accepted before a HELLO too)
 HALT_RESEND_S = 0.05
+#: a request's retries after its first reply timeout (URL ``retries``): a STOP's ACK is awaited retries + 1
+#: timeouts
+RETRIES = 2
 
 COUNTER_NAMES = ("rx_lines", "bad_checksum", "garbage", "syntax", "stale", "unexpected",
                  "retries", "naks", "events", "recovered_events", "overflows", "halts", "boot_waits")
