@@ -101,6 +101,23 @@ def _to_floor(Hf: np.ndarray, xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarra
     return okf, X, Y
 
 
+Box = tuple[float, float, float, float]  # (x min, x max, y min, y max) of a set of points
+
+
+def _floor_box(Hf: np.ndarray, box: Box) -> Box | None:
+    """(X min, X max, Y min, Y max) on the floor of every ray in ``box`` (x0, x1, y0, y1), or None.
+
+    Where the floor is in front of all four corner rays it is in front of every ray between them (the
+    denominator is affine in x, y), and the ray→plane map takes the box to the convex quadrilateral of
+    the corners' images: its extent bounds every ray's. Else None (the caller takes X, Y's own)."""
+    x0, x1, y0, y1 = box
+    q = np.array([[x0, y0, 1.0], [x0, y1, 1.0], [x1, y0, 1.0], [x1, y1, 1.0]]) @ Hf.T
+    if np.any(q[:, 2] <= 1e-12):
+        return None
+    X, Y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+    return float(X.min()), float(X.max()), float(Y.min()), float(Y.max())
+
+
 def _affine(row: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``row[0]·x + row[1]·y + row[2]``, the same operations in the same order, in place (fewer passes)."""
     out = np.multiply(x, row[0])
@@ -131,6 +148,7 @@ class Renderer:
         # true seat centres (PCS xy) for the nest rings: the plate *definition* may be biased
         self._nest_xy = {n: P[:2].copy() for n, P in world.nests_ref_true().items()}
         self._floor_waves = self._make_floor_waves()
+        self._boxes: dict[tuple[int, int, int, int], tuple[float, float, float, float]] = {}
         self._cache_rays()
 
     # ------------------------------------------------------------------ set-up
@@ -328,7 +346,8 @@ class Renderer:
         ref_H_cam = inv_H(world.abs_H_ref) @ abs_H_cam
         c = world.board_centre_ref()
         half = world.params.plate_half_size_mm
-        on_plate = self._plate_may_be_seen(ref_H_cam, c, half, x, y)
+        box = self._ray_box((j0, j1, k0, k1), x, y)
+        on_plate = self._plate_may_be_seen(ref_H_cam, c, half, box)
         if on_plate:
             H = self._plane_homography(ref_H_cam)
             den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
@@ -351,17 +370,27 @@ class Renderer:
         tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
         if on_plate:
             okf, X, Y = _to_floor(Hf, x[floor], y[floor])
-            alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
+            marks = self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3], _floor_box(Hf, box))
+            alb[floor] = np.where(okf, marks, FLOOR_MEAN)
             return alb
         # all floor: the same values in the same (C) order as the boolean selection, without copies
         okf, X, Y = _to_floor(Hf, x.ravel(), y.ravel())
-        return np.where(okf, self._floor_marks(tex.ravel(), X, Y, abs_H_cam[2, 3]),
+        return np.where(okf, self._floor_marks(tex.ravel(), X, Y, abs_H_cam[2, 3], _floor_box(Hf, box)),
                         FLOOR_MEAN).astype(np.float32).reshape(x.shape)
 
+    def _ray_box(self, chunk: tuple[int, int, int, int], x: np.ndarray, y: np.ndarray
+                 ) -> tuple[float, float, float, float]:
+        """(x min, x max, y min, y max) of a chunk's rays: they depend on the chunk and the lens alone, so
+        each chunk's box is taken at its first render and kept."""
+        box = self._boxes.get(chunk)
+        if box is None:
+            box = self._boxes[chunk] = (float(x.min()), float(x.max()), float(y.min()), float(y.max()))
+        return box
+
     @staticmethod
-    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float, x: np.ndarray,
-                           y: np.ndarray) -> bool:
-        """False only if no ray (x, y, 1) of the chunk can meet the plate's top face.
+    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float,
+                           box: tuple[float, float, float, float]) -> bool:
+        """False only if no ray (x, y, 1) in ``box`` (a chunk's rays' extent) can meet the plate's top face.
 
         With the plate, grown by 1 mm (far above any rounding), wholly in front of the camera, the rays
         that meet it fill the convex quadrilateral of its projected corners; a chunk whose rays' box
@@ -372,7 +401,8 @@ class Renderer:
         if np.any(cam[:, 2] <= 1e-6):
             return True
         u, v = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
-        return not (x.max() < u.min() or x.min() > u.max() or y.max() < v.min() or y.min() > v.max())
+        x0, x1, y0, y1 = box
+        return not (x1 < u.min() or x0 > u.max() or y1 < v.min() or y0 > v.max())
 
     def _width_mm(self, height_mm: float) -> float:
         """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""
@@ -416,13 +446,15 @@ class Renderer:
             alb += amp * np.sin(kx * X + ky * Y + ph)
         return alb
 
-    def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float) -> np.ndarray:
-        """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays)."""
+    def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float,
+                     extent: tuple[float, float, float, float] | None = None) -> np.ndarray:
+        """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays) inside ``extent``
+        (X min, X max, Y min, Y max; None: taken from X and Y)."""
         wd = self._width_mm(height_mm)
         alb = alb.astype(np.float64)
         # the chunk's extent on the floor, to pass over marks out of it without a full pass each;
         # the 1 mm margin dwarfs any rounding of X − x_mm, and a NaN bound skips nothing
-        lo_x, hi_x, lo_y, hi_y = X.min(), X.max(), Y.min(), Y.max()
+        lo_x, hi_x, lo_y, hi_y = extent if extent is not None else (X.min(), X.max(), Y.min(), Y.max())
         for mark in self.world.params.marks:
             reach = mark.size_mm * 1.5 + 0.5
             if (hi_x < mark.x_mm - reach - 1.0 or lo_x > mark.x_mm + reach + 1.0

@@ -184,14 +184,7 @@ class SurveyRenderer:
         # one sub-sample's width on the plate (mm), for the rings' edge coverage
         wd = float(np.median(np.hypot(np.diff(qx[::8, ::64], axis=1), np.diff(qy[::8, ::64], axis=1)))) / 64
         rgb = np.repeat(self._grey(qx, qy, ok)[..., None], 3, axis=2)
-        # the block's extent on the plate: a ring out of it changes nothing, and its test would cost a
-        # pass over every sub-sample (the 1 mm margin dwarfs any rounding; a NaN bound skips nothing)
-        lo_x, hi_x, lo_y, hi_y = qx.min(), qx.max(), qy.min(), qy.max()
-        reach = NEST_RING_MM[1] + 1 + 1.0
         for name, seat in self._seats.items():
-            if (hi_x < seat[0] - reach or lo_x > seat[0] + reach or hi_y < seat[1] - reach
-                    or lo_y > seat[1] + reach):
-                continue  # as `near` in _ring would be all False
             self._ring(rgb, qx, qy, seat, RING_RGB[name], max(wd, 1e-6))
         ss = self.ss
         return rgb.reshape(x.shape[0] // ss, ss, x.shape[1] // ss, ss, 3).mean(axis=(1, 3))

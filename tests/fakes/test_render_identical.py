@@ -5,8 +5,7 @@ texture of a chunk without the plate, marks outside a chunk's extent on the floo
 before that change is kept here, verbatim but for its names, and both must give the same float32
 albedo, on views with the plate and floor, floor only (a mark in view or none), a held board, the
 paper+imu world (printed target's scale, floor height) and the colour renderer. Small chunks
-(``CHUNK_SAMPLES``) make chunks of each kind inside one view. The same for the survey photographs'
-nest rings (fakes/survey_views.py).
+(``CHUNK_SAMPLES``) make chunks of each kind inside one view.
 """
 from __future__ import annotations
 
@@ -16,12 +15,10 @@ import numpy as np
 import pytest
 
 import fakes.render as render
-import fakes.survey_views as survey_views
 from calibration.frames import inv_H
 from fakes.colour import ColourRenderer
 from fakes.profiles import world as profile_world
 from fakes.render import DARK, FLOOR_MEAN, WHITE, Renderer, _coverage
-from fakes.survey_views import RING_RGB, SurveyRenderer, survey_poses
 from fakes.world import World, WorldParams
 
 SIZE = (200, 150)
@@ -124,30 +121,3 @@ def test_held_board_albedo_equals_the_former_version(monkeypatch: pytest.MonkeyP
     assert np.array_equal(now, before)
     assert np.ptp(now) > 0.5  # the board's squares are in view
 
-
-def former_survey_albedo_block(self: Any, H: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-    ok = den > 1e-12
-    den = np.where(ok, den, 1.0)
-    qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
-    qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
-    wd = float(np.median(np.hypot(np.diff(qx[::8, ::64], axis=1), np.diff(qy[::8, ::64], axis=1)))) / 64
-    rgb = np.repeat(self._grey(qx, qy, ok)[..., None], 3, axis=2)
-    for name, seat in self._seats.items():
-        self._ring(rgb, qx, qy, seat, RING_RGB[name], max(wd, 1e-6))
-    ss = self.ss
-    return rgb.reshape(x.shape[0] // ss, ss, x.shape[1] // ss, ss, 3).mean(axis=(1, 3))
-
-
-def test_survey_albedo_equals_the_former_version(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The survey photographs' rings skipped in row blocks that do not reach them (fakes/survey_views.py)."""
-    monkeypatch.setattr(survey_views, "BLOCK_SAMPLES", 100_000)  # many blocks, most without a ring
-    world = World(WorldParams(seed=5))
-    r = SurveyRenderer(world, (600, 400))
-    for H in survey_poses(world, r.model, 2, world.rng("survey")):
-        now = r.albedo(H)
-        with monkeypatch.context() as m:
-            m.setattr(SurveyRenderer, "_albedo_block", former_survey_albedo_block)
-            before = r.albedo(H)
-        assert np.array_equal(now, before)
-        assert (np.abs(now[..., 0] - now[..., 2]) > 0.3).any()  # a coloured ring was drawn
