@@ -17,13 +17,15 @@ rolling shutter, hot pixels or compression.
 
 The undistorted rays are cached per (lens, size, SS), shared by renderers of
 different worlds, as float32 *residuals* from the pinhole mapping (small numbers,
-so float32 keeps ~1e-8 relative precision). Above 16 M sub-samples the residual is
+so float32 keeps ~1e-8 relative precision); the large grids also on disk, for the
+next process with the same camera (fakes/ray_store.py). Above 16 M sub-samples the residual is
 computed at pixel centres only and interpolated bilinearly for the sub-samples
 (error < 1e-4 px at 4024×3036, far below what any detector resolves), which keeps
 a full-sensor render under 800 MB peak.
 """
 from __future__ import annotations
 
+import inspect
 import math
 import threading
 
@@ -33,6 +35,7 @@ import numpy as np
 from calibration.camera_model import UNDISTORT_CRITERIA, CameraModel
 from calibration.frames import apply_H, check_H, inv_H
 from calibration.target import make_board
+from fakes import ray_store
 from fakes.world import World
 
 #: albedo of the dark and white parts of printed targets and marks
@@ -86,6 +89,43 @@ def _coverage(t: np.ndarray, width: np.ndarray | float) -> np.ndarray:
     return np.clip(0.5 - t / width, 0.0, 1.0)
 
 
+def _to_floor(Hf: np.ndarray, xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ray (x, y) → (valid, X, Y) on the floor in ACS, through the floor's ray→plane map ``Hf``."""
+    df = _affine(Hf[2], xf, yf)
+    okf = df > 1e-12
+    df = np.where(okf, df, 1.0)
+    X = _affine(Hf[0], xf, yf)
+    X /= df
+    Y = _affine(Hf[1], xf, yf)
+    Y /= df
+    return okf, X, Y
+
+
+Box = tuple[float, float, float, float]  # (x min, x max, y min, y max) of a set of points
+
+
+def _floor_box(Hf: np.ndarray, box: Box) -> Box | None:
+    """(X min, X max, Y min, Y max) on the floor of every ray in ``box`` (x0, x1, y0, y1), or None.
+
+    Where the floor is in front of all four corner rays it is in front of every ray between them (the
+    denominator is affine in x, y), and the ray→plane map takes the box to the convex quadrilateral of
+    the corners' images: its extent bounds every ray's. Else None (the caller takes X, Y's own)."""
+    x0, x1, y0, y1 = box
+    q = np.array([[x0, y0, 1.0], [x0, y1, 1.0], [x1, y0, 1.0], [x1, y1, 1.0]]) @ Hf.T
+    if np.any(q[:, 2] <= 1e-12):
+        return None
+    X, Y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+    return float(X.min()), float(X.max()), float(Y.min()), float(Y.max())
+
+
+def _affine(row: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``row[0]·x + row[1]·y + row[2]``, the same operations in the same order, in place (fewer passes)."""
+    out = np.multiply(x, row[0])
+    out += np.multiply(y, row[1])
+    out += row[2]
+    return out
+
+
 class Renderer:
     """Renders uint8 images of ``world`` for one image size; rays are cached once."""
 
@@ -108,6 +148,7 @@ class Renderer:
         # true seat centres (PCS xy) for the nest rings: the plate *definition* may be biased
         self._nest_xy = {n: P[:2].copy() for n, P in world.nests_ref_true().items()}
         self._floor_waves = self._make_floor_waves()
+        self._boxes: dict[tuple[int, int, int, int], tuple[float, float, float, float]] = {}
         self._cache_rays()
 
     # ------------------------------------------------------------------ set-up
@@ -149,12 +190,30 @@ class Renderer:
             if hit is not None:
                 _RAY_CACHE[key] = hit
         if hit is None:
-            hit = self._compute_residuals(m)
+            hit = self._stored_residuals(key, m)
             with _RAY_LOCK:
                 _RAY_CACHE[key] = hit
                 while len(_RAY_CACHE) > RAY_CACHE_SIZE:
                     _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
         self._dx, self._dy = hit
+
+    def _stored_residuals(self, key: tuple, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals from the file another process wrote (fakes/ray_store.py), else computed (and
+        written, for a grid worth it)."""
+        w, h = self.size
+        shape = (h * m + 2, w * m + 2)
+        if shape[0] * shape[1] < ray_store.MIN_NODES:
+            return self._compute_residuals(m)
+        try:  # the computation itself is part of the key: an edit to it never reads an older file
+            source = inspect.getsource(Renderer._compute_residuals)
+        except OSError:  # no source to key on (a frozen build): computed, as before
+            return self._compute_residuals(m)
+        name = ray_store.file_name((*key, repr(UNDISTORT_CRITERIA), source))
+        hit = ray_store.load(name, shape)
+        if hit is None:
+            hit = self._compute_residuals(m)
+            ray_store.store(name, *hit)
+        return hit
 
     def _compute_residuals(self, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Undistort the node grid (spacing 1/m px) and keep x, y minus the pinhole mapping."""
@@ -272,42 +331,78 @@ class Renderer:
         return np.vstack([t[0] * R[2] - t[2] * R[0], t[1] * R[2] - t[2] * R[1], R[2]]) * -np.sign(t[2])
 
     def _albedo_rows(self, abs_H_cam: np.ndarray, j0: int, j1: int, k0: int, k1: int) -> np.ndarray:
-        """Albedo at the sub-samples of sub-sample rows j0..j1 and columns k0..k1."""
-        world, p = self.world, self.world.params
+        """Albedo at the sub-samples of sub-sample rows j0..j1 and columns k0..k1.
+
+        Work whose result is thrown away is skipped, the rest is computed as before (the same
+        elementwise operations on the same values: tests/fakes/test_render_identical.py keeps the
+        former version and checks equality bit for bit): a held board hides the scene, a chunk
+        without the plate needs no plate texture, one without floor no floor."""
+        world = self.world
         x, y = self._rays(j0, j1, k0, k1)
+        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
+        if held is not None:  # the board or the bench behind it: the scene is not in view
+            return held.overlay(x, y, np.empty(x.shape, np.float32))
         # plate top face = PCS z = 0 (the board frame), via a ray→plane homography
         ref_H_cam = inv_H(world.abs_H_ref) @ abs_H_cam
-        H = self._plane_homography(ref_H_cam)
-        den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-        ok = den > 1e-12
-        den = np.where(ok, den, 1.0)
-        qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
-        qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
         c = world.board_centre_ref()
-        half = p.plate_half_size_mm
-        plate = ok & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
-        alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
-        floor = ~plate
-        if floor.any():
-            Hf = self._plane_homography(world.effects.floor_view_H(abs_H_cam))  # floor at its local height
+        half = world.params.plate_half_size_mm
+        box = self._ray_box((j0, j1, k0, k1), x, y)
+        on_plate = self._plate_may_be_seen(ref_H_cam, c, half, box)
+        if on_plate:
+            H = self._plane_homography(ref_H_cam)
+            den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+            ok = den > 1e-12
+            den = np.where(ok, den, 1.0)
+            qx = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
+            qy = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den
+            plate = ok & (np.abs(qx - c[0]) <= half) & (np.abs(qy - c[1]) <= half)
+            on_plate = bool(plate.any())
+        if on_plate:  # else every sub-sample gets the floor's albedo below
+            alb = self._plate_albedo(qx, qy, ref_H_cam[2, 3])
+            floor = ~plate
+            if not floor.any():
+                return alb
+        # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
+        # it once per pixel (middle sub-sample) rather than per sub-sample
+        Hf = self._plane_homography(world.effects.floor_view_H(abs_H_cam))  # floor at its local height
+        ss, k = self.ss, self.ss // 2
+        _, Xc, Yc = _to_floor(Hf, x[k::ss, k::ss], y[k::ss, k::ss])
+        tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
+        if on_plate:
+            okf, X, Y = _to_floor(Hf, x[floor], y[floor])
+            marks = self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3], _floor_box(Hf, box))
+            alb[floor] = np.where(okf, marks, FLOOR_MEAN)
+            return alb
+        # all floor: the same values in the same (C) order as the boolean selection, without copies
+        okf, X, Y = _to_floor(Hf, x.ravel(), y.ravel())
+        return np.where(okf, self._floor_marks(tex.ravel(), X, Y, abs_H_cam[2, 3], _floor_box(Hf, box)),
+                        FLOOR_MEAN).astype(np.float32).reshape(x.shape)
 
-            def to_floor(xf: np.ndarray, yf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-                """Ray (x, y) → (valid, X, Y) on the floor in ACS."""
-                df = Hf[2, 0] * xf + Hf[2, 1] * yf + Hf[2, 2]
-                okf = df > 1e-12
-                df = np.where(okf, df, 1.0)
-                X = (Hf[0, 0] * xf + Hf[0, 1] * yf + Hf[0, 2]) / df
-                return okf, X, (Hf[1, 0] * xf + Hf[1, 1] * yf + Hf[1, 2]) / df
+    def _ray_box(self, chunk: tuple[int, int, int, int], x: np.ndarray, y: np.ndarray
+                 ) -> tuple[float, float, float, float]:
+        """(x min, x max, y min, y max) of a chunk's rays: they depend on the chunk and the lens alone, so
+        each chunk's box is taken at its first render and kept."""
+        box = self._boxes.get(chunk)
+        if box is None:
+            box = self._boxes[chunk] = (float(x.min()), float(x.max()), float(y.min()), float(y.max()))
+        return box
 
-            # the floor texture is smooth (wavelengths >= 1.5 mm, many pixels): evaluate
-            # it once per pixel (middle sub-sample) rather than per sub-sample
-            ss, k = self.ss, self.ss // 2
-            _, Xc, Yc = to_floor(x[k::ss, k::ss], y[k::ss, k::ss])
-            tex = np.repeat(np.repeat(self._floor_texture(Xc, Yc), ss, axis=0), ss, axis=1)
-            okf, X, Y = to_floor(x[floor], y[floor])
-            alb[floor] = np.where(okf, self._floor_marks(tex[floor], X, Y, abs_H_cam[2, 3]), FLOOR_MEAN)
-        held = world.held_board  # a calibration board the operator holds under the lens (fakes/board.py)
-        return alb if held is None else held.overlay(x, y, alb)
+    @staticmethod
+    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float,
+                           box: tuple[float, float, float, float]) -> bool:
+        """False only if no ray (x, y, 1) in ``box`` (a chunk's rays' extent) can meet the plate's top face.
+
+        With the plate, grown by 1 mm (far above any rounding), wholly in front of the camera, the rays
+        that meet it fill the convex quadrilateral of its projected corners; a chunk whose rays' box
+        misses that quadrilateral's box sees no plate. Else (a corner behind the camera) it may."""
+        g = half + 1.0
+        corners = np.array([[c[0] + sx * g, c[1] + sy * g, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+        cam = apply_H(inv_H(ref_H_cam), corners)
+        if np.any(cam[:, 2] <= 1e-6):
+            return True
+        u, v = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+        x0, x1, y0, y1 = box
+        return not (x1 < u.min() or x0 > u.max() or y1 < v.min() or y0 > v.max())
 
     def _width_mm(self, height_mm: float) -> float:
         """Approximate width of one sub-sample on a surface ``height_mm`` below the camera."""
@@ -351,12 +446,20 @@ class Renderer:
             alb += amp * np.sin(kx * X + ky * Y + ph)
         return alb
 
-    def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float) -> np.ndarray:
-        """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays)."""
+    def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float,
+                     extent: tuple[float, float, float, float] | None = None) -> np.ndarray:
+        """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays) inside ``extent``
+        (X min, X max, Y min, Y max; None: taken from X and Y)."""
         wd = self._width_mm(height_mm)
         alb = alb.astype(np.float64)
+        # the chunk's extent on the floor, to pass over marks out of it without a full pass each;
+        # the 1 mm margin dwarfs any rounding of X − x_mm, and a NaN bound skips nothing
+        lo_x, hi_x, lo_y, hi_y = extent if extent is not None else (X.min(), X.max(), Y.min(), Y.max())
         for mark in self.world.params.marks:
             reach = mark.size_mm * 1.5 + 0.5
+            if (hi_x < mark.x_mm - reach - 1.0 or lo_x > mark.x_mm + reach + 1.0
+                    or hi_y < mark.y_mm - reach - 1.0 or lo_y > mark.y_mm + reach + 1.0):
+                continue  # as `near` would be all False below
             dX, dY = X - mark.x_mm, Y - mark.y_mm
             near = (np.abs(dX) < reach) & (np.abs(dY) < reach)
             if not near.any():

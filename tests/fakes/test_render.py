@@ -6,7 +6,7 @@ import pytest
 
 from calibration.target import detect_corners
 from fakes.render import Renderer, true_corner_projections
-from fakes.world import World
+from fakes.world import World, WorldParams
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +151,41 @@ def test_cached_rays_match_undistort(monkeypatch, exact: bool) -> None:
     got = np.column_stack([x[::5, ::7].ravel(), y[::5, ::7].ravel()])
     err_px = np.abs(got - exact_xy).max() * r.model.f
     assert err_px < (1e-5 if exact else 1e-3), err_px
+
+
+def test_ray_residuals_stored_on_disk_are_the_computed_bytes(monkeypatch, tmp_path) -> None:
+    """fakes/ray_store.py: the first renderer computes and writes; a later process (here: the in-process
+    cache emptied) reads the same bytes instead of computing; a damaged file is computed again; a
+    folder that cannot be written is passed over."""
+    import fakes.ray_store as ray_store
+    import fakes.render as render
+
+    monkeypatch.setenv("RITA_SIM_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(ray_store, "MIN_NODES", 0)
+    monkeypatch.setattr(render, "_RAY_CACHE", {})
+    first = Renderer(World(), (120, 90))
+    files = list((tmp_path / "cache").glob("rays-*.npy"))
+    assert len(files) == 1 and not list((tmp_path / "cache").glob(".tmp-*"))
+    computed = (first._dx.copy(), first._dy.copy())
+
+    def not_again(*args, **kw):
+        raise AssertionError("computed although stored")
+
+    with monkeypatch.context() as m:
+        m.setattr(render, "_RAY_CACHE", {})
+        m.setattr(render.cv2, "undistortPoints", not_again)  # (the computation's source is in the key)
+        loaded = Renderer(World(WorldParams(seed=4)), (120, 90))  # another world, the same camera
+    assert np.array_equal(loaded._dx, computed[0]) and np.array_equal(loaded._dy, computed[1])
+    assert loaded._dx.dtype == np.float32 and not loaded._dx.flags.writeable
+    files[0].write_bytes(files[0].read_bytes()[:200])  # cut short: not a (2, h, w) float32 grid any more
+    monkeypatch.setattr(render, "_RAY_CACHE", {})
+    again = Renderer(World(), (120, 90))
+    assert np.array_equal(again._dx, computed[0]) and files[0].stat().st_size > 200  # computed, rewritten
+    monkeypatch.setattr(render, "_RAY_CACHE", {})
+    Renderer(World(WorldParams(distortion=(-0.1, 0.0, 0.0, 0.0, 0.0))), (120, 90))
+    assert len(list((tmp_path / "cache").glob("rays-*.npy"))) == 2  # another lens, another file
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("RITA_SIM_CACHE", str(blocker / "cache"))  # cannot be created
+    monkeypatch.setattr(render, "_RAY_CACHE", {})
+    assert np.array_equal(Renderer(World(), (120, 90))._dx, computed[0])
