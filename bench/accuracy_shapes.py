@@ -58,10 +58,9 @@ PROFILE = "paper+imu"
 MOVE_MM = SimConfig().move_mm
 
 
-def joint_from_stops(stops: list[Any], headings: Any, groups: Any = None, shape_model: Any = None) -> Any:
+def joint_from_stops(stops: list[Any], headings: Any, groups: Any = None) -> Any:
     """The in-sample joint fit of w and b (the comparator, not the product's choice): of the bend models whose
-    weight is shown, the one leaving the marks' smaller residual rms; else the lowest's record (the paths'
-    model ``shape_model`` not used: the comparator chooses in sample)."""
+    weight is shown, the one leaving the marks' smaller residual rms; else the lowest's record."""
     found = [learn_model(stops, headings, groups, m) for m in MODELS]
     shown = [w for w in found if w.applied]
     return min(shown, key=lambda w: w.rms_mm) if shown else found[0]

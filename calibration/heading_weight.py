@@ -14,8 +14,8 @@ no single stop can show; an experiment can, because all its stops see the same m
 
 by least squares over the stops (M the mark, b the robot-frame bias, as
 calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes the marks agree
-best (per bend model, :data:`MODELS`; the experiment keeps the model the stops' bends are best read by
-held out, :func:`bend_model`, whether or not its weight then passes). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
+best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight leaves the marks' smaller
+scatter). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
 the fit's *actual* error: on straight drives w ≈ 0 (the fit only adds noise), on bent ones it
 approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
 expected to err less than the chord (w above √2 of its standard errors, :data:`APPLY_Z`) and it predicts
@@ -66,7 +66,7 @@ class HeadingWeight:
     sigma_heading_rad: float  # the heading's 1σ when the weight is applied
     applied: bool
     why: str  # why later jobs keep the chord ("" when applied)
-    model: str = "lowest"  # the bend fit's model, a key of MODELS: the paths' (bend_model) when learned
+    model: str = "lowest"  # the bend fit's model, a key of MODELS
     rms_mm: float = math.nan  # the marks' residual rms about M + R(ψ)·b with the weight applied
     slope_limit_rad: float = math.inf  # a stop's fitted slope beyond it keeps the chord (learning and use)
     #: the robot-frame bias (RCS x, y, mm) fitted jointly with the weight, the weight as stored (0 when not
@@ -250,33 +250,29 @@ def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
     return chord, {m: (at(P), slope, sigma) for m, (P, slope, sigma) in applied.fits.items()}
 
 
-def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None,
-                     shape_model: str | None = None) -> HeadingWeight:
-    """The weight of the paths' bend model, or the chord with its own b when that predicts the directions
-    left out better (calibration/weight_cv.py). Two questions, in this order: which model reads these paths
-    (:func:`bend_model`, each model's weight ungated, so the answer does not follow the gate), then whether
-    applying that model's weight beats the chord (its gate, then the held-out comparison). A weight of another
-    model passing the gate is not taken instead: the stored model is the paths' (weight_check.py compares it).
-    ``shape_model``: :func:`bend_model`'s answer when the caller has it (None: made here); ``groups``: each
+def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> HeadingWeight:
+    """The weight of the bend model that predicts held-out directions best, or the chord with its own b when
+    that predicts them better (calibration/weight_cv.py); the cubic replaces the lowest model only when it
+    predicts significantly better (weight_cv.py ``better``). :func:`learn_heading_weight` per model from
+    each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
     stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
-    shape = shape_model if shape_model is not None else bend_model(stops, psi, groups)
-    w = learn_model(stops, psi, groups, shape or next(iter(MODELS)))  # None: the lowest's figures not made
-    if not w.applied:
-        return w if shape is None else _reason(w, f"the paths' bend model {shape!r}: {w.reason}")
-    cv = w.cv or {}
+    found = [learn_model(stops, psi, groups, model) for model in MODELS]
+    shown = [w for w in found if w.applied]  # in MODELS' order: the simplest first
+    if not shown:
+        return found[0]
+    best = shown[0]
+    for richer in shown[1:]:
+        if better((best.cv or {})["weight_fold_ms_mm2"], (richer.cv or {})["weight_fold_ms_mm2"])[0]:
+            best = richer
+    cv = best.cv or {}
     p = better(cv["chord_fold_ms_mm2"], cv["weight_fold_ms_mm2"])[1]
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
-        return replace(w, cv={**cv, "chosen": "weight", "p": p})
-    return _chord_instead(w, {**cv, "chosen": "chord", "p": p}, chord, psi, (
+        return replace(best, cv={**cv, "chosen": "weight", "p": p})
+    return _chord_instead(best, {**cv, "chosen": "chord", "p": p}, chord, psi, (
         f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
-        f"than the {w.model!r} model's weight {w.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
-
-
-def _reason(w: HeadingWeight, reason: str) -> HeadingWeight:
-    """``w`` (the chord's record) with another reason, and ``why`` its consequence added."""
-    return replace(w, why=reason + ": the chord is used", reason=reason)
+        f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
 
 
 def _model_inputs(stops: list[StopMarks], headings_deg: Any, groups: Any,
@@ -320,10 +316,9 @@ def _ungated_folds(stops: list[StopMarks], headings_deg: Any, groups: Any, model
 
 def bend_model(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> str | None:
     """The bend model the stops' bends are best read by: a description of the paths' shape, not of which
-    weight passes the gate. The held-out choice (the richer model only when it predicts the directions left
-    out significantly better, weight_cv.py ``better``) with each model's weight not gated, so that it does not
-    change with the gate: the stored weight's model (:func:`learn_from_stops`) and the learning condition
-    calibration/weight_check.py compares. None:
+    weight passes the gate. The held-out choice of :func:`learn_from_stops` (the richer model only when it
+    predicts the directions left out significantly better, weight_cv.py ``better``) with each model's weight
+    not gated, so that it does not change with the gate (calibration/weight_check.py compares it). None:
     the lowest model's figures cannot be made (its bend fitted at too few stops, too few directions)."""
     folds = {m: _ungated_folds(stops, headings_deg, groups, m) for m in MODELS}
     order = list(MODELS)

@@ -66,11 +66,9 @@ def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[
     """(the weight learned here with its conditions, its re-check against the calibration's applied weight
     (None: the calibration holds none, or no stop's bend was fitted here), the chord's metrics: the marks with
     the chord's heading)."""
-    # the paths' bend model, read with each model's weight ungated (a condition that does not follow the
-    # gate), made once: the stored weight's model and the condition the re-check compares
-    shape = bend_model(learn, headings, groups)
-    own = learn_from_stops(learn, headings, groups, shape)
-    own = replace(own, conditions=_conditions(obs["stops"], marks, own, shape))
+    own = learn_from_stops(learn, headings, groups)
+    # the paths' bend model, read with each model's weight ungated: a condition that does not follow the gate
+    own = replace(own, conditions=_conditions(obs["stops"], marks, own, bend_model(learn, headings, groups)))
     applied, _ = heading_weight(obs["calibration"])
     check = None  # the calibration holds no weight, or no stop here fitted a bend: nothing to compare
     if applied is not NOT_LEARNED and own.n_stops:
