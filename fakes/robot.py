@@ -45,6 +45,7 @@ import numpy as np
 from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
+from fakes.link_proxy import StallLog
 from fakes.robot_base import FakeBase, unit_interval
 from fakes.robot_boot import Boot
 from fakes.robot_defects import DefectiveBase
@@ -79,6 +80,7 @@ class PtyServer:
         self._injected = b""  # bytes given to inject(), not yet written
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.stalls = StallLog()  # the server thread's own lateness (on the base's clock)
         self.alive = True
         self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0,
                          "corrupted": 0}
@@ -160,6 +162,7 @@ class PtyServer:
                 return
             if self._stop.is_set():
                 return
+            self.stalls.woke(self.base.clock(), tick)
             if self._wake_r in ready:
                 os.read(self._wake_r, 256)
             try:
