@@ -17,8 +17,9 @@ calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes t
 best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight leaves the marks' smaller
 scatter). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
 the fit's *actual* error: on straight drives w ≈ 0 (the fit only adds noise), on bent ones it
-approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when it is
-significantly above 0; else they keep the chord and say why.
+approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
+expected to err less than the chord (w above √2 of its standard errors, :data:`APPLY_Z`) and it predicts
+the directions left out better (calibration/weight_cv.py); else they keep the chord and say why.
 
 The heading's σ left after applying w is the shrinkage's own: with S² the stops' mean squared
 fitted slope (= var(bend) + var(fit error)), var(bend) = w·S² and what remains is
@@ -35,8 +36,12 @@ import numpy as np
 from calibration.measure import robot_pose_at
 from calibration.weight_cv import better, cross_validate, design, with_weight
 
-#: the weight is applied only beyond this many standard errors above 0
-SIGNIFICANCE = 3.0
+#: the weight is applied only beyond this many standard errors above 0: where its expected squared error is
+#: below the chord's. Applying v instead of the best w* costs (v − w*)²·S² of squared heading (the loss is a
+#: parabola in v); the estimate costs σ², the chord w*², whose unbiased estimate is w_fit² − σ², so the
+#: estimate wins when w_fit² − σ² > σ²: z > √2 (Mallows' Cp and Akaike's criterion for one parameter: the
+#: prediction error, which the cross-validation then estimates held out; not a significance test)
+APPLY_Z = math.sqrt(2.0)
 #: a stop's fitted slope beyond this many times the learning experiment's robust slope scale is not applied
 #: (a Gaussian's tail beyond 4σ: 6e-5)
 SLOPE_LIMIT = 4.0
@@ -72,6 +77,9 @@ class HeadingWeight:
     #: the leave-one-direction-out comparison that chose between the chord and the weight
     #: (calibration/weight_cv.py): None when not made
     cv: dict[str, Any] | None = None
+    #: why the chord is kept, without the consequence ``why`` adds to it ("" when applied): what a message
+    #: that states its own consequence quotes, so that nothing parses ``why``
+    reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
@@ -96,7 +104,7 @@ class HeadingWeight:
                     math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
                     math.inf if d.get("slope_limit_rad") is None else float(d["slope_limit_rad"]),
                     None if b is None else (float(b[0]), float(b[1])), _record(d.get("conditions")),
-                    _record(d.get("cv")))
+                    _record(d.get("cv")), str(d.get("reason", "")))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: not a heading weight record ({exc!r})") from None
         if w.model not in MODELS:
@@ -119,10 +127,10 @@ def _record(d: Any) -> dict[str, Any] | None:
 
 #: what a calibration without a learned weight gives: the chord (a single stop cannot show which heading
 #: is better)
-NOT_LEARNED = HeadingWeight(0.0, 0.0, math.inf, 0, 0.0, 0.0, False,
-                            "the calibration holds no learned weight for the bend fit (an 8-direction "
-                            "experiment with heading_fit learns it and stores it with the bias): the chord "
-                            "is used")
+_NO_WEIGHT = ("the calibration holds no learned weight for the bend fit (an 8-direction experiment with "
+              "heading_fit learns it and stores it with the bias)")
+NOT_LEARNED = HeadingWeight(0.0, 0.0, math.inf, 0, 0.0, 0.0, False, _NO_WEIGHT + ": the chord is used",
+                            reason=_NO_WEIGHT)
 
 
 def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
@@ -167,14 +175,16 @@ def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
                          fit_sigmas_rad: Any = None, model: str = "lowest",
-                         groups: Any = None) -> HeadingWeight:
+                         groups: Any = None, gate_z: float = APPLY_Z) -> HeadingWeight:
     """The weight of the fitted slope from an experiment's stops; see the module's docstring.
 
     ``chord_xy`` (N, 2): each stop's mark with the chord's heading; ``fit_xy`` (N, 2): with the full
     fitted slope, NaN where no bend was fitted (the stop then helps fix M and b only);
     ``headings_deg`` (N,): the stops' headings; ``slopes_rad`` (N,): the fitted end slopes (NaN: none);
     ``fit_sigmas_rad`` (N,): the fits' stated σ, a floor under the heading σ left (w near 1);
-    ``groups`` (N,): each stop's direction; with ≥ 5 the weight's σ is at least the jackknife's over them.
+    ``groups`` (N,): each stop's direction; with ≥ 5 the weight's σ is at least the jackknife's over them;
+    ``gate_z``: the weight is applied above this many σ (0: whenever above 0, as :func:`bend_model` reads the
+    paths' shape whatever weight passes the gate).
     """
     P = np.asarray(chord_xy, dtype=float).reshape(-1, 2)
     F = np.asarray(fit_xy, dtype=float).reshape(-1, 2)
@@ -192,7 +202,7 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
 
     def chord(w_fit: float, sigma: float, why: str) -> HeadingWeight:
         return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model,
-                             math.nan, limit, _bias_with(A, y, 0.0) if len(y) else None)
+                             math.nan, limit, _bias_with(A, y, 0.0) if len(y) else None, reason=why)
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
@@ -203,10 +213,11 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     theta, cov = _solve(A, y)
     g = None if groups is None else np.asarray(groups).reshape(-1)
     w_fit, sigma = float(theta[4]), float(np.sqrt(max(cov[4, 4], _jackknife_var(A, y, g))))
-    if not w_fit > SIGNIFICANCE * sigma:
-        return chord(w_fit, sigma, f"the bend fit does not make this experiment's marks agree better than "
-                                   f"the chord (weight {w_fit:.2f} ± {sigma:.2f}, not above "
-                                   f"{SIGNIFICANCE:g}σ)")
+    if not w_fit > gate_z * sigma:
+        z = "√2" if gate_z == APPLY_Z else f"{gate_z:g}"
+        return chord(w_fit, sigma, f"the bend fit is not expected to make the marks agree better than the "
+                                   f"chord (weight {w_fit:.2f} ± {sigma:.2f}, not above {z}σ: its own error "
+                                   f"would exceed what it corrects)")
     w = min(w_fit, 1.0)
     fixed = with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
     assert fixed is not None
@@ -264,15 +275,23 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
         f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
 
 
-def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> HeadingWeight:
-    """One bend model's weight (:func:`learn_from_stops` without the choice between models), with its
-    leave-one-direction-out figures when it is shown in-sample."""
+def _model_inputs(stops: list[StopMarks], headings_deg: Any, groups: Any,
+                  model: str) -> tuple[np.ndarray, ...]:
+    """(chord marks, marks with the model's whole fitted slope (NaN: none), headings, slopes, their stated σ,
+    directions) of the stops for one bend model; directions by default the heading to the nearest 45°."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
     g = np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
     rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
     xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
     slopes, sig = np.array([r[1] for r in rec], dtype=float), np.array([r[2] for r in rec], dtype=float)
+    return chord, xy, psi, slopes, sig, g
+
+
+def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> HeadingWeight:
+    """One bend model's weight (:func:`learn_from_stops` without the choice between models), with its
+    leave-one-direction-out figures when it is shown in-sample."""
+    chord, xy, psi, slopes, sig, g = _model_inputs(stops, headings_deg, groups, model)
     w = learn_heading_weight(chord, xy, psi, slopes, sig, model, g)
     if not w.applied:
         return w
@@ -283,13 +302,42 @@ def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: s
         "fewer than 5 directions: the weight cannot be checked on a direction it did not see"))
 
 
+def _ungated_folds(stops: list[StopMarks], headings_deg: Any, groups: Any, model: str) -> list[float] | None:
+    """The model's held-out mean squared errors per direction (weight_cv.py) with its weight not gated, in
+    sample and in each fold (applied whenever above 0); None: its bend was fitted at too few stops, or the
+    directions are too few."""
+    chord, xy, psi, slopes, sig, g = _model_inputs(stops, headings_deg, groups, model)
+    if learn_heading_weight(chord, xy, psi, slopes, sig, model, g, gate_z=0.0).n_stops < MIN_STOPS:
+        return None
+    cv = cross_validate(chord, xy, psi, slopes, g, lambda t: learn_heading_weight(
+        chord[t], xy[t], psi[t], slopes[t], sig[t], model, gate_z=0.0))
+    return None if cv is None else list(cv["weight_fold_ms_mm2"])
+
+
+def bend_model(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> str | None:
+    """The bend model the stops' bends are best read by: a description of the paths' shape, not of which
+    weight passes the gate. The held-out choice of :func:`learn_from_stops` (the richer model only when it
+    predicts the directions left out significantly better, weight_cv.py ``better``) with each model's weight
+    not gated, so that it does not change with the gate (calibration/weight_check.py compares it). None:
+    the lowest model's figures cannot be made (its bend fitted at too few stops, too few directions)."""
+    folds = {m: _ungated_folds(stops, headings_deg, groups, m) for m in MODELS}
+    order = list(MODELS)
+    best = order[0]
+    if folds[best] is None:
+        return None
+    for richer in order[1:]:
+        if folds[richer] is not None and better(folds[best], folds[richer])[0]:
+            best = richer
+    return best
+
+
 def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarray, psi: np.ndarray,
                    why: str) -> HeadingWeight:
     """``w``'s record turned into the chord's: weight 0, the chord's own b, why."""
     theta = with_weight(design(psi, np.zeros((len(psi), 2))), chord.reshape(-1), 0.0)
     b = None if theta is None else (float(theta[2]), float(theta[3]))
     return replace(w, weight=0.0, applied=False, why=why + ": the chord is used", sigma_heading_rad=0.0,
-                   rms_mm=math.nan, b_mm=b, cv=cv)
+                   rms_mm=math.nan, b_mm=b, cv=cv, reason=why)
 
 
 def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:

@@ -7,7 +7,7 @@ made by cross-validation, leaving one direction out at a time (its stops share t
 path there, so a stop's neighbours in its own direction are no unseen data):
 
 * **chord**: M and b fitted to the other directions' chord marks (w = 0);
-* **weight**: w learned on the other directions as the experiment learns it (its significance test
+* **weight**: w learned on the other directions as the experiment learns it (its gate at √2σ
   and slope limit), M and b fitted jointly with it;
 
 each predicts the held-out stops' marks, ``P_k + w·Δ_k`` against ``M + R(ψ_k)·b`` (Δ_k = 0 where the

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from calibration.coverage import check_sigma, scatter_sigma
-from calibration.heading_weight import NOT_LEARNED, learn_from_stops, learn_model
+from calibration.heading_weight import NOT_LEARNED, bend_model, learn_from_stops, learn_model
 from calibration.metrics import experiment_metrics
 from calibration.weight_check import learning_conditions, recheck
 from daemon.compute.inputs import heading_weight
@@ -49,7 +49,8 @@ def _speed_mm_s(stream: dict[str, Any]) -> float | None:
     return float(np.median(d[mid][ok] / dt[mid][ok])) if np.any(ok) else None
 
 
-def _conditions(stops: list[dict[str, Any]], marks: list[dict[str, Any]], weight: Any) -> dict[str, Any]:
+def _conditions(stops: list[dict[str, Any]], marks: list[dict[str, Any]], weight: Any,
+                shape_model: str | None) -> dict[str, Any]:
     """The experiment's learning conditions (calibration/weight_check.py) from its stop records."""
     streams = [s.get("stream") or {} for s in stops]
     rates = [float(st["rate_hz"]) for st in streams if st.get("rate_hz") is not None]
@@ -57,7 +58,7 @@ def _conditions(stops: list[dict[str, Any]], marks: list[dict[str, Any]], weight
     dist = [float(np.linalg.norm(np.subtract(s["P_at"]["abs_xyz"], s["P_prev"]["abs_xyz"])[:2]))
             for s in stops]
     tilt = sum("tilt" in m["compensation"]["applied"] for m in marks) * 2 > len(marks)  # the most stops'
-    return learning_conditions(rates, speeds, dist, tilt, weight)
+    return learning_conditions(rates, speeds, dist, tilt, weight, shape_model)
 
 
 def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[Any], headings: np.ndarray,
@@ -66,7 +67,8 @@ def weight_checks(obs: dict[str, Any], marks: list[dict[str, Any]], learn: list[
     (None: the calibration holds none, or no stop's bend was fitted here), the chord's metrics: the marks with
     the chord's heading)."""
     own = learn_from_stops(learn, headings, groups)
-    own = replace(own, conditions=_conditions(obs["stops"], marks, own))
+    # the paths' bend model, read with each model's weight ungated: a condition that does not follow the gate
+    own = replace(own, conditions=_conditions(obs["stops"], marks, own, bend_model(learn, headings, groups)))
     applied, _ = heading_weight(obs["calibration"])
     check = None  # the calibration holds no weight, or no stop here fitted a bend: nothing to compare
     if applied is not NOT_LEARNED and own.n_stops:

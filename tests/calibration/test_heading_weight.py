@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from calibration.compensation import Compensation, Stop, compensate
-from calibration.heading_weight import (NOT_LEARNED, HeadingWeight, learn_from_stops, learn_heading_weight,
-                                        stop_marks, weighted_slope)
+from calibration.heading_weight import (APPLY_Z, NOT_LEARNED, HeadingWeight, learn_from_stops,
+                                        learn_heading_weight, stop_marks, weighted_slope)
+from calibration.weight_cv import design
 
 L = 200.0
 R_MARK = np.array([200.0, 50.0])  # the mark in the robot frame (the camera footprint), mm
@@ -137,6 +138,21 @@ def test_too_few_fitted_stops_and_unseparable_headings_are_refused_with_a_reason
         learn_heading_weight(np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(3), np.zeros(4))
 
 
+def test_the_chords_reason_is_kept_apart_from_its_consequence():
+    """``reason`` is why the chord is kept, ``why`` adds what follows (the chord is used): a message that
+    states its own consequence quotes ``reason`` and parses nothing; the field round-trips, and a record
+    stored before it reads as ""."""
+    w = learn_heading_weight(np.zeros((5, 2)), np.ones((5, 2)), np.zeros(5), np.ones(5))
+    assert w.reason == "the bend was fitted at 5 stops (the weight needs >= 8)"
+    assert w.why == w.reason + ": the chord is used"
+    assert NOT_LEARNED.why == NOT_LEARNED.reason + ": the chord is used"
+    assert HeadingWeight.from_dict(w.to_dict()) == w
+    old = {k: v for k, v in w.to_dict().items() if k != "reason"}
+    assert HeadingWeight.from_dict(old).reason == ""
+    shown = learned("arc", 1)
+    assert shown.applied and shown.reason == "" and shown.why == ""
+
+
 def test_a_stored_record_round_trips_and_a_bad_one_names_its_field():
     w = learned("arc", 1)
     assert HeadingWeight.from_dict({**w.to_dict(), "job": "x"}) == w
@@ -194,3 +210,29 @@ def test_driving_backwards_learns_and_applies_the_same_weight():
     _, _, chord_r, used_r = experiment("arc", 101, rv, reverse=True)
     assert rms(chord_r) == pytest.approx(rms(chord_f), rel=1e-6)
     assert rms(used_r) == pytest.approx(rms(used_f), rel=0.15) and rms(used_r) < 0.7 * rms(chord_r)
+
+
+def _known_weight(w_true: float, noise_mm: float, seed: int) -> HeadingWeight:
+    """The weight learned from marks built exactly by the model, P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5
+    stops (Δ_k: a 300 µrad slope over the 200 mm lever arm), so that its z is set by w and the noise."""
+    rng = np.random.default_rng(seed)
+    psi = np.repeat(45.0 * np.arange(8), 5) + rng.normal(0.0, 0.5, 40)
+    slopes = rng.normal(0.0, 300e-6, 40)
+    delta = np.column_stack([-np.sin(np.radians(psi)), np.cos(np.radians(psi))]) * (L * slopes)[:, None]
+    P = (design(psi, delta) @ [*M_TRUE, *B_TRUE, w_true]).reshape(-1, 2) + rng.normal(0.0, noise_mm, (40, 2))
+    return learn_heading_weight(P, P + delta, psi, slopes, None, "lowest", np.repeat(np.arange(8), 5))
+
+
+def test_a_weight_expected_to_err_less_than_the_chord_is_applied_though_not_shown_at_3_sigma():
+    """Between √2σ and 3σ applying the estimate is expected to err less than the chord (w_fit² − σ² > σ²):
+    it is applied (the old significance gate at 3σ kept the chord here)."""
+    w = _known_weight(0.2, 0.03, 2)
+    assert APPLY_Z == pytest.approx(math.sqrt(2.0))
+    assert math.sqrt(2.0) < w.weight_fit / w.sigma < 3.0, w
+    assert w.applied and w.weight == pytest.approx(w.weight_fit) and w.why == "", w
+
+
+def test_a_weight_below_root_2_sigma_keeps_the_chord_and_says_why():
+    w = _known_weight(0.0, 0.03, 1)
+    assert 0.0 < w.weight_fit < math.sqrt(2.0) * w.sigma, w
+    assert not w.applied and w.weight == 0.0 and "not above √2σ" in w.why and "chord is used" in w.why, w

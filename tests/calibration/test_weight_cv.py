@@ -23,14 +23,15 @@ def test_on_arcs_the_weight_predicts_the_directions_left_out_better_and_is_store
 
 
 def test_where_the_chord_with_its_own_b_predicts_better_it_is_stored_with_that_b_and_both_figures():
-    """A kink near the stop that the stream (60 points) does not resolve: in-sample the weight passes its
+    """A kink near the stop that the stream (40 points) does not resolve: in-sample the weight passes its
     test, held out the chord predicts better; the record keeps the chord, its own b, and says why with both
     figures."""
-    ex = experiment("kink", 2, n_stream=60)
+    ex = experiment("kink", 3, n_stream=40)
     w = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
     assert w.cv is not None and w.cv["chosen"] == "chord" and w.cv["chord_rms_mm"] <= w.cv["weight_rms_mm"]
     assert not w.applied and w.weight == 0.0 and w.weight_fit > 0.0
     assert f"({w.cv['chord_rms_mm']:.4f} mm RMS)" in w.why and f"({w.cv['weight_rms_mm']:.4f} mm)" in w.why
+    assert w.why == w.reason + ": the chord is used"
     chord_b = fit_bias(np.array([c for c, _ in ex["stops"]]), ex["heads"]).b  # equal repetitions: the same b
     assert np.allclose(w.b_mm, chord_b, atol=1e-9), (w.b_mm, chord_b)
 
@@ -56,7 +57,7 @@ def test_the_record_carries_the_paired_test_and_the_per_direction_figures():
     than the chord's, though not significantly over the eight directions; the weight is kept (the smaller
     RMS decides between chord and weight) and the record carries the test's p and each direction's
     figures."""
-    ex = experiment("arc", 1, n_stream=60, floor_mm=0.02)
+    ex = experiment("arc", 14, n_stream=60, floor_mm=0.02)
     w = learn_from_stops(ex["stops"], ex["heads"], ex["groups"])
     assert w.cv is not None and w.cv["weight_rms_mm"] < 0.8 * w.cv["chord_rms_mm"], w.cv
     assert w.cv["chosen"] == "weight" and ALPHA_CHOICE <= w.cv["p"] < 0.1 and w.applied

@@ -39,7 +39,7 @@ def test_the_joint_fit_comparator_keeps_the_in_sample_weight_where_the_product_k
     from calibration.heading_weight import learn_from_stops
     from tests.calibration.weight_world import experiment
 
-    ex = experiment("kink", 2, n_stream=60)
+    ex = experiment("kink", 3, n_stream=40)
     product, joint = (f(ex["stops"], ex["heads"], ex["groups"]) for f in (learn_from_stops, joint_from_stops))
     assert not product.applied and product.cv["chosen"] == "chord"
     assert joint.applied and joint.weight > 0.0 and joint.b_mm != product.b_mm

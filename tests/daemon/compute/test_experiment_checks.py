@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from daemon.bus.datasets import check_file
 from daemon.compute.procedures import compute_measure_mark, no_mount_why
 from daemon.compute.recompute import BiasNotStored, recompute, store_bias_offline
 from daemon.ctl import main as ctl
@@ -131,6 +132,7 @@ def test_a_weight_learned_under_other_conditions_warns_naming_both_and_reports_t
     cond = own["heading_weight"]["conditions"]
     assert cond["stream_rate_hz"] == RATE and cond["speed_mm_s"] == pytest.approx(SPEED, rel=1e-3)
     assert cond["distance_mm"] == pytest.approx(200.0, rel=1e-3) and cond["tilt"] is False
+    assert "shape_model" in cond  # the paths' bend model (ungated weights): recorded, None when not made
     assert own["checks"]["heading_weight"] is None  # the calibration holds no weight: nothing to re-check
     assert own["chord"]["fit"] is not None and "pairwise_mean_mm" in own["chord"]
     stored = {**own["heading_weight"], "conditions": {**cond, "speed_mm_s": 300.0}, "job": "e0"}
@@ -140,6 +142,11 @@ def test_a_weight_learned_under_other_conditions_warns_naming_both_and_reports_t
     assert result["verdict"] == "warn" and not check["ok"]
     assert "speed_mm_s 300 learned, 100 now" in check["message"] and check["message"] in result["messages"]
     assert "applied weight" in check["message"] and "this experiment's own" in check["message"]
+    assert check["shape_model"] == cond["shape_model"] and isinstance(check["chord_better"], bool)
+    assert check_file(result, "result", "result.json") == []  # the new fields validate, and are checked:
+    bad = {**result, "heading_weight": {**result["heading_weight"],
+                                        "conditions": {**cond, "shape_model": "quartic"}}}
+    assert check_file(bad, "result", "result.json") != [], "a bend model the schema does not know validates"
 
 
 def test_the_mount_skip_names_the_referencings_own_reason():
