@@ -19,7 +19,7 @@ from typing import Any
 from calibration.errors import CalibrationError
 from daemon.compute.procedures import COMPUTE, shown_params
 from daemon.worker.finish import finish
-from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped
+from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped, ended_with
 from daemon.worker.procedures import RUN
 from daemon.worker.store import save_result
 from daemon.bus.client import Client, ClientTimeout
@@ -30,7 +30,12 @@ log = logging.getLogger("daemon.worker")
 
 
 def operator_message(exc: BaseException) -> str:
-    """What went wrong, in the operator's words (no Python class names in front)."""
+    """What went wrong, in the operator's words, with what failed after it while the job ended."""
+    return ended_with(exc, _what(exc))
+
+
+def _what(exc: BaseException) -> str:
+    """The error in the operator's words (no Python class names in front)."""
     if isinstance(exc, ClientTimeout):
         return f"the daemon did not answer ({exc.args[0]})"
     if isinstance(exc, StepFailed):
@@ -93,12 +98,12 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         result = finish(ctx, save_result(ctx.root, data_dir, result))  # activate, install, store the bias
     except Cancelled as exc:
         ctx.finish(JobState.CANCELLED)
-        ctx.report("error", {"message": str(exc), "cancelled": True})
+        ctx.report("error", {"message": ended_with(exc), "cancelled": True})
         return None
     except Stopped as exc:  # no further bus call: the daemon already shows the job stopped
         log.warning("job %s stopped at %s: %s", ctx.job_id, ctx.step, exc)
         ctx.finish(JobState.STOPPED)
-        ctx.report("error", {"message": str(exc), "stopped": True, "step": ctx.step})
+        ctx.report("error", {"message": ended_with(exc), "stopped": True, "step": ctx.step})
         return None
     except Exception as exc:  # noqa: BLE001 - any failure ends this job, never the worker
         # a device refused, a gate failed or input was bad: keep the observations, say how to resume

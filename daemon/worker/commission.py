@@ -76,10 +76,8 @@ def tracker_obs(ctx: JobContext) -> dict[str, Any]:
         time.sleep(SUB_SETTLE_S)
         # the reply says the rate streamed: above the tracker's max_data_rate it is clamped (docs/emscon.md)
         rate = ctx.call("tracker.stream.start", rate_hz=ctx.params.tracker_rate_hz)["rate_hz"]
-        try:
+        with ctx.afterwards("tracker.stream.stop"):
             packets = _records(sub, ctx.params.duration_s)
-        finally:
-            ctx.call("tracker.stream.stop")
     finally:
         sub.close()
     status = ctx.call("tracker.status")
@@ -101,10 +99,8 @@ def camera_obs(ctx: JobContext) -> dict[str, Any]:
     """Status, ``duration_s`` of free-running frames, status again; then a few captures timed by the host."""
     before = ctx.call("camera.status")
     ctx.call("camera.stream.start")
-    try:
+    with ctx.afterwards("camera.stream.stop"):
         time.sleep(ctx.params.duration_s)
-    finally:
-        ctx.call("camera.stream.stop")
     after = ctx.call("camera.status")
     captures = []
     for _ in range(CAPTURES):

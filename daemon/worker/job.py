@@ -10,8 +10,9 @@ from __future__ import annotations
 import json
 import logging
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -40,6 +41,12 @@ class StepFailed(Exception):
     def __init__(self, message: str, resumable: bool = True) -> None:
         super().__init__(message)
         self.resumable = resumable
+
+
+def ended_with(exc: BaseException, message: str | None = None) -> str:
+    """An error's message (``message``, else its own) with the notes added while the job ended (a cleanup
+    that failed after it: ``JobContext.afterwards``)."""
+    return "; ".join([str(exc) if message is None else message, *getattr(exc, "__notes__", ())])
 
 
 class JobContext:
@@ -120,6 +127,27 @@ class JobContext:
             if exc.code == ErrorCode.STOPPED:  # a refused or aborted motion: the job stops here
                 raise Stopped(exc.args[0]) from None
             raise
+
+    @contextmanager
+    def afterwards(self, cmd: str, timeout: float = 30.0, **args: Any) -> Iterator[None]:
+        """Run the body, then ``cmd`` (e.g. ``tracker.stream.stop``): always, and past the stop check, since a
+        STOP or a cancel must not leave a device streaming.
+
+        The first error is the job's outcome: when the body raised (a STOP's ``Stopped``), a failing ``cmd``
+        is logged and added to that error as a note (``ended_with``), never raised in its place; when the
+        body ended well, a failing ``cmd`` fails the job as any call does.
+        """
+        try:
+            yield
+        except BaseException as exc:
+            try:
+                self.client.call(cmd, timeout=timeout, **args)
+            except Exception as cleanup:  # noqa: BLE001 - whatever it was, it must not mask ``exc``
+                note = f"{cmd} failed after it: {cleanup}"
+                log.warning("[%s] %s ended the step; %s", self.job_id, type(exc).__name__, note)
+                exc.add_note(note)
+            raise
+        self.client.call(cmd, timeout=timeout, **args)
 
     def report(self, kind: str, data: dict[str, Any]) -> None:
         try:

@@ -228,7 +228,7 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             return None, f"the tracker's stream did not start ({exc.args[0]})"
         t0 = time.time_ns()
         msgs: list[dict[str, Any]] = []
-        try:
+        with ctx.afterwards("tracker.stream.stop"):  # also when a STOP ended the move, which stays the outcome
             tilt, last = _drive_polling_tilt(ctx, distance_mm, speed_mm_s,
                                              60.0 + 2 * abs(distance_mm) / speed_mm_s)
             t1 = time.time_ns()
@@ -236,8 +236,6 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             _collect_until(sub, msgs, t1, LAST_PACKET_WAIT_S)  # the packet holding the move's end
             if isub is not None:
                 incl = _collect_incl(isub, t1, LAST_PACKET_WAIT_S)
-        finally:  # also when a STOP ended the move: past the job's stop check, the stream must end
-            ctx.client.call("tracker.stream.stop", timeout=30)
     finally:
         sub.close()
         esub.close()

@@ -179,8 +179,10 @@ class EmsconTracker(Tracker):
             c.request(ES_Command.StopMeasurement, timeout=min(self.timeout, 5.0))
         except DeviceLost:
             raise
-        except DeviceError:
-            pass  # "nothing to stop" is fine
+        except DeviceError as exc:
+            if not c.connected:  # no answer in time: the client hung up to resynchronise, say so now
+                raise DeviceLost(f"tracker {self.url.raw}: {c.lost_reason or exc}") from exc
+            # "nothing to stop" is fine
 
     def _select_reflector(self, c: EmsconClient, wanted: str) -> None:
         known = c.get_reflectors()

@@ -198,7 +198,8 @@ class EmsconClient:
     def _send(self, data: bytes, deadline: float) -> None:
         sock = self._sock
         if sock is None:
-            raise DeviceLost(f"emScon connection to {self.host}:{self.port} is closed")
+            raise DeviceLost(f"emScon connection to {self.host}:{self.port} is closed"
+                             + (f" ({self.lost_reason})" if self.lost_reason else ""))
         try:
             sock.settimeout(max(deadline - time.monotonic(), 1e-3))
             sock.sendall(data)

@@ -297,6 +297,20 @@ def test_delay_beyond_timeout(make) -> None:
         t.pump(0.01)
 
 
+def test_a_stream_stop_unanswered_in_time_says_why_the_connection_is_gone(make, world: World) -> None:
+    """StopMeasurement late (a loaded host): the client hangs up to resynchronise; the stop names that, not
+    a bare "connection is closed" from the next command sent on the closed socket."""
+    t = make("timeout=0.2")
+    t.open()
+    lock_on(t, world, "green")
+    t.start_stream(100.0)
+    t.pump(0.05)
+    t.server.faults.delay_ms = 400
+    with pytest.raises(DeviceLost, match="StopMeasurement: no answer within 0.2 s; connection closed to resync"):
+        t.stop_stream()
+    assert not t.status()["connected"]
+
+
 @pytest.mark.parametrize("opts,match", [("garbage_after=3", "protocol error"),
                                         ("drop_after=3", "EOF|reset|lost")])
 def test_fatal_faults_are_device_lost(make, opts: str, match: str) -> None:

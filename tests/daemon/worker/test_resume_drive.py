@@ -30,7 +30,7 @@ from fakes.demo import operator_files
 from fakes.operator import lock_on_robot, rough_mark
 from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
-pytestmark = pytest.mark.slow  # whole procedures through ritad (~25 s for the file)
+pytestmark = pytest.mark.slow  # whole procedures through ritad (~30 s for the file)
 
 TIMEOUT_S = 120.0
 #: the simulated base at 10× real time (its default is 50×): a STOP's tens of ms on the way (up to
@@ -41,11 +41,12 @@ ROBOT = "sim:?time_scale=0.1"
 ODO_TOL_MM, TRACKER_REL = 0.05, 0.02
 
 
-@pytest.fixture(scope="module")
-def rig(tmp_path_factory) -> Iterator[tuple[Any, Client, Path, Path]]:
-    tmp = tmp_path_factory.mktemp("resume")
-    with ritad_in_process(tmp / "rt", tmp / "data", camera=SMALL_CAMERA, robot=ROBOT) as (d, c):
-        yield d, c, Path(c.call("data.dir")["data_dir"]), tmp
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[Any, Client, Path, Path]]:
+    """A fresh daemon per test (~2 s): a test that fails mid-way leaves its latched STOP, a base fault or a
+    running job behind, which must not fail the tests after it."""
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", camera=SMALL_CAMERA, robot=ROBOT) as (d, c):
+        yield d, c, Path(c.call("data.dir")["data_dir"]), tmp_path
 
 
 def acquire(endpoint: str, data_dir: Path) -> str:
