@@ -101,7 +101,7 @@ def run_job(client: Client, job: dict[str, Any], data_dir: Path) -> dict[str, An
         ctx.report("error", {"message": ended_with(exc), "cancelled": True})
         return None
     except Stopped as exc:  # no further bus call: the daemon already shows the job stopped
-        log.warning("job %s stopped at %s: %s", ctx.job_id, ctx.step, exc)
+        log.warning("job %s stopped at %s: %s", ctx.job_id, ctx.step, ended_with(exc))
         ctx.finish(JobState.STOPPED)
         ctx.report("error", {"message": ended_with(exc), "stopped": True, "step": ctx.step})
         return None

@@ -228,7 +228,7 @@ def record_move(ctx: JobContext, distance_mm: float, speed_mm_s: float, abs_H_tr
             return None, f"the tracker's stream did not start ({exc.args[0]})"
         t0 = time.time_ns()
         msgs: list[dict[str, Any]] = []
-        with ctx.afterwards("tracker.stream.stop"):  # also when a STOP ended the move, which stays the outcome
+        with ctx.afterwards("tracker.stream.stop"):  # also after a STOP, which stays the outcome
             tilt, last = _drive_polling_tilt(ctx, distance_mm, speed_mm_s,
                                              60.0 + 2 * abs(distance_mm) / speed_mm_s)
             t1 = time.time_ns()

