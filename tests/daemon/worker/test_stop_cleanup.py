@@ -18,10 +18,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from daemon.bus.client import Client
 from daemon.bus.protocol import CommandError, ErrorCode
 from daemon.worker.__main__ import operator_message
 from daemon.worker.job import Cancelled, JobContext, StepFailed, Stopped, ended_with
 from daemon.worker.stream import record_move
+from drivers.emscon.enums import ES_Command, ES_ResultStatus
+from fakes.operator import lock_on_robot
+from tests.ritad_up import SMALL_CAMERA, ritad_in_process
 
 CLOSED = "tracker: emScon connection to 127.0.0.1:7000 is closed"
 
@@ -102,3 +106,39 @@ def test_a_cleanup_that_fails_after_a_good_body_fails_the_job(tmp_path: Path) ->
     with pytest.raises(CommandError, match="is closed"):
         with ctx.afterwards("tracker.stream.stop"):
             pass  # the move ended well: a stream left running is the job's error
+
+
+class StopAfterMove:
+    """The worker's bus client, with the operator's STOP sent the moment the recorded move was accepted."""
+
+    def __init__(self, client: Client) -> None:
+        self.client = client
+
+    def call(self, cmd: str, timeout: float | None = None, **args: Any) -> Any:
+        got = self.client.call(cmd, timeout=timeout, **args)
+        if cmd == "robot.move":
+            assert self.client.call("robot.stop")["latched"]
+        return got
+
+    def subscriber(self, topics: list[str]) -> Any:
+        return self.client.subscriber(topics)
+
+
+def test_through_ritad_a_stream_stop_refused_after_a_stop_leaves_the_job_stopped(tmp_path: Path) -> None:
+    """ritad in-process on the fakes; the fake tracker refuses StopMeasurement (a fault knob, set once the
+    stream runs): ritad answers the stream stop with the tracker's error, the job still ends Stopped."""
+    with ritad_in_process(tmp_path / "rt", tmp_path / "data", camera=SMALL_CAMERA,
+                          robot="sim:?time_scale=0.1") as (d, c):
+        lock_on_robot(c)
+        c.call("calib.start", procedure="measure-mark", params={"mark_xy": [0.0, 0.0]})
+        job = c.call("calib.next", timeout=20, timeout_s=2)  # taken as the worker takes it: it is running
+        ctx = JobContext(StopAfterMove(c), job, tmp_path / "data")  # type: ignore[arg-type]
+        fake = d.rigs.tracker.runner.device.server.faults
+        fake.fail[ES_Command.StopMeasurement] = ES_ResultStatus.InternalProcessActive
+        with pytest.raises(Stopped) as got:
+            record_move(ctx, 150.0, 25.0, np.eye(4), None)
+        fake.fail.clear()
+        (note,) = got.value.__notes__
+        assert note.startswith("tracker.stream.stop failed after it: tracker: "), note
+        assert "InternalProcessActive" in note, note
+        assert c.call("calib.jobs")["jobs"][0]["state"] == "stopped"
