@@ -45,6 +45,7 @@ import numpy as np
 from drivers import robot_protocol as rp
 from drivers.base import DeviceURL, Emit, no_emit
 from drivers.robot import SerialRobot
+from fakes.link_proxy import StallLog
 from fakes.robot_base import FakeBase, unit_interval
 from fakes.robot_boot import Boot
 from fakes.robot_defects import DefectiveBase
@@ -79,6 +80,7 @@ class PtyServer:
         self._injected = b""  # bytes given to inject(), not yet written
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.stalls = StallLog()  # the server thread's own lateness (on the base's clock)
         self.alive = True
         self.counters = {"tx_lines": 0, "tx_dropped": 0, "samples_dropped": 0, "garbage_bursts": 0,
                          "corrupted": 0}
@@ -126,6 +128,7 @@ class PtyServer:
             pass
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout=2.0)
+        self.base.watchdog.read_until = None  # no port: no line can come, the timer runs on the clock
         self.alive = False
         for fd in (self.master, self._slave, self._wake_r, self._wake_w):
             try:
@@ -151,6 +154,7 @@ class PtyServer:
             due = self.base.streams.next_due(state_only=True)
             if due is not None:
                 tick = min(tick, max(0.0, due - self.base.clock()))
+            checked = self.base.clock()  # a line that arrived before this is read below, before the tick
             try:
                 writable = [self.master] if self._injected else []  # (only this thread empties it)
                 ready, _, _ = select.select([self.master, self._wake_r], writable, [], tick)
@@ -158,18 +162,19 @@ class PtyServer:
                 return
             if self._stop.is_set():
                 return
+            self.stalls.woke(self.base.clock(), tick)
             if self._wake_r in ready:
                 os.read(self._wake_r, 256)
-            if self.master in ready:
-                try:
-                    data = os.read(self.master, 4096)
-                except OSError as exc:
-                    if exc.errno in (errno.EAGAIN, errno.EINTR):
-                        continue
-                    return
-                if not self.silent:  # a quiet link loses input too
-                    for line in splitter.feed(data):
-                        self._guarded(self.base.handle_line, line)
+            try:
+                data = self._read_all() if self.master in ready else b""
+            except OSError:
+                return
+            if not self.silent:  # a quiet link loses input too
+                for line in splitter.feed(data):
+                    self._guarded(self.base.handle_line, line)
+            # the host watchdog is judged up to ``checked`` only: a line that came while this thread was
+            # late after its select (a loaded machine) is read next time, as a UART would have on time
+            self.base.watchdog.read_until = checked
             self._guarded(self.base.tick)
             out, samples = self.base.drain(), self.base.drain_stream()
             with self._lock:
@@ -180,6 +185,20 @@ class PtyServer:
             elif not self.silent:
                 self._send([self._noise(n) for n in pending] + [self._impair(line) for line in out])
                 self._send([self._impair(line) for line in samples], samples=True)
+
+    def _read_all(self) -> bytes:
+        """Everything the host wrote that waits in the pty (several reads when more than one's worth)."""
+        data = b""
+        while True:
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError as exc:
+                if exc.errno in (errno.EAGAIN, errno.EINTR):
+                    return data
+                raise
+            data += chunk
+            if len(chunk) < 4096:
+                return data
 
     def _write_injected(self) -> bool:
         """Write what the pty takes of the injected bytes; True once none are left."""

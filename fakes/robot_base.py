@@ -343,8 +343,8 @@ class FakeBase:
         if m is None:
             return
         f = self._fraction()
-        expiry = self.watchdog.expiry()
-        if expiry is not None and self.clock() >= expiry and (lost := fraction_at(m, expiry)) < min(
+        expiry = self.watchdog.expired(self.clock())
+        if expiry is not None and (lost := fraction_at(m, expiry)) < min(
                 1.0, 1.0 if m.fault_at is None else m.fault_at):
             m.fault_at = lost  # the wheels stop where the timer fired: the path ends there too (pose_at)
             self._finish(lost, "FAULT", rp.FAULT_HOST_LOST, "no host line within the host timeout")

@@ -76,10 +76,16 @@ class HostWatchdog:
     when no valid host line came within ``timeout_s``, as a base whose host died must. Off (None) in a
     version-1 or 2 session, whose host does not keep the link alive. A line counts when the fake reads it:
     one that waited in the pty while the fake's own thread was late re-arms the timer, as it would have on
-    time on a real base (whose receive interrupt is never late), so a busy test machine halts nothing."""
+    time on a real base (whose receive interrupt is never late), so a busy test machine halts nothing.
+    For the same reason the timer is judged only up to ``read_until``, the time before the port's server
+    last read everything waiting: a line still unread then may have arrived in time (a UART's receive
+    interrupt would have taken it), so a thread late between its read and its tick halts nothing either."""
 
     timeout_s: float | None = None
     heard_at: float = -math.inf  # clock time of the last valid host line
+    #: clock time up to which every arrived host line was read (the port's server sets it before each read);
+    #: None: lines are handed over as they arrive (no server thread in between, or no port: none can come)
+    read_until: float | None = None
 
     def heard(self, now: float) -> None:
         self.heard_at = now
@@ -87,6 +93,12 @@ class HostWatchdog:
     def expiry(self) -> float | None:
         """The clock time at which a motion under way must halt, None while off."""
         return None if self.timeout_s is None else self.heard_at + self.timeout_s
+
+    def expired(self, now: float) -> float | None:
+        """The expiry, when the timer ran out by ``now`` as far as the lines read tell; else None."""
+        expiry = self.expiry()
+        judged = now if self.read_until is None else min(now, self.read_until)
+        return expiry if expiry is not None and judged >= expiry else None
 
 
 def fraction_at(m: Motion, t: float) -> float:

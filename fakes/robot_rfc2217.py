@@ -24,6 +24,8 @@ from fakes.robot_base import FakeBase
 
 #: how often the base is ticked while nothing arrives (s): its motions and samples advance
 TICK_S = 0.005
+#: the most one read takes from the connection
+RECV_BYTES = 4096
 
 
 class _Uart:
@@ -98,21 +100,33 @@ class Rfc2217Base:
         conn.settimeout(TICK_S)
         manager: Any = PortManager(self.uart, _Connection(conn))
         lines = rp.LineSplitter()
-        while not self._stop.is_set():
-            try:
-                data = conn.recv(4096)
-                if not data:
-                    return  # the host closed the connection
-            except TimeoutError:
-                data = b""
-            except OSError:
-                return
-            for line in lines.feed(b"".join(manager.filter(data))):
-                self.base.handle_line(line)
-            self.base.tick()
-            out = b"".join(self.base.drain() + self.base.drain_stream())
-            if out:
+        try:
+            while not self._stop.is_set():
+                checked = self.base.clock()  # a line that arrived before this is in the recv below
                 try:
-                    conn.sendall(b"".join(manager.escape(out)))
+                    data = conn.recv(RECV_BYTES)
+                    if not data:
+                        return  # the host closed the connection
+                except TimeoutError:
+                    data = b""
                 except OSError:
                     return
+                for line in lines.feed(b"".join(manager.filter(data))):
+                    self.base.handle_line(line)
+                if len(data) < RECV_BYTES:  # all that waited was read: the watchdog may be judged to then
+                    self.base.watchdog.read_until = checked  # (robot_motion.HostWatchdog)
+                self.base.tick()
+                if not self._send(conn, manager):
+                    return
+        finally:
+            self.base.watchdog.read_until = None  # no host connected: no line can come
+
+    def _send(self, conn: socket.socket, manager: Any) -> bool:
+        """The base's replies, events and samples to the host; False once the connection failed."""
+        out = b"".join(self.base.drain() + self.base.drain_stream())
+        if out:
+            try:
+                conn.sendall(b"".join(manager.escape(out)))
+            except OSError:
+                return False
+        return True

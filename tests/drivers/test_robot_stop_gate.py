@@ -6,6 +6,7 @@ STOP ahead of a pending command, no motion line after a latch) and whether the b
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -219,3 +220,39 @@ def test_halt_reply_waits_for_the_acknowledgement_or_says_it_is_owed() -> None:
     got = owed.result(timeout=10)
     assert got["stopped"] is False and got["latched"] is True
     assert "as soon as the base answers" in got["message"]
+
+
+def test_a_fake_thread_late_between_its_read_and_its_tick_does_not_trip_the_host_watchdog() -> None:
+    """The pty server stalls after a read, before its tick (a loaded test machine), while the host writes
+    on time: those lines arrived within the host timeout, so the base drives on (a UART's receive interrupt
+    would have taken them); once the host really goes quiet, the base halts with HOST_LOST all the same."""
+    base = FakeBase(World(WorldParams(seed=1, start_pose=(0.0, 0.0, 0.0))), time_scale=1.0, max_protocol=3)
+    tick, stalls, stalled, resumed = base.tick, [1], threading.Event(), threading.Event()
+
+    def late_tick() -> None:
+        if base.moving and stalls:
+            stalls.pop()
+            stalled.set()
+            time.sleep(0.45)  # 1.5 host timeouts between the server's read and this tick
+            tick()
+            resumed.set()
+        tick()
+
+    base.tick = late_tick  # type: ignore[method-assign]
+    server = PtyServer(base)
+    host = os.open(server.path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        os.write(host, rp.encode("HELLO", 1, 3, 300) + rp.encode("MOVE", 2, 2000, 100))
+        assert stalled.wait(10)
+        for seq in range(3, 9):  # a keep-alive every 0.1 s, as the driver writes them
+            os.write(host, rp.encode("STATUS", seq))
+            time.sleep(0.1)
+        assert resumed.wait(10) and base.moving and base.fault == "", base.fault
+        t_quiet = time.monotonic()
+        end = t_quiet + 10
+        while base.moving and time.monotonic() < end:
+            time.sleep(0.01)
+        assert base.fault == rp.FAULT_HOST_LOST and base.last_halt - t_quiet <= 0.3 + 0.1
+    finally:
+        os.close(host)
+        server.shutdown()

@@ -69,8 +69,15 @@ class StopRig:
 
     def move(self, c: Client, distance: float = 2000.0) -> None:
         """Start a move and wait until the base is under way."""
+        x0 = self.x()
         c.call("robot.move", distance_mm=distance, speed_mm_s=SPEED, confirm=True, wait=False)
-        wait_for(lambda: self.x() > 20.0, 10, "the base under way")
+        wait_for(lambda: self.x() > x0 + 20.0, 10, "the base under way")
+
+    def harness_late(self, start: float, end: float) -> float:
+        """How late (s) a line may have crossed the cable and reached the base between ``start`` and ``end``
+        (monotonic) because this rig's own threads stalled (a loaded machine), not the host: the longest
+        stall of the cable's thread plus the base's (their wake-ups, fakes/link_proxy.StallLog)."""
+        return self.proxy.stalls.longest(start, end) + self.server.stalls.longest(start, end)
 
     def halted(self, timeout: float = 30.0) -> float:
         """Wait until the base no longer moves; its odometry x then."""

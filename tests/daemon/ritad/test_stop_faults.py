@@ -11,6 +11,7 @@ going quiet. Waits have generous timeouts that only catch hangs; what is asserte
 from __future__ import annotations
 
 import os
+import select
 import signal
 import threading
 import time
@@ -24,13 +25,15 @@ from daemon.bus.client import Client
 from drivers import robot_protocol as rp
 from daemon.ritad.runner import URGENT_RETRY_S, DeviceRunner
 from drivers.base import DeviceLost
-from fakes.link_proxy import TO_BASE
+from fakes.link_proxy import TO_BASE, LinkProxy, StallLog
 from tools.harness.stop_rig import SPEED, StopRig as Rig, wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
 MARGIN_MM = 0.2 * SPEED  # the acceptance's 0.2 s at the speed (the fake's braking distance is 0)
 WATCHDOG_MM = (rp.DEFAULT_HOST_TIMEOUT_MS / 1000.0 + 0.1) * SPEED
+#: measurements made at most, when this rig's own threads were late enough to account for a miss
+TRIALS = 3
 
 
 @pytest.fixture
@@ -73,8 +76,9 @@ def test_f1_stop_while_the_link_is_down_halts_the_base_when_it_is_back(rig: Rig)
         c.call("robot.move", distance_mm=10.0, speed_mm_s=SPEED, confirm=True)
 
 
-@pytest.mark.parametrize("rig", [2], indirect=True)
-def test_f1b_stop_just_after_the_drop_is_not_lost_behind_retries(rig: Rig) -> None:
+def _f1b_trial(rig: Rig) -> tuple[float, float]:
+    """How far the base drove after the link came back, and how late this rig's own threads may have
+    made that (s: the cable's and the base's stalls meanwhile, tools/harness/stop_rig.py)."""
     rig.start()
     c = rig.client()
     rig.move(c)
@@ -82,10 +86,30 @@ def test_f1b_stop_just_after_the_drop_is_not_lost_behind_retries(rig: Rig) -> No
     time.sleep(0.3)  # ritad not yet aware: its STATUS polls go unanswered
     _stop(c)
     time.sleep(1.5)  # the pending transaction's retries run out meanwhile (not a limit)
-    x_back = rig.x()
+    x_back, t_back = rig.x(), time.monotonic()
     rig.proxy.restore()
     x_end = rig.halted()
-    assert x_end - x_back <= MARGIN_MM, f"drove {x_end - x_back:.1f} mm after the link came back"
+    return x_end - x_back, rig.harness_late(t_back, rig.base.last_halt)
+
+
+@pytest.mark.parametrize("rig", [2], indirect=True)
+def test_f1b_stop_just_after_the_drop_is_not_lost_behind_retries(rig: Rig, tmp_path: Path) -> None:
+    """Within the margin: passed. Over it by more than this rig's own threads were late: ritad was late,
+    failed. Over it only by as much as they were late (a loaded machine): no measurement, made again."""
+    void: list[str] = []
+    for trial in range(TRIALS):
+        r = rig if trial == 0 else Rig(tmp_path / f"t{trial}", 2)
+        try:
+            drove, late = _f1b_trial(r)
+        finally:
+            if r is not rig:
+                r.close()
+        if drove <= MARGIN_MM:
+            return
+        assert drove - late * SPEED <= MARGIN_MM, \
+            f"drove {drove:.1f} mm after the link came back (of it at most {late * SPEED:.1f} mm the rig's)"
+        void.append(f"drove {drove:.1f} mm, the rig's threads up to {late * 1000:.0f} ms late")
+    pytest.fail(f"no valid measurement in {TRIALS} trials: {'; '.join(void)}")
 
 
 @pytest.mark.parametrize("rig", [2], indirect=True)
@@ -182,3 +206,49 @@ def test_a_halt_owed_during_a_long_backoff_cuts_it_short() -> None:
     finally:
         runner.stop()
 
+
+
+def test_the_stall_log_keeps_the_gaps_longer_than_a_sleep() -> None:
+    log = StallLog()
+    for t in (0.0, 0.01, 0.02, 0.2, 0.21):  # woken every 10 ms but once, 180 ms late
+        log.woke(t, 0.01)
+    assert list(log.gaps) == [(0.02, 0.2)]
+    assert log.longest(0.1, 0.3) == pytest.approx(0.1) and log.longest(0.0, 1.0) == pytest.approx(0.18)
+    assert log.longest(0.2, 0.3) == 0.0
+
+
+def test_a_line_written_while_cut_does_not_cross_when_the_proxy_reads_it_late(tmp_path: Path) -> None:
+    """The cable's thread is late (a loaded machine): what the host wrote while the cable was cut still
+    waits unread at restore; it is lost as on a real cable, and the stall is on record."""
+    base_master, base_slave = os.openpty()
+    proxy = LinkProxy(os.ttyname(base_slave))
+    host = os.open(proxy.path, os.O_RDWR | os.O_NOCTTY)
+    woke, stalling, stalled = proxy.stalls.woke, [1], threading.Event()
+
+    def late(now: float, slept_max: float) -> None:
+        woke(now, slept_max)
+        if stalling:  # between its select and its read
+            stalling.pop()
+            stalled.set()
+            time.sleep(0.3)
+
+    proxy.stalls.woke = late  # type: ignore[method-assign]
+    try:
+        assert stalled.wait(10)
+        proxy.cut()
+        t_cut = time.monotonic()
+        os.write(host, b"$STOP,1*00\r\n")  # sent on the cut cable
+        proxy.restore()
+        os.write(host, b"$STOP,2*00\r\n")
+        got = b""
+        end = time.monotonic() + 10
+        while b"$STOP,2" not in got and time.monotonic() < end:
+            ready, _, _ = select.select([base_master], [], [], 0.1)
+            got += os.read(base_master, 4096) if ready else b""
+        assert got == b"$STOP,2*00\r\n" and proxy.dropped[TO_BASE] == len(b"$STOP,1*00\r\n")
+        wait_for(lambda: proxy.stalls.longest(t_cut, time.monotonic()) > 0.2, 10, "the stall on record")
+    finally:
+        os.close(host)
+        proxy.close()
+        os.close(base_master)
+        os.close(base_slave)
