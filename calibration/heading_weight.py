@@ -262,10 +262,7 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     shown = [w for w in found if w.applied]  # in MODELS' order: the simplest first
     if not shown:
         return found[0]
-    best = shown[0]
-    for richer in shown[1:]:
-        if better((best.cv or {})["weight_fold_ms_mm2"], (richer.cv or {})["weight_fold_ms_mm2"])[0]:
-            best = richer
+    best = shown[_held_out_choice([(w.cv or {})["weight_fold_ms_mm2"] for w in shown])]
     cv = best.cv or {}
     p = better(cv["chord_fold_ms_mm2"], cv["weight_fold_ms_mm2"])[1]
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
@@ -273,6 +270,17 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     return _chord_instead(best, {**cv, "chosen": "chord", "p": p}, chord, psi, (
         f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
         f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
+
+
+def _held_out_choice(fold_ms: list[list[float]]) -> int:
+    """The index of the model kept among candidates in MODELS' order (each its per-direction held-out mean
+    squared errors): the simplest, replaced by a richer one only when that predicts significantly better
+    than the one kept so far (weight_cv.py ``better``)."""
+    best = 0
+    for i in range(1, len(fold_ms)):
+        if better(fold_ms[best], fold_ms[i])[0]:
+            best = i
+    return best
 
 
 def _model_inputs(stops: list[StopMarks], headings_deg: Any, groups: Any,
@@ -321,14 +329,10 @@ def bend_model(stops: list[StopMarks], headings_deg: Any, groups: Any = None) ->
     not gated, so that it does not change with the gate (calibration/weight_check.py compares it). None:
     the lowest model's figures cannot be made (its bend fitted at too few stops, too few directions)."""
     folds = {m: _ungated_folds(stops, headings_deg, groups, m) for m in MODELS}
-    order = list(MODELS)
-    best = order[0]
-    if folds[best] is None:
+    if folds[next(iter(MODELS))] is None:
         return None
-    for richer in order[1:]:
-        if folds[richer] is not None and better(folds[best], folds[richer])[0]:
-            best = richer
-    return best
+    made = [(m, f) for m, f in folds.items() if f is not None]  # in MODELS' order, the lowest first
+    return made[_held_out_choice([f for _, f in made])][0]
 
 
 def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarray, psi: np.ndarray,

@@ -5,20 +5,22 @@ same residuals again (``cv2.undistortPoints`` over every sub-sample node: second
 start). They depend only on what the key holds (the lens, the size, the sub-sample grid, the
 undistortion's criteria, the source of the function computing them, the OpenCV and numpy versions),
 so a file written once serves every later process: the arrays loaded are the bytes computed
-(tests/fakes/test_render.py). Writes are atomic (temp file + fsync + rename); a missing, unreadable
-or malformed file is computed again, a folder that cannot be written is passed over. Where:
-``$RITA_SIM_CACHE``, else ``~/.cache/rita-sim``; only grids of :data:`MIN_NODES` or more are kept
+(tests/fakes/test_render.py). Writes are atomic (daemon/bus/storage.py ``atomic_write_bytes``); a
+missing, unreadable or malformed file is computed again, a folder that cannot be written is passed
+over. Where: ``$RITA_SIM_CACHE``, else ``~/.cache/rita-sim``; only grids of :data:`MIN_NODES` or more are kept
 (smaller ones compute in well under a second).
 """
 from __future__ import annotations
 
 import hashlib
+import io
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from daemon.bus.storage import atomic_write_bytes
 
 #: smallest node grid worth a file (the reduced camera's grid is ~6.8 M nodes, 54 MB)
 MIN_NODES = 1_000_000
@@ -50,20 +52,11 @@ def load(name: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | N
 
 
 def store(name: str, dx: np.ndarray, dy: np.ndarray) -> None:
-    """Write (dx, dy) as the file ``name`` atomically; a folder that cannot be written is passed over."""
-    folder = cache_dir()
-    tmp = None
+    """Write (dx, dy) as the file ``name`` with the project's atomic write (whole or not at all: a concurrent
+    reader never sees half a file); a folder that cannot be written is passed over."""
+    buf = io.BytesIO()
+    np.save(buf, np.stack([dx, dy]), allow_pickle=False)
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".npy")
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, np.stack([dx, dy]), allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, folder / name)  # whole or not at all: a concurrent reader never sees half a file
-        tmp = None
+        atomic_write_bytes(cache_dir() / name, buf.getbuffer())
     except OSError:
         pass  # a read-only home or a full disk: the next process computes them again
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)

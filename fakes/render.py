@@ -148,7 +148,7 @@ class Renderer:
         # true seat centres (PCS xy) for the nest rings: the plate *definition* may be biased
         self._nest_xy = {n: P[:2].copy() for n, P in world.nests_ref_true().items()}
         self._floor_waves = self._make_floor_waves()
-        self._boxes: dict[tuple[int, int, int, int], tuple[float, float, float, float]] = {}
+        self._boxes: dict[tuple[int, int, int, int], Box] = {}
         self._cache_rays()
 
     # ------------------------------------------------------------------ set-up
@@ -378,8 +378,7 @@ class Renderer:
         return np.where(okf, self._floor_marks(tex.ravel(), X, Y, abs_H_cam[2, 3], _floor_box(Hf, box)),
                         FLOOR_MEAN).astype(np.float32).reshape(x.shape)
 
-    def _ray_box(self, chunk: tuple[int, int, int, int], x: np.ndarray, y: np.ndarray
-                 ) -> tuple[float, float, float, float]:
+    def _ray_box(self, chunk: tuple[int, int, int, int], x: np.ndarray, y: np.ndarray) -> Box:
         """(x min, x max, y min, y max) of a chunk's rays: they depend on the chunk and the lens alone, so
         each chunk's box is taken at its first render and kept."""
         box = self._boxes.get(chunk)
@@ -388,8 +387,7 @@ class Renderer:
         return box
 
     @staticmethod
-    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float,
-                           box: tuple[float, float, float, float]) -> bool:
+    def _plate_may_be_seen(ref_H_cam: np.ndarray, c: np.ndarray, half: float, box: Box) -> bool:
         """False only if no ray (x, y, 1) in ``box`` (a chunk's rays' extent) can meet the plate's top face.
 
         With the plate, grown by 1 mm (far above any rounding), wholly in front of the camera, the rays
@@ -447,7 +445,7 @@ class Renderer:
         return alb
 
     def _floor_marks(self, alb: np.ndarray, X: np.ndarray, Y: np.ndarray, height_mm: float,
-                     extent: tuple[float, float, float, float] | None = None) -> np.ndarray:
+                     extent: Box | None = None) -> np.ndarray:
         """Draw the floor marks over the floor albedo ``alb`` at ACS xy (1-D arrays) inside ``extent``
         (X min, X max, Y min, Y max; None: taken from X and Y)."""
         wd = self._width_mm(height_mm)

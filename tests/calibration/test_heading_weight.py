@@ -16,7 +16,7 @@ import pytest
 from calibration.compensation import Compensation, Stop, compensate
 from calibration.heading_weight import (APPLY_Z, NOT_LEARNED, HeadingWeight, learn_from_stops,
                                         learn_heading_weight, stop_marks, weighted_slope)
-from calibration.weight_cv import design
+from tests.calibration.weight_world import model_marks
 
 L = 200.0
 R_MARK = np.array([200.0, 50.0])  # the mark in the robot frame (the camera footprint), mm
@@ -213,14 +213,8 @@ def test_driving_backwards_learns_and_applies_the_same_weight():
 
 
 def _known_weight(w_true: float, noise_mm: float, seed: int) -> HeadingWeight:
-    """The weight learned from marks built exactly by the model, P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5
-    stops (Δ_k: a 300 µrad slope over the 200 mm lever arm), so that its z is set by w and the noise."""
-    rng = np.random.default_rng(seed)
-    psi = np.repeat(45.0 * np.arange(8), 5) + rng.normal(0.0, 0.5, 40)
-    slopes = rng.normal(0.0, 300e-6, 40)
-    delta = np.column_stack([-np.sin(np.radians(psi)), np.cos(np.radians(psi))]) * (L * slopes)[:, None]
-    P = (design(psi, delta) @ [*M_TRUE, *B_TRUE, w_true]).reshape(-1, 2) + rng.normal(0.0, noise_mm, (40, 2))
-    return learn_heading_weight(P, P + delta, psi, slopes, None, "lowest", np.repeat(np.arange(8), 5))
+    """The weight learned from marks built exactly by the model (weight_world.py ``model_marks``)."""
+    return learn_heading_weight(*model_marks(w_true, noise_mm, seed), None, "lowest", np.repeat(np.arange(8), 5))
 
 
 def test_a_weight_expected_to_err_less_than_the_chord_is_applied_though_not_shown_at_3_sigma():

@@ -17,7 +17,7 @@ from calibration.heading_weight import (HeadingWeight, bend_model, learn_from_st
 from calibration.weight_check import (RECHECK_Z, chord_predicts_better, conditions_differ,
                                       learning_conditions, recheck)
 from calibration.weight_cv import design, with_weight
-from tests.calibration.weight_world import B_TRUE, L, M_TRUE, experiment, rms
+from tests.calibration.weight_world import experiment, model_marks, rms
 
 SAME = dict(rates_hz=[20.0], speeds_mm_s=[100.0], distances_mm=[200.0], tilt=False)
 
@@ -179,23 +179,12 @@ def test_the_paths_bend_model_does_not_follow_the_gate():
     assert s["shape_model"] == "cubic" and MODEL_DIFFERS in s["differs"] and not s["ok"], s
 
 
-def _marks(w_true: float, noise_mm: float, seed: int) -> tuple[np.ndarray, ...]:
-    """(chord marks, marks with the whole fitted slope, headings, slopes) built exactly by heading_weight's
-    model, P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5 stops (Δ_k: a 300 µrad slope over the lever arm L)."""
-    rng = np.random.default_rng(seed)
-    psi = np.repeat(45.0 * np.arange(8), 5) + rng.normal(0.0, 0.5, 40)
-    slopes = rng.normal(0.0, 300e-6, 40)
-    delta = np.column_stack([-np.sin(np.radians(psi)), np.cos(np.radians(psi))]) * (L * slopes)[:, None]
-    P = (design(psi, delta) @ [*M_TRUE, *B_TRUE, w_true]).reshape(-1, 2) + rng.normal(0.0, noise_mm, (40, 2))
-    return P, P + delta, psi, slopes
-
-
 def test_the_chord_beats_an_applied_weight_exactly_below_half_of_it():
     """The rule's argument checked on the marks themselves: with M and b refitted, the chord (v = 0) leaves
     a smaller scatter than the applied weight v exactly when this experiment's own weight is below v/2."""
     groups = np.repeat(np.arange(8), 5)
     for seed, w_true in ((1, 0.3), (2, 0.5), (3, 0.8)):
-        P, F, psi, slopes = _marks(w_true, 0.02, seed)
+        P, F, psi, slopes = model_marks(w_true, 0.02, seed)
         own = learn_heading_weight(P, F, psi, slopes, None, "lowest", groups)
         A, y = design(psi, F - P), P.reshape(-1)
 
@@ -231,7 +220,7 @@ def test_the_chord_rules_false_alarm_rate_on_an_unchanged_robot_is_the_documente
     the second's stops flag it at Φ(−(w*/2) / √(σ² + σ²/4)) = Φ(−z/√5) (weight_check's docstring; σ here the
     weights' spread over the runs), not at a rate the derivation does not give."""
     groups = np.repeat(np.arange(8), 5)
-    pairs = [tuple(learn_heading_weight(*_marks(0.3, 0.045, s), None, "lowest", groups)
+    pairs = [tuple(learn_heading_weight(*model_marks(0.3, 0.045, s), None, "lowest", groups)
                    for s in (k, k + 10_000)) for k in range(1, 301)]
     fired = [chord_predicts_better(replace(a, weight=a.weight_fit, applied=True), b) is not None
              for a, b in pairs if 0.0 < a.weight_fit <= 1.0]

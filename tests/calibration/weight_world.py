@@ -15,6 +15,7 @@ import numpy as np
 
 from calibration.compensation import Compensation, Stop, compensate
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight, stop_marks
+from calibration.weight_cv import design
 
 L = 200.0
 R_MARK = np.array([200.0, 50.0])  # the mark in the robot frame (the camera footprint), mm
@@ -86,6 +87,18 @@ def experiment(kind: str, seed: int, weight: HeadingWeight = NOT_LEARNED, *, n_s
             out["sigma"].append(a.sigma_heading_rad)
             out["applied"].append(a)
     return {k: (v if k in ("stops", "applied") else np.array(v)) for k, v in out.items()}
+
+
+def model_marks(w_true: float, noise_mm: float, seed: int) -> tuple[np.ndarray, ...]:
+    """(chord marks, marks with the whole fitted slope, headings, slopes) built exactly by heading_weight's
+    model, P_k = M + R(ψ_k)·b − w·Δ_k + noise, 8 × 5 stops (Δ_k: a 300 µrad slope over the lever arm L), so
+    that the weight's z is set by w and the noise."""
+    rng = np.random.default_rng(seed)
+    psi = np.repeat(45.0 * np.arange(8), 5) + rng.normal(0.0, 0.5, 40)
+    slopes = rng.normal(0.0, 300e-6, 40)
+    delta = np.column_stack([-np.sin(np.radians(psi)), np.cos(np.radians(psi))]) * (L * slopes)[:, None]
+    P = (design(psi, delta) @ [*M_TRUE, *B_TRUE, w_true]).reshape(-1, 2) + rng.normal(0.0, noise_mm, (40, 2))
+    return P, P + delta, psi, slopes
 
 
 def rms(x: Any) -> float:

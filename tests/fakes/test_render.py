@@ -165,7 +165,7 @@ def test_ray_residuals_stored_on_disk_are_the_computed_bytes(monkeypatch, tmp_pa
     monkeypatch.setattr(render, "_RAY_CACHE", {})
     first = Renderer(World(), (120, 90))
     files = list((tmp_path / "cache").glob("rays-*.npy"))
-    assert len(files) == 1 and not list((tmp_path / "cache").glob(".tmp-*"))
+    assert len(files) == 1 and not list((tmp_path / "cache").glob(".*"))  # no temp file left
     computed = (first._dx.copy(), first._dy.copy())
 
     def not_again(*args, **kw):
