@@ -94,7 +94,6 @@ class LinkProxy:
                     self.dropped[direction] += len(data)
             self.connected = True
 
-
     def lines(self, direction: str) -> list[tuple[float, bytes]]:
         """The lines that crossed in ``direction``, each with the time its last byte arrived."""
         out, buf = [], b""
