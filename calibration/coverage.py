@@ -9,7 +9,8 @@ robot-frame bias), what is left of each stop's mark is its own error e_i. A mark
 
 and the Birge ratio R_B = √(χ²/ν) is 1 (R. T. Birge, Phys. Rev. 40, 207 (1932)). The parts of
 σ that are the same at every stop (the calibration's frozen error: a robot-frame bias, the
-reflector mount's: an ACS offset) are absorbed by b and M and left out of σ_i here.
+reflector mount's: an ACS offset; the stored bias's own error: R(ψ)·δb) are absorbed by b and M and left
+out of σ_i here.
 
 A variance is not a coverage. A mark's σ is read as an isotropic 2-D Gaussian's: |e| ≤ 1.73 σ
 at 95 % (:data:`P95_RADIUS`). An error along one line (a heading error moves the mark
@@ -43,8 +44,9 @@ from calibration.metrics import bias_design
 ALPHA = 0.01
 #: the standard normal's (1 − ALPHA) quantile, for the χ² quantile (:func:`chi2_quantile`)
 Z_ALPHA = 2.3263
-#: σ parts common to every stop of one experiment (absorbed by M and b; calibration/measure.py BLOCKS)
-COMMON_PARTS = ("calibration", "mount")
+#: σ parts common to every stop of one experiment (absorbed by M and b; calibration/measure.py BLOCKS; the
+#: stored bias's, calibration/bias_check.py, is R(ψ)·δb: taken up by b)
+COMMON_PARTS = ("calibration", "mount", "bias")
 #: |e|/σ's 95 % point for an isotropic 2-D Gaussian of radial σ: √(χ²₂(0.95)/2) = √(5.991/2)
 P95_RADIUS = 1.7308
 #: the share of stops beyond :data:`P95_RADIUS` when the σ holds

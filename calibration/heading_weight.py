@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from calibration.bias_check import B_COLUMNS, jackknife_cov, larger, read_cov, sandwich_lstsq
 from calibration.measure import robot_pose_at
 from calibration.weight_cv import better, cross_validate, design, with_weight
 
@@ -80,12 +81,15 @@ class HeadingWeight:
     #: why the chord is kept, without the consequence ``why`` adds to it ("" when applied): what a message
     #: that states its own consequence quotes, so that nothing parses ``why``
     reason: str = ""
+    #: b_mm's covariance (mm², RCS; calibration/bias_check.py): the uncertainty every mark it corrects carries
+    b_cov_mm2: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
         d = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
              for k, v in asdict(self).items()}
         d["b_mm"] = None if self.b_mm is None else list(self.b_mm)
+        d["b_cov_mm2"] = None if self.b_cov_mm2 is None else [list(r) for r in self.b_cov_mm2]
         return d
 
     @classmethod
@@ -104,7 +108,7 @@ class HeadingWeight:
                     math.nan if d.get("rms_mm") is None else float(d["rms_mm"]),
                     math.inf if d.get("slope_limit_rad") is None else float(d["slope_limit_rad"]),
                     None if b is None else (float(b[0]), float(b[1])), _record(d.get("conditions")),
-                    _record(d.get("cv")), str(d.get("reason", "")))
+                    _record(d.get("cv")), str(d.get("reason", "")), _cov(d.get("b_cov_mm2"), source))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: not a heading weight record ({exc!r})") from None
         if w.model not in MODELS:
@@ -116,6 +120,14 @@ class HeadingWeight:
                              f"slope_rms_rad={w.slope_rms_rad}, "
                              f"sigma_heading_rad={w.sigma_heading_rad} be >= 0")
         return w
+
+
+def _cov(value: Any, source: str) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """A stored b_cov_mm2 (None when absent: stored before the field); ValueError naming the field."""
+    if value is None:
+        return None
+    C = read_cov(value, f"{source}: b_cov_mm2")
+    return (float(C[0, 0]), float(C[0, 1])), (float(C[1, 0]), float(C[1, 1]))
 
 
 def _record(d: Any) -> dict[str, Any] | None:
@@ -141,17 +153,6 @@ def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
     return SLOPE_LIMIT * 1.4826 * float(np.median(np.abs(slopes[fitted])))
 
 
-def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares and its covariance, robust to each stop's two rows sharing one error (a heading error
-    moves the mark along one direction): the sandwich over stops, with the small-sample factor."""
-    theta, *_ = np.linalg.lstsq(A, y, rcond=None)
-    r = y - A @ theta
-    bread = np.linalg.inv(A.T @ A)
-    g = np.einsum("kij,ki->kj", A.reshape(-1, 2, A.shape[1]), r.reshape(-1, 2))  # per stop A_kᵀ r_k
-    n, p = len(g), A.shape[1]
-    return theta, bread @ (g.T @ g) @ bread * n / max(n - p, 1)
-
-
 def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> float:
     """The weight's variance from leaving one direction out at a time (the jackknife over directions; 0 when
     it cannot be made): a direction's stops share its floor and path, so its errors do not average within it
@@ -167,10 +168,29 @@ def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> f
     return float((G - 1) / G * np.sum((np.asarray(ws) - np.mean(ws)) ** 2))
 
 
-def _bias_with(A: np.ndarray, y: np.ndarray, w: float) -> tuple[float, float] | None:
-    """The robot-frame bias b fitted with the weight fixed at ``w`` (None: headings too few)."""
+Cov2 = tuple[tuple[float, float], tuple[float, float]]
+
+
+def _bias_with(A: np.ndarray, y: np.ndarray, w: float, g: np.ndarray | None,
+               joint: np.ndarray | None = None) -> tuple[tuple[float, float] | None, Cov2 | None]:
+    """The robot-frame bias b fitted with the weight fixed at ``w``, and its covariance (calibration/
+    bias_check.py: the sandwich or, over ``g``'s directions, the jackknife); (None, None): headings too few.
+    ``joint``: the covariance of the fit that learned ``w``, whose b carries the weight's error (each fold
+    then learns its own weight); None: the chord (w = 0, nothing learned)."""
     theta = with_weight(A, y, w)
-    return None if theta is None else (float(theta[2]), float(theta[3]))
+    if theta is None:
+        return None, None
+
+    def fold(keep: np.ndarray) -> np.ndarray | None:
+        rows = np.repeat(keep, 2)
+        w_k = w if joint is None else np.linalg.lstsq(A[rows], y[rows], rcond=None)[0][4]
+        t = with_weight(A[rows], y[rows], float(np.clip(w_k, 0.0, 1.0)))
+        return None if t is None else t[B_COLUMNS]
+
+    own = sandwich_lstsq(A[:, :4], y - w * A[:, 4])[1] if joint is None else joint
+    C = larger(own[B_COLUMNS, B_COLUMNS], None if g is None else jackknife_cov(fold, g))
+    cov = (float(C[0, 0]), float(C[0, 1])), (float(C[1, 0]), float(C[1, 1]))
+    return (float(theta[2]), float(theta[3])), cov
 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
@@ -199,10 +219,12 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     n = int(np.count_nonzero(fitted))
     S = float(np.sqrt(np.mean(slopes[fitted] ** 2))) if n else 0.0
     A, y = design(psi, np.where(fitted[:, None], F - P, 0.0)), P.reshape(-1)
+    g = None if groups is None else np.asarray(groups).reshape(-1)
 
     def chord(w_fit: float, sigma: float, why: str) -> HeadingWeight:
+        b, b_cov = _bias_with(A, y, 0.0, g) if len(y) else (None, None)
         return HeadingWeight(0.0, w_fit, sigma, n, S, 0.0, False, why + ": the chord is used", model,
-                             math.nan, limit, _bias_with(A, y, 0.0) if len(y) else None, reason=why)
+                             math.nan, limit, b, reason=why, b_cov_mm2=b_cov)
 
     if n < MIN_STOPS:
         return chord(0.0, math.inf, f"the bend was fitted at {n} stops (the weight needs >= {MIN_STOPS})")
@@ -210,8 +232,7 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     if np.linalg.cond(A) > 1e6:
         return chord(0.0, math.inf, "the stops' headings and bends do not separate the weight from the mark "
                                     "and the robot-frame bias")
-    theta, cov = _solve(A, y)
-    g = None if groups is None else np.asarray(groups).reshape(-1)
+    theta, cov = sandwich_lstsq(A, y)
     w_fit, sigma = float(theta[4]), float(np.sqrt(max(cov[4, 4], _jackknife_var(A, y, g))))
     if not w_fit > gate_z * sigma:
         z = "√2" if gate_z == APPLY_Z else f"{gate_z:g}"
@@ -221,12 +242,13 @@ def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_r
     w = min(w_fit, 1.0)
     fixed = with_weight(A, y, w)  # not None: cond of four of A's columns <= cond(A) <= 1e6
     assert fixed is not None
-    b = (float(fixed[2]), float(fixed[3]))
+    b, b_cov = _bias_with(A, y, w, g, cov)
     rms = float(np.sqrt(np.mean((y - A @ fixed) ** 2) * 2.0))
     stated = np.asarray(fit_sigmas_rad, dtype=float).reshape(-1)[fitted] if fit_sigmas_rad is not None else []
     floor = (w * float(np.median(stated))) ** 2 if len(stated) and np.all(np.isfinite(stated)) else 0.0
     left = max(w * (1.0 - w) * S ** 2, floor) + (sigma * S) ** 2
-    return HeadingWeight(w, w_fit, sigma, n, S, float(np.sqrt(left)), True, "", model, rms, limit, b)
+    return HeadingWeight(w, w_fit, sigma, n, S, float(np.sqrt(left)), True, "", model, rms, limit, b,
+                         b_cov_mm2=b_cov)
 
 
 #: one stop's marks for the weight: with the chord's heading, and per model (xy with the whole fitted slope,
@@ -267,7 +289,7 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     p = better(cv["chord_fold_ms_mm2"], cv["weight_fold_ms_mm2"])[1]
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:
         return replace(best, cv={**cv, "chosen": "weight", "p": p})
-    return _chord_instead(best, {**cv, "chosen": "chord", "p": p}, chord, psi, (
+    return _chord_instead(best, {**cv, "chosen": "chord", "p": p}, chord, psi, _directions(psi, groups), (
         f"the chord with its own b predicts the directions left out better ({cv['chord_rms_mm']:.4f} mm RMS) "
         f"than weight {best.weight:.2f} with its joint b ({cv['weight_rms_mm']:.4f} mm)"))
 
@@ -283,13 +305,18 @@ def _held_out_choice(fold_ms: list[list[float]]) -> int:
     return best
 
 
+def _directions(psi: np.ndarray, groups: Any) -> np.ndarray:
+    """Each stop's direction: ``groups``, by default the heading to the nearest 45° (the paper's eight)."""
+    return np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
+
+
 def _model_inputs(stops: list[StopMarks], headings_deg: Any, groups: Any,
                   model: str) -> tuple[np.ndarray, ...]:
     """(chord marks, marks with the model's whole fitted slope (NaN: none), headings, slopes, their stated σ,
     directions) of the stops for one bend model; directions by default the heading to the nearest 45°."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
-    g = np.asarray(groups).reshape(-1) if groups is not None else np.round(psi / 45.0).astype(int) % 8
+    g = _directions(psi, groups)
     rec = [fits.get(model, (np.full(2, np.nan), math.nan, math.nan)) for _, fits in stops]
     xy = np.array([r[0] for r in rec], dtype=float).reshape(-1, 2)
     slopes, sig = np.array([r[1] for r in rec], dtype=float), np.array([r[2] for r in rec], dtype=float)
@@ -306,7 +333,7 @@ def learn_model(stops: list[StopMarks], headings_deg: Any, groups: Any, model: s
     # shown in-sample: does it also predict the directions it did not see?
     cv = cross_validate(chord, xy, psi, slopes, g, lambda t: learn_heading_weight(
         chord[t], xy[t], psi[t], slopes[t], sig[t], model))
-    return replace(w, cv=cv) if cv is not None else _chord_instead(w, None, chord, psi, (
+    return replace(w, cv=cv) if cv is not None else _chord_instead(w, None, chord, psi, g, (
         "fewer than 5 directions: the weight cannot be checked on a direction it did not see"))
 
 
@@ -336,12 +363,11 @@ def bend_model(stops: list[StopMarks], headings_deg: Any, groups: Any = None) ->
 
 
 def _chord_instead(w: HeadingWeight, cv: dict[str, Any] | None, chord: np.ndarray, psi: np.ndarray,
-                   why: str) -> HeadingWeight:
-    """``w``'s record turned into the chord's: weight 0, the chord's own b, why."""
-    theta = with_weight(design(psi, np.zeros((len(psi), 2))), chord.reshape(-1), 0.0)
-    b = None if theta is None else (float(theta[2]), float(theta[3]))
+                   g: np.ndarray | None, why: str) -> HeadingWeight:
+    """``w``'s record turned into the chord's: weight 0, the chord's own b and its covariance, why."""
+    b, b_cov = _bias_with(design(psi, np.zeros((len(psi), 2))), chord.reshape(-1), 0.0, g)
     return replace(w, weight=0.0, applied=False, why=why + ": the chord is used", sigma_heading_rad=0.0,
-                   rms_mm=math.nan, b_mm=b, cv=cv, reason=why)
+                   rms_mm=math.nan, b_mm=b, b_cov_mm2=b_cov, cv=cv, reason=why)
 
 
 def weighted_slope(weight: HeadingWeight, slope_rad: float) -> tuple[float, float, str]:

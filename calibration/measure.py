@@ -106,7 +106,7 @@ class MarkMeasurement:
     abs_H_rob: np.ndarray
     cov_xy_mm2: np.ndarray  # ACS x, y covariance, mm²
     #: each input's share of std_mm (mm, radial): tracker, pixel, calibration, tilt, heading (BLOCKS)
-    std_parts_mm: dict[str, float] = field(default_factory=dict)  # + "mount" when given
+    std_parts_mm: dict[str, float] = field(default_factory=dict)  # + "mount", "bias" when given
 
     @property
     def std_xy_mm(self) -> np.ndarray:
@@ -165,13 +165,15 @@ def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
                  abs_n: Any = None, roll_deg: float | None = None, pitch_deg: float | None = None,
                  sigma_t_mm: float = DEFAULT_SIGMA_T_MM, sigma_px: float = 0.05, sigma_tilt_deg: float = 0.0,
                  cov_rob_H_scn: np.ndarray | None = None, sigma_heading_rad: float = 0.0,
-                 cov_mount_xy_mm2: Any = None) -> MarkMeasurement:
+                 cov_mount_xy_mm2: Any = None, cov_bias_xy_mm2: Any = None) -> MarkMeasurement:
     """ACS position of a mark seen at pixel ``uv`` from a robot stop, with a first-order covariance.
 
     ``sigma_heading_rad``: the heading's 1σ beyond what the two tracker points show (the chord's
     :data:`CHORD_HEADING_SIGMA_RAD`, or a heading fit's own σ); 0 leaves it out.
     ``cov_mount_xy_mm2``: the ACS xy covariance the reflector mount's offset leaves (calibration/mount.py;
     a translation of both tracker points moves the mark by itself), added as the part ``mount``.
+    ``cov_bias_xy_mm2``: the ACS xy covariance of the robot-frame bias the mark was corrected by
+    (calibration/bias_check.py: a correction's own uncertainty), added as the part ``bias``.
     """
     uv = np.asarray(uv, dtype=float).reshape(-1)
     if uv.shape != (2,) or not np.all(np.isfinite(uv)):
@@ -204,11 +206,12 @@ def measure_mark(uv: Any, scs: Scs, rob_H_scn: np.ndarray, abs_P_prev: Any, abs_
     S = _input_cov(sigma_t_mm, sigma_px, cov_rob_H_scn, sigma_tilt_deg, sigma_heading_rad)
     parts = {name: float(np.sqrt(np.trace(J[:, b] @ S[b, b] @ J[:, b].T))) for name, b in BLOCKS.items()}
     cov = J @ S @ J.T
-    if cov_mount_xy_mm2 is not None:
-        C = np.asarray(cov_mount_xy_mm2, dtype=float)
-        if C.shape != (2, 2) or not np.all(np.isfinite(C)):
-            raise ValueError(f"measure_mark: cov_mount_xy_mm2 must be a finite 2x2, got {C.tolist()}")
-        cov, parts["mount"] = cov + C, float(np.sqrt(np.trace(C)))
+    for name, given in (("mount", cov_mount_xy_mm2), ("bias", cov_bias_xy_mm2)):
+        if given is not None:  # a part that is the same at every stop of one heading, added in ACS
+            C = np.asarray(given, dtype=float)
+            if C.shape != (2, 2) or not np.all(np.isfinite(C)):
+                raise ValueError(f"measure_mark: cov_{name}_xy_mm2 must be a finite 2x2, got {C.tolist()}")
+            cov, parts[name] = cov + C, float(np.sqrt(np.trace(C)))
     return MarkMeasurement(abs_P, rob_P, scn_xy, uv, abs_H_rob, cov, parts)
 
 

@@ -40,6 +40,10 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any],
     # leans one way would otherwise be in b and in the weight twice); without it, the chord's marks' b and no
     # weight (the held one was learned with another b)
     fit_b = fit["b"] if not weight or weight.get("b_mm") is None else weight["b_mm"]
+    # its covariance goes with it: every later mark it corrects carries it (calibration/bias_check.py); the
+    # held bias is a number added, not a second estimate
+    cov = ((result.get("checks") or {}).get("bias") or {}).get("cov_mm2") if not weight or \
+        weight.get("b_mm") is None else weight.get("b_cov_mm2")
     b = np.asarray(fit_b, float) + (np.asarray(held, float) if applied else 0.0)
     apply_bias(np.eye(4), b)  # refuses a b no calibration can have, before anything is written
     new = {k: v for k, v in active.items() if k not in ("heading_weight", "sigma_check")}
@@ -52,4 +56,5 @@ def biased_calibration(active: dict[str, Any], result: dict[str, Any],
     return {**new, "robot_bias_mm": b.tolist(),
             "robot_bias": {"job": result.get("job"), "fit_b_mm": list(fit_b), "fit_rms_mm": fit.get("rms_mm"),
                            "added_to_mm": held if applied else None, "compensation": used,
+                           "cov_mm2": cov,
                            "stored": stored or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}

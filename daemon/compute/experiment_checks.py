@@ -2,10 +2,13 @@
 
 * :func:`sigma_check` — the marks' stated σ against their scatter about M + R(ψ)·b (calibration/coverage.py):
   when it does not cover, the verdict is ``warn`` and every mark's ``std_mm`` is scaled by the Birge ratio;
+* :func:`bias_check` — the bias this experiment fits, with its covariance (what ``store_bias`` stores),
+  and the calibration's stored bias re-checked against what is left of it here (calibration/bias_check.py);
 * :func:`weight_checks` — heading_fit's weight learned here, with its learning conditions, re-checked
   against the one the calibration applied (calibration/weight_check.py), and the chord's own figures.
 
-docs/datasets.md (the 8-direction result: ``checks.sigma``, ``checks.heading_weight``, ``chord``)
+docs/datasets.md (the 8-direction result: ``checks.sigma``, ``checks.bias``, ``checks.heading_weight``,
+``chord``)
 documents the fields.
 """
 from __future__ import annotations
@@ -15,11 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from calibration.bias_check import chord_bias, recheck_bias
 from calibration.coverage import check_sigma, scatter_sigma
 from calibration.heading_weight import NOT_LEARNED, bend_model, learn_from_stops, learn_model
 from calibration.metrics import experiment_metrics
 from calibration.weight_check import learning_conditions, recheck
-from daemon.compute.inputs import heading_weight
+from daemon.compute.inputs import bias_cov, heading_weight
 
 
 def sigma_check(marks: list[dict[str, Any]], xy: np.ndarray, headings: np.ndarray) -> dict[str, Any] | None:
@@ -33,6 +37,27 @@ def sigma_check(marks: list[dict[str, Any]], xy: np.ndarray, headings: np.ndarra
         m["sigma"].update(stated_mm=m["std_mm"], scale=check.scale, scale_source="this experiment")
         m["std_mm"] = m["std_mm"] * check.scale
     return check.to_dict()
+
+
+def bias_check(calib: dict[str, Any], summary: dict[str, Any], xy: np.ndarray, headings: np.ndarray,
+               groups: np.ndarray) -> dict[str, Any] | None:
+    """The robot-frame bias of the marks ``xy`` over the stops with its covariance (``b_mm``, ``cov_mm2``:
+    what is left of the calibration's bias when the stops applied it) and, when every stop applied a stored
+    bias that states its covariance, that bias re-checked against it (``ok``, ``message``, ...). None: the
+    headings do not separate M from b."""
+    fitted = chord_bias(xy, headings, groups)
+    if fitted is None:
+        return None
+    b, C = fitted
+    out: dict[str, Any] = {"b_mm": b.tolist(), "cov_mm2": C.tolist(), "ok": True, "message": None}
+    n, stops = summary["applied"].get("bias", 0), summary["stops"]
+    stored, bad = bias_cov(calib)
+    if bad and n:
+        return {**out, "ok": False, "message": bad}
+    if stored is None or n != stops or summary.get("robot_bias_mm") is None:
+        return out  # nothing stated to check against, or a fit that mixes stops with and without it
+    job = (calib.get("robot_bias") or {}).get("job")
+    return {**out, **recheck_bias(summary["robot_bias_mm"], stored, b, C, job).to_dict()}
 
 
 def _speed_mm_s(stream: dict[str, Any]) -> float | None:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from calibration.bias_check import read_cov
 from calibration.compensation import Compensation, Stop, names_known, tilt_of_pose
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight
 from calibration.imu_mount import imu_mount
@@ -79,6 +80,20 @@ def calibration_inputs(calib: dict[str, Any]) -> tuple[tuple[float, float] | Non
     b = calib.get("robot_bias_mm")
     offset = None if off is None else (float(off[0]), float(off[1]))
     return offset, (None if b is None else [float(v) for v in b])
+
+
+def bias_cov(calib: dict[str, Any]) -> tuple[np.ndarray | None, str]:
+    """(the stored robot-frame bias's covariance, mm² RCS (calibration/bias_check.py), why it is not read: ""
+    when read or absent). None: no bias, a bias stored before the field, or a record that is not one."""
+    if calib.get("robot_bias_mm") is None:
+        return None, ""
+    value = (calib.get("robot_bias") or {}).get("cov_mm2")
+    if value is None:
+        return None, ""
+    try:
+        return read_cov(value, "calibration: robot_bias.cov_mm2"), ""
+    except ValueError as exc:
+        return None, f"{exc}: the bias's own uncertainty is not stated, nor the bias re-checked"
 
 
 def imu_yaw(calib: dict[str, Any]) -> float:

@@ -17,6 +17,7 @@ from calibration.camera_model import CameraModel
 from calibration.checks import bias_model_check
 from calibration.frames import apply_H
 from calibration.coverage import stored_scale
+from calibration.bias_check import cov_in_acs
 from calibration.heading_weight import NOT_LEARNED, stop_marks
 from calibration.image import to_grey
 from calibration.measure import DEFAULT_SIGMA_T_MM, measure_image, robot_pose_at, stated_tracker_sigma
@@ -30,9 +31,9 @@ from calibration.compensation import Compensation, compensate, reflector_height_
 from daemon.bus.procedures import (COMMISSION, EXPERIMENT, INTRINSICS, MEASURE_MARK, REFERENCING, Hooks,
                                    Procedure, Resolved, get)
 from daemon.compute.commission import compute_commission
-from daemon.compute.experiment_checks import sigma_check, weight_checks
-from daemon.compute.inputs import (calibration_inputs, compensation_summary, heading_weight, imu_yaw,
-                                   parse_compensation, plate_imu_offset, reflector_mount, stop_of,
+from daemon.compute.experiment_checks import bias_check, sigma_check, weight_checks
+from daemon.compute.inputs import (bias_cov, calibration_inputs, compensation_summary, heading_weight,
+                                   imu_yaw, parse_compensation, plate_imu_offset, reflector_mount, stop_of,
                                    stop_record, tracker_distance_mm, tracker_position)
 
 LoadImage = Callable[[str], np.ndarray]
@@ -191,15 +192,18 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     distance = tracker_distance_mm(stop)
     s_t, t_source = stated_tracker_sigma(sigma_t_mm, distance)
     P_at = a.abs_P_at
+    abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
+    heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
+    b_cov, _ = bias_cov(calib)  # a record it cannot read from: the experiment's bias check says so
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm, roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
                       cov_rob_H_scn=None if cov is None else np.array(cov),
-                      cov_mount_xy_mm2=a.cov_mount_xy_mm2)
+                      cov_mount_xy_mm2=a.cov_mount_xy_mm2,
+                      cov_bias_xy_mm2=cov_in_acs(b_cov, heading) if "bias" in a.applied and b_cov is not None
+                      else None)
     if learn is not None:
         learn.append(stop_marks(a, m.rob_P))
-    abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
-    heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
     sigma = {"tracker_mm": s_t, "tracker_source": t_source, "tracker_distance_mm": distance,
              "heading_rad": a.sigma_heading_rad, "heading_source": a.heading_source,
              "heading_sigma_basis": a.heading_sigma_basis, "pixel_px": MARK_SIGMA_PX,
@@ -245,12 +249,16 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
     groups = np.array([s["k"] for s in obs["stops"]])
     metrics = experiment_metrics(xy, headings, groups)
     # the mount's share is the same offset at every stop: no scatter between the cluster means
-    scatter = [math.sqrt(max(m["std_mm"] ** 2 - m["sigma"]["parts_mm"].get("mount", 0.0) ** 2, 0.0))
-               for m in marks]
+    # ... nor the stored bias's own error: R(ψ)·δb, which b takes up
+    scatter = [math.sqrt(max(m["std_mm"] ** 2 - sum(m["sigma"]["parts_mm"].get(p, 0.0) ** 2
+                                                   for p in ("mount", "bias")), 0.0)) for m in marks]
     fit_rms_mm = None if metrics.fit is None else metrics.fit.rms_mm
     check = bias_model_check(xy, groups.tolist(), fit_rms_mm, scatter)
-    checks: dict[str, Any] = {"bias_model": check, "sigma": sigma_check(marks, xy, headings)}
-    messages = [m for m in (check["message"], (checks["sigma"] or {}).get("message")) if m]
+    summary = compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"])
+    checks: dict[str, Any] = {"bias_model": check, "sigma": sigma_check(marks, xy, headings),
+                              "bias": bias_check(obs["calibration"], summary, xy, headings, groups)}
+    messages = [m for m in (check["message"], *((checks[k] or {}).get("message") for k in ("sigma", "bias")))
+                if m]
     out: dict[str, Any] = {"heading_weight": None}
     if comp.heading_fit:
         weight, recheck, chord = weight_checks(obs, marks, stops, headings, groups)
@@ -258,7 +266,6 @@ def compute_experiment(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]:
         checks["heading_weight"] = recheck
         said = [recheck["message"]] if recheck and recheck["message"] else []
         messages += [weight_message(weight)] + said
-    summary = compensation_summary(comp, [m["compensation"] for m in marks], obs["calibration"])
     _label_bias(metrics, summary)
     ok = all(c is None or c.get("ok", True) for c in checks.values())
     return {"schema": RESULT_SCHEMA, "procedure": EXPERIMENT.name, "software": calib_version,

@@ -21,7 +21,7 @@ from daemon.compute.report_header import bias_applied
 
 METRICS_COLUMNS = ["metric", "value", "unit", "goal_op", "goal_limit", "goal_verdict"]
 #: σ's parts per stop (docs/datasets.md, "Units and conventions": ``sigma.parts_mm``)
-SIGMA_PARTS = ("tracker", "pixel", "calibration", "tilt", "heading", "mount")
+SIGMA_PARTS = ("tracker", "pixel", "calibration", "tilt", "heading", "mount", "bias")
 STOPS_FIXED = (["stop", "k", "direction", "heading_deg", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "std_mm",
                 "tracker_sigma_mm", "tracker_sigma_source", "tracker_distance_mm", "heading_sigma_rad",
                 "heading_sigma_source"] + [f"std_{p}_mm" for p in SIGMA_PARTS])

@@ -156,6 +156,11 @@ def test_the_chords_reason_is_kept_apart_from_its_consequence():
 def test_a_stored_record_round_trips_and_a_bad_one_names_its_field():
     w = learned("arc", 1)
     assert HeadingWeight.from_dict({**w.to_dict(), "job": "x"}) == w
+    # b's covariance (calibration/bias_check.py) round-trips; a record stored before it has none
+    assert w.b_cov_mm2 is not None and np.all(np.linalg.eigvalsh(np.array(w.b_cov_mm2)) > 0)
+    assert HeadingWeight.from_dict({**w.to_dict(), "b_cov_mm2": None}).b_cov_mm2 is None
+    with pytest.raises(ValueError, match="heading_weight: b_cov_mm2"):
+        HeadingWeight.from_dict({**w.to_dict(), "b_cov_mm2": [[1.0]]})
     with pytest.raises(ValueError, match="weight=1.5"):
         HeadingWeight.from_dict({**w.to_dict(), "weight": 1.5}, "calibration: heading_weight")
     with pytest.raises(ValueError, match="model='quartic'"):

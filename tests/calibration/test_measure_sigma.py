@@ -89,3 +89,17 @@ def test_compensation_states_the_chord_or_the_fits_heading_sigma():
     assert 0.0 <= fit.sigma_heading_rad < CHORD_HEADING_SIGMA_RAD
     assert fit_heading_sigma(1e-4, 0.010, 200.0) == pytest.approx(np.sqrt(1e-8 - 2 * (0.010 / 200) ** 2))
     assert fit_heading_sigma(1e-5, 0.010, 200.0) == 0.0  # below the chord's tracker part: nothing to add
+
+
+def test_a_mark_corrected_by_a_stored_bias_carries_the_bias_own_covariance(stop):
+    """The correction's uncertainty is a part of the mark's (GUM §3.2.4): added in ACS, named ``bias``."""
+    res, scs, o = stop
+    base = measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at)
+    C = np.array([[4e-4, 1e-4], [1e-4, 2e-4]])
+    m = measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at, cov_bias_xy_mm2=C)
+    assert m.cov_xy_mm2 == pytest.approx(base.cov_xy_mm2 + C)
+    assert m.std_parts_mm["bias"] == pytest.approx(np.sqrt(6e-4)) and "bias" not in base.std_parts_mm
+    assert np.array_equal(m.abs_P, base.abs_P)  # a σ, not a move
+    with pytest.raises(ValueError, match="cov_bias_xy_mm2 must be a finite 2x2"):
+        measure_mark(o.uv, scs, res.rob_H_scn, o.abs_P_prev, o.abs_P_at,
+                     cov_bias_xy_mm2=[[np.nan, 0], [0, 1]])

@@ -156,3 +156,36 @@ def test_the_mount_skip_names_the_referencings_own_reason():
     assert "one run (reference with --reversal)" in no_mount_why({"reversal": None})
     older = {"reversal": {"n": 2}, "messages": [f"reflector mount offset not estimated: {why}"]}
     assert no_mount_why(older).endswith(why)
+
+
+def test_the_stored_bias_states_its_covariance_and_is_rechecked_where_it_is_applied(base, tmp_path):
+    """store_bias keeps b's covariance; a mark corrected by b carries it as the part ``bias``; an experiment
+    that applies a b its own marks contradict warns, naming both; one that applies b as fitted does not."""
+    ref, folder = base
+    first = recompute(folder, compensation="tilt,bias,mount")[0]
+    data = tmp_path / "data"
+    (data / "calibration").mkdir(parents=True)
+    (data / "calibration" / "active.json").write_text(json.dumps(ref))
+    store_bias(data, first)
+    cal = json.loads((data / "calibration" / "active.json").read_text())
+    C = np.array(cal["robot_bias"]["cov_mm2"])
+    assert C.shape == (2, 2) and np.all(np.linalg.eigvalsh(C) > 0)
+    assert C.tolist() == first["checks"]["bias"]["cov_mm2"]
+    held = recompute(folder, compensation="tilt,bias,mount", calibration=cal)[0]
+    check = held["checks"]["bias"]
+    assert check["ok"] and check["chi2"] < 1e-6  # the same stops: nothing of b is left
+    assert all(m["sigma"]["parts_mm"]["bias"] == pytest.approx(np.sqrt(np.trace(C))) for m in held["marks"])
+    assert check_file(held, "result", "result.json") == []
+    moved = {**cal, "robot_bias_mm": (np.array(cal["robot_bias_mm"]) + [0.2, 0.0]).tolist()}
+    off = recompute(folder, compensation="tilt,bias,mount", calibration=moved)[0]
+    check = off["checks"]["bias"]
+    assert off["verdict"] == "warn" and not check["ok"] and check["message"] in off["messages"]
+    assert "does not hold here" in check["message"] and f"χ² {check['chi2']:.1f}" in check["message"]
+    assert check["b_left_mm"][0] == pytest.approx(-0.2, abs=0.01)
+    bad = {**cal, "robot_bias": {**cal["robot_bias"], "cov_mm2": [[1.0, 2.0], [0.0, 1.0]]}}
+    odd = recompute(folder, compensation="tilt,bias,mount", calibration=bad)[0]
+    assert odd["verdict"] == "warn" and "robot_bias.cov_mm2: [[1.0, 2.0], [0.0, 1.0]] is not" in " ".join(
+        odd["messages"])
+    older = {**cal, "robot_bias": {k: v for k, v in cal["robot_bias"].items() if k != "cov_mm2"}}
+    old = recompute(folder, compensation="tilt,bias,mount", calibration=older)[0]
+    assert "chi2" not in old["checks"]["bias"] and "bias" not in old["marks"][0]["sigma"]["parts_mm"]
