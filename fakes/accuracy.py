@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from calibration.bias_check import chord_bias, cov_in_acs
 from calibration.compensation import (Compensation, Stop, compensate, imu_offset_deg, reflector_height_mm,
                                       tilt_of_pose)
 from calibration.heading_weight import NOT_LEARNED, HeadingWeight, learn_from_stops, stop_marks
@@ -95,14 +96,14 @@ def _distance_mm(o: MarkObs, abs_t_trk: np.ndarray | None) -> float | None:
 def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, imu_offset: Any,
                 bias: Any, cov: np.ndarray | None = None, abs_t_trk: np.ndarray | None = None,
                 mount: MountOffset | None = None, imu_yaw_deg: float = 0.0,
-                heading_weight: HeadingWeight | None = NOT_LEARNED, learn: list[Any] | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                heading_weight: HeadingWeight | None = NOT_LEARNED, learn: list[Any] | None = None,
+                bias_cov: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ACS marks of every stop, their approach headings (deg) and (N, 6) σ figures, with ``comp`` applied.
 
     σ as the product states it (daemon/compute/procedures.py ``_mark_in_acs``): the tracker's σ
     from its MPE at its distance (``abs_t_trk``: the tracker's ACS position; None: the 10 µm
     default), the compensation's heading σ, 0.05 px, the calibration's ``cov_rob_H_scn``, the reflector
-    mount's share. Per stop:
+    mount's share, the stored bias's (``bias_cov``: its RCS covariance, calibration/bias_check.py). Per stop:
     that std_mm; the mark variance per unit tracker variance (mm²/mm², to restate σ with another
     σ_t); the mark's lever arm from the reflector (mm); the std_mm the product first stated
     (10 µm, no heading or mount term); the heading term's share (mm); the tracker σ used (mm).
@@ -117,19 +118,22 @@ def measure_all(val: Any, comp: Compensation, scs: Any, rob_H_scn: np.ndarray, i
         a = compensate(comp, _stop(o), rob_H_scn, imu_offset=imu_offset, bias_b_mm=bias, mount=mount,
                        abs_t_trk=abs_t_trk, imu_yaw_deg=imu_yaw_deg, heading_weight=heading_weight)
         s_t = stated_tracker_sigma(None, _distance_mm(o, abs_t_trk))[0]
+        v = o.abs_P_at - a.abs_P_prev
+        heading = float(np.degrees(np.arctan2(v[1], v[0])))
         m = measure_mark(o.uv, scs, a.rob_H_scn, a.abs_P_prev, a.abs_P_at, roll_deg=a.roll_deg,
                          pitch_deg=a.pitch_deg, cov_rob_H_scn=cov, sigma_t_mm=s_t,
-                         sigma_heading_rad=a.sigma_heading_rad, cov_mount_xy_mm2=a.cov_mount_xy_mm2)
+                         sigma_heading_rad=a.sigma_heading_rad, cov_mount_xy_mm2=a.cov_mount_xy_mm2,
+                         cov_bias_xy_mm2=cov_in_acs(bias_cov, heading) if bias_cov is not None
+                         and "bias" in a.applied else None)
         parts = m.std_parts_mm
         if learn is not None:
             learn.append(stop_marks(a, m.rob_P))
         unit = (parts["tracker"] / s_t) ** 2
-        old = np.sqrt(m.std_mm ** 2 - parts["heading"] ** 2 - parts.get("mount", 0.0) ** 2
+        old = np.sqrt(m.std_mm ** 2 - sum(parts.get(k, 0.0) ** 2 for k in ("heading", "mount", "bias"))
                       + (DEFAULT_SIGMA_T_MM ** 2 - s_t ** 2) * unit)
         pts.append(m.abs_P)
         sig.append((m.std_mm, unit, float(np.linalg.norm(m.rob_P[:2])), old, parts["heading"], s_t))
-        v = o.abs_P_at - a.abs_P_prev
-        heads.append(np.degrees(np.arctan2(v[1], v[0])))
+        heads.append(heading)
     return np.array(pts), np.array(heads), np.array(sig)
 
 
@@ -178,7 +182,7 @@ def run(case: Case, seed: int) -> dict[str, Any]:
     sim = Simulation(world, cfg)
     cal = referencing(sim, case.reversal)
     # without a learning experiment the product has no weight for heading_fit: the chord
-    bias, weight, trk = None, NOT_LEARNED, world.abs_H_trk[:3, 3]
+    bias, bias_cov, weight, trk = None, None, NOT_LEARNED, world.abs_H_trk[:3, 3]
     kw: dict[str, Any] = dict(abs_t_trk=trk, mount=cal.mount, imu_yaw_deg=cal.imu_yaw_deg)
     if case.comp.bias:  # learn b (and heading_fit's weight) on another mark, as a later job finds them stored
         learn = Simulation(world, SimConfig(**{**cfg.__dict__, "mark": "M2"})).validation("learn-bias")
@@ -186,14 +190,17 @@ def run(case: Case, seed: int) -> dict[str, Any]:
         stops: list[Any] = []
         lp, lh, _ = measure_all(learn, base, cal.scs, cal.rob_H_scn, cal.imu_offset, None, learn=stops,
                                 heading_weight=NOT_LEARNED, **kw)
-        fit = experiment_metrics(lp, lh, [o.direction for o in learn.observations]).fit
+        groups = [o.direction for o in learn.observations]
+        fit = experiment_metrics(lp, lh, groups).fit
         bias = None if fit is None else fit.b
+        made = chord_bias(lp[:, :2], lh, np.array(groups))
+        bias_cov = None if made is None else made[1]
         weight = learn_from_stops(stops, lh)
         if case.comp.heading_fit and weight.b_mm is not None:  # as the product stores it: b fitted with w
-            bias = list(weight.b_mm)
+            bias, bias_cov = list(weight.b_mm), weight.b_cov_mm2
     val = sim.validation()
     pts, heads, sig = measure_all(val, case.comp, cal.scs, cal.rob_H_scn, cal.imu_offset, bias, cal.cov,
-                                  heading_weight=weight, **kw)
+                                  heading_weight=weight, bias_cov=bias_cov, **kw)
     m = experiment_metrics(pts, heads, [o.direction for o in val.observations])
     err = pts[:, :2] - val.mark_abs[:2]
     e = rob_H_cam_error(cal.rob_H_cam, world.rob_H_cam)
