@@ -274,8 +274,9 @@ def stop_marks(applied: Any, rob_P: Any) -> StopMarks:
 
 def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> HeadingWeight:
     """The weight of the bend model that predicts held-out directions best, or the chord with its own b when
-    that predicts them better (calibration/weight_cv.py); the cubic replaces the lowest model only when it
-    predicts significantly better (weight_cv.py ``better``). :func:`learn_heading_weight` per model from
+    that predicts them better (calibration/weight_cv.py): among the models whose weight is shown, the one
+    with the smaller held-out error, as the chord and the weight are chosen (no significance test: the
+    better prediction is what is stored; :func:`bend_model` keeps one). :func:`learn_heading_weight` per model from
     each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
     stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
@@ -284,7 +285,9 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     shown = [w for w in found if w.applied]  # in MODELS' order: the simplest first
     if not shown:
         return found[0]
-    best = shown[_held_out_choice([(w.cv or {})["weight_fold_ms_mm2"] for w in shown])]
+    # which model's weight to store is a prediction question, as weight against chord is below: the smaller
+    # held-out error decides, significant or not (bend_model keeps the test: a condition must be stable)
+    best = min(shown, key=lambda w: (w.cv or {})["weight_rms_mm"])
     cv = best.cv or {}
     p = better(cv["chord_fold_ms_mm2"], cv["weight_fold_ms_mm2"])[1]
     if cv["weight_rms_mm"] < cv["chord_rms_mm"]:

@@ -65,22 +65,24 @@ def test_the_record_carries_the_paired_test_and_the_per_direction_figures():
     assert w.cv["p"] == better(w.cv["chord_fold_ms_mm2"], w.cv["weight_fold_ms_mm2"])[1]
 
 
-def test_the_cubic_replaces_the_lowest_model_only_when_it_predicts_significantly_better(monkeypatch):
-    """Both models shown, the cubic's held-out error a little smaller in most directions but not
-    significantly: the lowest is kept; smaller in every direction: the cubic."""
+def test_the_stored_model_is_the_one_with_the_smaller_held_out_error_significant_or_not(monkeypatch):
+    """Both models shown: the weight stored is the model's whose held-out error is smaller, by however
+    little (a prediction question, as weight against chord); the paths' model for the re-check
+    (``bend_model``) keeps its significance test and is not decided here."""
     import calibration.heading_weight as hw
 
     ex = experiment("arc", 1)
     real = hw.learn_model
 
-    def fake(stops, psi, groups, model, cubic_ms):
+    def fake(stops, psi, groups, model, factor):
         w = real(stops, psi, groups, "lowest")
-        cv = {**(w.cv or {}), "weight_fold_ms_mm2": cubic_ms} if model == "cubic" else w.cv
+        cv = w.cv or {}
+        if model == "cubic":
+            cv = {**cv, "weight_rms_mm": cv["weight_rms_mm"] * factor,
+                  "weight_fold_ms_mm2": [m * factor ** 2 for m in cv["weight_fold_ms_mm2"]]}
         return hw.replace(w, model=model, cv=cv)
 
-    lowest = real(ex["stops"], ex["heads"], ex["groups"], "lowest").cv["weight_fold_ms_mm2"]
-    slightly = [m * (0.97 if i % 3 else 1.03) for i, m in enumerate(lowest)]  # 5 of 8 smaller, not significant
-    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, slightly))
-    assert learn_from_stops(ex["stops"], ex["heads"], ex["groups"]).model == "lowest"
-    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, [0.9 * m for m in lowest]))
+    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, 0.99))
     assert learn_from_stops(ex["stops"], ex["heads"], ex["groups"]).model == "cubic"
+    monkeypatch.setattr(hw, "learn_model", lambda s, p, g, m: fake(s, p, g, m, 1.01))
+    assert learn_from_stops(ex["stops"], ex["heads"], ex["groups"]).model == "lowest"
