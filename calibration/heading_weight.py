@@ -14,10 +14,10 @@ no single stop can show; an experiment can, because all its stops see the same m
 
 by least squares over the stops (M the mark, b the robot-frame bias, as
 calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes the marks agree
-best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight leaves the marks' smaller
-scatter). It is the classic shrinkage factor var(bend) / (var(bend) + var(fit error)), estimated with
-the fit's *actual* error: on straight drives w ≈ 0 (the fit only adds noise), on bent ones it
-approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
+best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight predicts the directions
+it did not see better, :func:`learn_from_stops`). It is the classic shrinkage factor
+var(bend) / (var(bend) + var(fit error)), estimated with the fit's *actual* error: on straight drives
+w ≈ 0 (the fit only adds noise), on bent ones it approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
 expected to err less than the chord (w above √2 of its standard errors, :data:`APPLY_Z`) and it predicts
 the directions left out better (calibration/weight_cv.py); else they keep the chord and say why.
 
@@ -276,8 +276,8 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     """The weight of the bend model that predicts held-out directions best, or the chord with its own b when
     that predicts them better (calibration/weight_cv.py): among the models whose weight is shown, the one
     with the smaller held-out error, as the chord and the weight are chosen (no significance test: the
-    better prediction is what is stored; :func:`bend_model` keeps one). :func:`learn_heading_weight` per model from
-    each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
+    better prediction is what is stored; :func:`bend_model` keeps one). :func:`learn_heading_weight` per
+    model from each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
     stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
