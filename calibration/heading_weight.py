@@ -17,9 +17,10 @@ calibration/metrics.py ``fit_bias`` models them) gives the weight w that makes t
 best (per bend model, :data:`MODELS`; the experiment keeps the model whose weight predicts the directions
 it did not see better, :func:`learn_from_stops`). It is the classic shrinkage factor
 var(bend) / (var(bend) + var(fit error)), estimated with the fit's *actual* error: on straight drives
-w ≈ 0 (the fit only adds noise), on bent ones it approaches 1 as the fit's error shrinks. w is applied by later jobs (as b is) only when applying it is
-expected to err less than the chord (w above √2 of its standard errors, :data:`APPLY_Z`) and it predicts
-the directions left out better (calibration/weight_cv.py); else they keep the chord and say why.
+w ≈ 0 (the fit only adds noise), on bent ones it approaches 1 as the fit's error shrinks. w is applied by
+later jobs (as b is) only when applying it is expected to err less than the chord (w above √2 of its
+standard errors, :data:`APPLY_Z`) and it predicts the directions left out better (calibration/weight_cv.py);
+else they keep the chord and say why.
 
 The heading's σ left after applying w is the shrinkage's own: with S² the stops' mean squared
 fitted slope (= var(bend) + var(fit error)), var(bend) = w·S² and what remains is
@@ -277,8 +278,8 @@ def learn_from_stops(stops: list[StopMarks], headings_deg: Any, groups: Any = No
     that predicts them better (calibration/weight_cv.py): among the models whose weight is shown, the one
     with the smaller held-out error, as the chord and the weight are chosen (no significance test: the
     better prediction is what is stored; :func:`bend_model` keeps one). :func:`learn_heading_weight` per
-    model from each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason. ``groups``: each
-    stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
+    model from each stop's :func:`stop_marks`; when no model's weight is shown, the lowest's reason.
+    ``groups``: each stop's direction (default: its heading to the nearest 45°, the paper's eight)."""
     chord = np.array([c for c, _ in stops], dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
     found = [learn_model(stops, psi, groups, model) for model in MODELS]
