@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.coverage import ALPHA
-from calibration.metrics import bias_design
+from calibration.metrics import bias_design, mean_heading_deg
 
 #: the columns of b in :func:`calibration.metrics.bias_design` (and weight_cv.py ``design``)
 B_COLUMNS = slice(2, 4)
@@ -69,14 +69,21 @@ def larger(*covs: np.ndarray | None) -> np.ndarray:
 
 
 def chord_bias(xy: Any, headings_deg: Any, groups: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """(b, C_b): the robot-frame bias of the marks ``xy`` (N, 2) about M + R(ψ)·b fitted over the stops,
-    and its covariance (module docstring); None when the headings do not separate M from b."""
+    """(b, C_b): the robot-frame bias of the marks ``xy`` (N, 2) about M + R(ψ)·b, the b that
+    calibration/metrics.py ``fit_bias`` fits to the directions' means (``metrics.fit.b``, what ``store_bias``
+    stores without a weight), and its covariance (module docstring); None when the headings do not separate
+    M from b. The same b as a fit over the stops, each at its direction's mean heading and weighed 1/n_k:
+    Σ_k Σ_i |P_ki − M − R(ψ̄_k)·b|² / n_k is Σ_k |P̄_k − M − R(ψ̄_k)·b|² plus a constant, so that the
+    sandwich sees each stop and the jackknife's fold is fit_bias on the other directions' means."""
     P = np.asarray(xy, dtype=float).reshape(-1, 2)
     psi = np.asarray(headings_deg, dtype=float).reshape(-1)
     g = np.asarray(groups).reshape(-1)
-    A, y = bias_design(psi), P.reshape(-1)
-    if len(P) < 3 or np.linalg.cond(A) > 1e6:
+    names, k, n = np.unique(g, return_inverse=True, return_counts=True)
+    mean_h = np.array([mean_heading_deg(psi[k == i]) for i in range(len(names))])
+    if len(names) < 3 or np.linalg.cond(bias_design(mean_h)) > 1e6:  # as fit_bias refuses
         return None
+    root_w = np.repeat(1.0 / np.sqrt(n[k]), 2)  # rows scaled by √(1/n_k): least squares weighed 1/n_k
+    A, y = bias_design(mean_h[k]) * root_w[:, None], P.reshape(-1) * root_w
     theta, cov = sandwich_lstsq(A, y)
 
     def fold(keep: np.ndarray) -> np.ndarray | None:

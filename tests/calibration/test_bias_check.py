@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from calibration.bias_check import chord_bias, cov_in_acs, read_cov, recheck_bias
+from calibration.metrics import experiment_metrics
 
 HEADINGS = np.repeat(45.0 * np.arange(8), 5)
 GROUPS = np.repeat(np.arange(8), 5)
@@ -80,3 +81,19 @@ def test_a_bias_turned_into_acs_follows_the_heading():
     C = np.array([[4e-4, 0.0], [0.0, 1e-4]])
     assert cov_in_acs(C, 90.0) == pytest.approx(np.array([[1e-4, 0.0], [0.0, 4e-4]]))
     assert cov_in_acs(C, 0.0) == pytest.approx(C)
+
+
+def test_the_bias_and_its_covariance_are_those_of_the_b_store_bias_stores():
+    """Directions with unequal stop counts and headings that spread within a direction: chord_bias's b is
+    metrics.fit.b (fit_bias on the directions' means), the b store_bias stores without a weight."""
+    rng = np.random.default_rng(0)
+    g = np.repeat(np.arange(8), [5, 1, 5, 2, 5, 5, 3, 5])
+    psi = 45.0 * g + rng.normal(0.0, 2.0, len(g))
+    c, s = np.cos(np.radians(psi)), np.sin(np.radians(psi))
+    b = np.array([0.05, -0.02])
+    xy = np.array([1000.0, 500.0]) + np.stack([c * b[0] - s * b[1], s * b[0] + c * b[1]], 1) \
+        + rng.normal(0.0, 0.03, (len(g), 2))
+    fitted = chord_bias(xy, psi, g)
+    fit = experiment_metrics(xy, psi, g).fit
+    assert fitted is not None and fit is not None
+    assert fitted[0] == pytest.approx(np.array(fit.b), abs=1e-12)
