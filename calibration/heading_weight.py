@@ -155,18 +155,16 @@ def _slope_limit(slopes: np.ndarray, fitted: np.ndarray) -> float:
 
 
 def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> float:
-    """The weight's variance from leaving one direction out at a time (the jackknife over directions; 0 when
-    it cannot be made): a direction's stops share its floor and path, so its errors do not average within it
-    and the sandwich over stops understates the spread between experiments."""
-    if groups is None:
-        return 0.0
-    names = list(dict.fromkeys(groups.tolist()))
-    if len(names) < 5:
-        return 0.0
-    rows = np.repeat(groups, 2)
-    ws = [np.linalg.lstsq(A[rows != g], y[rows != g], rcond=None)[0][4] for g in names]
-    G = len(ws)
-    return float((G - 1) / G * np.sum((np.asarray(ws) - np.mean(ws)) ** 2))
+    """The weight's variance from leaving one direction out at a time (the jackknife over directions,
+    calibration/bias_check.py; 0 when it cannot be made): a direction's stops share its floor and path, so
+    its errors do not average within it and the sandwich over stops understates the spread between
+    experiments."""
+    def fold(keep: np.ndarray) -> np.ndarray:
+        rows = np.repeat(keep, 2)
+        return np.linalg.lstsq(A[rows], y[rows], rcond=None)[0][4:5]
+
+    C = None if groups is None else jackknife_cov(fold, groups)
+    return 0.0 if C is None else float(C[0, 0])
 
 
 Cov2 = tuple[tuple[float, float], tuple[float, float]]
