@@ -54,6 +54,8 @@ MIN_STOPS = 8
 #: the lowest degree the stream's noise allows (an arc is a parabola), or at least a cubic (an S-curve's end
 #: slope is in its asymmetry, which the stream's noise can hide from the lack-of-fit test)
 MODELS = {"lowest": 2, "cubic": 3}
+#: a 2 × 2 covariance as a record holds it (b_mm's, mm²)
+Cov2 = tuple[tuple[float, float], tuple[float, float]]
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,7 @@ class HeadingWeight:
     #: that states its own consequence quotes, so that nothing parses ``why``
     reason: str = ""
     #: b_mm's covariance (mm², RCS; calibration/bias_check.py): the uncertainty every mark it corrects carries
-    b_cov_mm2: tuple[tuple[float, float], tuple[float, float]] | None = None
+    b_cov_mm2: Cov2 | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able: a figure that was not estimated (infinite or NaN) is null."""
@@ -123,11 +125,13 @@ class HeadingWeight:
         return w
 
 
-def _cov(value: Any, source: str) -> tuple[tuple[float, float], tuple[float, float]] | None:
+def _cov(value: Any, source: str) -> Cov2 | None:
     """A stored b_cov_mm2 (None when absent: stored before the field); ValueError naming the field."""
-    if value is None:
-        return None
-    C = read_cov(value, f"{source}: b_cov_mm2")
+    return None if value is None else _cov2(read_cov(value, f"{source}: b_cov_mm2"))
+
+
+def _cov2(C: np.ndarray) -> Cov2:
+    """A 2 × 2 array as the record's tuples."""
     return (float(C[0, 0]), float(C[0, 1])), (float(C[1, 0]), float(C[1, 1]))
 
 
@@ -167,9 +171,6 @@ def _jackknife_var(A: np.ndarray, y: np.ndarray, groups: np.ndarray | None) -> f
     return 0.0 if C is None else float(C[0, 0])
 
 
-Cov2 = tuple[tuple[float, float], tuple[float, float]]
-
-
 def _bias_with(A: np.ndarray, y: np.ndarray, w: float, g: np.ndarray | None,
                joint: np.ndarray | None = None) -> tuple[tuple[float, float] | None, Cov2 | None]:
     """The robot-frame bias b fitted with the weight fixed at ``w``, and its covariance (calibration/
@@ -188,8 +189,7 @@ def _bias_with(A: np.ndarray, y: np.ndarray, w: float, g: np.ndarray | None,
 
     own = sandwich_lstsq(A[:, :4], y - w * A[:, 4])[1] if joint is None else joint
     C = larger(own[B_COLUMNS, B_COLUMNS], None if g is None else jackknife_cov(fold, g))
-    cov = (float(C[0, 0]), float(C[0, 1])), (float(C[1, 0]), float(C[1, 1]))
-    return (float(theta[2]), float(theta[3])), cov
+    return (float(theta[2]), float(theta[3])), _cov2(C)
 
 
 def learn_heading_weight(chord_xy: Any, fit_xy: Any, headings_deg: Any, slopes_rad: Any,
@@ -353,10 +353,11 @@ def _ungated_folds(stops: list[StopMarks], headings_deg: Any, groups: Any, model
 
 def bend_model(stops: list[StopMarks], headings_deg: Any, groups: Any = None) -> str | None:
     """The bend model the stops' bends are best read by: a description of the paths' shape, not of which
-    weight passes the gate. The held-out choice of :func:`learn_from_stops` (the richer model only when it
-    predicts the directions left out significantly better, weight_cv.py ``better``) with each model's weight
-    not gated, so that it does not change with the gate (calibration/weight_check.py compares it). None:
-    the lowest model's figures cannot be made (its bend fitted at too few stops, too few directions)."""
+    weight passes the gate. The richer model only when it predicts the directions left out significantly
+    better (weight_cv.py ``better``; :func:`learn_from_stops` stores the smaller held-out error, no test),
+    with each model's weight not gated, so that it does not change with the gate (calibration/weight_check.py
+    compares it). None: the lowest model's figures cannot be made (its bend fitted at too few stops, too few
+    directions)."""
     folds = {m: _ungated_folds(stops, headings_deg, groups, m) for m in MODELS}
     if folds[next(iter(MODELS))] is None:
         return None
