@@ -194,7 +194,7 @@ def _mark_in_acs(calib: dict[str, Any], stop: dict[str, Any], load: LoadImage, k
     P_at = a.abs_P_at
     abs_H_rob = robot_pose_at(a.abs_P_prev, P_at)
     heading = math.degrees(math.atan2(abs_H_rob[1, 0], abs_H_rob[0, 0]))
-    b_cov, _ = bias_cov(calib)  # a record it cannot read from: the experiment's bias check says so
+    b_cov, _ = bias_cov(calib)  # a record it cannot read: the experiment's bias check, or the mark, says so
     m = measure_image(load(stop["image"]), scs, a.rob_H_scn, a.abs_P_prev, P_at, kind=kind,
                       mark_size_mm=size_mm, roll_deg=a.roll_deg, pitch_deg=a.pitch_deg,
                       sigma_t_mm=s_t, sigma_px=MARK_SIGMA_PX, sigma_heading_rad=a.sigma_heading_rad,
@@ -229,6 +229,9 @@ def compute_measure_mark(obs: dict[str, Any], load: LoadImage) -> dict[str, Any]
     messages = [bad] if bad else ([f"σ scaled by {scale:.2f}: the calibration's last experiment ({source}) "
                                    f"found its stated σ short of its scatter by that factor"]
                                   if scale > 1.0 else [])
+    bad_cov = bias_cov(obs["calibration"])[1]
+    if bad_cov and "bias" in r["compensation"]["applied"]:  # no experiment here to say so: the mark does
+        messages.append(bad_cov)
     return {"schema": RESULT_SCHEMA, "procedure": MEASURE_MARK.name, "software": calib_version,
             "calibration_job": obs["calibration"].get("job"), "mark": r,
             "compensation": compensation_summary(comp, [r["compensation"]], obs["calibration"]),

@@ -124,6 +124,16 @@ def test_a_measure_mark_states_the_sigma_the_last_experiment_validated(base):
     assert plain["mark"]["std_mm"] == plain["mark"]["sigma"]["stated_mm"] and plain["messages"] == []
     assert scaled["mark"]["std_mm"] == pytest.approx(1.7 * plain["mark"]["std_mm"])
     assert scaled["mark"]["sigma"]["scale_source"] == "e1" and "(e1)" in scaled["messages"][0]
+    # a stored bias's covariance is a part of the mark it corrects; a record that is not one is named
+    biased = {**ref, "robot_bias_mm": [0.01, 0.0], "robot_bias": {"cov_mm2": [[4e-4, 0.0], [0.0, 1e-4]]}}
+    mark = compute_measure_mark({"calibration": biased, "stop": stop, "compensation": "bias"}, load)
+    assert mark["mark"]["sigma"]["parts_mm"]["bias"] == pytest.approx(np.sqrt(5e-4))
+    assert mark["messages"] == []
+    assert check_file(mark, "result", "result.json") == []
+    bad = {**biased, "robot_bias": {"cov_mm2": [[4e-4, 1.0], [0.0, 1e-4]]}}
+    odd = compute_measure_mark({"calibration": bad, "stop": stop, "compensation": "bias"}, load)
+    assert "bias" not in odd["mark"]["sigma"]["parts_mm"]
+    assert any("robot_bias.cov_mm2: [[0.0004, 1.0], [0.0, 0.0001]] is not" in m for m in odd["messages"])
 
 
 def test_a_weight_learned_under_other_conditions_warns_naming_both_and_reports_the_chord(base, tmp_path):
