@@ -181,6 +181,9 @@ def test_the_stored_bias_states_its_covariance_and_is_rechecked_where_it_is_appl
     C = np.array(cal["robot_bias"]["cov_mm2"])
     assert C.shape == (2, 2) and np.all(np.linalg.eigvalsh(C) > 0)
     assert C.tolist() == first["checks"]["bias"]["cov_mm2"]
+    # the stored calibration validates, and its new field is checked (a reader we did not write: jsonschema)
+    assert check_file(cal, "result", "active.json") == []
+    assert check_file({**cal, "robot_bias": {**cal["robot_bias"], "cov_mm2": [[1.0, 0.0]]}}, "result", "a.json")
     held = recompute(folder, compensation="tilt,bias,mount", calibration=cal)[0]
     check = held["checks"]["bias"]
     assert check["ok"] and check["chi2"] < 1e-6  # the same stops: nothing of b is left
