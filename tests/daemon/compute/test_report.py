@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from calibration.metrics import experiment_metrics
 from daemon.bus.datasets import check_file
 from daemon.compute.files import REPORT_FILES, write_result_files
-from daemon.compute.report_tables import METRICS_COLUMNS, stops_columns
+from daemon.compute.report_tables import METRICS_COLUMNS, SIGMA_PARTS, stops_columns
 
 HEADING = "the bend was fitted at 6 stops (the weight needs >= 8): the chord is used"
 
@@ -172,3 +173,13 @@ def test_a_long_header_makes_the_plot_taller_rather_than_cover_the_legend(writte
     short = height(plot_clusters(result))
     long = height(plot_clusters({**result, "messages": [f"reason {i}: " + "x " * 100 for i in range(12)]}))
     assert short == 800 and long > short + 200, (short, long)
+
+
+def test_every_sigma_part_is_a_documented_column_and_a_schema_part():
+    """report_stops.csv's std_<part>_mm columns, docs/datasets.md's table and the result schema's
+    ``sigma.parts_mm`` name the same parts (a part added to one and not the others fails here)."""
+    root = Path(__file__).resolve().parents[3]
+    doc = (root / "docs" / "datasets.md").read_text()
+    schema = json.loads((root / "daemon" / "bus" / "schemas" / "result.schema.json").read_text())
+    assert set(schema["$defs"]["mark_sigma"]["properties"]["parts_mm"]["properties"]) == set(SIGMA_PARTS)
+    assert [p for p in SIGMA_PARTS if f"`std_{p}_mm`" not in doc] == []
