@@ -17,11 +17,12 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(PY) -m fakes.demo
 
-# Three workers on the 2-core machine (much of the suite waits on daemons and devices, not the CPU),
+# Four workers on the 2-core machine (much of the suite waits on daemons and devices, not the CPU; a fourth
+# worker fills more of those waits than it costs: docs/benchmarks.md, "Test suite"),
 # whole files per worker: a module's shared daemon (the closed loops) is built once. The longest files
 # go first (tests/conftest.py LONGEST_FIRST; xdist's reordering by test count off) so none starts last.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder --durations=15
+	$(PY) -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder --durations=15
 
 # The suite beside 2 × cores pure CPU spinners (tools/under_load.py; they stop with the suite or when it is
 # killed): the check to run before a stop that the suite stays green on a busy machine (tests/README.md).
